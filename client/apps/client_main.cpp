@@ -1,0 +1,149 @@
+// telehand-client: the device PC side. Runs the 1 kHz haptic loop on an MF-2 (simulated by
+// default), opens a session on the server, streams every sample and renders the joint
+// model the server publishes.
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <csignal>
+#include <cstdio>
+#include <iostream>
+#include <unistd.h>
+
+#include "client/device/simulated_mf2.h"
+#include "client/link/client_link.h"
+#include "telehand/common/log.h"
+#include "telehand/common/wire.h"
+
+namespace {
+std::atomic<bool> g_stop{false};
+void onSignal(int) { g_stop.store(true); }
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace telehand;
+  using namespace std::chrono_literals;
+  CLI::App app{"telehand-client: run a session from the device PC. The simulated MF-2 is held "
+               "by a virtual clinician performing the paper's MCP mobilization."};
+  std::string config_path, device_kind = "sim", mode_name = "mobilization", case_name = "healthy";
+  std::string user = "student", log_level = "warn";
+  double seconds = 20.0, connect_timeout = 10.0;
+  bool quiet = false;
+  dds::Options dds_opts;
+  ClientConfig cfg;
+  app.add_option("-c,--config", config_path, "TOML file with [operator], [safety], [loop] tables")
+      ->check(CLI::ExistingFile);
+  app.add_option("--device", device_kind, "device driver")->check(CLI::IsMember({"sim"}))->capture_default_str();
+  app.add_option("--seconds", seconds, "session length (Ctrl-C ends it early)")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--mode", mode_name, "session mode")->check(CLI::IsMember({"mobilization", "exploration", "capture"}))->capture_default_str();
+  app.add_option("--case", case_name, "patient case on the server")->capture_default_str();
+  app.add_option("--user", user, "who is at the device")->capture_default_str();
+  auto* freq = app.add_option("--frequency", cfg.op.frequency_hz, "simulated mobilization frequency, Hz (1-6)");
+  auto* bmin = app.add_option("--band-min", cfg.op.band_min_n, "force band low end, N at reference scale");
+  auto* bmax = app.add_option("--band-max", cfg.op.band_max_n, "force band high end, N at reference scale");
+  auto* seed = app.add_option("--seed", cfg.op.seed, "simulated operator seed");
+  app.add_option("--domain", dds_opts.domain, "DDS domain id")->check(CLI::Range(0, 230));
+  app.add_option("--partition", dds_opts.partition, "DDS partition")->capture_default_str();
+  app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file");
+  app.add_option("--connect-timeout", connect_timeout, "seconds to wait for the server")->capture_default_str();
+  app.add_flag("-q,--quiet", quiet, "no progress line");
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  try {
+    setupLogging("telehand-client", log_level);
+    if (!config_path.empty()) {
+      const ClientConfig file = loadClientConfig(config_path);
+      const OperatorConfig cli_op = cfg.op;
+      cfg = file;
+      if (*freq) cfg.op.frequency_hz = cli_op.frequency_hz;
+      if (*bmin) cfg.op.band_min_n = cli_op.band_min_n;
+      if (*bmax) cfg.op.band_max_n = cli_op.band_max_n;
+      if (*seed) cfg.op.seed = cli_op.seed;
+    }
+    validate(cfg.op, "command line");
+
+    SteadyClock clock;
+    const JointModelParams initial = healthyIndexMcp();
+    client::device::SimulatedMf2 device(initial, cfg.op, clock);
+    client::loop::HapticLoop loop(device, clock, initial, cfg.safety, cfg.loop);
+    client::link::ClientLink link(dds_opts, loop);
+
+    client::link::OpenRequest req;
+    req.mode = *parseMode(mode_name);
+    req.case_name = case_name;
+    req.user = user;
+    const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(connect_timeout * 1000));
+    const uint64_t session = link.open(req, timeout);
+    if (!link.awaitModel(timeout)) {
+      throw Error("session " + std::to_string(session) + " opened but no JointModel arrived");
+    }
+    loop.setActuatorsEnabled(req.mode != telehand_msg_MODE_CAPTURE);
+    std::cout << "session " << session << " open: " << mode_name << " on case '" << case_name
+              << "', device " << device.name() << ", " << cfg.op.frequency_hz << " Hz in "
+              << cfg.op.band_min_n << "-" << cfg.op.band_max_n << " N" << std::endl;
+
+    std::signal(SIGINT, onSignal);
+    std::signal(SIGTERM, onSignal);
+    link.start();
+    loop.start();
+    const auto t0 = std::chrono::steady_clock::now();
+    const bool tty = isatty(STDOUT_FILENO) != 0;
+    double applied_min = 1e9, applied_max = 0.0;
+    auto next_print = t0 + 1s;
+    while (!g_stop.load()) {
+      std::this_thread::sleep_for(50ms);
+      const auto now = std::chrono::steady_clock::now();
+      const double t = std::chrono::duration<double>(now - t0).count();
+      const auto& h = loop.health();
+      if (t > cfg.op.ramp_s + 0.5) {
+        applied_min = std::min(applied_min, h.applied_ref_n.load());
+        applied_max = std::max(applied_max, h.applied_ref_n.load());
+      }
+      for (const auto& m : link.takeMessages()) std::cerr << "server: " << m << "\n";
+      if (t >= seconds) break;
+      if (!quiet && now >= next_print) {
+        next_print += 1s;
+        char line[200];
+        std::snprintf(line, sizeof line,
+                      "%s t=%5.1fs  sent %7llu  overruns %llu  force %.2f N  applied %5.1f N ref  model v%u",
+                      tty ? "\r" : "", t, static_cast<unsigned long long>(link.stats().samples_sent.load()),
+                      static_cast<unsigned long long>(h.overruns.load()), h.last_force_n.load(),
+                      h.applied_ref_n.load(), h.model_version.load());
+        std::cout << line << (tty ? "" : "\n") << std::flush;
+      }
+    }
+    loop.stop();
+    const double duration = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    link.stop();
+    if (!quiet && tty) std::cout << "\n";
+    const auto closed = link.close(15s);
+    const auto& h = loop.health();
+    const uint64_t sent = link.stats().samples_sent.load();
+    std::printf("summary: session %llu, %.1f s, %llu ticks, %llu samples sent (%llu in %llu record chunks)\n",
+                static_cast<unsigned long long>(session), duration,
+                static_cast<unsigned long long>(h.ticks.load()), static_cast<unsigned long long>(sent),
+                static_cast<unsigned long long>(link.stats().samples_chunked.load()),
+                static_cast<unsigned long long>(link.stats().chunks_sent.load()));
+    std::printf("  loop: %llu overruns, worst wake-up %.0f us late, %llu watchdog trips, "
+                "%llu clamps, %llu rate-limited, %llu samples dropped\n",
+                static_cast<unsigned long long>(h.overruns.load()), static_cast<double>(h.max_lateness_ns.load()) / 1e3,
+                static_cast<unsigned long long>(h.watchdog_trips.load()),
+                static_cast<unsigned long long>(h.clamped.load()),
+                static_cast<unsigned long long>(h.rate_limited.load()),
+                static_cast<unsigned long long>(h.samples_dropped.load()));
+    std::printf("  force: commanded up to %.2f N per finger; applied %.1f..%.1f N at reference scale "
+                "(band %.0f-%.0f N)\n",
+                h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max,
+                cfg.op.band_min_n, cfg.op.band_max_n);
+    if (!closed.confirmed) {
+      std::printf("  record: the server did not confirm the close within 15 s\n");
+      return 3;
+    }
+    std::printf("  record: %llu samples recorded, %llu missing, in %s\n",
+                static_cast<unsigned long long>(closed.samples_recorded),
+                static_cast<unsigned long long>(closed.samples_missing), closed.record.c_str());
+    return closed.samples_missing == 0 && closed.samples_recorded == sent ? 0 : 3;
+  } catch (const telehand::Error& e) {
+    std::cerr << "telehand-client: " << e.what() << "\n";
+    return 2;
+  }
+}

@@ -1,0 +1,234 @@
+#include "client/link/client_link.h"
+
+#include <random>
+
+#include "telehand/common/clock.h"
+#include "telehand/common/wire.h"
+
+namespace telehand::client::link {
+
+namespace {
+constexpr std::size_t kChunkSamples = 100;   // the record travels 10 chunks per second
+constexpr auto kChunkMaxAge = std::chrono::milliseconds(100);
+
+uint64_t randomClientId() {
+  std::random_device rd;
+  const uint64_t id = (static_cast<uint64_t>(rd()) << 32) ^ rd();
+  return id == 0 ? 1 : id;
+}
+}  // namespace
+
+ClientLink::ClientLink(const dds::Options& options, loop::HapticLoop& loop)
+    : loop_(loop),
+      participant_(options),
+      device_topic_(participant_, dds::topic::kDeviceState),
+      chunk_topic_(participant_, dds::topic::kRecordChunk),
+      model_topic_(participant_, dds::topic::kJointModel),
+      command_topic_(participant_, dds::topic::kSessionCommand),
+      status_topic_(participant_, dds::topic::kSessionStatus),
+      event_topic_(participant_, dds::topic::kSessionEvent),
+      device_writer_(participant_, device_topic_, dds::qos::deviceState()),
+      chunk_writer_(participant_, chunk_topic_, dds::qos::recordChunk()),
+      command_writer_(participant_, command_topic_, dds::qos::sessionCommand()),
+      model_reader_(participant_, model_topic_, dds::qos::jointModel()),
+      status_reader_(participant_, status_topic_, dds::qos::sessionStatus()),
+      event_reader_(participant_, event_topic_, dds::qos::sessionEvent()),
+      client_id_(randomClientId()) {
+  chunk_.reserve(kChunkSamples);
+}
+
+ClientLink::~ClientLink() { stop(); }
+
+uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (command_writer_.matchedReaders() == 0 || status_reader_.matchedWriters() == 0) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      const auto& o = participant_.options();
+      throw Error("no telehand server found within " + std::to_string(timeout.count()) +
+                  " ms on DDS domain " + std::to_string(o.domain) + ", partition '" +
+                  o.partition + "' (is telehand-server running with the same --domain, " +
+                  "--partition and --dds-config?)");
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  telehand_msg_SessionCommand cmd{};
+  cmd.client_id = client_id_;
+  cmd.request_seq = ++request_seq_;
+  cmd.source_time_ns = wallNs();
+  cmd.kind = telehand_msg_CMD_OPEN;
+  cmd.mode = req.mode;
+  copyString(cmd.case_name, req.case_name);
+  copyString(cmd.user, req.user);
+  copyString(cmd.text, "");
+  dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
+
+  while (std::chrono::steady_clock::now() < deadline) {
+    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
+      if (st.client_id == client_id_ && st.request_seq == cmd.request_seq) {
+        session_id_ = st.session_id;
+      }
+    });
+    pollEvents();
+    if (session_id_ != 0) {
+      loop_.setSession(session_id_);
+      return session_id_;
+    }
+    std::lock_guard lock(messages_mu_);
+    if (!messages_.empty()) throw Error("server refused the session: " + messages_.back());
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  throw Error("the server did not answer the session request within " +
+              std::to_string(timeout.count()) + " ms");
+}
+
+bool ClientLink::awaitModel(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    pollModels();
+    if (model_version_ != 0) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  return false;
+}
+
+void ClientLink::start() {
+  if (running_.exchange(true)) return;
+  chunk_started_ = std::chrono::steady_clock::now();
+  thread_ = std::thread([this] { run(); });
+}
+
+void ClientLink::stop() {
+  if (running_.exchange(false) && thread_.joinable()) thread_.join();
+  pump(true);
+}
+
+void ClientLink::run() {
+  pthread_setname_np(pthread_self(), "telehand-link");
+  while (running_.load(std::memory_order_acquire)) {
+    pump(false);
+    pollModels();
+    pollEvents();
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+}
+
+void ClientLink::pump(bool final_flush) {
+  telehand_msg_DeviceState s;
+  while (loop_.samples().tryPop(s)) {
+    if (device_writer_.write(s) < 0) stats_.live_write_errors.fetch_add(1);
+    stats_.samples_sent.fetch_add(1, std::memory_order_relaxed);
+    stats_.last_seq.store(s.seq, std::memory_order_relaxed);
+    if (chunk_.empty()) chunk_started_ = std::chrono::steady_clock::now();
+    chunk_.push_back(s);
+    if (chunk_.size() == kChunkSamples) flushChunk(false);
+  }
+  if (!chunk_.empty() &&
+      (final_flush || std::chrono::steady_clock::now() - chunk_started_ > kChunkMaxAge)) {
+    flushChunk(false);
+  }
+  if (final_flush) {
+    // Retry what the server has not accepted yet, for a bounded time.
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    while (!unsent_.empty() && std::chrono::steady_clock::now() < deadline) flushChunk(true);
+  } else if (!unsent_.empty()) {
+    flushChunk(true);
+  }
+}
+
+void ClientLink::flushChunk(bool retry_only) {
+  if (!retry_only && !chunk_.empty()) {
+    unsent_.push_back(std::move(chunk_));
+    chunk_ = {};
+    chunk_.reserve(kChunkSamples);
+  }
+  while (!unsent_.empty()) {
+    auto& samples = unsent_.front();
+    telehand_msg_RecordChunk c{};
+    c.session_id = session_id_;
+    c.chunk_seq = chunk_seq_;
+    c.samples._buffer = samples.data();
+    c.samples._length = static_cast<uint32_t>(samples.size());
+    c.samples._maximum = static_cast<uint32_t>(samples.size());
+    c.samples._release = false;
+    if (chunk_writer_.write(c) < 0) {  // writer blocked past max_blocking: keep it, retry
+      stats_.chunk_retries.fetch_add(1, std::memory_order_relaxed);
+      return;
+    }
+    ++chunk_seq_;
+    stats_.samples_chunked.fetch_add(samples.size(), std::memory_order_relaxed);
+    stats_.chunks_sent.fetch_add(1, std::memory_order_relaxed);
+    unsent_.pop_front();
+  }
+}
+
+void ClientLink::pollModels() {
+  model_reader_.take([&](const telehand_msg_JointModel& m, const dds_sample_info_t&) {
+    if (m.session_id != session_id_ || m.version <= model_version_) return;
+    std::string why;
+    auto params = fromWire(m, &why);
+    if (!params) {
+      stats_.models_rejected.fetch_add(1);
+      std::lock_guard lock(messages_mu_);
+      messages_.push_back("rejected JointModel v" + std::to_string(m.version) + ": " + why);
+      return;
+    }
+    if (loop_.models().tryPush(*params)) {
+      model_version_ = m.version;
+      stats_.models_received.fetch_add(1);
+    }
+  });
+}
+
+void ClientLink::pollEvents() {
+  event_reader_.take([&](const telehand_msg_SessionEvent& e, const dds_sample_info_t&) {
+    const bool mine = (session_id_ != 0 && e.session_id == session_id_) || e.client_id == client_id_;
+    if (!mine || e.kind != telehand_msg_EVENT_ERROR) return;
+    std::lock_guard lock(messages_mu_);
+    messages_.emplace_back(e.text);
+  });
+}
+
+std::vector<std::string> ClientLink::takeMessages() {
+  std::lock_guard lock(messages_mu_);
+  return std::exchange(messages_, {});
+}
+
+void ClientLink::mark(const std::string& text) {
+  telehand_msg_SessionCommand cmd{};
+  cmd.client_id = client_id_;
+  cmd.request_seq = ++request_seq_;
+  cmd.source_time_ns = wallNs();
+  cmd.kind = telehand_msg_CMD_MARK;
+  cmd.session_id = session_id_;
+  copyString(cmd.text, text);
+  command_writer_.write(cmd);
+}
+
+CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
+  CloseResult r;
+  const uint64_t sent = stats_.samples_sent.load();
+  telehand_msg_SessionCommand cmd{};
+  cmd.client_id = client_id_;
+  cmd.request_seq = ++request_seq_;
+  cmd.source_time_ns = wallNs();
+  cmd.kind = telehand_msg_CMD_CLOSE;
+  cmd.session_id = session_id_;
+  cmd.samples_sent = sent;
+  cmd.last_seq = sent == 0 ? 0 : stats_.last_seq.load();
+  if (command_writer_.write(cmd) < 0) return r;
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!r.confirmed && std::chrono::steady_clock::now() < deadline) {
+    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
+      if (st.session_id == session_id_ && st.state == telehand_msg_SESSION_CLOSED) {
+        r.confirmed = true;
+        r.samples_recorded = st.samples_recorded;
+        r.samples_missing = st.samples_missing;
+        r.record = st.record;
+      }
+    });
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return r;
+}
+
+}  // namespace telehand::client::link

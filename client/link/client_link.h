@@ -1,0 +1,107 @@
+#pragma once
+/// The client's link thread: drains the loop's sample ring into DeviceState (live,
+/// best-effort) and RecordChunk (the record, reliable), and brings JointModel updates from
+/// the server back into the loop's model ring. Opens and closes the session.
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client/loop/haptic_loop.h"
+#include "telehand/common/dds.h"
+
+namespace telehand::client::link {
+
+struct LinkStats {
+  std::atomic<uint64_t> samples_sent{0};       ///< DeviceState writes attempted
+  std::atomic<uint64_t> live_write_errors{0};
+  std::atomic<uint64_t> samples_chunked{0};    ///< samples handed to the reliable record path
+  std::atomic<uint64_t> chunks_sent{0};
+  std::atomic<uint64_t> chunk_retries{0};
+  std::atomic<uint64_t> models_received{0};
+  std::atomic<uint64_t> models_rejected{0};
+  std::atomic<uint64_t> last_seq{0};
+  std::atomic<uint32_t> server_recorded{0};
+};
+
+struct OpenRequest {
+  telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
+  std::string case_name = "healthy";
+  std::string user = "student";
+};
+
+struct CloseResult {
+  bool confirmed = false;      ///< the server reported the session closed
+  uint64_t samples_recorded = 0;
+  uint64_t samples_missing = 0;
+  std::string record;          ///< where the server keeps it
+};
+
+class ClientLink {
+ public:
+  ClientLink(const dds::Options& options, loop::HapticLoop& loop);
+  ~ClientLink();
+
+  /// Ask the server for a session; throws Error naming the domain and partition when no
+  /// server answers within `timeout`. Returns the session id.
+  uint64_t open(const OpenRequest& req, std::chrono::milliseconds timeout);
+  /// Wait for the session's first JointModel and hand it to the loop; false on timeout.
+  bool awaitModel(std::chrono::milliseconds timeout);
+
+  void start();
+  /// Drain every remaining sample and chunk (the loop must be stopped first).
+  void stop();
+  CloseResult close(std::chrono::milliseconds timeout);
+
+  /// Send a mark/feedback event into the session.
+  void mark(const std::string& text);
+
+  const LinkStats& stats() const noexcept { return stats_; }
+  uint64_t sessionId() const noexcept { return session_id_; }
+  uint64_t clientId() const noexcept { return client_id_; }
+  /// Events for this session or client (errors from the server), formatted; drained on read.
+  std::vector<std::string> takeMessages();
+
+ private:
+  void run();
+  void pump(bool final_flush);
+  void flushChunk(bool force);
+  void pollModels();
+  void pollEvents();
+
+  loop::HapticLoop& loop_;
+  dds::Participant participant_;
+  dds::Topic<telehand_msg_DeviceState> device_topic_;
+  dds::Topic<telehand_msg_RecordChunk> chunk_topic_;
+  dds::Topic<telehand_msg_JointModel> model_topic_;
+  dds::Topic<telehand_msg_SessionCommand> command_topic_;
+  dds::Topic<telehand_msg_SessionStatus> status_topic_;
+  dds::Topic<telehand_msg_SessionEvent> event_topic_;
+  dds::Writer<telehand_msg_DeviceState> device_writer_;
+  dds::Writer<telehand_msg_RecordChunk> chunk_writer_;
+  dds::Writer<telehand_msg_SessionCommand> command_writer_;
+  dds::Reader<telehand_msg_JointModel> model_reader_;
+  dds::Reader<telehand_msg_SessionStatus> status_reader_;
+  dds::Reader<telehand_msg_SessionEvent> event_reader_;
+
+  uint64_t client_id_;
+  uint32_t request_seq_ = 0;
+  uint64_t session_id_ = 0;
+  uint64_t chunk_seq_ = 0;
+  std::vector<telehand_msg_DeviceState> chunk_;
+  std::deque<std::vector<telehand_msg_DeviceState>> unsent_;  // chunks the server has not taken
+  std::chrono::steady_clock::time_point chunk_started_;
+  std::atomic<bool> running_{false};
+  std::thread thread_;
+  LinkStats stats_;
+  std::mutex messages_mu_;
+  std::vector<std::string> messages_;
+  uint32_t model_version_ = 0;
+};
+
+}  // namespace telehand::client::link

@@ -1,0 +1,161 @@
+#include "client/loop/haptic_loop.h"
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/prctl.h>
+#include <time.h>
+
+#include <cmath>
+
+#include "telehand/common/error.h"
+#include "telehand/common/thimble.h"
+
+namespace telehand::client::loop {
+
+namespace {
+void bump(std::atomic<uint64_t>& c) noexcept { c.fetch_add(1, std::memory_order_relaxed); }
+}  // namespace
+
+HapticLoop::HapticLoop(device::Device& device, const Clock& clock,
+                       const JointModelParams& initial_model, const SafetyLimits& limits,
+                       const LoopConfig& config)
+    : device_(device),
+      clock_(clock),
+      config_(config),
+      proxy_(initial_model),
+      gate_(limits),
+      samples_(std::make_unique<SampleRing>()),
+      models_(std::make_unique<ModelRing>()) {
+  health_.model_version.store(initial_model.version, std::memory_order_relaxed);
+}
+
+HapticLoop::~HapticLoop() { stop(); }
+
+StepStatus HapticLoop::step() noexcept {
+  const int64_t now = clock_.nowNs();
+  JointModelParams next;
+  while (models_->tryPop(next)) {
+    proxy_.setModel(next, now);
+    bump(health_.models_applied);
+    health_.model_version.store(next.version, std::memory_order_relaxed);
+  }
+
+  StepStatus status = StepStatus::kOk;
+  if (device_.read(sample_)) {
+    last_sample_time_ns_ = sample_.time_ns;
+  } else {
+    bump(health_.device_read_failures);
+    status = StepStatus::kNoSample;
+  }
+
+  PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};
+  const ProxyOutput rendered = proxy_.render(p, now);
+  PerFinger<Vec3> request = rendered.force_device_n;
+  if (!actuators_.load(std::memory_order_relaxed)) request = {Vec3::Zero(), Vec3::Zero()};
+  const SafetyOutput safe = gate_.apply(request, now, last_sample_time_ns_);
+  if (safe.flags & kSafetyWatchdog) bump(health_.watchdog_trips);
+  if (safe.flags & kSafetyNonFinite) bump(health_.nonfinite);
+  if (safe.flags & kSafetyClamped) bump(health_.clamped);
+  if (safe.flags & kSafetyRateLimited) bump(health_.rate_limited);
+  if (safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) status = StepStatus::kSafetyFault;
+
+  device::ForceCommand cmd;
+  cmd.force_n = safe.force_n;
+  if (!device_.write(cmd)) bump(health_.device_write_failures);
+
+  // The record of this tick.
+  telehand_msg_DeviceState s{};
+  s.session_id = session_id_.load(std::memory_order_relaxed);
+  s.seq = next_seq_.load(std::memory_order_relaxed);
+  s.source_time_ns = sample_.time_ns;
+  s.model_version = proxy_.version();
+  s.flags = safe.flags | (rendered.blending ? telehand_msg_kFlagModelBlending : 0u) |
+            (actuators_.load(std::memory_order_relaxed) ? 0u : telehand_msg_kFlagCapture);
+  Vec3 applied = Vec3::Zero();
+  double force_max = 0.0;
+  for (int k = 0; k < 2; ++k) {
+    const auto& f = sample_.fingers[k];
+    auto& w = s.fingers[k];
+    const ThimbleForces tf = thimbleForces(f.fsr_n);
+    applied += thimbleForceVector(tf, f.orientation);
+    w.tangential_n = static_cast<float>(tf.tangential_n);
+    w.normal_n = static_cast<float>(tf.normal_n);
+    for (int i = 0; i < 3; ++i) {
+      w.position_m[i] = f.position_m[i];
+      w.command_n[i] = safe.force_n[k][i];
+    }
+    w.orientation_q[0] = f.orientation.w();
+    w.orientation_q[1] = f.orientation.x();
+    w.orientation_q[2] = f.orientation.y();
+    w.orientation_q[3] = f.orientation.z();
+    for (int i = 0; i < 4; ++i) w.fsr_n[i] = f.fsr_n[i];
+    force_max = std::max(force_max, safe.force_n[k].norm());
+  }
+  for (int i = 0; i < 3; ++i) {
+    s.mcp_angles_rad[i] = rendered.angles_rad[i];
+    s.mcp_torque_nm[i] = rendered.torque_ref_nm[i];
+  }
+  if (samples_->tryPush(s)) {
+    next_seq_.store(s.seq + 1, std::memory_order_release);
+  } else {
+    bump(health_.samples_dropped);
+  }
+
+  const double scale = proxy_.model().params().force_scale;
+  health_.applied_ref_n.store(applied.norm() / scale, std::memory_order_relaxed);
+  health_.last_force_n.store((safe.force_n[0] + safe.force_n[1]).norm(),
+                             std::memory_order_relaxed);
+  if (force_max > health_.force_max_n.load(std::memory_order_relaxed)) {
+    health_.force_max_n.store(force_max, std::memory_order_relaxed);
+  }
+  bump(health_.ticks);
+  return status;
+}
+
+void HapticLoop::start() {
+  if (running_.exchange(true)) return;
+  thread_ = std::thread([this] { run(); });
+}
+
+void HapticLoop::stop() {
+  if (!running_.exchange(false)) return;
+  if (thread_.joinable()) thread_.join();
+  device_.write(device::ForceCommand{});
+}
+
+void HapticLoop::run() {
+  // FACTS.md: default timer slack wakes a 1 kHz sleep ~84 us late; 1 ns brings it to ~35 us.
+  prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+  pthread_setname_np(pthread_self(), "telehand-rt");
+  if (config_.rt_priority > 0) {
+    sched_param sp{};
+    sp.sched_priority = config_.rt_priority;
+    pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);  // best effort; counters show it
+  }
+  const int64_t period = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  int64_t deadline = ts.tv_sec * kNsPerS + ts.tv_nsec;
+  while (running_.load(std::memory_order_acquire)) {
+    step();
+    deadline += period;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    const int64_t now = ts.tv_sec * kNsPerS + ts.tv_nsec;
+    if (now > deadline) {
+      bump(health_.overruns);
+      if (now - deadline > 100 * period) deadline = now;  // after a long stall, resynchronize
+      continue;
+    }
+    ts.tv_sec = deadline / kNsPerS;
+    ts.tv_nsec = deadline % kNsPerS;
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    }
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    const int64_t late = ts.tv_sec * kNsPerS + ts.tv_nsec - deadline;
+    if (late > health_.max_lateness_ns.load(std::memory_order_relaxed)) {
+      health_.max_lateness_ns.store(late, std::memory_order_relaxed);
+    }
+  }
+}
+
+}  // namespace telehand::client::loop

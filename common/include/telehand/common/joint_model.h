@@ -1,0 +1,144 @@
+#pragma once
+/// The reduced model of the index MCP joint that both the client proxy and the server use,
+/// so that with zero delay both compute identical torques and forces.
+///
+/// Geometry. The joint frame J (origin and orientation given in the device frame) has x
+/// distal along the proximal phalanx at neutral, z dorsal, y = z × x. The phalanx frame is
+/// R_J · Ry(alpha) · Rz(beta) · Rx(gamma): alpha = flexion (+ toward the palm), beta =
+/// abduction, gamma = axial rotation (+ = supination, an assumption; see healthyIndexMcp).
+/// The student pinches the phalanx at the lever arm: the thumb on the dorsal side (+z of the
+/// phalanx), the index on the palmar side.
+///
+/// Torques. Per-axis torques are the generalized forces conjugate to (alpha, beta, gamma):
+/// tau_i = e_i · tau, with e_alpha = y_J, e_beta = Ry(alpha) z, e_gamma = the phalanx axis,
+/// and tau = sum over fingers of (p_i − c) × F_i (FACTS.md "Rendering").
+#include <array>
+#include <cstdint>
+#include <string_view>
+
+#include "telehand/common/math.h"
+
+namespace telehand {
+
+enum Axis : int { kFlexion = 0, kAbduction = 1, kAxial = 2 };
+constexpr int kAxes = 3;
+constexpr std::array<std::string_view, kAxes> kAxisNames = {"flexion", "abduction", "axial"};
+
+/// F(a) = c3 a^3 + c2 a^2 + c1 a + c0: the force in newtons, applied at the lever arm in the
+/// +angle direction, that holds the joint at angle a (degrees). Valid in [min_deg, max_deg];
+/// outside, the curve continues along its end slope plus a stiff end-of-range wall.
+struct CubicCurve {
+  std::array<double, 4> coeffs{};  ///< c3, c2, c1, c0
+  double min_deg = 0.0;
+  double max_deg = 0.0;
+
+  double eval(double deg) const noexcept;
+  double slope(double deg) const noexcept;  ///< dF/da in N/deg
+};
+
+/// Stiffness of the end-of-range wall beyond [min_deg, max_deg], N/deg at reference scale:
+/// 1 N/deg at 1 cm is 1.4 N/mm after the 1:4 device scale, under the 2 N/mm that a 1 kHz
+/// loop renders stably (FACTS.md "Stable wall").
+constexpr double kWallNPerDeg = 1.0;
+
+/// Everything the server owns and publishes about one joint (JointModel on the wire).
+struct JointModelParams {
+  uint32_t version = 0;
+  std::array<CubicCurve, kAxes> axes{};
+  double lever_arm_m = 0.01;          ///< paper: forces measured about 1 cm from the centre
+  double force_scale = 0.25;          ///< device force / reference force, paper: 1:4
+  double damping_nms_per_rad = 0.0;   ///< viscous term, reference scale
+  Vec3 joint_origin_m = Vec3::Zero();
+  Quat joint_orientation = Quat::Identity();
+  std::array<char, 64> case_name{};
+
+  bool operator==(const JointModelParams&) const = default;
+};
+
+/// The healthy index MCP of the paper: eqs. 3 (flexion), 4 (abduction), 5 (axial), with the
+/// range of motion of FACTS.md (flexion -45..90 deg, abduction ±20 deg) and, as a stated
+/// assumption since no reliable figures exist, axial rotation -10 (pronation) .. +15 deg
+/// (supination). Damping 0.002 N·m·s/rad: chosen so that viscous force stays under 5 % of
+/// the passive force during a 3 Hz mobilization at the 1 cm lever arm.
+JointModelParams healthyIndexMcp();
+
+/// Pure functions of an immutable parameter set. No allocation, no exceptions.
+class JointModel {
+ public:
+  explicit JointModel(const JointModelParams& params) : p_(params) {}
+  const JointModelParams& params() const noexcept { return p_; }
+
+  /// Reference-scale force (N at the lever arm) holding `axis` at `angle_rad`.
+  double holdingForceN(int axis, double angle_rad) const noexcept;
+
+  /// Passive (restoring) torque per axis at reference scale: −F(angle)·lever − b·rate.
+  Vec3 passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept;
+
+  /// MCP angles from the two thimble positions (device frame).
+  Vec3 anglesFromGrip(const PerFinger<Vec3>& p_device_finger) const noexcept;
+
+  /// Thimble positions that pinch the phalanx at the lever arm with the given half width.
+  PerFinger<Vec3> gripFromAngles(const Vec3& angles_rad, double half_width_m) const noexcept;
+
+  /// Thimble orientation: z = pad normal (into the phalanx), x = the phalanx axis.
+  Quat thimbleOrientation(int finger, const Vec3& angles_rad) const noexcept;
+
+  /// Fingertip forces (device frame) that together exert `axis_torque` on the joint: the net
+  /// force shared equally, the axial component as an equal and opposite couple.
+  PerFinger<Vec3> fingertipForces(const PerFinger<Vec3>& p_device_finger, const Vec3& angles_rad,
+                                  const Vec3& axis_torque_nm) const noexcept;
+
+  /// Per-axis torque that fingertip forces exert on the joint.
+  Vec3 axisTorque(const PerFinger<Vec3>& p_device_finger, const Vec3& angles_rad,
+                  const PerFinger<Vec3>& force_n) const noexcept;
+
+  /// Angle where the holding force is zero (the joint's rest angle on that axis), found by
+  /// bisection over the curve's valid range; the nearest range end if none is inside.
+  double restAngleRad(int axis) const noexcept;
+
+ private:
+  Mat3 phalanxRotation(const Vec3& angles_rad) const noexcept;  ///< device frame
+  Mat3 axisBasis(const Vec3& angles_rad) const noexcept;        ///< columns e_alpha, e_beta, e_gamma
+
+  JointModelParams p_;
+};
+
+/// What the proxy renders on one tick.
+struct ProxyOutput {
+  Vec3 angles_rad = Vec3::Zero();
+  Vec3 torque_ref_nm = Vec3::Zero();          ///< passive torque, reference scale
+  PerFinger<Vec3> force_device_n{Vec3::Zero(), Vec3::Zero()};  ///< before the safety gate
+  bool blending = false;
+};
+
+/// The client's local stand-in for the joint: renders at 1 kHz from the latest model the
+/// server published, and cross-fades to a new version over `blend_ns` so that an update
+/// causes no force step. Allocation-free.
+class JointProxy {
+ public:
+  explicit JointProxy(const JointModelParams& initial, int64_t blend_ns = 200'000'000);
+
+  /// Adopt a new model version; the cross-fade starts at `now_ns`.
+  void setModel(const JointModelParams& next, int64_t now_ns) noexcept;
+  uint32_t version() const noexcept { return current_.params().version; }
+  const JointModel& model() const noexcept { return current_; }
+
+  /// One tick: thimble positions -> angles -> passive torque -> device fingertip forces.
+  ProxyOutput render(const PerFinger<Vec3>& p_device_finger, int64_t now_ns) noexcept;
+
+ private:
+  ProxyOutput renderWith(const JointModel& m, const PerFinger<Vec3>& p, const Vec3& angles,
+                         const Vec3& rates) const noexcept;
+
+  JointModel current_;
+  JointModel previous_;
+  int64_t blend_ns_;
+  int64_t blend_start_ns_ = 0;
+  bool blending_ = false;
+  bool have_last_ = false;
+  int64_t last_ns_ = 0;
+  Vec3 last_angles_ = Vec3::Zero();
+  Vec3 rates_ = Vec3::Zero();
+};
+
+}  // namespace telehand

@@ -1,0 +1,209 @@
+#include "telehand/common/joint_model.h"
+
+#include <algorithm>
+#include <cstring>
+
+namespace telehand {
+
+double CubicCurve::eval(double deg) const noexcept {
+  auto poly = [this](double a) {
+    return ((coeffs[0] * a + coeffs[1]) * a + coeffs[2]) * a + coeffs[3];
+  };
+  if (deg > max_deg) {
+    const double excess = deg - max_deg;
+    return poly(max_deg) + (slope(max_deg) + kWallNPerDeg) * excess;
+  }
+  if (deg < min_deg) {
+    const double excess = deg - min_deg;  // negative
+    return poly(min_deg) + (slope(min_deg) + kWallNPerDeg) * excess;
+  }
+  return poly(deg);
+}
+
+double CubicCurve::slope(double deg) const noexcept {
+  const double a = std::clamp(deg, min_deg, max_deg);
+  return (3.0 * coeffs[0] * a + 2.0 * coeffs[1]) * a + coeffs[2];
+}
+
+JointModelParams healthyIndexMcp() {
+  JointModelParams p;
+  p.version = 1;
+  // Paper eqs. 3-5 (FACTS.md "The paper"); ranges from FACTS.md "Index MCP biomechanics".
+  p.axes[kFlexion] = {{1.834e-5, 0.0010338, 0.046382, 0.59057}, -45.0, 90.0};
+  p.axes[kAbduction] = {{0.00017, 0.0012, 0.13, -0.49}, -20.0, 20.0};
+  p.axes[kAxial] = {{0.0014, -0.014, 0.65, 0.09}, -10.0, 15.0};
+  p.lever_arm_m = 0.01;
+  p.force_scale = 0.25;
+  p.damping_nms_per_rad = 0.002;
+  constexpr char kName[] = "healthy";
+  std::memcpy(p.case_name.data(), kName, sizeof(kName));
+  return p;
+}
+
+double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
+  return p_.axes[static_cast<std::size_t>(axis)].eval(radToDeg(angle_rad));
+}
+
+Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept {
+  Vec3 tau;
+  for (int i = 0; i < kAxes; ++i) {
+    tau[i] = -holdingForceN(i, angles_rad[i]) * p_.lever_arm_m -
+             p_.damping_nms_per_rad * rates_rad_s[i];
+  }
+  return tau;
+}
+
+Mat3 JointModel::phalanxRotation(const Vec3& a) const noexcept {
+  const Mat3 r = (Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()) *
+                  Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()) *
+                  Eigen::AngleAxisd(a[kAxial], Vec3::UnitX()))
+                     .toRotationMatrix();
+  return p_.joint_orientation.toRotationMatrix() * r;
+}
+
+Mat3 JointModel::axisBasis(const Vec3& a) const noexcept {
+  const Mat3 rj = p_.joint_orientation.toRotationMatrix();
+  const Mat3 ry = Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()).toRotationMatrix();
+  const Mat3 rz = Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()).toRotationMatrix();
+  Mat3 e;
+  e.col(kFlexion) = rj * Vec3::UnitY();
+  e.col(kAbduction) = rj * ry * Vec3::UnitZ();
+  e.col(kAxial) = rj * ry * rz * Vec3::UnitX();
+  return e;
+}
+
+Vec3 JointModel::anglesFromGrip(const PerFinger<Vec3>& p) const noexcept {
+  const Mat3 rj_t = p_.joint_orientation.toRotationMatrix().transpose();
+  const Vec3 mid = rj_t * (0.5 * (p[kThumb] + p[kIndex]) - p_.joint_origin_m);
+  const double n = mid.norm();
+  if (n < 1e-9) return Vec3::Zero();
+  const Vec3 d = mid / n;
+  Vec3 a;
+  a[kFlexion] = std::atan2(-d.z(), d.x());
+  a[kAbduction] = std::asin(std::clamp(d.y(), -1.0, 1.0));
+  // Roll: the pinch line (index − thumb) seen in the phalanx frame before axial rotation.
+  const Mat3 r_ab = (Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()) *
+                     Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()))
+                        .toRotationMatrix();
+  const Vec3 s = r_ab.transpose() * (rj_t * (p[kIndex] - p[kThumb]));
+  a[kAxial] = std::atan2(s.y(), -s.z());
+  return a;
+}
+
+PerFinger<Vec3> JointModel::gripFromAngles(const Vec3& angles_rad,
+                                           double half_width_m) const noexcept {
+  const Mat3 r = phalanxRotation(angles_rad);
+  const Vec3 mid = p_.joint_origin_m + r.col(0) * p_.lever_arm_m;
+  const Vec3 dorsal = r.col(2);
+  return {mid + dorsal * half_width_m, mid - dorsal * half_width_m};
+}
+
+Quat JointModel::thimbleOrientation(int finger, const Vec3& angles_rad) const noexcept {
+  const Mat3 r = phalanxRotation(angles_rad);
+  Mat3 t;
+  t.col(0) = r.col(0);
+  t.col(2) = finger == kThumb ? Vec3(-r.col(2)) : Vec3(r.col(2));
+  t.col(1) = t.col(2).cross(t.col(0));
+  return Quat(t);
+}
+
+PerFinger<Vec3> JointModel::fingertipForces(const PerFinger<Vec3>& p, const Vec3& angles_rad,
+                                            const Vec3& axis_torque_nm) const noexcept {
+  const Mat3 e = axisBasis(angles_rad);
+  // Generalized torques are e^T tau, so tau = e^-T tau_gen.
+  const Vec3 tau = e.transpose().partialPivLu().solve(axis_torque_nm);
+  const Vec3 mid = 0.5 * (p[kThumb] + p[kIndex]);
+  const Vec3 r = mid - p_.joint_origin_m;
+  const double r2 = r.squaredNorm();
+  if (r2 < 1e-12 || !allFinite(tau)) return {Vec3::Zero(), Vec3::Zero()};
+  const Vec3 u = r / std::sqrt(r2);
+  const Vec3 tau_axial = u * u.dot(tau);
+  const Vec3 tau_perp = tau - tau_axial;
+  const Vec3 f_net = tau_perp.cross(r) / r2;  // r × f_net = tau_perp
+  PerFinger<Vec3> out{0.5 * f_net, 0.5 * f_net};
+  const Vec3 s = p[kIndex] - mid;  // index offset from the grip centre; thumb is −s
+  const Vec3 s_perp = s - u * u.dot(s);
+  const double s2 = s_perp.squaredNorm();
+  if (s2 > 1e-12) {
+    const Vec3 couple = tau_axial.cross(s_perp) / (2.0 * s2);  // s × couple = tau_axial / 2
+    out[kIndex] += couple;
+    out[kThumb] -= couple;
+  }
+  return out;
+}
+
+Vec3 JointModel::axisTorque(const PerFinger<Vec3>& p, const Vec3& angles_rad,
+                            const PerFinger<Vec3>& f) const noexcept {
+  const Vec3 c = p_.joint_origin_m;
+  const Vec3 tau = (p[kThumb] - c).cross(f[kThumb]) + (p[kIndex] - c).cross(f[kIndex]);
+  return axisBasis(angles_rad).transpose() * tau;
+}
+
+double JointModel::restAngleRad(int axis) const noexcept {
+  const CubicCurve& c = p_.axes[static_cast<std::size_t>(axis)];
+  double lo = c.min_deg, hi = c.max_deg;
+  const double f_lo = c.eval(lo), f_hi = c.eval(hi);
+  if (f_lo >= 0.0) return degToRad(lo);
+  if (f_hi <= 0.0) return degToRad(hi);
+  for (int i = 0; i < 60; ++i) {
+    const double m = 0.5 * (lo + hi);
+    (c.eval(m) < 0.0 ? lo : hi) = m;
+  }
+  return degToRad(0.5 * (lo + hi));
+}
+
+JointProxy::JointProxy(const JointModelParams& initial, int64_t blend_ns)
+    : current_(initial), previous_(initial), blend_ns_(blend_ns) {}
+
+void JointProxy::setModel(const JointModelParams& next, int64_t now_ns) noexcept {
+  previous_ = current_;
+  current_ = JointModel(next);
+  blend_start_ns_ = now_ns;
+  blending_ = blend_ns_ > 0;
+}
+
+ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p,
+                                   const Vec3& angles, const Vec3& rates) const noexcept {
+  ProxyOutput out;
+  out.angles_rad = angles;
+  out.torque_ref_nm = m.passiveTorqueNm(angles, rates);
+  out.force_device_n =
+      m.fingertipForces(p, angles, out.torque_ref_nm * m.params().force_scale);
+  return out;
+}
+
+ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcept {
+  const Vec3 angles = current_.anglesFromGrip(p);
+  if (have_last_ && now_ns > last_ns_) {
+    // First-order low-pass (5 ms) on the finite difference: encoder noise would otherwise
+    // dominate the damping term.
+    const double dt = static_cast<double>(now_ns - last_ns_) * 1e-9;
+    constexpr double kTau = 0.005;
+    const Vec3 raw = (angles - last_angles_) / dt;
+    rates_ += (dt / (kTau + dt)) * (raw - rates_);
+  }
+  have_last_ = true;
+  last_ns_ = now_ns;
+  last_angles_ = angles;
+
+  ProxyOutput out = renderWith(current_, p, angles, rates_);
+  if (blending_) {
+    const double w_lin = static_cast<double>(now_ns - blend_start_ns_) /
+                         static_cast<double>(blend_ns_);
+    if (w_lin >= 1.0) {
+      blending_ = false;
+    } else {
+      const double w = std::clamp(w_lin, 0.0, 1.0);
+      const double s = w * w * (3.0 - 2.0 * w);  // smoothstep: no slope step at either end
+      const ProxyOutput old = renderWith(previous_, p, angles, rates_);
+      out.torque_ref_nm = s * out.torque_ref_nm + (1.0 - s) * old.torque_ref_nm;
+      for (int k = 0; k < 2; ++k) {
+        out.force_device_n[k] = s * out.force_device_n[k] + (1.0 - s) * old.force_device_n[k];
+      }
+      out.blending = true;
+    }
+  }
+  return out;
+}
+
+}  // namespace telehand

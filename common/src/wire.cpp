@@ -1,0 +1,140 @@
+#include "telehand/common/wire.h"
+
+#include <cmath>
+
+namespace telehand {
+
+void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointModel& out) {
+  out.session_id = session_id;
+  out.version = p.version;
+  out.kind = telehand_msg_STIFFNESS_CUBIC;
+  for (int i = 0; i < kAxes; ++i) {
+    const auto& a = p.axes[static_cast<std::size_t>(i)];
+    for (int c = 0; c < 4; ++c) out.axes[i].coeffs[c] = a.coeffs[static_cast<std::size_t>(c)];
+    out.axes[i].min_deg = a.min_deg;
+    out.axes[i].max_deg = a.max_deg;
+  }
+  out.lever_arm_m = p.lever_arm_m;
+  out.force_scale = p.force_scale;
+  out.damping_nms_per_rad = p.damping_nms_per_rad;
+  for (int i = 0; i < 3; ++i) out.joint_origin_m[i] = p.joint_origin_m[i];
+  out.joint_orientation_q[0] = p.joint_orientation.w();
+  out.joint_orientation_q[1] = p.joint_orientation.x();
+  out.joint_orientation_q[2] = p.joint_orientation.y();
+  out.joint_orientation_q[3] = p.joint_orientation.z();
+  copyString(out.case_name, std::string_view(p.case_name.data()));
+}
+
+std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::string* why) {
+  auto bad = [why](std::string w) -> std::optional<JointModelParams> {
+    if (why) *why = std::move(w);
+    return std::nullopt;
+  };
+  JointModelParams p;
+  p.version = m.version;
+  for (int i = 0; i < kAxes; ++i) {
+    auto& a = p.axes[static_cast<std::size_t>(i)];
+    for (int c = 0; c < 4; ++c) {
+      if (!std::isfinite(m.axes[i].coeffs[c])) {
+        return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) + " coefficient " +
+                   std::to_string(c) + " is not finite");
+      }
+      a.coeffs[static_cast<std::size_t>(c)] = m.axes[i].coeffs[c];
+    }
+    a.min_deg = m.axes[i].min_deg;
+    a.max_deg = m.axes[i].max_deg;
+    if (!(a.min_deg < a.max_deg)) {
+      return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) + " range is empty");
+    }
+  }
+  p.lever_arm_m = m.lever_arm_m;
+  p.force_scale = m.force_scale;
+  p.damping_nms_per_rad = m.damping_nms_per_rad;
+  if (!(p.lever_arm_m > 0.0 && p.lever_arm_m < 0.2)) return bad("lever_arm_m out of (0, 0.2)");
+  if (!(p.force_scale > 0.0 && p.force_scale <= 1.0)) return bad("force_scale out of (0, 1]");
+  if (!(p.damping_nms_per_rad >= 0.0 && p.damping_nms_per_rad < 1.0)) {
+    return bad("damping_nms_per_rad out of [0, 1)");
+  }
+  p.joint_origin_m = Vec3(m.joint_origin_m[0], m.joint_origin_m[1], m.joint_origin_m[2]);
+  p.joint_orientation = Quat(m.joint_orientation_q[0], m.joint_orientation_q[1],
+                             m.joint_orientation_q[2], m.joint_orientation_q[3]);
+  if (!allFinite(p.joint_origin_m) || !std::isfinite(p.joint_orientation.norm()) ||
+      std::abs(p.joint_orientation.norm() - 1.0) > 1e-3) {
+    return bad("joint frame is not finite or not a unit quaternion");
+  }
+  p.joint_orientation.normalize();
+  std::memcpy(p.case_name.data(), m.case_name, std::min(sizeof(m.case_name), p.case_name.size()));
+  p.case_name.back() = '\0';
+  return p;
+}
+
+std::optional<std::string> firstNonFinite(const telehand_msg_DeviceState& s) {
+  for (int k = 0; k < 2; ++k) {
+    const auto& f = s.fingers[k];
+    const std::string finger = k == 0 ? "fingers[0] (thumb)" : "fingers[1] (index)";
+    for (int i = 0; i < 3; ++i) {
+      if (!std::isfinite(f.position_m[i])) return finger + ".position_m[" + std::to_string(i) + "]";
+      if (!std::isfinite(f.command_n[i])) return finger + ".command_n[" + std::to_string(i) + "]";
+    }
+    for (int i = 0; i < 4; ++i) {
+      if (!std::isfinite(f.orientation_q[i])) {
+        return finger + ".orientation_q[" + std::to_string(i) + "]";
+      }
+      if (!std::isfinite(f.fsr_n[i])) return finger + ".fsr_n[" + std::to_string(i) + "]";
+    }
+    if (!std::isfinite(f.tangential_n)) return finger + ".tangential_n";
+    if (!std::isfinite(f.normal_n)) return finger + ".normal_n";
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (!std::isfinite(s.mcp_angles_rad[i])) return "mcp_angles_rad[" + std::to_string(i) + "]";
+    if (!std::isfinite(s.mcp_torque_nm[i])) return "mcp_torque_nm[" + std::to_string(i) + "]";
+  }
+  return std::nullopt;
+}
+
+PerFinger<Vec3> thimblePositions(const telehand_msg_DeviceState& s) noexcept {
+  PerFinger<Vec3> p;
+  for (int k = 0; k < 2; ++k) {
+    p[k] = Vec3(s.fingers[k].position_m[0], s.fingers[k].position_m[1],
+                s.fingers[k].position_m[2]);
+  }
+  return p;
+}
+
+std::string_view modeName(telehand_msg_SessionMode m) noexcept {
+  switch (m) {
+    case telehand_msg_MODE_MOBILIZATION: return "mobilization";
+    case telehand_msg_MODE_EXPLORATION: return "exploration";
+    case telehand_msg_MODE_CAPTURE: return "capture";
+  }
+  return "unknown";
+}
+
+std::optional<telehand_msg_SessionMode> parseMode(std::string_view name) noexcept {
+  if (name == "mobilization") return telehand_msg_MODE_MOBILIZATION;
+  if (name == "exploration") return telehand_msg_MODE_EXPLORATION;
+  if (name == "capture") return telehand_msg_MODE_CAPTURE;
+  return std::nullopt;
+}
+
+std::string_view stateName(telehand_msg_SessionState s) noexcept {
+  switch (s) {
+    case telehand_msg_SESSION_ACTIVE: return "active";
+    case telehand_msg_SESSION_CLOSING: return "closing";
+    case telehand_msg_SESSION_CLOSED: return "closed";
+  }
+  return "unknown";
+}
+
+std::string_view eventKindName(telehand_msg_EventKind k) noexcept {
+  switch (k) {
+    case telehand_msg_EVENT_INFO: return "info";
+    case telehand_msg_EVENT_MARK: return "mark";
+    case telehand_msg_EVENT_FEEDBACK: return "feedback";
+    case telehand_msg_EVENT_SCORE: return "score";
+    case telehand_msg_EVENT_ERROR: return "error";
+  }
+  return "unknown";
+}
+
+}  // namespace telehand

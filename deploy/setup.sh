@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Installs, with apt, exactly the Debian 12 packages telehand needs to build, test and run.
+# Idempotent: packages already present are left alone and apt is not called at all
+# when nothing is missing.
+set -euo pipefail
+
+packages=(
+  # toolchain
+  g++ cmake ninja-build pkg-config
+  # DDS (C API, idlc, ddsperf)
+  cyclonedds-dev cyclonedds-tools
+  # maths, physics, USB, nearest neighbours
+  libeigen3-dev libbullet-dev libusb-1.0-0-dev libflann-dev
+  # records, CLI, logs, config
+  libsqlite3-dev libcli11-dev libspdlog-dev libtomlplusplus-dev
+  # tests and benchmarks
+  libgtest-dev libgmock-dev libbenchmark-dev
+  # network namespaces for system tests
+  iproute2
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "setup: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+echo "setup: installing ${missing[*]}"
+sudo_cmd=()
+if [ "$(id -u)" -ne 0 ]; then
+  command -v sudo >/dev/null || { echo "setup: need root or sudo to install: ${missing[*]}" >&2; exit 1; }
+  sudo_cmd=(sudo)
+fi
+export DEBIAN_FRONTEND=noninteractive
+"${sudo_cmd[@]}" apt-get update -qq
+"${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"

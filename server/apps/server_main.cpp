@@ -1,0 +1,76 @@
+// telehand-server: hosts sessions, keeps every record, publishes joint models and hand state.
+#include <CLI/CLI.hpp>
+#include <csignal>
+#include <iostream>
+
+#include "server/link/server_link.h"
+#include "server/session/sqlite_store.h"
+#include "telehand/common/log.h"
+
+namespace {
+std::atomic<bool> g_stop{false};
+void onSignal(int) { g_stop.store(true); }
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace telehand;
+  CLI::App app{"telehand-server: authoritative session host. Opens and closes sessions on "
+               "request, records every DeviceState sample to SQLite (WAL), publishes each "
+               "session's JointModel and a decimated HandState, and echoes latency probes."};
+  std::string config_path, db, log_level = "info";
+  dds::Options dds_opts;
+  double seconds = 0.0, hand_hz = 0.0;
+  app.add_option("-c,--config", config_path, "TOML file with a [server] table")->check(CLI::ExistingFile);
+  app.add_option("--db", db, "record database (overrides server.db; default records/telehand.db)");
+  app.add_option("--hand-rate", hand_hz, "HandState rate in Hz (60-100 recommended)");
+  app.add_option("--domain", dds_opts.domain, "DDS domain id")->check(CLI::Range(0, 230));
+  app.add_option("--partition", dds_opts.partition, "DDS partition")->capture_default_str();
+  app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
+  app.add_option("--seconds", seconds, "stop after this many seconds (0 = until Ctrl-C)");
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  try {
+    setupLogging("telehand-server", log_level);
+    ServerConfig cfg = config_path.empty() ? ServerConfig{} : loadServerConfig(config_path);
+    if (!db.empty()) cfg.db_path = db;
+    if (hand_hz > 0.0) cfg.hand_state_hz = hand_hz;
+
+    server::session::SqliteStore store(cfg.db_path);
+    server::link::ServerLink link(dds_opts);
+    server::session::SessionManager manager(store, link, cfg);
+    std::signal(SIGINT, onSignal);
+    std::signal(SIGTERM, onSignal);
+    spdlog::info("serving on DDS domain {} partition '{}', records in {}", dds_opts.domain,
+                 dds_opts.partition, store.location());
+
+    std::atomic<bool> stop{false};
+    std::thread timer;
+    const auto t0 = std::chrono::steady_clock::now();
+    std::thread watchdog([&] {
+      while (!stop.load()) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        const bool timed_out = seconds > 0.0 && std::chrono::steady_clock::now() - t0 >
+                                                    std::chrono::duration<double>(seconds);
+        if (g_stop.load() || timed_out) {
+          stop.store(true);
+          link.wake();
+        }
+      }
+    });
+    const auto tick = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / cfg.hand_state_hz));
+    link.serve(manager, stop, tick);
+    stop.store(true);
+    watchdog.join();
+    const auto& st = manager.stats();
+    const auto& lc = link.counters();
+    spdlog::info("stopped: {} samples recorded, {} live, {} non-finite, {} for unknown sessions, "
+                 "{} bad commands, {} store errors, {} echoes",
+                 st.recorded_samples, st.live_samples, st.nonfinite_samples,
+                 st.unknown_session_samples, st.bad_commands, st.store_errors, lc.echoes.load());
+    return 0;
+  } catch (const telehand::Error& e) {
+    std::cerr << "telehand-server: " << e.what() << "\n";
+    return 2;
+  }
+}

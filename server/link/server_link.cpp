@@ -1,0 +1,107 @@
+#include "server/link/server_link.h"
+
+#include <pthread.h>
+
+#include "telehand/common/clock.h"
+
+namespace telehand::server::link {
+
+namespace {
+// The server takes the live stream in batches; a deep reader history keeps a slow tick
+// (a large SQLite commit) from overwriting samples that HandState and the rate need.
+constexpr int32_t kDeviceReaderDepth = 256;
+enum Attach : dds_attach_t { kWake = 1, kCommands, kDevice, kChunks };
+}  // namespace
+
+ServerLink::ServerLink(const dds::Options& options)
+    : participant_(options),
+      device_topic_(participant_, dds::topic::kDeviceState),
+      chunk_topic_(participant_, dds::topic::kRecordChunk),
+      model_topic_(participant_, dds::topic::kJointModel),
+      hand_topic_(participant_, dds::topic::kHandState),
+      command_topic_(participant_, dds::topic::kSessionCommand),
+      status_topic_(participant_, dds::topic::kSessionStatus),
+      event_topic_(participant_, dds::topic::kSessionEvent),
+      ping_topic_(participant_, dds::topic::kLatencyPing),
+      pong_topic_(participant_, dds::topic::kLatencyPong),
+      device_reader_(participant_, device_topic_, dds::qos::deviceStateReader(kDeviceReaderDepth)),
+      chunk_reader_(participant_, chunk_topic_, dds::qos::recordChunk()),
+      command_reader_(participant_, command_topic_, dds::qos::sessionCommand()),
+      model_writer_(participant_, model_topic_, dds::qos::jointModel()),
+      hand_writer_(participant_, hand_topic_, dds::qos::handState()),
+      status_writer_(participant_, status_topic_, dds::qos::sessionStatus()),
+      event_writer_(participant_, event_topic_, dds::qos::sessionEvent()),
+      ping_reader_(participant_, ping_topic_, dds::qos::latencyProbe()),
+      pong_writer_(participant_, pong_topic_, dds::qos::latencyProbe()),
+      wake_(participant_),
+      echo_stop_(participant_),
+      waitset_(participant_),
+      echo_waitset_(participant_) {
+  waitset_.attach(wake_.handle(), kWake);
+  waitset_.attach(command_reader_.handle(), kCommands);
+  waitset_.attach(device_reader_.handle(), kDevice);
+  waitset_.attach(chunk_reader_.handle(), kChunks);
+  echo_waitset_.attach(echo_stop_.handle(), kWake);
+  echo_waitset_.attach(ping_reader_.handle(), kDevice);
+  echo_thread_ = std::thread([this] { echoLoop(); });
+}
+
+ServerLink::~ServerLink() {
+  echo_running_.store(false);
+  echo_stop_.trigger();
+  if (echo_thread_.joinable()) echo_thread_.join();
+}
+
+void ServerLink::publish(const telehand_msg_SessionStatus& s) {
+  if (status_writer_.write(s) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_JointModel& m) {
+  if (model_writer_.write(m) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_HandState& h) {
+  if (hand_writer_.write(h) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_SessionEvent& e) {
+  if (event_writer_.write(e) < 0) counters_.publish_errors.fetch_add(1);
+}
+
+void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>& stop,
+                       std::chrono::nanoseconds tick) {
+  SteadyClock clock;
+  while (!stop.load(std::memory_order_acquire)) {
+    waitset_.wait(tick);
+    wake_.clear();
+    const int64_t now = clock.nowNs();
+    // Commands first so that an OPEN is known before its first samples are handled.
+    counters_.commands += command_reader_.take(
+        [&](const telehand_msg_SessionCommand& c, const dds_sample_info_t&) {
+          manager.onCommand(c, now);
+        });
+    counters_.chunks += chunk_reader_.take(
+        [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t&) { manager.onChunk(c, now); },
+        1024);
+    counters_.device_states += device_reader_.take(
+        [&](const telehand_msg_DeviceState& d, const dds_sample_info_t&) {
+          manager.onDeviceState(d, now);
+        },
+        4096);
+    manager.tick(clock.nowNs());
+  }
+  // Whatever is still in the readers belongs in the record.
+  const int64_t now = clock.nowNs();
+  chunk_reader_.take(
+      [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t&) { manager.onChunk(c, now); },
+      SIZE_MAX);
+  manager.closeAll(now);
+}
+
+void ServerLink::echoLoop() {
+  pthread_setname_np(pthread_self(), "telehand-echo");
+  while (echo_running_.load(std::memory_order_acquire)) {
+    echo_waitset_.wait(std::chrono::milliseconds(200));
+    counters_.echoes += ping_reader_.take(
+        [&](const telehand_msg_DeviceState& s, const dds_sample_info_t&) { pong_writer_.write(s); });
+  }
+}
+
+}  // namespace telehand::server::link

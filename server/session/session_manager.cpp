@@ -1,0 +1,371 @@
+#include "server/session/session_manager.h"
+
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+
+#include "telehand/common/clock.h"
+#include "telehand/common/error.h"
+#include "telehand/common/thimble.h"
+#include "telehand/common/wire.h"
+
+namespace telehand::server::session {
+
+struct SessionManager::Session {
+  SessionInfo info;
+  uint64_t client_id = 0;
+  uint32_t request_seq = 0;  // the OPEN this session answers
+  telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
+  JointModelParams params;
+  JointModel model{params};
+  // live stream
+  bool have_live = false;
+  telehand_msg_DeviceState last{};
+  uint64_t live_count = 0;
+  uint64_t live_lost = 0;
+  int64_t last_data_ns = 0;
+  int64_t rate_window_ns = 0;
+  uint64_t rate_window_count = 0;
+  float rate_hz = 0.0f;
+  Vec3 prev_angles = Vec3::Zero();
+  int64_t prev_angles_ns = 0;
+  // record
+  uint64_t recorded = 0;
+  std::vector<telehand_msg_DeviceState> pending;  // not yet stored (store error): retried
+  std::vector<uint8_t> pending_valid;
+  uint64_t nonfinite = 0;
+  int64_t nonfinite_reported_ns = INT64_MIN / 2;
+  // HandState
+  uint64_t hand_seq = 0;
+  int64_t next_hand_ns = 0;
+  // closing
+  bool closing = false;
+  uint64_t expected = 0;
+  int64_t close_deadline_ns = 0;
+};
+
+SessionManager::SessionManager(SessionStore& store, Outbox& out, const ServerConfig& config)
+    : store_(store), out_(out), config_(config) {}
+
+SessionManager::~SessionManager() = default;
+
+void SessionManager::event(uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
+                           const std::string& text, int64_t now_ns) {
+  (void)now_ns;
+  telehand_msg_SessionEvent e{};
+  e.session_id = session_id;
+  e.seq = ++event_seq_;
+  e.source_time_ns = wallNs();
+  e.kind = kind;
+  e.client_id = client_id;
+  copyString(e.text, text);
+  out_.publish(e);
+  if (session_id != 0 && sessions_.count(session_id)) {
+    try {
+      store_.appendEvent(session_id, {e.source_time_ns, std::string(eventKindName(kind)), text});
+    } catch (const StoreError& err) {
+      ++stats_.store_errors;
+      spdlog::error("{}", err.what());
+    }
+  }
+  if (kind == telehand_msg_EVENT_ERROR) {
+    spdlog::warn("session {}: {}", session_id, text);
+  } else {
+    spdlog::info("session {}: {}", session_id, text);
+  }
+}
+
+void SessionManager::unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns) {
+  auto [it, fresh] = unknown_reported_ns_.try_emplace(session_id, now_ns);
+  if (!fresh && now_ns - it->second < 5 * kNsPerS) return;
+  it->second = now_ns;
+  event(0, 0, telehand_msg_EVENT_ERROR,
+        what + " for unknown session " + std::to_string(session_id) + " dropped", now_ns);
+}
+
+void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
+  switch (cmd.kind) {
+    case telehand_msg_CMD_OPEN:
+      open(cmd, now_ns);
+      return;
+    case telehand_msg_CMD_CLOSE:
+      requestClose(cmd, now_ns);
+      return;
+    case telehand_msg_CMD_MARK: {
+      if (!sessions_.count(cmd.session_id)) {
+        ++stats_.bad_commands;
+        event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+              "MARK for unknown session " + std::to_string(cmd.session_id), now_ns);
+        return;
+      }
+      event(cmd.session_id, cmd.client_id, telehand_msg_EVENT_MARK, cmd.text, now_ns);
+      return;
+    }
+  }
+  ++stats_.bad_commands;
+  event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+        "unknown command kind " + std::to_string(static_cast<int>(cmd.kind)), now_ns);
+}
+
+void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
+  const std::string case_name = cmd.case_name;
+  // Patient cases arrive with the hand simulation; until then the paper's healthy joint.
+  if (case_name != "healthy") {
+    ++stats_.bad_commands;
+    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+          "unknown patient case '" + case_name + "' (known: healthy)", now_ns);
+    return;
+  }
+  SessionInfo info;
+  info.user = cmd.user;
+  info.case_name = case_name;
+  info.mode = std::string(modeName(cmd.mode));
+  info.state = "active";
+  info.started_ns = wallNs();
+  try {
+    info.id = store_.createSession(info);
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+          std::string("cannot open a session record: ") + e.what(), now_ns);
+    return;
+  }
+  Session& s = sessions_[info.id];
+  s.info = info;
+  s.client_id = cmd.client_id;
+  s.mode = cmd.mode;
+  s.params = healthyIndexMcp();
+  s.model = JointModel(s.params);
+  s.last_data_ns = now_ns;
+  s.rate_window_ns = now_ns;
+  s.next_hand_ns = now_ns;
+
+  s.request_seq = cmd.request_seq;
+  publishStatus(s, telehand_msg_SESSION_ACTIVE, now_ns);
+  telehand_msg_JointModel m{};
+  toWire(s.params, s.info.id, m);
+  m.source_time_ns = wallNs();
+  out_.publish(m);
+  event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
+        "opened: " + info.mode + " on case '" + case_name + "' for " + info.user, now_ns);
+}
+
+void SessionManager::publishStatus(const Session& s, telehand_msg_SessionState state,
+                                   int64_t now_ns) {
+  (void)now_ns;
+  telehand_msg_SessionStatus st{};
+  st.session_id = s.info.id;
+  st.client_id = s.client_id;
+  st.request_seq = s.request_seq;
+  st.source_time_ns = wallNs();
+  st.state = state;
+  st.mode = s.mode;
+  st.started_ns = s.info.started_ns;
+  st.ended_ns = state == telehand_msg_SESSION_CLOSED ? wallNs() : 0;
+  st.samples_recorded = s.recorded;
+  st.samples_missing = state == telehand_msg_SESSION_CLOSED && s.expected > s.recorded
+                           ? s.expected - s.recorded
+                           : 0;
+  copyString(st.case_name, s.info.case_name);
+  copyString(st.user, s.info.user);
+  copyString(st.record, store_.location() + " session " + std::to_string(s.info.id));
+  out_.publish(st);
+}
+
+void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
+  auto it = sessions_.find(cmd.session_id);
+  if (it == sessions_.end()) {
+    ++stats_.bad_commands;
+    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+          "CLOSE for unknown session " + std::to_string(cmd.session_id), now_ns);
+    return;
+  }
+  Session& s = it->second;
+  s.closing = true;
+  s.expected = cmd.samples_sent;
+  s.close_deadline_ns = now_ns + static_cast<int64_t>(config_.close_grace_s * 1e9);
+  publishStatus(s, telehand_msg_SESSION_CLOSING, now_ns);
+}
+
+void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t now_ns) {
+  auto it = sessions_.find(d.session_id);
+  if (it == sessions_.end()) {
+    ++stats_.unknown_session_samples;
+    unknownSession(d.session_id, "DeviceState", now_ns);
+    return;
+  }
+  Session& s = it->second;
+  s.last_data_ns = now_ns;
+  if (auto bad = firstNonFinite(d)) {
+    ++stats_.nonfinite_samples;
+    ++s.nonfinite;
+    if (now_ns - s.nonfinite_reported_ns > 5 * kNsPerS) {
+      s.nonfinite_reported_ns = now_ns;
+      event(s.info.id, s.client_id, telehand_msg_EVENT_ERROR,
+            "DeviceState seq " + std::to_string(d.seq) + " has a non-finite " + *bad +
+                "; not used for the hand state (" + std::to_string(s.nonfinite) + " so far)",
+            now_ns);
+    }
+    return;
+  }
+  ++stats_.live_samples;
+  if (s.have_live && d.seq > s.last.seq + 1) s.live_lost += d.seq - s.last.seq - 1;
+  if (!s.have_live || d.seq > s.last.seq) s.last = d;
+  s.have_live = true;
+  ++s.live_count;
+}
+
+void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns) {
+  std::vector<telehand_msg_DeviceState> samples(c.samples._buffer,
+                                                c.samples._buffer + c.samples._length);
+  std::vector<uint8_t> valid(samples.size(), 1);
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    valid[i] = !firstNonFinite(samples[i]).has_value() && samples[i].session_id == c.session_id;
+  }
+  auto it = sessions_.find(c.session_id);
+  if (it == sessions_.end()) {
+    // A late chunk for a session that already closed still belongs in its record.
+    try {
+      if (store_.session(c.session_id)) {
+        const uint64_t added = store_.appendSamples(c.session_id, samples, valid);
+        stats_.recorded_samples += added;
+        spdlog::info("session {}: {} late samples stored after close", c.session_id, added);
+        return;
+      }
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("{}", e.what());
+    }
+    ++stats_.unknown_session_samples;
+    unknownSession(c.session_id, "RecordChunk", now_ns);
+    return;
+  }
+  Session& s = it->second;
+  s.last_data_ns = now_ns;
+  store(s, std::move(samples), std::move(valid));
+}
+
+void SessionManager::store(Session& s, std::vector<telehand_msg_DeviceState>&& samples,
+                           std::vector<uint8_t>&& valid) {
+  s.pending.insert(s.pending.end(), samples.begin(), samples.end());
+  s.pending_valid.insert(s.pending_valid.end(), valid.begin(), valid.end());
+  if (s.pending.empty()) return;
+  try {
+    const uint64_t added = store_.appendSamples(s.info.id, s.pending, s.pending_valid);
+    s.recorded += added;
+    stats_.recorded_samples += added;
+    s.pending.clear();
+    s.pending_valid.clear();
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("session {}: {} ({} samples kept in memory, retrying)", s.info.id, e.what(),
+                  s.pending.size());
+  }
+}
+
+void SessionManager::publishHand(Session& s, int64_t now_ns) {
+  (void)now_ns;
+  telehand_msg_HandState h{};
+  h.session_id = s.info.id;
+  h.seq = s.hand_seq++;
+  h.source_time_ns = wallNs();
+  h.source = telehand_msg_HAND_SOURCE_SHARED_JOINT_MODEL;
+  h.device_rate_hz = s.rate_hz;
+  h.device_lost = s.live_lost;
+  h.model_version = s.params.version;
+  if (s.have_live) {
+    const auto& d = s.last;
+    h.device_seq = d.seq;
+    h.device_time_ns = d.source_time_ns;
+    const PerFinger<Vec3> p = thimblePositions(d);
+    const Vec3 angles = s.model.anglesFromGrip(p);
+    Vec3 rates = Vec3::Zero();
+    if (s.prev_angles_ns != 0 && d.source_time_ns > s.prev_angles_ns) {
+      rates = (angles - s.prev_angles) / (static_cast<double>(d.source_time_ns - s.prev_angles_ns) * 1e-9);
+    }
+    s.prev_angles = angles;
+    s.prev_angles_ns = d.source_time_ns;
+    const Vec3 tau = s.model.passiveTorqueNm(angles, rates);
+    Vec3 applied = Vec3::Zero();
+    for (int k = 0; k < 2; ++k) {
+      const auto& f = d.fingers[k];
+      const Quat q(f.orientation_q[0], f.orientation_q[1], f.orientation_q[2], f.orientation_q[3]);
+      const Vec3 fv = thimbleForceVector({f.tangential_n, f.normal_n}, q);
+      applied += fv;
+      for (int i = 0; i < 3; ++i) {
+        h.fingertip_m[k][i] = p[k][i];
+        h.fingertip_force_n[k][i] = fv[i];
+      }
+    }
+    for (int i = 0; i < 3; ++i) {
+      h.mcp_angles_rad[i] = angles[i];
+      h.mcp_torque_nm[i] = tau[i];
+    }
+    h.applied_force_ref_n = static_cast<float>(applied.norm() / s.params.force_scale);
+  }
+  out_.publish(h);
+}
+
+void SessionManager::tick(int64_t now_ns) {
+  const int64_t hand_period = static_cast<int64_t>(1e9 / config_.hand_state_hz);
+  std::vector<uint64_t> done;
+  for (auto& [id, s] : sessions_) {
+    if (now_ns - s.rate_window_ns >= kNsPerS / 2) {
+      s.rate_hz = static_cast<float>(static_cast<double>(s.live_count - s.rate_window_count) /
+                                     (static_cast<double>(now_ns - s.rate_window_ns) * 1e-9));
+      s.rate_window_ns = now_ns;
+      s.rate_window_count = s.live_count;
+    }
+    if (now_ns >= s.next_hand_ns) {
+      publishHand(s, now_ns);
+      s.next_hand_ns += hand_period;
+      if (s.next_hand_ns < now_ns) s.next_hand_ns = now_ns + hand_period;
+    }
+    if (!s.pending.empty()) store(s, {}, {});
+    if (s.closing && ((s.recorded >= s.expected && s.pending.empty()) || now_ns >= s.close_deadline_ns)) {
+      done.push_back(id);
+    } else if (!s.closing && now_ns - s.last_data_ns > kIdleTimeoutNs) {
+      s.expected = s.have_live ? s.last.seq + 1 : 0;
+      event(id, s.client_id, telehand_msg_EVENT_ERROR,
+            "no data for " + std::to_string(kIdleTimeoutNs / kNsPerS) + " s: closed as abandoned",
+            now_ns);
+      finish(s, now_ns, "abandoned");
+      done.push_back(id);
+      continue;
+    }
+  }
+  for (uint64_t id : done) {
+    auto it = sessions_.find(id);
+    if (it == sessions_.end()) continue;
+    Session& s = it->second;
+    if (s.closing) finish(s, now_ns, s.recorded >= s.expected ? "closed" : "incomplete");
+    sessions_.erase(it);
+  }
+}
+
+void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state) {
+  try {
+    store_.closeSession(s.info.id, wallNs(), s.expected, state);
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("session {}: {}", s.info.id, e.what());
+  }
+  const uint64_t missing = s.expected > s.recorded ? s.expected - s.recorded : 0;
+  event(s.info.id, s.client_id, missing ? telehand_msg_EVENT_ERROR : telehand_msg_EVENT_INFO,
+        state + ": " + std::to_string(s.recorded) + " samples recorded" +
+            (missing ? ", " + std::to_string(missing) + " missing" : "") +
+            (s.nonfinite ? ", " + std::to_string(s.nonfinite) + " non-finite live samples ignored" : ""),
+        now_ns);
+  publishStatus(s, telehand_msg_SESSION_CLOSED, now_ns);
+}
+
+void SessionManager::closeAll(int64_t now_ns) {
+  for (auto& [id, s] : sessions_) {
+    if (!s.pending.empty()) store(s, {}, {});
+    if (!s.closing) s.expected = s.have_live ? s.last.seq + 1 : s.recorded;
+    finish(s, now_ns, s.closing ? (s.recorded >= s.expected ? "closed" : "incomplete") : "interrupted");
+  }
+  sessions_.clear();
+}
+
+}  // namespace telehand::server::session

@@ -1,0 +1,80 @@
+#pragma once
+/// The server's session logic, independent of DDS: opens and closes sessions on commands,
+/// records what clients send, computes the decimated HandState from the shared joint model,
+/// and reports bad input as events without disturbing other sessions.
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "server/session/store.h"
+#include "telehand.h"
+#include "telehand/common/config.h"
+#include "telehand/common/joint_model.h"
+
+namespace telehand::server::session {
+
+/// Where the manager's messages go (the DDS link in the server, a recorder in tests).
+class Outbox {
+ public:
+  virtual ~Outbox() = default;
+  virtual void publish(const telehand_msg_SessionStatus& s) = 0;
+  virtual void publish(const telehand_msg_JointModel& m) = 0;
+  virtual void publish(const telehand_msg_HandState& h) = 0;
+  virtual void publish(const telehand_msg_SessionEvent& e) = 0;
+};
+
+struct ManagerStats {
+  uint64_t live_samples = 0;
+  uint64_t recorded_samples = 0;
+  uint64_t nonfinite_samples = 0;
+  uint64_t unknown_session_samples = 0;
+  uint64_t bad_commands = 0;
+  uint64_t store_errors = 0;
+};
+
+class SessionManager {
+ public:
+  SessionManager(SessionStore& store, Outbox& out, const ServerConfig& config);
+  ~SessionManager();
+
+  void onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  /// Live stream: feeds HandState and link health.
+  void onDeviceState(const telehand_msg_DeviceState& s, int64_t now_ns);
+  /// Record stream: every sample is stored once.
+  void onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns);
+  /// Publish due HandStates, finish closing sessions, retry unstored samples.
+  void tick(int64_t now_ns);
+  /// Close every open session (server shutdown): nothing received is left unstored.
+  void closeAll(int64_t now_ns);
+
+  std::size_t activeSessions() const noexcept { return sessions_.size(); }
+  const ManagerStats& stats() const noexcept { return stats_; }
+
+  /// Idle sessions (no data at all for this long) are closed as abandoned.
+  static constexpr int64_t kIdleTimeoutNs = 30'000'000'000;
+
+ private:
+  struct Session;
+  void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  void finish(Session& s, int64_t now_ns, const std::string& state);
+  void publishStatus(const Session& s, telehand_msg_SessionState state, int64_t now_ns);
+  void publishHand(Session& s, int64_t now_ns);
+  void store(Session& s, std::vector<telehand_msg_DeviceState>&& samples,
+             std::vector<uint8_t>&& valid);
+  void event(uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
+             const std::string& text, int64_t now_ns);
+  /// Error about a session id nobody opened, at most once per id per 5 s.
+  void unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns);
+
+  SessionStore& store_;
+  Outbox& out_;
+  ServerConfig config_;
+  std::map<uint64_t, Session> sessions_;
+  std::map<uint64_t, int64_t> unknown_reported_ns_;
+  uint64_t event_seq_ = 0;
+  ManagerStats stats_;
+};
+
+}  // namespace telehand::server::session
