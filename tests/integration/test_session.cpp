@@ -1,0 +1,168 @@
+// End-to-end sessions as real processes over loopback DDS, each test in a partition of its
+// own. Processes are stopped by PID and reaped.
+#include <gtest/gtest.h>
+#include <stdlib.h>
+
+#include <filesystem>
+#include <regex>
+#include <set>
+
+#include "process.h"
+#include "server/session/sqlite_store.h"
+
+namespace telehand::test {
+namespace {
+
+using namespace std::chrono_literals;
+namespace fs = std::filesystem;
+
+class SessionTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    char tmpl[] = "/tmp/telehand-it-XXXXXX";
+    dir_ = mkdtemp(tmpl);
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    partition_ = std::string("it-") + std::to_string(getpid()) + "-" + info->name();
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+
+  std::vector<std::string> dds() const {
+    return {"--dds-config", TELEHAND_LOOPBACK_XML, "--partition", partition_};
+  }
+  std::vector<std::string> cmd(std::string bin, std::vector<std::string> args) const {
+    std::vector<std::string> v{std::move(bin)};
+    v.insert(v.end(), args.begin(), args.end());
+    for (auto& a : dds()) v.push_back(a);
+    return v;
+  }
+  std::string path(const std::string& name) const { return (fs::path(dir_) / name).string(); }
+
+  std::string dir_;
+  std::string partition_;
+};
+
+uint64_t matchNumber(const std::string& text, const std::string& pattern) {
+  std::smatch m;
+  if (!std::regex_search(text, m, std::regex(pattern))) return 0;
+  return std::stoull(m[1]);
+}
+
+TEST_F(SessionTest, ServerClientWatcherRecordEverySample) {
+  const std::string db = path("records.db");
+  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "60"}), path("server.log"));
+  Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "5", "-q"}), path("client.log"));
+  std::this_thread::sleep_for(1500ms);  // the supervisor joins a running session
+  Process watcher(cmd(TELEHAND_WATCH_BIN, {"--plain", "--exit-on-close", "--wait", "20"}),
+                  path("watch.log"));
+
+  const auto client_rc = client.wait(30s);
+  ASSERT_TRUE(client_rc.has_value()) << "client did not finish\n" << client.output();
+  EXPECT_EQ(*client_rc, 0) << client.output();
+  const auto watch_rc = watcher.wait(20s);
+  ASSERT_TRUE(watch_rc.has_value()) << "watcher did not exit on close\n" << watcher.output();
+  EXPECT_EQ(*watch_rc, 0) << watcher.output();
+  EXPECT_EQ(server.stop(), 0) << server.output();
+
+  const std::string out = client.output();
+  const uint64_t session = matchNumber(out, R"(session (\d+) open)");
+  const uint64_t sent = matchNumber(out, R"((\d+) samples sent)");
+  ASSERT_GT(session, 0u) << out;
+  ASSERT_GT(sent, 4000u) << out;  // 5 s at 1 kHz
+
+  // The watcher saw this session, live, with the joint moving and the model known.
+  const std::string seen = watcher.output();
+  EXPECT_NE(seen.find("session=" + std::to_string(session)), std::string::npos) << seen;
+  EXPECT_NE(seen.find("mode=mobilization"), std::string::npos) << seen;
+  EXPECT_NE(seen.find("model_v=1"), std::string::npos) << seen;
+  EXPECT_GT(matchNumber(seen, R"(hand_states=(\d+))"), 50u) << seen;
+
+  // The record holds every sequence number the client sent, once.
+  server::session::SqliteStore store(db, server::session::SqliteStore::Mode::kReadOnly);
+  const auto info = store.session(session);
+  ASSERT_TRUE(info.has_value());
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples, sent);
+  uint64_t expect_seq = 0;
+  uint64_t gaps = 0;
+  store.forEachSample(session, [&](const telehand_msg_DeviceState& s, bool valid) {
+    gaps += s.seq != expect_seq;
+    expect_seq = s.seq + 1;
+    EXPECT_TRUE(valid);
+  });
+  EXPECT_EQ(gaps, 0u);
+  EXPECT_EQ(expect_seq, sent);
+}
+
+TEST_F(SessionTest, MalformedConfigIsNamed) {
+  {
+    std::ofstream bad(path("client.toml"));
+    bad << "[operator]\nfrequency_hz = \"three\"\n";
+  }
+  Process client({TELEHAND_CLIENT_BIN, "--config", path("client.toml")}, path("client.log"));
+  EXPECT_EQ(client.wait(10s), 2);
+  EXPECT_NE(client.output().find("client.toml"), std::string::npos) << client.output();
+  EXPECT_NE(client.output().find("operator.frequency_hz"), std::string::npos) << client.output();
+
+  {
+    std::ofstream bad(path("server.toml"));
+    bad << "[server]\nhand_state_hz = 100\ndb_path = 'x'\n";  // the key is 'db'
+  }
+  Process server({TELEHAND_SERVER_BIN, "--config", path("server.toml")}, path("server.log"));
+  EXPECT_EQ(server.wait(10s), 2);
+  EXPECT_NE(server.output().find("line 3"), std::string::npos) << server.output();
+  EXPECT_NE(server.output().find("server.db_path"), std::string::npos) << server.output();
+
+  {
+    std::ofstream bad(path("broken.toml"));
+    bad << "[server\n";
+  }
+  Process broken({TELEHAND_SERVER_BIN, "--config", path("broken.toml")}, path("broken.log"));
+  EXPECT_EQ(broken.wait(10s), 2);
+  EXPECT_NE(broken.output().find("broken.toml: line 1"), std::string::npos) << broken.output();
+}
+
+TEST_F(SessionTest, BadInputIsReportedAndOtherSessionsKeepRecording) {
+  const std::string db = path("records.db");
+  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "60"}), path("server.log"));
+  Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "5", "-q"}), path("client.log"));
+  std::this_thread::sleep_for(500ms);
+
+  Process close_unknown(cmd(TELEHAND_INJECT_BIN, {"close-unknown", "--session", "987654"}),
+                        path("close.log"));
+  Process unknown_state(cmd(TELEHAND_INJECT_BIN, {"unknown-state", "--session", "424242"}),
+                        path("state.log"));
+  Process nan(cmd(TELEHAND_INJECT_BIN, {"nan", "--count", "300"}), path("nan.log"));
+
+  EXPECT_EQ(close_unknown.wait(20s), 0) << close_unknown.output();
+  EXPECT_NE(close_unknown.output().find("CLOSE for unknown session 987654"), std::string::npos);
+  EXPECT_EQ(unknown_state.wait(20s), 0) << unknown_state.output();
+  EXPECT_NE(unknown_state.output().find("DeviceState for unknown session 424242"),
+            std::string::npos);
+  ASSERT_EQ(nan.wait(30s), 0) << nan.output();
+  const std::string nan_out = nan.output();
+  EXPECT_NE(nan_out.find("non-finite fingers[1] (index).position_m[0]"), std::string::npos)
+      << nan_out;
+  EXPECT_NE(nan_out.find("recorded=300 missing=0"), std::string::npos) << nan_out;
+
+  const auto client_rc = client.wait(30s);
+  ASSERT_TRUE(client_rc.has_value());
+  EXPECT_EQ(*client_rc, 0) << client.output();
+  EXPECT_EQ(server.stop(), 0) << server.output();
+
+  const uint64_t session = matchNumber(client.output(), R"(session (\d+) open)");
+  const uint64_t sent = matchNumber(client.output(), R"((\d+) samples sent)");
+  const uint64_t nan_session = matchNumber(nan_out, R"(session=(\d+))");
+  server::session::SqliteStore store(db, server::session::SqliteStore::Mode::kReadOnly);
+  EXPECT_EQ(store.session(session)->samples, sent);
+  const auto bad = store.session(nan_session);
+  ASSERT_TRUE(bad.has_value());
+  EXPECT_EQ(bad->samples, 300u);
+  EXPECT_EQ(bad->rejected, 1u);  // kept, flagged invalid, not silently dropped
+  EXPECT_FALSE(store.session(987654).has_value());
+  EXPECT_FALSE(store.session(424242).has_value());
+}
+
+}  // namespace
+}  // namespace telehand::test
