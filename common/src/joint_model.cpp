@@ -55,39 +55,55 @@ Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s
 
 Mat3 JointModel::phalanxRotation(const Vec3& a) const noexcept {
   const Mat3 r = (Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()) *
-                  Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()) *
-                  Eigen::AngleAxisd(a[kAxial], Vec3::UnitX()))
+                  Eigen::AngleAxisd(a[kAxial], Vec3::UnitX()) *
+                  Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()))
                      .toRotationMatrix();
   return p_.joint_orientation.toRotationMatrix() * r;
+}
+
+Vec3 JointModel::anglesFromRotation(const Mat3& r_device) const noexcept {
+  // R = Ry(a) Rx(g) Rz(b): R12 = -sin g, (R10, R11) = cos g (sin b, cos b),
+  // (R02, R22) = cos g (sin a, cos a).
+  const Mat3 r = p_.joint_orientation.toRotationMatrix().transpose() * r_device;
+  Vec3 a;
+  a[kAxial] = std::asin(std::clamp(-r(1, 2), -1.0, 1.0));
+  a[kAbduction] = std::atan2(r(1, 0), r(1, 1));
+  a[kFlexion] = std::atan2(r(0, 2), r(2, 2));
+  return a;
 }
 
 Mat3 JointModel::axisBasis(const Vec3& a) const noexcept {
   const Mat3 rj = p_.joint_orientation.toRotationMatrix();
   const Mat3 ry = Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()).toRotationMatrix();
-  const Mat3 rz = Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()).toRotationMatrix();
+  const Mat3 rx = Eigen::AngleAxisd(a[kAxial], Vec3::UnitX()).toRotationMatrix();
   Mat3 e;
   e.col(kFlexion) = rj * Vec3::UnitY();
-  e.col(kAbduction) = rj * ry * Vec3::UnitZ();
-  e.col(kAxial) = rj * ry * rz * Vec3::UnitX();
+  e.col(kAxial) = rj * ry * Vec3::UnitX();
+  e.col(kAbduction) = rj * ry * rx * Vec3::UnitZ();
   return e;
 }
 
+Vec3 JointModel::torqueVector(const Vec3& angles_rad, const Vec3& axis_torque_nm) const noexcept {
+  // Generalized torques are e^T tau, so tau = e^-T tau_gen.
+  return axisBasis(angles_rad).transpose().partialPivLu().solve(axis_torque_nm);
+}
+
 Vec3 JointModel::anglesFromGrip(const PerFinger<Vec3>& p) const noexcept {
-  const Mat3 rj_t = p_.joint_orientation.toRotationMatrix().transpose();
-  const Vec3 mid = rj_t * (0.5 * (p[kThumb] + p[kIndex]) - p_.joint_origin_m);
+  const Vec3 mid = 0.5 * (p[kThumb] + p[kIndex]) - p_.joint_origin_m;
   const double n = mid.norm();
   if (n < 1e-9) return Vec3::Zero();
-  const Vec3 d = mid / n;
-  Vec3 a;
-  a[kFlexion] = std::atan2(-d.z(), d.x());
-  a[kAbduction] = std::asin(std::clamp(d.y(), -1.0, 1.0));
-  // Roll: the pinch line (index − thumb) seen in the phalanx frame before axial rotation.
-  const Mat3 r_ab = (Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()) *
-                     Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()))
-                        .toRotationMatrix();
-  const Vec3 s = r_ab.transpose() * (rj_t * (p[kIndex] - p[kThumb]));
-  a[kAxial] = std::atan2(s.y(), -s.z());
-  return a;
+  const Vec3 x = mid / n;
+  // Dorsal direction: from the index (palmar side) to the thumb, across the phalanx axis.
+  Vec3 z = p[kThumb] - p[kIndex];
+  z -= x * x.dot(z);
+  const double zn = z.norm();
+  if (zn < 1e-9) return Vec3::Zero();
+  z /= zn;
+  Mat3 r;
+  r.col(0) = x;
+  r.col(1) = z.cross(x);
+  r.col(2) = z;
+  return anglesFromRotation(r);
 }
 
 PerFinger<Vec3> JointModel::gripFromAngles(const Vec3& angles_rad,
@@ -109,9 +125,7 @@ Quat JointModel::thimbleOrientation(int finger, const Vec3& angles_rad) const no
 
 PerFinger<Vec3> JointModel::fingertipForces(const PerFinger<Vec3>& p, const Vec3& angles_rad,
                                             const Vec3& axis_torque_nm) const noexcept {
-  const Mat3 e = axisBasis(angles_rad);
-  // Generalized torques are e^T tau, so tau = e^-T tau_gen.
-  const Vec3 tau = e.transpose().partialPivLu().solve(axis_torque_nm);
+  const Vec3 tau = torqueVector(angles_rad, axis_torque_nm);
   const Vec3 mid = 0.5 * (p[kThumb] + p[kIndex]);
   const Vec3 r = mid - p_.joint_origin_m;
   const double r2 = r.squaredNorm();

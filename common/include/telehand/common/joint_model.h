@@ -4,13 +4,14 @@
 ///
 /// Geometry. The joint frame J (origin and orientation given in the device frame) has x
 /// distal along the proximal phalanx at neutral, z dorsal, y = z × x. The phalanx frame is
-/// R_J · Ry(alpha) · Rz(beta) · Rx(gamma): alpha = flexion (+ toward the palm), beta =
-/// abduction, gamma = axial rotation (+ = supination, an assumption; see healthyIndexMcp).
-/// The student pinches the phalanx at the lever arm: the thumb on the dorsal side (+z of the
-/// phalanx), the index on the palmar side.
+/// R_J · Ry(alpha) · Rx(gamma) · Rz(beta): alpha = flexion (+ toward the palm), gamma = axial
+/// rotation (+ = supination, an assumption; see healthyIndexMcp), beta = abduction. Axial
+/// rotation, the smallest range, is the middle Euler axis, as the Bullet joint needs
+/// (FACTS.md "Bullet"). The student pinches the phalanx at the lever arm: the thumb on the
+/// dorsal side (+z of the phalanx), the index on the palmar side.
 ///
 /// Torques. Per-axis torques are the generalized forces conjugate to (alpha, beta, gamma):
-/// tau_i = e_i · tau, with e_alpha = y_J, e_beta = Ry(alpha) z, e_gamma = the phalanx axis,
+/// tau_i = e_i · tau, with e_alpha = y_J, e_gamma = Ry(alpha) x, e_beta = Ry(alpha) Rx(gamma) z,
 /// and tau = sum over fingers of (p_i − c) × F_i (FACTS.md "Rendering").
 #include <array>
 #include <cstdint>
@@ -92,14 +93,20 @@ class JointModel {
   Vec3 axisTorque(const PerFinger<Vec3>& p_device_finger, const Vec3& angles_rad,
                   const PerFinger<Vec3>& force_n) const noexcept;
 
+  /// Orientation of the phalanx in the device frame for the given angles.
+  Mat3 phalanxRotation(const Vec3& angles_rad) const noexcept;
+  /// Inverse of phalanxRotation: angles from a phalanx orientation in the device frame.
+  Vec3 anglesFromRotation(const Mat3& r_device_phalanx) const noexcept;
+  /// Columns e_alpha, e_beta, e_gamma (device frame): the axes the per-axis torques act about.
+  Mat3 axisBasis(const Vec3& angles_rad) const noexcept;
+  /// The torque vector (device frame) whose generalized components are `axis_torque_nm`.
+  Vec3 torqueVector(const Vec3& angles_rad, const Vec3& axis_torque_nm) const noexcept;
+
   /// Angle where the holding force is zero (the joint's rest angle on that axis), found by
   /// bisection over the curve's valid range; the nearest range end if none is inside.
   double restAngleRad(int axis) const noexcept;
 
  private:
-  Mat3 phalanxRotation(const Vec3& angles_rad) const noexcept;  ///< device frame
-  Mat3 axisBasis(const Vec3& angles_rad) const noexcept;        ///< columns e_alpha, e_beta, e_gamma
-
   JointModelParams p_;
 };
 
