@@ -11,6 +11,8 @@ packages=(
   cyclonedds-dev cyclonedds-tools
   # maths, physics, USB, nearest neighbours
   libeigen3-dev libbullet-dev libusb-1.0-0-dev libflann-dev
+  # hand model (URDF parser, check_urdf)
+  liburdfdom-dev liburdfdom-tools
   # records, CLI, logs, config
   libsqlite3-dev libcli11-dev libspdlog-dev libtomlplusplus-dev
   # tests and benchmarks

@@ -1,8 +1,11 @@
 // telehand-client: the device PC side. Runs the 1 kHz haptic loop on an MF-2 (simulated by
 // default), opens a session on the server, streams every sample and renders the joint
 // model the server publishes.
-#include <CLI/CLI.hpp>
+#include "telehand/common/cli.h"
 #include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <thread>
 #include <csignal>
 #include <cstdio>
 #include <iostream>
@@ -46,7 +49,7 @@ int main(int argc, char** argv) {
   app.add_option("--connect-timeout", connect_timeout, "seconds to wait for the server")->capture_default_str();
   app.add_flag("-q,--quiet", quiet, "no progress line");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
-  CLI11_PARSE(app, argc, argv);
+  TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
     setupLogging("telehand-client", log_level);

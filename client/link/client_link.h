@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
@@ -26,7 +27,6 @@ struct LinkStats {
   std::atomic<uint64_t> models_received{0};
   std::atomic<uint64_t> models_rejected{0};
   std::atomic<uint64_t> last_seq{0};
-  std::atomic<uint32_t> server_recorded{0};
 };
 
 struct OpenRequest {

@@ -27,6 +27,7 @@ HapticLoop::HapticLoop(device::Device& device, const Clock& clock,
       samples_(std::make_unique<SampleRing>()),
       models_(std::make_unique<ModelRing>()) {
   health_.model_version.store(initial_model.version, std::memory_order_relaxed);
+  wall_offset_ns_ = wallNs() - clock_.nowNs();
 }
 
 HapticLoop::~HapticLoop() { stop(); }
@@ -67,7 +68,7 @@ StepStatus HapticLoop::step() noexcept {
   telehand_msg_DeviceState s{};
   s.session_id = session_id_.load(std::memory_order_relaxed);
   s.seq = next_seq_.load(std::memory_order_relaxed);
-  s.source_time_ns = sample_.time_ns;
+  s.source_time_ns = sample_.time_ns + wall_offset_ns_;  // wire timestamps are wall clock
   s.model_version = proxy_.version();
   s.flags = safe.flags | (rendered.blending ? telehand_msg_kFlagModelBlending : 0u) |
             (actuators_.load(std::memory_order_relaxed) ? 0u : telehand_msg_kFlagCapture);

@@ -87,6 +87,7 @@ class HapticLoop {
   std::atomic<bool> running_{false};
   std::thread thread_;
   device::DeviceSample sample_{};
+  int64_t wall_offset_ns_ = 0;  // wall clock minus the loop clock, fixed at construction
   int64_t last_sample_time_ns_ = INT64_MIN / 2;
 };
 

@@ -3,6 +3,7 @@
 #include <fstream>
 #include <sstream>
 #include <toml++/toml.h>
+#include <utility>
 
 #include "telehand/common/error.h"
 
@@ -40,7 +41,12 @@ class TableReader {
         return;
       }
     } else {
-      if (auto v = n->value<int64_t>(); v && *v >= 0) {
+      // toml++ would convert a boolean: only a TOML integer counts, and it must fit T.
+      if (auto v = n->value<int64_t>(); v && n->is_integer() && *v >= 0) {
+        if (!std::in_range<T>(*v)) {
+          fail(origin_, "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." +
+                            key + "' = " + std::to_string(*v) + " is too large");
+        }
         out = static_cast<T>(*v);
         return;
       }
@@ -138,6 +144,8 @@ ClientConfig parseClientConfig(const std::string& text, const std::string& origi
   sf.read("max_rate_n_per_s", c.safety.max_rate_n_per_s);
   double watchdog_ms = static_cast<double>(c.safety.watchdog_ns) / 1e6;
   sf.read("watchdog_ms", watchdog_ms);
+  // Before the conversion: inf or 1e300 ms do not fit an int64 (undefined behaviour).
+  requireRange(origin, "safety.watchdog_ms", watchdog_ms, 1.0, 1000.0);
   c.safety.watchdog_ns = static_cast<int64_t>(watchdog_ms * 1e6);
   sf.rejectUnknown();
   TableReader lp(root, "loop", origin);

@@ -45,6 +45,11 @@ Qos& Qos::deadline(std::chrono::milliseconds period) {
   dds_qset_deadline(q_, DDS_MSECS(period.count()));
   return *this;
 }
+Qos& Qos::lateJoinerHistory(int32_t depth) {
+  dds_qset_durability_service(q_, 0, DDS_HISTORY_KEEP_LAST, depth, DDS_LENGTH_UNLIMITED,
+                              DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+  return *this;
+}
 Qos& Qos::partition(const std::string& name) {
   dds_qset_partition1(q_, name.c_str());
   return *this;
@@ -106,7 +111,12 @@ Qos sessionStatus() {
 }
 Qos sessionEvent(int32_t depth) {
   Qos q;
-  q.reliable().keepLast(depth).transientLocal();
+  q.reliable().keepLast(depth).transientLocal().lateJoinerHistory(depth);
+  return q;
+}
+Qos handStateReader(int32_t depth) {
+  Qos q = handState();
+  q.keepLast(depth);
   return q;
 }
 Qos latencyProbe() { return deviceState(); }

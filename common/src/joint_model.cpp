@@ -53,18 +53,16 @@ Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s
   return tau;
 }
 
-Mat3 JointModel::phalanxRotation(const Vec3& a) const noexcept {
-  const Mat3 r = (Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()) *
-                  Eigen::AngleAxisd(a[kAxial], Vec3::UnitX()) *
-                  Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()))
-                     .toRotationMatrix();
-  return p_.joint_orientation.toRotationMatrix() * r;
+Mat3 eulerToRotation(const Vec3& a) noexcept {
+  return (Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()) *
+          Eigen::AngleAxisd(a[kAxial], Vec3::UnitX()) *
+          Eigen::AngleAxisd(a[kAbduction], Vec3::UnitZ()))
+      .toRotationMatrix();
 }
 
-Vec3 JointModel::anglesFromRotation(const Mat3& r_device) const noexcept {
+Vec3 eulerFromRotation(const Mat3& r) noexcept {
   // R = Ry(a) Rx(g) Rz(b): R12 = -sin g, (R10, R11) = cos g (sin b, cos b),
   // (R02, R22) = cos g (sin a, cos a).
-  const Mat3 r = p_.joint_orientation.toRotationMatrix().transpose() * r_device;
   Vec3 a;
   a[kAxial] = std::asin(std::clamp(-r(1, 2), -1.0, 1.0));
   a[kAbduction] = std::atan2(r(1, 0), r(1, 1));
@@ -72,15 +70,26 @@ Vec3 JointModel::anglesFromRotation(const Mat3& r_device) const noexcept {
   return a;
 }
 
-Mat3 JointModel::axisBasis(const Vec3& a) const noexcept {
-  const Mat3 rj = p_.joint_orientation.toRotationMatrix();
+Mat3 eulerAxisBasis(const Vec3& a) noexcept {
   const Mat3 ry = Eigen::AngleAxisd(a[kFlexion], Vec3::UnitY()).toRotationMatrix();
   const Mat3 rx = Eigen::AngleAxisd(a[kAxial], Vec3::UnitX()).toRotationMatrix();
   Mat3 e;
-  e.col(kFlexion) = rj * Vec3::UnitY();
-  e.col(kAxial) = rj * ry * Vec3::UnitX();
-  e.col(kAbduction) = rj * ry * rx * Vec3::UnitZ();
+  e.col(kFlexion) = Vec3::UnitY();
+  e.col(kAxial) = ry * Vec3::UnitX();
+  e.col(kAbduction) = ry * rx * Vec3::UnitZ();
   return e;
+}
+
+Mat3 JointModel::phalanxRotation(const Vec3& a) const noexcept {
+  return p_.joint_orientation.toRotationMatrix() * eulerToRotation(a);
+}
+
+Vec3 JointModel::anglesFromRotation(const Mat3& r_device) const noexcept {
+  return eulerFromRotation(p_.joint_orientation.toRotationMatrix().transpose() * r_device);
+}
+
+Mat3 JointModel::axisBasis(const Vec3& a) const noexcept {
+  return p_.joint_orientation.toRotationMatrix() * eulerAxisBasis(a);
 }
 
 Vec3 JointModel::torqueVector(const Vec3& angles_rad, const Vec3& axis_torque_nm) const noexcept {
@@ -132,18 +141,16 @@ PerFinger<Vec3> JointModel::fingertipForces(const PerFinger<Vec3>& p, const Vec3
   if (r2 < 1e-12 || !allFinite(tau)) return {Vec3::Zero(), Vec3::Zero()};
   const Vec3 u = r / std::sqrt(r2);
   const Vec3 tau_axial = u * u.dot(tau);
-  const Vec3 tau_perp = tau - tau_axial;
-  const Vec3 f_net = tau_perp.cross(r) / r2;  // r × f_net = tau_perp
-  PerFinger<Vec3> out{0.5 * f_net, 0.5 * f_net};
   const Vec3 s = p[kIndex] - mid;  // index offset from the grip centre; thumb is −s
   const Vec3 s_perp = s - u * u.dot(s);
   const double s2 = s_perp.squaredNorm();
-  if (s2 > 1e-12) {
-    const Vec3 couple = tau_axial.cross(s_perp) / (2.0 * s2);  // s × couple = tau_axial / 2
-    out[kIndex] += couple;
-    out[kThumb] -= couple;
-  }
-  return out;
+  Vec3 couple = Vec3::Zero();
+  if (s2 > 1e-12) couple = tau_axial.cross(s_perp) / (2.0 * s2);  // u·(2 s × couple) = u·tau
+  // The net force carries the rest. When the pinch line leans along the phalanx (measured
+  // thimbles), the couple's moment also has a part across the axis that this cancels.
+  const Vec3 rest = tau - 2.0 * s.cross(couple);
+  const Vec3 f_net = rest.cross(r) / r2;  // r × f_net = rest across r
+  return {0.5 * f_net - couple, 0.5 * f_net + couple};
 }
 
 Vec3 JointModel::axisTorque(const PerFinger<Vec3>& p, const Vec3& angles_rad,

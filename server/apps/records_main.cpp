@@ -1,5 +1,5 @@
 // telehand-records: read session records (list, export to CSV).
-#include <CLI/CLI.hpp>
+#include "telehand/common/cli.h"
 #include <fstream>
 #include <iomanip>
 #include <iostream>
@@ -33,7 +33,7 @@ int main(int argc, char** argv) {
   std::string out_path;
   exp->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("-o,--output", out_path, "CSV file to write (default: stdout)");
-  CLI11_PARSE(app, argc, argv);
+  TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
     SqliteStore store(db, SqliteStore::Mode::kReadOnly);

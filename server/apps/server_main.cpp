@@ -1,7 +1,8 @@
 // telehand-server: hosts sessions, keeps every record, publishes joint models and hand state.
-#include <CLI/CLI.hpp>
+#include "telehand/common/cli.h"
 #include <csignal>
 #include <iostream>
+#include <thread>
 
 #include "server/link/server_link.h"
 #include "server/session/sqlite_store.h"
@@ -28,7 +29,7 @@ int main(int argc, char** argv) {
   app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
   app.add_option("--seconds", seconds, "stop after this many seconds (0 = until Ctrl-C)");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
-  CLI11_PARSE(app, argc, argv);
+  TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
     setupLogging("telehand-server", log_level);
@@ -45,10 +46,10 @@ int main(int argc, char** argv) {
                  dds_opts.partition, store.location());
 
     std::atomic<bool> stop{false};
-    std::thread timer;
     const auto t0 = std::chrono::steady_clock::now();
-    std::thread watchdog([&] {
-      while (!stop.load()) {
+    // Turns Ctrl-C, SIGTERM and --seconds into a stop request the serve loop sees at once.
+    std::jthread stopper([&](std::stop_token token) {
+      while (!token.stop_requested() && !stop.load()) {
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
         const bool timed_out = seconds > 0.0 && std::chrono::steady_clock::now() - t0 >
                                                     std::chrono::duration<double>(seconds);
@@ -61,7 +62,8 @@ int main(int argc, char** argv) {
     const auto tick = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / cfg.hand_state_hz));
     link.serve(manager, stop, tick);
     stop.store(true);
-    watchdog.join();
+    stopper.request_stop();
+    stopper.join();
     const auto& st = manager.stats();
     const auto& lc = link.counters();
     spdlog::info("stopped: {} samples recorded, {} live, {} non-finite, {} for unknown sessions, "

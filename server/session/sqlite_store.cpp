@@ -102,8 +102,14 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
           "INSERT OR IGNORE INTO samples (session_id, seq, t_ns, valid, flags, model_version, "
           "alpha_rad, beta_rad, gamma_rad, format, data) VALUES (?,?,?,?,?,?,?,?,?,?,?)");
     } else {
-      Statement check(db_, "SELECT count(*) FROM sqlite_master WHERE name = 'samples'");
-      if (!check.step() || sqlite3_column_int(check.get(), 0) != 1) {
+      bool has_samples = false;
+      try {  // a file that is not SQLite at all fails here, with a message lacking the path
+        Statement check(db_, "SELECT count(*) FROM sqlite_master WHERE name = 'samples'");
+        has_samples = check.step() && sqlite3_column_int(check.get(), 0) == 1;
+      } catch (const StoreError&) {
+        throw StoreError("cannot read record database '" + path + "': " + sqlite3_errmsg(db_));
+      }
+      if (!has_samples) {
         throw StoreError("'" + path + "' is not a telehand record database (no samples table)");
       }
     }

@@ -1,7 +1,7 @@
 // telehand-test-inject: a misbehaving client for integration tests. Sends what a correct
 // client never would (commands for sessions nobody opened, samples with NaN) and reports
 // what the server answered.
-#include <CLI/CLI.hpp>
+#include "telehand/common/cli.h"
 #include <cmath>
 #include <iostream>
 #include <thread>
@@ -119,7 +119,7 @@ int main(int argc, char** argv) {
   app.add_option("--domain", o.domain, "DDS domain");
   app.add_option("--partition", o.partition, "DDS partition");
   app.add_option("--dds-config", o.config, "Cyclone DDS XML config");
-  CLI11_PARSE(app, argc, argv);
+  TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
     Peer peer(o);

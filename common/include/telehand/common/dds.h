@@ -59,6 +59,9 @@ class Qos {
   Qos& transientLocal();
   Qos& deadline(std::chrono::milliseconds period);
   Qos& partition(const std::string& name);
+  /// What a transient-local writer keeps for late joiners. Cyclone uses the durability
+  /// service history (default keep-last 1), not the writer's own history depth.
+  Qos& lateJoinerHistory(int32_t depth);
   const dds_qos_t* get() const noexcept { return q_; }
 
   dds_reliability_kind_t reliabilityKind() const;
@@ -76,9 +79,10 @@ Qos deviceStateReader(int32_t depth);  ///< as deviceState but a deeper reader h
 Qos recordChunk();                  ///< reliable, keep-all: the session record's path
 Qos jointModel();                   ///< reliable, transient-local, keep-last 1 per session
 Qos handState();                    ///< best-effort, keep-last 1
+Qos handStateReader(int32_t depth); ///< as handState but a deeper reader history
 Qos sessionCommand();               ///< reliable, keep-all, volatile
 Qos sessionStatus();                ///< reliable, transient-local, keep-last 1 per session
-Qos sessionEvent(int32_t depth = 64);  ///< reliable, transient-local, keep-last N
+Qos sessionEvent(int32_t depth = 64);  ///< reliable, transient-local, keep-last N (late joiners too)
 Qos latencyProbe();                 ///< as deviceState (the probe measures that path)
 }  // namespace qos
 

@@ -42,6 +42,14 @@ struct CubicCurve {
 /// loop renders stably (FACTS.md "Stable wall").
 constexpr double kWallNPerDeg = 1.0;
 
+/// The MCP Euler convention as free functions (joint frame, no joint model needed):
+/// R = Ry(angles[kFlexion]) · Rx(angles[kAxial]) · Rz(angles[kAbduction]).
+Mat3 eulerToRotation(const Vec3& angles_rad) noexcept;
+Vec3 eulerFromRotation(const Mat3& r) noexcept;
+/// Columns e_alpha, e_beta, e_gamma: the joint-frame axes that the angle rates turn about
+/// (omega = E · rates) and that the per-axis torques act about (tau_i = e_i · tau).
+Mat3 eulerAxisBasis(const Vec3& angles_rad) noexcept;
+
 /// Everything the server owns and publishes about one joint (JointModel on the wire).
 struct JointModelParams {
   uint32_t version = 0;

@@ -1,0 +1,484 @@
+#include "server/sim/hand_sim.h"
+
+#include <btBulletDynamicsCommon.h>
+
+#include <algorithm>
+
+#include "telehand/common/error.h"
+
+namespace telehand::server::sim {
+
+namespace {
+
+constexpr int kBoneGroup = 1;
+constexpr int kSphereGroup = 2;
+constexpr double kMaxCouplingForceN = 60.0;  // bounds the pull if a target jumps
+// Bullet index of each rotation axis -> index in the MCP angle vector.
+constexpr int kAngleOfAxis[3] = {kAxial, kFlexion, kAbduction};
+
+// Bullet's Spring2 reads its Euler angles off the transposed relative rotation (FACTS.md:
+// a +0.30 rad turn reads -0.30), so R = Ry(a) Rx(g) Rz(b) is its RO_ZXY with every angle
+// negated: limits are handed over mirrored. The middle axis is then x, the axial rotation.
+void setLimits(btGeneric6DofSpring2Constraint& c, const btVector3& lo, const btVector3& hi) {
+  c.setAngularLowerLimit(-hi);
+  c.setAngularUpperLimit(-lo);
+  for (int i = 0; i < 3; ++i) {
+    // Firm stops: a 0.5 N·m push may not pass a limit by more than 0.5 deg.
+    c.setParam(BT_CONSTRAINT_STOP_ERP, 0.9, 3 + i);
+    c.setParam(BT_CONSTRAINT_STOP_CFM, 0.0, 3 + i);
+  }
+}
+
+btVector3 bt(const Vec3& v) { return {v.x(), v.y(), v.z()}; }
+Vec3 eig(const btVector3& v) { return {v.x(), v.y(), v.z()}; }
+btTransform bt(const Pose& p) {
+  const Mat3& r = p.linear();
+  btMatrix3x3 m(r(0, 0), r(0, 1), r(0, 2), r(1, 0), r(1, 1), r(1, 2), r(2, 0), r(2, 1), r(2, 2));
+  return btTransform(m, bt(Vec3(p.translation())));
+}
+Pose eig(const btTransform& t) {
+  Pose p = Pose::Identity();
+  const btMatrix3x3& m = t.getBasis();
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) p.linear()(i, j) = m[i][j];
+  }
+  p.translation() = eig(t.getOrigin());
+  return p;
+}
+
+/// Bones are octahedra, as in the paper: two pyramids joined at a square ring. The ring's
+/// sides face dorsal, palmar, radial and ulnar at the bone radius, so a pad pressing the
+/// back of a phalanx meets a flat face, not a rounded ridge it would slide off (a pinch on a
+/// capsule squirts sideways). The ring sits at 27 % of the length: for the index proximal
+/// phalanx that is 1 cm from the MCP, where the paper's forces were applied.
+btCollisionShape* makeBoneShape(const Bone& b, const Vec3& com) {
+  auto* hull = new btConvexHullShape();
+  const double x = 0.27 * b.length_m;
+  constexpr double kMargin = 2e-5;  // Bullet adds this around the hull: keep faces at the radius
+  const double r = b.radius_m - kMargin;
+  hull->addPoint(bt(Vec3(0, 0, 0) - com), false);
+  hull->addPoint(bt(Vec3(b.length_m, 0, 0) - com), false);
+  hull->addPoint(bt(Vec3(x, r, r) - com), false);
+  hull->addPoint(bt(Vec3(x, -r, r) - com), false);
+  hull->addPoint(bt(Vec3(x, -r, -r) - com), false);
+  hull->addPoint(bt(Vec3(x, r, -r) - com), true);
+  hull->setMargin(kMargin);
+  return hull;
+}
+
+}  // namespace
+
+struct HandSim::Impl {
+  btDefaultCollisionConfiguration collision_config;
+  btCollisionDispatcher dispatcher{&collision_config};
+  btDbvtBroadphase broadphase;
+  btSequentialImpulseConstraintSolver solver;
+  btDiscreteDynamicsWorld world{&dispatcher, &broadphase, &solver, &collision_config};
+  std::vector<std::unique_ptr<btCollisionShape>> shapes;
+  std::vector<std::unique_ptr<btDefaultMotionState>> motion_states;
+  std::vector<std::unique_ptr<btRigidBody>> bodies;    // per bone
+  std::vector<Pose> com_in_link;                        // per bone
+  std::vector<std::unique_ptr<btGeneric6DofSpring2Constraint>> constraints;  // per joint; null if both ends fixed
+  std::vector<Pose> frame_in_a, frame_in_b;             // per joint: joint frame in each body
+  std::vector<Vec3> axis_inertia;                       // per joint, per angle: downstream inertia
+  PerFinger<std::unique_ptr<btRigidBody>> spheres;
+  int mcp_joint = -1;
+
+  /// Skin friction of one pad, as a spring to the point of the bone it first touched,
+  /// limited by the friction cone. Bullet's own point-contact friction made a pinched
+  /// millimetre phalanx creep sideways, so its contacts are frictionless and this acts.
+  struct Grip {
+    btRigidBody* bone = nullptr;
+    Vec3 anchor_local = Vec3::Zero();  // sphere centre at touch-down, bone frame
+    Vec3 normal = Vec3::Zero();        // bone -> sphere, world
+    double normal_n = 0.0;
+    Vec3 force = Vec3::Zero();         // tangential force on the sphere, last step
+  };
+  PerFinger<Grip> grips;
+
+  btRigidBody& body(int bone) { return *bodies[static_cast<std::size_t>(bone)]; }
+  const btRigidBody& body(int bone) const { return *bodies[static_cast<std::size_t>(bone)]; }
+
+  /// Joint frame on the parent side and relative rotation of the child, world frame.
+  struct JointState {
+    Mat3 parent_frame;
+    Vec3 angles;
+    Vec3 rates;
+  };
+  JointState jointState(const Joint& j, std::size_t ji) const {
+    const Pose pa = eig(body(j.parent_bone).getCenterOfMassTransform()) * frame_in_a[ji];
+    const Pose pb = eig(body(j.child_bone).getCenterOfMassTransform()) * frame_in_b[ji];
+    JointState s;
+    s.parent_frame = pa.linear();
+    s.angles = eulerFromRotation(pa.linear().transpose() * pb.linear());
+    const Vec3 w_rel = pa.linear().transpose() *
+                       (eig(body(j.child_bone).getAngularVelocity()) -
+                        eig(body(j.parent_bone).getAngularVelocity()));
+    s.rates = eulerAxisBasis(s.angles).partialPivLu().solve(w_rel);
+    return s;
+  }
+};
+
+HandSim::HandSim(const HandModel& model, const JointModelParams& mcp, const HandSimConfig& config)
+    : model_(model), config_(config), mcp_(mcp), impl_(std::make_unique<Impl>()) {
+  // Bullet's contact thresholds assume metre-sized objects; bones are millimetres: contacts
+  // 2 cm apart would count as one and friction anchors would not follow the skin.
+  gContactBreakingThreshold = 0.0005;
+  Impl& im = *impl_;
+  im.world.setGravity(btVector3(0, 0, 0));  // the measured curves already include the finger's weight
+  im.world.getSolverInfo().m_numIterations = config_.solver_iterations;
+  im.world.setInternalTickCallback(&HandSim::preTick, this, true);
+
+  const auto& bones = model_.bones();
+  for (std::size_t i = 0; i < bones.size(); ++i) {
+    const Bone& b = bones[i];
+    const bool fixed = i == 0 || (config_.fix_metacarpals && b.name.ends_with("_metacarpal"));
+    btCollisionShape* shape = nullptr;
+    if (i == 0) {
+      shape = new btSphereShape(0.001);
+    } else {
+      shape = makeBoneShape(b, b.com_m);
+    }
+    im.shapes.emplace_back(shape);
+    Pose com = Pose::Identity();
+    com.translation() = i == 0 ? Vec3::Zero() : b.com_m;
+    im.com_in_link.push_back(com);
+    const double mass = fixed ? 0.0 : b.mass_kg;
+    im.motion_states.push_back(std::make_unique<btDefaultMotionState>(bt(b.pose0 * com)));
+    btRigidBody::btRigidBodyConstructionInfo info(mass, im.motion_states.back().get(), shape,
+                                                  bt(b.inertia_kg_m2));
+    info.m_friction = 0.0;
+    auto body = std::make_unique<btRigidBody>(info);
+    body->setActivationState(DISABLE_DEACTIVATION);
+    im.world.addRigidBody(body.get(), kBoneGroup, kSphereGroup);
+    im.bodies.push_back(std::move(body));
+  }
+
+  const auto& joints = model_.joints();
+  im.frame_in_a.resize(joints.size());
+  im.frame_in_b.resize(joints.size());
+  im.constraints.resize(joints.size());
+  for (std::size_t ji = 0; ji < joints.size(); ++ji) {
+    const Joint& j = joints[ji];
+    const Pose joint_world = bones[static_cast<std::size_t>(j.child_bone)].pose0;
+    const Pose body_a = bones[static_cast<std::size_t>(j.parent_bone)].pose0 *
+                        im.com_in_link[static_cast<std::size_t>(j.parent_bone)];
+    const Pose body_b = joint_world * im.com_in_link[static_cast<std::size_t>(j.child_bone)];
+    im.frame_in_a[ji] = body_a.inverse() * joint_world;
+    im.frame_in_b[ji] = body_b.inverse() * joint_world;
+    if (j.name == config_.mcp_joint) im.mcp_joint = static_cast<int>(ji);
+    btRigidBody& a = im.body(j.parent_bone);
+    btRigidBody& b = im.body(j.child_bone);
+    if (a.getInvMass() == 0.0 && b.getInvMass() == 0.0) continue;  // fixed to fixed: no joint
+    auto c = std::make_unique<btGeneric6DofSpring2Constraint>(
+        a, b, bt(im.frame_in_a[ji]), bt(im.frame_in_b[ji]), RO_ZXY);
+    c->setLinearLowerLimit(btVector3(0, 0, 0));
+    c->setLinearUpperLimit(btVector3(0, 0, 0));
+    btVector3 lo(0, 0, 0), hi(0, 0, 0);
+    for (const Dof& d : j.dofs) {
+      lo[d.axis] = d.lower_rad;
+      hi[d.axis] = d.upper_rad;
+    }
+    setLimits(*c, lo, hi);
+    im.world.addConstraint(c.get(), true);
+    im.constraints[ji] = std::move(c);
+  }
+  im.axis_inertia.resize(joints.size());
+  for (std::size_t ji = 0; ji < joints.size(); ++ji) {
+    for (int axis = 0; axis < 3; ++axis) {
+      im.axis_inertia[ji][kAngleOfAxis[axis]] = axisInertia(static_cast<int>(ji), axis);
+    }
+  }
+  if (im.mcp_joint < 0) throw ConfigError("hand model has no joint '" + config_.mcp_joint + "'");
+
+  for (int k = 0; k < 2; ++k) {
+    auto* shape = new btSphereShape(config_.sphere_radius_m);
+    im.shapes.emplace_back(shape);
+    const double m = config_.sphere_mass_kg;
+    btVector3 inertia;
+    shape->calculateLocalInertia(m, inertia);
+    btRigidBody::btRigidBodyConstructionInfo info(m, nullptr, shape, inertia);
+    info.m_friction = 0.0;
+    im.spheres[k] = std::make_unique<btRigidBody>(info);
+    im.spheres[k]->setActivationState(DISABLE_DEACTIVATION);
+    // A fingertip does not roll on the skin it presses: without this the sphere is a ball
+    // bearing and friction cannot hold the phalanx against sideways escape.
+    im.spheres[k]->setAngularFactor(btVector3(0, 0, 0));
+    im.world.addRigidBody(im.spheres[k].get(), kSphereGroup, kBoneGroup);
+  }
+  setMcpModel(mcp);
+  setFingerTargets({Vec3::Zero(), Vec3::Zero()}, false);
+}
+
+HandSim::~HandSim() {
+  Impl& im = *impl_;
+  for (auto& c : im.constraints) {
+    if (c) im.world.removeConstraint(c.get());
+  }
+  for (auto& s : im.spheres) im.world.removeRigidBody(s.get());
+  for (auto& b : im.bodies) im.world.removeRigidBody(b.get());
+}
+
+void HandSim::setMcpModel(const JointModelParams& mcp) {
+  mcp_ = JointModel(mcp);
+  Impl& im = *impl_;
+  const Joint& j = model_.joints()[static_cast<std::size_t>(im.mcp_joint)];
+  // The device frame sits where the model says the MCP is: world <- joint <- device.
+  Pose device_joint = Pose::Identity();
+  device_joint.linear() = mcp.joint_orientation.toRotationMatrix();
+  device_joint.translation() = mcp.joint_origin_m;
+  device_to_world_ = model_.bones()[static_cast<std::size_t>(j.child_bone)].pose0 * device_joint.inverse();
+  auto& c = im.constraints[static_cast<std::size_t>(im.mcp_joint)];
+  if (!c) return;
+  btVector3 lo(0, 0, 0), hi(0, 0, 0);
+  for (const Dof& d : j.dofs) {
+    const CubicCurve& curve = mcp.axes[static_cast<std::size_t>(kAngleOfAxis[d.axis])];
+    lo[d.axis] = degToRad(curve.min_deg);
+    hi[d.axis] = degToRad(curve.max_deg);
+  }
+  setLimits(*c, lo, hi);
+}
+
+void HandSim::setFingerTargets(const PerFinger<Vec3>& p_device, bool engaged) noexcept {
+  Impl& im = *impl_;
+  // A pinch squeezes: each target moves toward the other by preload / stiffness, so the two
+  // spheres hold the phalanx between them with that force (and friction) on every axis.
+  const Vec3 across = p_device[kIndex] - p_device[kThumb];
+  const double gap = across.norm();
+  const Vec3 squeeze = gap > 1e-9 ? Vec3(across / gap * (config_.pinch_preload_n /
+                                                          config_.coupling_stiffness_n_per_m))
+                                  : Vec3::Zero();
+  for (int k = 0; k < 2; ++k) {
+    Vec3 target = device_to_world_ * (p_device[k] + (k == kThumb ? squeeze : Vec3(-squeeze)));
+    if (!engaged) {
+      // Parked above the back of the hand, apart, out of reach of every bone.
+      target = device_to_world_ * Vec3(0.0, k == kThumb ? 0.03 : -0.03, 0.08);
+    }
+    const bool jump = engaged != engaged_ || (target - target_world_[k]).norm() > 0.01;
+    if (jump) {
+      // Re-engaging (or a large jump): place the sphere instead of pulling it across the hand.
+      btTransform t = im.spheres[k]->getCenterOfMassTransform();
+      t.setOrigin(bt(target));
+      im.spheres[k]->setCenterOfMassTransform(t);
+      im.spheres[k]->setLinearVelocity(btVector3(0, 0, 0));
+      target_velocity_[k].setZero();
+    } else {
+      const Vec3 v = (target - target_world_[k]) / config_.dt_s;
+      target_velocity_[k] += 0.2 * (v - target_velocity_[k]);  // 5 ms smoothing of 1 kHz samples
+    }
+    target_world_[k] = target;
+  }
+  engaged_ = engaged;
+}
+
+void HandSim::resetMcp(const Vec3& angles_rad) {
+  Impl& im = *impl_;
+  const auto& bones = model_.bones();
+  const auto& joints = model_.joints();
+  std::vector<Pose> link(bones.size(), Pose::Identity());
+  for (std::size_t i = 0; i < bones.size(); ++i) {
+    const Bone& b = bones[i];
+    if (b.parent_joint < 0) {
+      link[i] = b.pose0;
+      continue;
+    }
+    const Joint& j = joints[static_cast<std::size_t>(b.parent_joint)];
+    Pose rot = Pose::Identity();
+    if (b.parent_joint == im.mcp_joint) rot.linear() = eulerToRotation(angles_rad);
+    link[i] = link[static_cast<std::size_t>(j.parent_bone)] * j.frame_in_parent * rot;
+  }
+  for (std::size_t i = 0; i < bones.size(); ++i) {
+    btRigidBody& body = *im.bodies[i];
+    if (body.getInvMass() == 0.0) continue;
+    body.setCenterOfMassTransform(bt(link[i] * im.com_in_link[i]));
+    body.setLinearVelocity(btVector3(0, 0, 0));
+    body.setAngularVelocity(btVector3(0, 0, 0));
+  }
+}
+
+void HandSim::preTick(btDynamicsWorld* world, double) {
+  static_cast<HandSim*>(world->getWorldUserInfo())->applyJointTorques();
+}
+
+void HandSim::applyJointTorques() {
+  Impl& im = *impl_;
+  const auto& joints = model_.joints();
+  for (std::size_t ji = 0; ji < joints.size(); ++ji) {
+    const Joint& j = joints[ji];
+    btRigidBody& parent = im.body(j.parent_bone);
+    btRigidBody& child = im.body(j.child_bone);
+    if (child.getInvMass() == 0.0) continue;
+    const Impl::JointState s = im.jointState(j, ji);
+    // Damping is applied as backward Euler would: b / (1 + b·dt/I). Explicit damping on the
+    // finger's small axial inertia (under 1e-6 kg·m²) would otherwise diverge at 1 ms.
+    const Vec3& inertia = im.axis_inertia[ji];
+    auto implicit = [&](double damping) {
+      Vec3 out;
+      for (int i = 0; i < 3; ++i) out[i] = damping / (1.0 + damping * config_.dt_s / inertia[i]);
+      return out;
+    };
+    Vec3 tau_gen;
+    if (static_cast<int>(ji) == im.mcp_joint) {
+      const Vec3 damping = implicit(mcp_.params().damping_nms_per_rad);
+      last_passive_ = mcp_.passiveTorqueNm(s.angles, Vec3::Zero()) - damping.cwiseProduct(s.rates);
+      tau_gen = last_passive_ + external_;
+    } else {
+      tau_gen = -config_.other_stiffness_nm_per_rad * s.angles -
+                implicit(config_.other_damping_nms_per_rad).cwiseProduct(s.rates);
+    }
+    const Vec3 tau_world =
+        s.parent_frame * eulerAxisBasis(s.angles).transpose().partialPivLu().solve(tau_gen);
+    child.applyTorque(bt(tau_world));
+    if (parent.getInvMass() != 0.0) parent.applyTorque(bt(Vec3(-tau_world)));
+  }
+  for (int k = 0; k < 2; ++k) {
+    btRigidBody& s = *im.spheres[k];
+    Vec3 f = config_.coupling_stiffness_n_per_m * (target_world_[k] - eig(s.getCenterOfMassPosition())) +
+             config_.coupling_damping_ns_per_m * (target_velocity_[k] - eig(s.getLinearVelocity()));
+    const double n = f.norm();
+    if (n > kMaxCouplingForceN) f *= kMaxCouplingForceN / n;
+    s.applyCentralForce(bt(f));
+
+    Impl::Grip& g = im.grips[k];
+    g.force.setZero();
+    if (!g.bone) continue;
+    const Pose bone = eig(g.bone->getCenterOfMassTransform());
+    const Vec3 centre = eig(s.getCenterOfMassPosition());
+    Vec3 slip = centre - bone * g.anchor_local;
+    slip -= g.normal * g.normal.dot(slip);
+    const Vec3 rel_v = eig(s.getLinearVelocity()) -
+                       eig(g.bone->getVelocityInLocalPoint(bt(Vec3(centre - bone.translation()))));
+    Vec3 ft = -config_.grip_stiffness_n_per_m * slip -
+              config_.grip_damping_ns_per_m * (rel_v - g.normal * g.normal.dot(rel_v));
+    const double limit = config_.skin_friction * g.normal_n;
+    if (ft.norm() > limit) {
+      // Sliding: the anchor follows the pad so that the spring holds exactly the cone.
+      const double slip_n = slip.norm();
+      if (slip_n > 1e-12) {
+        const Vec3 keep = slip * (limit / config_.grip_stiffness_n_per_m / slip_n);
+        g.anchor_local = bone.inverse() * Vec3(centre - (slip - keep));
+      }
+      ft *= limit / ft.norm();
+    }
+    g.force = ft;
+    s.applyCentralForce(bt(ft));
+    g.bone->applyForce(bt(Vec3(-ft)), bt(Vec3(centre - g.normal * config_.sphere_radius_m -
+                                                 bone.translation())));
+  }
+}
+
+void HandSim::step() {
+  impl_->world.stepSimulation(config_.dt_s, 0);
+  time_s_ += config_.dt_s;
+  readContacts();
+}
+
+void HandSim::readContacts() {
+  Impl& im = *impl_;
+  PerFinger<Vec3> f{Vec3::Zero(), Vec3::Zero()};
+  PerFinger<btRigidBody*> touched{nullptr, nullptr};
+  PerFinger<double> strongest{0.0, 0.0};
+  const int n = im.dispatcher.getNumManifolds();
+  for (int i = 0; i < n; ++i) {
+    const btPersistentManifold* m = im.dispatcher.getManifoldByIndexInternal(i);
+    for (int k = 0; k < 2; ++k) {
+      const bool is_a = m->getBody0() == im.spheres[k].get();
+      const bool is_b = m->getBody1() == im.spheres[k].get();
+      if (!is_a && !is_b) continue;
+      const btCollisionObject* other = is_a ? m->getBody1() : m->getBody0();
+      double sum = 0.0;
+      for (int p = 0; p < m->getNumContacts(); ++p) {
+        const btManifoldPoint& pt = m->getContactPoint(p);
+        // The solver pushes body A along the normal on B, body B against it.
+        const Vec3 impulse = eig(pt.m_normalWorldOnB) * pt.getAppliedImpulse();
+        f[k] += (is_a ? impulse : Vec3(-impulse)) / config_.dt_s;
+        sum += pt.getAppliedImpulse();
+      }
+      if (sum > strongest[k]) {
+        strongest[k] = sum;
+        touched[k] = const_cast<btRigidBody*>(btRigidBody::upcast(other));
+      }
+    }
+  }
+  const Mat3 to_device = device_to_world_.linear().transpose();
+  for (int k = 0; k < 2; ++k) {
+    Impl::Grip& g = im.grips[k];
+    const double normal_n = f[k].norm();
+    if (!touched[k] || normal_n <= 0.0) {
+      g = {};
+    } else {
+      if (g.bone != touched[k]) {
+        g.bone = touched[k];
+        g.anchor_local = eig(g.bone->getCenterOfMassTransform()).inverse() *
+                         eig(im.spheres[k]->getCenterOfMassPosition());
+      }
+      g.normal = f[k] / normal_n;
+      g.normal_n = normal_n;
+    }
+    contact_device_[k] = to_device * (f[k] + g.force);
+  }
+}
+
+Vec3 HandSim::mcpAngles() const {
+  const auto ji = static_cast<std::size_t>(impl_->mcp_joint);
+  return impl_->jointState(model_.joints()[ji], ji).angles;
+}
+
+Vec3 HandSim::mcpRates() const {
+  const auto ji = static_cast<std::size_t>(impl_->mcp_joint);
+  return impl_->jointState(model_.joints()[ji], ji).rates;
+}
+
+std::vector<double> HandSim::jointAngles() const {
+  std::vector<double> out;
+  out.reserve(model_.dofCount());
+  const auto& joints = model_.joints();
+  for (std::size_t ji = 0; ji < joints.size(); ++ji) {
+    const Vec3 a = impl_->jointState(joints[ji], ji).angles;
+    for (const Dof& d : joints[ji].dofs) out.push_back(a[kAngleOfAxis[d.axis]]);
+  }
+  return out;
+}
+
+Pose HandSim::bonePose(int bone) const {
+  const auto i = static_cast<std::size_t>(bone);
+  return eig(impl_->bodies[i]->getCenterOfMassTransform()) * impl_->com_in_link[i].inverse();
+}
+
+PerFinger<Vec3> HandSim::spherePositionsDevice() const {
+  const Pose to_device = device_to_world_.inverse();
+  return {to_device * eig(impl_->spheres[0]->getCenterOfMassPosition()),
+          to_device * eig(impl_->spheres[1]->getCenterOfMassPosition())};
+}
+
+double HandSim::mcpFlexionInertia() const { return axisInertia(impl_->mcp_joint, 1); }
+
+double HandSim::axisInertia(int joint, int axis) const {
+  const Impl& im = *impl_;
+  const auto ji = static_cast<std::size_t>(joint);
+  const Joint& jt = model_.joints()[ji];
+  const Pose frame = eig(im.body(jt.parent_bone).getCenterOfMassTransform()) * im.frame_in_a[ji];
+  const Vec3 origin = frame.translation();
+  const Vec3 a = frame.linear() * Vec3::Unit(axis);
+  double inertia = 0.0;
+  // Every bone downstream of the joint (bones are stored parents first).
+  std::vector<bool> downstream(model_.bones().size(), false);
+  downstream[static_cast<std::size_t>(jt.child_bone)] = true;
+  for (std::size_t i = 0; i < model_.bones().size(); ++i) {
+    const int pj = model_.bones()[i].parent_joint;
+    if (pj >= 0 && downstream[static_cast<std::size_t>(model_.joints()[static_cast<std::size_t>(pj)].parent_bone)]) {
+      downstream[i] = true;
+    }
+    const btRigidBody& b = *im.bodies[i];
+    if (!downstream[i] || b.getInvMass() == 0.0) continue;
+    const Mat3 r = eig(b.getCenterOfMassTransform()).linear();
+    const Vec3 inv = eig(b.getInvInertiaDiagLocal());
+    const Mat3 i_local = Vec3(1.0 / inv.x(), 1.0 / inv.y(), 1.0 / inv.z()).asDiagonal();
+    const Vec3 d = eig(b.getCenterOfMassPosition()) - origin;
+    const Vec3 d_perp = d - a * a.dot(d);
+    inertia += a.dot(r * i_local * r.transpose() * a) + d_perp.squaredNorm() / b.getInvMass();
+  }
+  return inertia;
+}
+
+}  // namespace telehand::server::sim
