@@ -149,7 +149,9 @@ HandSim::HandSim(const HandModel& model, const JointModelParams& mcp, const Hand
                                                   bt(b.inertia_kg_m2));
     info.m_friction = 0.0;
     auto body = std::make_unique<btRigidBody>(info);
-    body->setActivationState(DISABLE_DEACTIVATION);
+    // Fingers nobody touches come to rest and sleep (each is an island of its own behind a
+    // fixed metacarpal); contacts and joint motion wake them.
+    body->setSleepingThresholds(0.002, 0.02);
     im.world.addRigidBody(body.get(), kBoneGroup, kSphereGroup);
     im.bodies.push_back(std::move(body));
   }
@@ -307,14 +309,15 @@ void HandSim::applyJointTorques() {
     const Joint& j = joints[ji];
     btRigidBody& parent = im.body(j.parent_bone);
     btRigidBody& child = im.body(j.child_bone);
-    if (child.getInvMass() == 0.0) continue;
+    if (child.getInvMass() == 0.0 || !child.isActive()) continue;
     const Impl::JointState s = im.jointState(j, ji);
-    // Damping is applied as backward Euler would: b / (1 + b·dt/I). Explicit damping on the
-    // finger's small axial inertia (under 1e-6 kg·m²) would otherwise diverge at 1 ms.
+    // Explicit damping diverges once b·dt/I passes 2, and the finger's axial inertia is
+    // under 1e-6 kg·m²: damping is capped at a quarter of that bound, and exact below it
+    // (flexion, where the ODE ground truth applies, is far below).
     const Vec3& inertia = im.axis_inertia[ji];
     auto implicit = [&](double damping) {
       Vec3 out;
-      for (int i = 0; i < 3; ++i) out[i] = damping / (1.0 + damping * config_.dt_s / inertia[i]);
+      for (int i = 0; i < 3; ++i) out[i] = std::min(damping, 0.5 * inertia[i] / config_.dt_s);
       return out;
     };
     Vec3 tau_gen;
@@ -333,8 +336,11 @@ void HandSim::applyJointTorques() {
   }
   for (int k = 0; k < 2; ++k) {
     btRigidBody& s = *im.spheres[k];
+    // Damping as backward Euler would apply it, so a light sphere stays stable at 1 ms.
+    const double c = config_.coupling_damping_ns_per_m /
+                     (1.0 + config_.coupling_damping_ns_per_m * config_.dt_s / config_.sphere_mass_kg);
     Vec3 f = config_.coupling_stiffness_n_per_m * (target_world_[k] - eig(s.getCenterOfMassPosition())) +
-             config_.coupling_damping_ns_per_m * (target_velocity_[k] - eig(s.getLinearVelocity()));
+             c * (target_velocity_[k] - eig(s.getLinearVelocity()));
     const double n = f.norm();
     if (n > kMaxCouplingForceN) f *= kMaxCouplingForceN / n;
     s.applyCentralForce(bt(f));
@@ -416,6 +422,9 @@ void HandSim::readContacts() {
       g.normal_n = normal_n;
     }
     contact_device_[k] = to_device * (f[k] + g.force);
+    const Vec3 centre = eig(im.spheres[k]->getCenterOfMassPosition());
+    contact_point_device_[k] =
+        device_to_world_.inverse() * Vec3(centre - g.normal * config_.sphere_radius_m);
   }
 }
 

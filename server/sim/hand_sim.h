@@ -72,6 +72,8 @@ class HandSim {
   /// Sphere centres and contact forces (the phalanx on each sphere), device frame.
   PerFinger<Vec3> spherePositionsDevice() const;
   PerFinger<Vec3> contactForcesDevice() const noexcept { return contact_device_; }
+  /// Where each pad touches the skin (the sphere centre when it touches nothing), device frame.
+  PerFinger<Vec3> contactPointsDevice() const noexcept { return contact_point_device_; }
   /// Device frame -> world.
   const Pose& deviceToWorld() const noexcept { return device_to_world_; }
   /// Moment of inertia of the index finger (proximal, middle, distal) about the MCP
@@ -98,6 +100,7 @@ class HandSim {
   Vec3 external_ = Vec3::Zero();
   Vec3 last_passive_ = Vec3::Zero();
   PerFinger<Vec3> contact_device_{Vec3::Zero(), Vec3::Zero()};
+  PerFinger<Vec3> contact_point_device_{Vec3::Zero(), Vec3::Zero()};
   double time_s_ = 0.0;
 };
 

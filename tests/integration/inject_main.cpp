@@ -164,12 +164,16 @@ int main(int argc, char** argv) {
       samples.push_back(s);
       std::this_thread::sleep_for(1ms);
     }
-    telehand_msg_RecordChunk c{};
-    c.session_id = id;
-    c.samples._buffer = samples.data();
-    c.samples._length = c.samples._maximum = static_cast<uint32_t>(samples.size());
-    c.samples._release = false;
-    peer.chunk.write(c);
+    for (std::size_t first = 0; first < samples.size(); first += 100) {  // IDL bound: 256
+      telehand_msg_RecordChunk c{};
+      c.session_id = id;
+      c.chunk_seq = first / 100;
+      c.samples._buffer = samples.data() + first;
+      c.samples._length = c.samples._maximum =
+          static_cast<uint32_t>(std::min<std::size_t>(100, samples.size() - first));
+      c.samples._release = false;
+      dds::check(peer.chunk.write(c), "write RecordChunk");
+    }
     auto err = peer.awaitError("non-finite", id, 10s);
     peer.send(telehand_msg_CMD_CLOSE, id, count);
     uint64_t recorded = 0, missing = 0;

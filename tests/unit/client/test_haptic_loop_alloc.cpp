@@ -1,0 +1,262 @@
+// HapticLoop::step() allocates nothing (DESIGN.md "House style"). This executable replaces
+// the global operator new/delete with counting versions, armed per thread around step().
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <memory>
+#include <new>
+#include <string>
+#include <vector>
+
+#include "client/device/simulated_mf2.h"
+#include "client/loop/haptic_loop.h"
+#include "telehand/common/clock.h"
+
+namespace {
+
+thread_local bool t_armed = false;
+thread_local std::size_t t_allocations = 0;
+thread_local std::size_t t_deallocations = 0;
+
+void* allocate(std::size_t n) noexcept {
+  if (t_armed) ++t_allocations;
+  return std::malloc(n == 0 ? 1 : n);
+}
+
+void* allocateAligned(std::size_t n, std::align_val_t al) noexcept {
+  if (t_armed) ++t_allocations;
+  void* p = nullptr;
+  const std::size_t a = std::max(static_cast<std::size_t>(al), sizeof(void*));
+  return posix_memalign(&p, a, n == 0 ? 1 : n) == 0 ? p : nullptr;
+}
+
+void* allocateOrThrow(std::size_t n) {
+  if (void* p = allocate(n)) return p;
+  throw std::bad_alloc();
+}
+
+void* allocateAlignedOrThrow(std::size_t n, std::align_val_t al) {
+  if (void* p = allocateAligned(n, al)) return p;
+  throw std::bad_alloc();
+}
+
+void release(void* p) noexcept {
+  if (p == nullptr) return;
+  if (t_armed) ++t_deallocations;
+  std::free(p);
+}
+
+}  // namespace
+
+// NOLINTBEGIN(misc-new-delete-overloads): every replaceable form, counted.
+void* operator new(std::size_t n) { return allocateOrThrow(n); }
+void* operator new[](std::size_t n) { return allocateOrThrow(n); }
+void* operator new(std::size_t n, const std::nothrow_t&) noexcept { return allocate(n); }
+void* operator new[](std::size_t n, const std::nothrow_t&) noexcept { return allocate(n); }
+void* operator new(std::size_t n, std::align_val_t al) { return allocateAlignedOrThrow(n, al); }
+void* operator new[](std::size_t n, std::align_val_t al) { return allocateAlignedOrThrow(n, al); }
+void* operator new(std::size_t n, std::align_val_t al, const std::nothrow_t&) noexcept {
+  return allocateAligned(n, al);
+}
+void* operator new[](std::size_t n, std::align_val_t al, const std::nothrow_t&) noexcept {
+  return allocateAligned(n, al);
+}
+void operator delete(void* p) noexcept { release(p); }
+void operator delete[](void* p) noexcept { release(p); }
+void operator delete(void* p, std::size_t) noexcept { release(p); }
+void operator delete[](void* p, std::size_t) noexcept { release(p); }
+void operator delete(void* p, const std::nothrow_t&) noexcept { release(p); }
+void operator delete[](void* p, const std::nothrow_t&) noexcept { release(p); }
+void operator delete(void* p, std::align_val_t) noexcept { release(p); }
+void operator delete[](void* p, std::align_val_t) noexcept { release(p); }
+void operator delete(void* p, std::size_t, std::align_val_t) noexcept { release(p); }
+void operator delete[](void* p, std::size_t, std::align_val_t) noexcept { release(p); }
+void operator delete(void* p, std::align_val_t, const std::nothrow_t&) noexcept { release(p); }
+void operator delete[](void* p, std::align_val_t, const std::nothrow_t&) noexcept { release(p); }
+// NOLINTEND(misc-new-delete-overloads)
+
+namespace telehand::client {
+namespace {
+
+using device::DeviceSample;
+using device::ForceCommand;
+using device::SimulatedMf2;
+using loop::HapticLoop;
+using loop::StepStatus;
+
+/// Counts heap traffic on this thread while in scope.
+class AllocationGuard {
+ public:
+  AllocationGuard() : a0_(t_allocations), d0_(t_deallocations) { t_armed = true; }
+  ~AllocationGuard() { t_armed = false; }
+  AllocationGuard(const AllocationGuard&) = delete;
+  AllocationGuard& operator=(const AllocationGuard&) = delete;
+  std::size_t allocations() const { return t_allocations - a0_; }
+  std::size_t deallocations() const { return t_deallocations - d0_; }
+
+ private:
+  std::size_t a0_, d0_;
+};
+
+/// Keeps the optimizer from eliding an allocation whose result is otherwise unused.
+void escape(const void* p) { asm volatile("" : : "g"(p) : "memory"); }
+
+/// Forwards to a device, but can fail reads (a stalled USB link) or allocate in read() (the
+/// bug the guard must catch).
+class TestDevice final : public device::Device {
+ public:
+  explicit TestDevice(device::Device& inner) : inner_(inner) {}
+  bool read(DeviceSample& out) noexcept override {
+    if (allocate_in_read) {
+      auto* s = new (std::nothrow) std::string(100, 'x');
+      escape(s);
+      delete s;
+    }
+    if (fail_reads) return false;
+    return inner_.read(out);
+  }
+  bool write(const ForceCommand& cmd) noexcept override { return inner_.write(cmd); }
+  device::DeviceStatus status() const noexcept override { return inner_.status(); }
+  std::string_view name() const noexcept override { return "test"; }
+
+  bool fail_reads = false;
+  bool allocate_in_read = false;
+
+ private:
+  device::Device& inner_;
+};
+
+TEST(AllocationGuard, CountsAllocationsOnlyWhileArmed) {
+  std::size_t counted = 0;
+  {
+    AllocationGuard guard;
+    auto v = std::make_unique<std::vector<double>>(64, 1.0);
+    escape(v.get());
+    escape(v->data());
+    counted = guard.allocations();
+  }
+  EXPECT_EQ(counted, 2u) << "the vector object and its buffer";
+
+  const std::size_t before = t_allocations;
+  auto w = std::make_unique<std::vector<double>>(64, 1.0);
+  escape(w->data());
+  EXPECT_EQ(t_allocations, before) << "not armed: not counted";
+}
+
+TEST(AllocationGuard, CatchesAnAllocationInsideStep) {
+  ManualClock clock(kNsPerS);
+  const JointModelParams model = healthyIndexMcp();
+  SimulatedMf2 sim(model, OperatorConfig{}, clock);
+  TestDevice dev(sim);
+  HapticLoop hl(dev, clock, model, SafetyLimits{});
+  dev.allocate_in_read = true;
+  clock.advance(kNsPerMs);
+  AllocationGuard guard;
+  hl.step();
+  EXPECT_GE(guard.allocations(), 1u) << "a device that allocates in read() must be caught";
+  EXPECT_GE(guard.deallocations(), 1u);
+}
+
+TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
+  constexpr int kTicks = 6000;
+  constexpr int kModelAt = 2000;
+  constexpr int kFaultFrom = 3500;
+  constexpr int kFaultTicks = 50;
+
+  ManualClock clock(kNsPerS);
+  const JointModelParams model = healthyIndexMcp();
+  SimulatedMf2 sim(model, OperatorConfig{}, clock);
+  TestDevice dev(sim);
+  HapticLoop hl(dev, clock, model, SafetyLimits{});
+  hl.setSession(77);
+  JointModelParams stiffer = model;
+  stiffer.version = 2;
+  stiffer.axes[kFlexion].coeffs = {3e-5, 0.002, 0.08, 1.0};
+
+  std::vector<telehand_msg_DeviceState> samples;
+  samples.reserve(kTicks);
+  std::vector<StepStatus> statuses;
+  statuses.reserve(kTicks);
+  std::size_t allocations = 0, deallocations = 0;
+  for (int i = 0; i < kTicks; ++i) {
+    clock.advance(kNsPerMs);
+    if (i == kModelAt) {
+      ASSERT_TRUE(hl.models().tryPush(stiffer));  // the link thread's side
+    }
+    dev.fail_reads = i >= kFaultFrom && i < kFaultFrom + kFaultTicks;
+    StepStatus st;
+    {
+      AllocationGuard guard;
+      st = hl.step();
+      allocations += guard.allocations();
+      deallocations += guard.deallocations();
+    }
+    statuses.push_back(st);
+    telehand_msg_DeviceState s;
+    while (hl.samples().tryPop(s)) samples.push_back(s);
+  }
+
+  EXPECT_EQ(allocations, 0u) << "HapticLoop::step() allocated";
+  EXPECT_EQ(deallocations, 0u) << "HapticLoop::step() freed memory";
+
+  // The run really went through the model update and the watchdog.
+  const loop::LoopHealth& h = hl.health();
+  EXPECT_EQ(h.ticks.load(), static_cast<uint64_t>(kTicks));
+  EXPECT_EQ(h.models_applied.load(), 1u);
+  EXPECT_EQ(h.model_version.load(), 2u);
+  EXPECT_EQ(h.device_read_failures.load(), static_cast<uint64_t>(kFaultTicks));
+  EXPECT_GT(h.watchdog_trips.load(), 0u);
+  EXPECT_EQ(h.samples_dropped.load(), 0u);
+
+  // Every tick produced one sample, in order, with a gated force.
+  ASSERT_EQ(samples.size(), static_cast<std::size_t>(kTicks));
+  EXPECT_EQ(hl.nextSeq(), static_cast<uint64_t>(kTicks));
+  int watchdog_samples = 0;
+  for (int i = 0; i < kTicks; ++i) {
+    const telehand_msg_DeviceState& s = samples[i];
+    ASSERT_EQ(s.seq, static_cast<uint64_t>(i));
+    EXPECT_EQ(s.session_id, 77u);
+    EXPECT_EQ(s.model_version, i < kModelAt ? 1u : 2u) << i;
+    for (const auto& f : s.fingers) {
+      const Vec3 cmd(f.command_n[0], f.command_n[1], f.command_n[2]);
+      ASSERT_TRUE(allFinite(cmd)) << i;
+      ASSERT_LE(cmd.norm(), 4.0 + 1e-9) << i;
+      if (s.flags & telehand_msg_kFlagWatchdog) {
+        ASSERT_TRUE(cmd.isZero()) << i;
+      }
+    }
+    const bool in_fault = i >= kFaultFrom && i < kFaultFrom + kFaultTicks;
+    if (i > 0) {
+      // One device sample per tick, 1 ms apart; a failed read repeats the last one.
+      const int64_t dt = s.source_time_ns - samples[i - 1].source_time_ns;
+      if (in_fault) {
+        EXPECT_EQ(dt, 0) << i;
+      } else if (i == kFaultFrom + kFaultTicks) {
+        EXPECT_EQ(dt, (kFaultTicks + 1) * kNsPerMs) << i;
+      } else {
+        EXPECT_EQ(dt, kNsPerMs) << i;
+      }
+    }
+    if (s.flags & telehand_msg_kFlagWatchdog) {
+      ++watchdog_samples;
+      EXPECT_TRUE(in_fault) << i;
+      EXPECT_EQ(statuses[i], StepStatus::kSafetyFault) << i;
+    } else if (in_fault) {
+      EXPECT_EQ(statuses[i], StepStatus::kNoSample) << i;
+    } else {
+      EXPECT_EQ(statuses[i], StepStatus::kOk) << i;
+    }
+    if (i > kModelAt && i < kModelAt + 150) {
+      EXPECT_TRUE(s.flags & telehand_msg_kFlagModelBlending) << i;
+    }
+  }
+  // Stale after 5 ms without a sample: 50 failed reads leave about 45 watchdog ticks.
+  EXPECT_GE(watchdog_samples, kFaultTicks - 6);
+  EXPECT_LE(watchdog_samples, kFaultTicks - 4);
+  // Force comes back after the fault.
+  const auto& last = samples.back().fingers[0].command_n;
+  EXPECT_GT(Vec3(last[0], last[1], last[2]).norm(), 0.1);
+}
+
+}  // namespace
+}  // namespace telehand::client

@@ -1,0 +1,256 @@
+// The authoritative hand: URDF loading, conventions, limits, the 1-DoF ODE ground truth and
+// torque agreement with the client proxy (FACTS.md "Bullet").
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "server/sim/hand_sim.h"
+#include "telehand/common/error.h"
+
+namespace telehand::server::sim {
+namespace {
+
+const std::string kHand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
+
+/// One finger reduced to the index metacarpal (fixed) and a 30 g proximal phalanx on the
+/// three-axis MCP: the 1-DoF ground truth of FACTS.md.
+const char* kOnePhalanx = R"(<?xml version="1.0"?>
+<robot name="one">
+  <link name="carpus"/>
+  <link name="index_metacarpal">
+    <inertial><origin xyz="0.0225 0 0"/><mass value="0.036"/><inertia ixx="1e-6" ixy="0" ixz="0" iyy="6e-6" iyz="0" izz="6e-6"/></inertial>
+    <collision><origin xyz="0.0225 0 0"/><geometry><cylinder radius="0.005" length="0.045"/></geometry></collision>
+  </link>
+  <joint name="index_cmc" type="revolute"><parent link="carpus"/><child link="index_metacarpal"/>
+    <axis xyz="0 1 0"/><limit lower="0" upper="0.17" effort="1" velocity="1"/></joint>
+  <link name="f"/>
+  <link name="a"/>
+  <link name="index_proximal">
+    <inertial><origin xyz="0.0185 0 0"/><mass value="0.030"/><inertia ixx="1.2e-6" ixy="0" ixz="0" iyy="3.6e-6" iyz="0" izz="3.6e-6"/></inertial>
+    <collision><origin xyz="0.0185 0 0"/><geometry><cylinder radius="0.005" length="0.037"/></geometry></collision>
+  </link>
+  <joint name="index_mcp_flexion" type="revolute"><parent link="index_metacarpal"/><child link="f"/>
+    <origin xyz="0.045 0 0"/><axis xyz="0 1 0"/><limit lower="-0.785" upper="1.571" effort="1" velocity="1"/></joint>
+  <joint name="index_mcp_axial" type="revolute"><parent link="f"/><child link="a"/>
+    <axis xyz="1 0 0"/><limit lower="-0.175" upper="0.262" effort="1" velocity="1"/></joint>
+  <joint name="index_mcp_abduction" type="revolute"><parent link="a"/><child link="index_proximal"/>
+    <axis xyz="0 0 1"/><limit lower="-0.349" upper="0.349" effort="1" velocity="1"/></joint>
+</robot>)";
+
+TEST(HandModel, LoadsTheTwentyFourDofHandPlusAxialRotation) {
+  const HandModel m = HandModel::load(kHand);
+  EXPECT_EQ(m.dofCount(), 25u);
+  const auto names = m.dofNames();
+  for (const char* n : {"thumb_cmc_flexion", "thumb_cmc_abduction", "thumb_mcp", "thumb_ip",
+                        "index_cmc", "index_mcp_flexion", "index_mcp_axial", "index_mcp_abduction",
+                        "index_pip", "index_dip", "little_dip"}) {
+    EXPECT_NE(std::find(names.begin(), names.end(), n), names.end()) << n;
+  }
+  // FACTS.md: index bones 45/37/30/15 mm.
+  EXPECT_NEAR(m.bones()[m.bone("index_metacarpal")].length_m, 0.045, 1e-6);
+  EXPECT_NEAR(m.bones()[m.bone("index_proximal")].length_m, 0.037, 1e-6);
+  EXPECT_NEAR(m.bones()[m.bone("index_middle")].length_m, 0.030, 1e-6);
+  EXPECT_NEAR(m.bones()[m.bone("index_distal")].length_m, 0.015, 1e-6);
+  // The MCP is one joint with three axes in flexion, axial, abduction order.
+  const Joint& mcp = m.joints()[m.joint("index_mcp_flexion")];
+  ASSERT_EQ(mcp.dofs.size(), 3u);
+  EXPECT_EQ(mcp.dofs[0].axis, 1);
+  EXPECT_EQ(mcp.dofs[1].axis, 0);
+  EXPECT_EQ(mcp.dofs[2].axis, 2);
+  EXPECT_NEAR(radToDeg(mcp.dofs[0].lower_rad), -45.0, 0.01);
+  EXPECT_NEAR(radToDeg(mcp.dofs[0].upper_rad), 90.0, 0.01);
+  const Joint& pip = m.joints()[m.joint("index_pip")];
+  EXPECT_NEAR(radToDeg(pip.dofs[0].upper_rad), 110.0, 0.01);
+}
+
+void expectConfigError(const std::string& xml, const std::string& needle) {
+  try {
+    HandModel::parse(xml, "bad.urdf");
+    FAIL() << "no error for " << needle;
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.urdf"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+  }
+}
+
+TEST(HandModel, MalformedFilesNameTheElement) {
+  expectConfigError("<robot name='x'><link name='a'/>", "not a valid URDF");
+  std::string no_limit = kOnePhalanx;
+  no_limit.replace(no_limit.find("<limit lower=\"-0.175\""), std::string("<limit lower=\"-0.175\" upper=\"0.262\" effort=\"1\" velocity=\"1\"/>").size(), "");
+  expectConfigError(no_limit, "index_mcp_axial");
+  std::string bad_axis = kOnePhalanx;
+  bad_axis.replace(bad_axis.find("<axis xyz=\"0 0 1\"/>"), 19, "<axis xyz=\"0 1 1\"/>");
+  expectConfigError(bad_axis, "index_mcp_abduction");
+  std::string no_geometry = kOnePhalanx;
+  const auto at = no_geometry.find("<collision><origin xyz=\"0.0185");
+  no_geometry.erase(at, no_geometry.find("</collision>", at) + 12 - at);
+  expectConfigError(no_geometry, "index_proximal");
+  std::string bad_order = kOnePhalanx;  // abduction before flexion breaks the Euler convention
+  bad_order.replace(bad_order.find("<origin xyz=\"0.045 0 0\"/><axis xyz=\"0 1 0\"/>"), 44,
+                    "<origin xyz=\"0.045 0 0\"/><axis xyz=\"0 0 1\"/>");
+  bad_order.replace(bad_order.find("<axis xyz=\"0 0 1\"/><limit lower=\"-0.349\""), 19, "<axis xyz=\"0 1 0\"/>");
+  expectConfigError(bad_order, "order");
+  EXPECT_THROW(HandModel::load("/nonexistent/hand.urdf"), ConfigError);
+}
+
+class OnePhalanx : public ::testing::Test {
+ protected:
+  OnePhalanx() : model_(HandModel::parse(kOnePhalanx, "one")), params_(healthyIndexMcp()) {}
+  HandModel model_;
+  JointModelParams params_;
+};
+
+TEST_F(OnePhalanx, SignConventionsOfEveryAxis) {
+  HandSim sim(model_, params_);
+  const int bone = model_.bone("index_proximal");
+  for (int axis = 0; axis < kAxes; ++axis) {
+    Vec3 a = Vec3::Zero();
+    a[axis] = 0.1;
+    sim.resetMcp(a);
+    const Vec3 read = sim.mcpAngles();
+    EXPECT_NEAR(read[axis], 0.1, 1e-9) << kAxisNames[static_cast<std::size_t>(axis)];
+    // Where the phalanx went, in the joint frame (= the model's device frame here).
+    const Pose p = sim.deviceToWorld().inverse() * sim.bonePose(bone);
+    if (axis == kFlexion) {
+      EXPECT_LT(p.linear().col(0).z(), -0.09);  // toward the palm
+    } else if (axis == kAbduction) {
+      EXPECT_GT(p.linear().col(0).y(), 0.09);  // radial
+    } else {
+      EXPECT_LT(p.linear().col(2).y(), -0.09);  // the back of the finger turns ulnar
+    }
+    // A positive external torque on an axis moves that angle up.
+    sim.resetMcp(Vec3::Zero());
+    Vec3 push = Vec3::Zero();
+    push[axis] = 0.01;
+    sim.setExternalMcpTorque(push);
+    const double before = sim.mcpAngles()[axis];
+    for (int i = 0; i < 20; ++i) sim.step();
+    EXPECT_GT(sim.mcpAngles()[axis], before + 1e-4) << kAxisNames[static_cast<std::size_t>(axis)];
+    sim.setExternalMcpTorque(Vec3::Zero());
+  }
+}
+
+TEST_F(OnePhalanx, LimitsHoldUnderHalfANewtonMetre) {
+  HandSim sim(model_, params_);
+  for (int axis = 0; axis < kAxes; ++axis) {
+    const CubicCurve& c = params_.axes[static_cast<std::size_t>(axis)];
+    for (double sign : {1.0, -1.0}) {
+      sim.resetMcp(Vec3::Zero());
+      Vec3 push = Vec3::Zero();
+      push[axis] = 0.5 * sign;
+      sim.setExternalMcpTorque(push);
+      for (int i = 0; i < 1500; ++i) sim.step();
+      const double deg = radToDeg(sim.mcpAngles()[axis]);
+      const double limit = sign > 0 ? c.max_deg : c.min_deg;
+      EXPECT_NEAR(deg, limit, 0.5) << kAxisNames[static_cast<std::size_t>(axis)] << " " << sign;
+    }
+  }
+}
+
+/// RK4 on I·θ'' = τ_ext(t) + τ_passive(θ) − b·θ' (flexion only), 10 µs steps.
+std::vector<double> groundTruth(const JointModel& m, double inertia, double theta0,
+                                const std::function<double(double)>& tau_ext, double seconds) {
+  const double b = m.params().damping_nms_per_rad;
+  auto acc = [&](double t, double th, double w) {
+    return (tau_ext(t) + m.passiveTorqueNm(Vec3(th, 0, 0), Vec3::Zero())[kFlexion] - b * w) / inertia;
+  };
+  std::vector<double> out;
+  double th = theta0, w = 0.0, t = 0.0;
+  constexpr double h = 1e-5;
+  const int per_ms = 100;
+  for (int ms = 0; ms < static_cast<int>(seconds * 1000); ++ms) {
+    for (int i = 0; i < per_ms; ++i) {
+      const double k1t = w, k1w = acc(t, th, w);
+      const double k2t = w + 0.5 * h * k1w, k2w = acc(t + 0.5 * h, th + 0.5 * h * k1t, w + 0.5 * h * k1w);
+      const double k3t = w + 0.5 * h * k2w, k3w = acc(t + 0.5 * h, th + 0.5 * h * k2t, w + 0.5 * h * k2w);
+      const double k4t = w + h * k3w, k4w = acc(t + h, th + h * k3t, w + h * k3w);
+      th += h / 6 * (k1t + 2 * k2t + 2 * k3t + k4t);
+      w += h / 6 * (k1w + 2 * k2w + 2 * k3w + k4w);
+      t += h;
+    }
+    out.push_back(th);
+  }
+  return out;
+}
+
+void compareWithOde(const HandModel& model, const JointModelParams& params,
+                    const std::function<double(double)>& tau_ext, const char* what) {
+  HandSim sim(model, params);
+  const JointModel jm(params);
+  // Start at rest on the other axes so that only flexion moves.
+  const Vec3 start(0.0, jm.restAngleRad(kAbduction), jm.restAngleRad(kAxial));
+  sim.resetMcp(start);
+  const auto truth = groundTruth(jm, sim.mcpFlexionInertia(), 0.0, tau_ext, 2.0);
+  const double range = degToRad(params.axes[kFlexion].max_deg - params.axes[kFlexion].min_deg);
+  double worst = 0.0, swing = 0.0;
+  for (std::size_t ms = 0; ms < truth.size(); ++ms) {
+    sim.setExternalMcpTorque(Vec3(tau_ext(static_cast<double>(ms) * 1e-3), 0, 0));
+    sim.step();
+    worst = std::max(worst, std::abs(sim.mcpAngles()[kFlexion] - truth[ms]));
+    swing = std::max(swing, std::abs(truth[ms]));
+  }
+  EXPECT_GT(swing, 0.1 * range) << what << ": the push must move the joint for the test to mean anything";
+  EXPECT_LT(worst, 0.01 * range) << what << ": worst error " << radToDeg(worst) << " deg";
+  ::testing::Test::RecordProperty(std::string(what) + "_worst_error_deg", std::to_string(radToDeg(worst)));
+}
+
+TEST_F(OnePhalanx, StepTorqueFollowsTheAnalyticOde) {
+  compareWithOde(model_, params_, [](double) { return 0.06; }, "step");
+}
+
+TEST_F(OnePhalanx, ThreeHertzPushFollowsTheAnalyticOde) {
+  compareWithOde(model_, params_,
+                 [](double t) { return 0.05 + 0.03 * std::sin(2 * kPi * 3.0 * t); }, "3 Hz push");
+}
+
+/// Ramps a pinch to each angle like a slow student (30 deg/s), holds it, and compares the
+/// torque the pads exert on the phalanx (averaged over the last 0.5 s: skin friction
+/// sticks and slips) with the proxy's torque at the angle the simulation reached.
+void quasiStatic(const HandSimConfig& config, bool every_axis) {
+  const HandModel model = HandModel::load(kHand);
+  const JointModelParams params = healthyIndexMcp();
+  HandSim sim(model, params, config);
+  const JointModel proxy(params);  // what the client renders with
+  Vec3 cur(proxy.restAngleRad(kFlexion), 0, 0);
+  sim.resetMcp(cur);
+  for (double goal_deg : {10.0, 30.0, 50.0, 70.0}) {
+    const double goal = degToRad(goal_deg);
+    while (cur[kFlexion] < goal) {
+      cur[kFlexion] = std::min(goal, cur[kFlexion] + degToRad(0.03));
+      sim.setFingerTargets(proxy.gripFromAngles(cur, 0.008), true);
+      sim.step();
+    }
+    Vec3 applied = Vec3::Zero(), expected = Vec3::Zero(), angles = Vec3::Zero();
+    constexpr int kSteps = 1000, kAveraged = 500;
+    for (int i = 0; i < kSteps; ++i) {
+      sim.setFingerTargets(proxy.gripFromAngles(cur, 0.008), true);
+      sim.step();
+      if (i < kSteps - kAveraged) continue;
+      const auto on_spheres = sim.contactForcesDevice();
+      angles = sim.mcpAngles();
+      applied += proxy.axisTorque(sim.contactPointsDevice(), angles, {-on_spheres[0], -on_spheres[1]}) / kAveraged;
+      expected += -proxy.passiveTorqueNm(angles, Vec3::Zero()) / kAveraged;
+    }
+    EXPECT_NEAR(applied[kFlexion], expected[kFlexion], 0.01 * std::abs(expected[kFlexion]))
+        << "at " << goal_deg << " deg (sim " << radToDeg(angles[kFlexion]) << ")";
+    if (every_axis) {
+      for (int axis : {kAbduction, kAxial}) {
+        // 1 % of the torque the joint carries (these axes hold only a few mN·m here).
+        EXPECT_NEAR(applied[axis], expected[axis], 0.01 * expected.norm())
+            << kAxisNames[static_cast<std::size_t>(axis)] << " at " << goal_deg << " deg";
+      }
+    }
+    EXPECT_NEAR(radToDeg(angles[kFlexion]), goal_deg, 2.0);
+  }
+}
+
+TEST(HandSim, QuasiStaticTorqueMatchesTheClientProxy) { quasiStatic(HandSimConfig{}, false); }
+
+TEST(HandSim, QuasiStaticTorqueMatchesOnEveryAxisWithoutSkinFriction) {
+  HandSimConfig frictionless;
+  frictionless.skin_friction = 0.0;
+  quasiStatic(frictionless, true);
+}
+
+}  // namespace
+}  // namespace telehand::server::sim
