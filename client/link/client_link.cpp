@@ -1,5 +1,7 @@
 #include "client/link/client_link.h"
 
+#include <sys/prctl.h>
+
 #include <random>
 
 #include "telehand/common/clock.h"
@@ -104,6 +106,7 @@ void ClientLink::stop() {
 
 void ClientLink::run() {
   pthread_setname_np(pthread_self(), "telehand-link");
+  prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);  // its 0.5 ms naps are the samples' latency
   while (running_.load(std::memory_order_acquire)) {
     pump(false);
     pollModels();
@@ -172,11 +175,11 @@ void ClientLink::pollModels() {
       messages_.push_back("rejected JointModel v" + std::to_string(m.version) + ": " + why);
       return;
     }
-    if (loop_.models().tryPush(*params)) {
-      model_version_ = m.version;
-      stats_.models_received.fetch_add(1);
-    }
+    model_version_ = m.version;
+    pending_model_ = *params;  // the newest wins; it is never sent again (keep-last 1)
+    stats_.models_received.fetch_add(1);
   });
+  if (pending_model_ && loop_.models().tryPush(*pending_model_)) pending_model_.reset();
 }
 
 void ClientLink::pollEvents() {

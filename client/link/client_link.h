@@ -102,6 +102,7 @@ class ClientLink {
   std::mutex messages_mu_;
   std::vector<std::string> messages_;
   uint32_t model_version_ = 0;
+  std::optional<JointModelParams> pending_model_;  // taken but not yet in the loop's ring
 };
 
 }  // namespace telehand::client::link

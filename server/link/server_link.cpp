@@ -99,8 +99,9 @@ void ServerLink::echoLoop() {
   pthread_setname_np(pthread_self(), "telehand-echo");
   while (echo_running_.load(std::memory_order_acquire)) {
     echo_waitset_.wait(std::chrono::milliseconds(200));
-    counters_.echoes += ping_reader_.take(
-        [&](const telehand_msg_DeviceState& s, const dds_sample_info_t&) { pong_writer_.write(s); });
+    ping_reader_.take([&](const telehand_msg_DeviceState& s, const dds_sample_info_t&) {
+      if (pong_writer_.write(s) >= 0) counters_.echoes.fetch_add(1, std::memory_order_relaxed);
+    });
   }
 }
 
