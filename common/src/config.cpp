@@ -1,6 +1,10 @@
 #include "telehand/common/config.h"
 
+#include <cmath>
+#include <filesystem>
 #include <fstream>
+#include <cstring>
+#include <regex>
 #include <sstream>
 #include <toml++/toml.h>
 #include <utility>
@@ -57,6 +61,23 @@ class TableReader {
     fail(origin_, "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." + key +
                       "' must be " + want + " (found " + std::string(toml::impl::node_type_friendly_names[static_cast<int>(n->type())]) + ")");
   }
+  /// A TOML array of exactly N numbers.
+  template <std::size_t N>
+  void readArray(const std::string& key, std::array<double, N>& out) {
+    known_.push_back(key);
+    if (!table_) return;
+    const toml::node* n = table_->get(key);
+    if (!n) return;
+    const toml::array* arr = n->as_array();
+    const std::string where = "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." + key + "'";
+    if (!arr || arr->size() != N) fail(origin_, where + " must be an array of " + std::to_string(N) + " numbers");
+    for (std::size_t i = 0; i < N; ++i) {
+      auto v = (*arr)[i].value<double>();
+      if (!v || !std::isfinite(*v)) fail(origin_, where + ": element " + std::to_string(i) + " is not a finite number");
+      out[i] = *v;
+    }
+  }
+  bool present() const { return table_ != nullptr; }
   void rejectUnknown() const {
     if (!table_) return;
     for (const auto& [k, v] : *table_) {
@@ -167,6 +188,8 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
   sv.read("db", c.db_path);
   sv.read("hand_state_hz", c.hand_state_hz);
   sv.read("close_grace_s", c.close_grace_s);
+  sv.read("cases_dir", c.cases_dir);
+  sv.read("hand_model", c.hand_model);
   sv.rejectUnknown();
   if (c.db_path.empty()) fail(origin, "'server.db' must not be empty");
   requireRange(origin, "server.hand_state_hz", c.hand_state_hz, 1.0, 1000.0);
@@ -179,6 +202,103 @@ ClientConfig loadClientConfig(const std::string& path) {
 }
 ServerConfig loadServerConfig(const std::string& path) {
   return parseServerConfig(readFile(path), path);
+}
+
+PatientCase parsePatientCase(const std::string& text, const std::string& origin) {
+  const toml::table root = parse(text, origin);
+  rejectUnknownTables(root, {"case", "flexion", "abduction", "axial", "recovery"}, origin);
+  PatientCase pc;
+  JointModelParams& m = pc.model;
+  m = healthyIndexMcp();  // lever arm, scale, frame; everything a case sets is overwritten
+  TableReader cs(root, "case", origin);
+  if (!cs.present()) fail(origin, "missing table [case]");
+  cs.read("name", pc.name);
+  cs.read("description", pc.description);
+  cs.read("source", pc.source);
+  cs.read("damping_nms_per_rad", m.damping_nms_per_rad);
+  cs.read("speed_gain_s_per_rad", m.speed_gain_s_per_rad);
+  cs.rejectUnknown();
+  if (pc.name.empty()) fail(origin, "'case.name' must be set");
+  requireRange(origin, "case.damping_nms_per_rad", m.damping_nms_per_rad, 0.0, 0.5);
+  requireRange(origin, "case.speed_gain_s_per_rad", m.speed_gain_s_per_rad, 0.0, 20.0);
+  for (int i = 0; i < kAxes; ++i) {
+    const auto ax = static_cast<std::size_t>(i);
+    const std::string name(kAxisNames[ax]);
+    TableReader t(root, name, origin);
+    if (!t.present()) fail(origin, "missing table [" + name + "]");
+    CubicCurve& curve = m.axes[ax];
+    t.readArray("coeffs", curve.coeffs);
+    t.read("min_deg", curve.min_deg);
+    t.read("max_deg", curve.max_deg);
+    t.read("neutral_zone_deg", m.neutral_zone_deg[ax]);
+    t.rejectUnknown();
+    requireRange(origin, (name + ".min_deg").c_str(), curve.min_deg, -90.0, 90.0);
+    requireRange(origin, (name + ".max_deg").c_str(), curve.max_deg, 0.0, 120.0);
+    if (!(curve.min_deg < curve.max_deg)) fail(origin, "'" + name + "' range is empty");
+    requireRange(origin, (name + ".neutral_zone_deg").c_str(), m.neutral_zone_deg[ax], 0.0, 30.0);
+    // A joint must resist being moved: the holding force may not fall anywhere in range.
+    for (double a = curve.min_deg; a < curve.max_deg; a += 0.5) {
+      if (curve.slope(a) <= 0.0) {
+        fail(origin, "'" + name + ".coeffs' fall at " + std::to_string(a) + " deg: a passive joint's force must rise with the angle");
+      }
+    }
+  }
+  TableReader rec(root, "recovery", origin);
+  if (rec.present()) {
+    pc.recovers = true;
+    rec.readArray("final_min_deg", pc.final_min_deg);
+    rec.readArray("final_max_deg", pc.final_max_deg);
+    rec.read("treatment_s", pc.recovery_treatment_s);
+    rec.rejectUnknown();
+    requireRange(origin, "recovery.treatment_s", pc.recovery_treatment_s, 1.0, 36000.0);
+    for (std::size_t i = 0; i < kAxes; ++i) {
+      if (pc.final_min_deg[i] > m.axes[i].min_deg || pc.final_max_deg[i] < m.axes[i].max_deg) {
+        fail(origin, "'recovery' ranges must contain the starting ranges (" + std::string(kAxisNames[i]) + ")");
+      }
+    }
+  }
+  std::memset(m.case_name.data(), 0, m.case_name.size());
+  std::memcpy(m.case_name.data(), pc.name.data(), std::min(pc.name.size(), m.case_name.size() - 1));
+  return pc;
+}
+
+PatientCase loadPatientCase(const std::string& path) { return parsePatientCase(readFile(path), path); }
+
+JointModelParams PatientCase::at(double treatment_s) const {
+  JointModelParams p = model;
+  if (!recovers) return p;
+  const double w = std::clamp(treatment_s / recovery_treatment_s, 0.0, 1.0);
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    p.axes[i].min_deg = model.axes[i].min_deg + w * (final_min_deg[i] - model.axes[i].min_deg);
+    p.axes[i].max_deg = model.axes[i].max_deg + w * (final_max_deg[i] - model.axes[i].max_deg);
+  }
+  return p;
+}
+
+std::vector<std::string> listPatientCases(const std::string& dir) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    if (e.path().extension() == ".toml") out.push_back(e.path().stem().string());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+PatientCase loadPatientCaseByName(const std::string& dir, const std::string& name) {
+  static const std::regex kName("[a-z0-9_-]{1,63}");
+  if (!std::regex_match(name, kName)) {
+    throw ConfigError("patient case name '" + name + "' is not of the form [a-z0-9_-]+");
+  }
+  const std::string path = (std::filesystem::path(dir) / (name + ".toml")).string();
+  if (!std::filesystem::exists(path)) {
+    std::string known;
+    for (const auto& n : listPatientCases(dir)) known += (known.empty() ? "" : ", ") + n;
+    throw ConfigError("unknown patient case '" + name + "' (known: " + (known.empty() ? "none" : known) + ")");
+  }
+  PatientCase pc = loadPatientCase(path);
+  if (pc.name != name) throw ConfigError(path + ": 'case.name' is '" + pc.name + "', the file name says '" + name + "'");
+  return pc;
 }
 
 }  // namespace telehand

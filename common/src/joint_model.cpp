@@ -40,14 +40,27 @@ JointModelParams healthyIndexMcp() {
   return p;
 }
 
+JointModel::JointModel(const JointModelParams& params) : p_(params) {
+  for (int i = 0; i < kAxes; ++i) rest_deg_[static_cast<std::size_t>(i)] = radToDeg(restAngleRad(i));
+}
+
 double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
-  return p_.axes[static_cast<std::size_t>(axis)].eval(radToDeg(angle_rad));
+  const auto i = static_cast<std::size_t>(axis);
+  double deg = radToDeg(angle_rad);
+  const double zone = p_.neutral_zone_deg[i];
+  if (zone > 0.0) {
+    // The band around rest is free; outside it, the curve resumes from the band's edge.
+    const double off = deg - rest_deg_[i];
+    deg = std::abs(off) <= zone ? rest_deg_[i] : deg - std::copysign(zone, off);
+  }
+  return p_.axes[i].eval(deg);
 }
 
 Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept {
   Vec3 tau;
   for (int i = 0; i < kAxes; ++i) {
-    tau[i] = -holdingForceN(i, angles_rad[i]) * p_.lever_arm_m -
+    const double spasm = 1.0 + p_.speed_gain_s_per_rad * std::abs(rates_rad_s[i]);
+    tau[i] = -holdingForceN(i, angles_rad[i]) * p_.lever_arm_m * spasm -
              p_.damping_nms_per_rad * rates_rad_s[i];
   }
   return tau;
@@ -177,6 +190,7 @@ JointProxy::JointProxy(const JointModelParams& initial, int64_t blend_ns)
     : current_(initial), previous_(initial), blend_ns_(blend_ns) {}
 
 void JointProxy::setModel(const JointModelParams& next, int64_t now_ns) noexcept {
+  if (next == current_.params()) return;  // same joint (e.g. the first publication): no fade
   previous_ = current_;
   current_ = JointModel(next);
   blend_start_ns_ = now_ns;

@@ -17,6 +17,8 @@ void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointMo
   out.lever_arm_m = p.lever_arm_m;
   out.force_scale = p.force_scale;
   out.damping_nms_per_rad = p.damping_nms_per_rad;
+  for (int i = 0; i < kAxes; ++i) out.neutral_zone_deg[i] = p.neutral_zone_deg[static_cast<std::size_t>(i)];
+  out.speed_gain_s_per_rad = p.speed_gain_s_per_rad;
   for (int i = 0; i < 3; ++i) out.joint_origin_m[i] = p.joint_origin_m[i];
   out.joint_orientation_q[0] = p.joint_orientation.w();
   out.joint_orientation_q[1] = p.joint_orientation.x();
@@ -50,6 +52,16 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
   p.lever_arm_m = m.lever_arm_m;
   p.force_scale = m.force_scale;
   p.damping_nms_per_rad = m.damping_nms_per_rad;
+  for (int i = 0; i < kAxes; ++i) {
+    p.neutral_zone_deg[static_cast<std::size_t>(i)] = m.neutral_zone_deg[i];
+    if (!(m.neutral_zone_deg[i] >= 0.0 && m.neutral_zone_deg[i] <= 30.0)) {
+      return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) + " neutral zone out of [0, 30] deg");
+    }
+  }
+  p.speed_gain_s_per_rad = m.speed_gain_s_per_rad;
+  if (!(p.speed_gain_s_per_rad >= 0.0 && p.speed_gain_s_per_rad <= 20.0)) {
+    return bad("speed_gain_s_per_rad out of [0, 20]");
+  }
   if (!(p.lever_arm_m > 0.0 && p.lever_arm_m < 0.2)) return bad("lever_arm_m out of (0, 0.2)");
   if (!(p.force_scale > 0.0 && p.force_scale <= 1.0)) return bad("force_scale out of (0, 1]");
   if (!(p.damping_nms_per_rad >= 0.0 && p.damping_nms_per_rad < 1.0)) {

@@ -2,6 +2,7 @@
 #include "telehand/common/cli.h"
 #include <csignal>
 #include <iostream>
+#include <optional>
 #include <thread>
 
 #include "server/link/server_link.h"
@@ -27,6 +28,13 @@ int main(int argc, char** argv) {
   app.add_option("--domain", dds_opts.domain, "DDS domain id")->check(CLI::Range(0, 230));
   app.add_option("--partition", dds_opts.partition, "DDS partition")->capture_default_str();
   app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
+  std::string hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
+  std::string cases = std::string(TELEHAND_DEPLOY_DIR) + "/cases";
+  bool list_dofs = false;
+  app.add_option("--hand", hand, "hand model (URDF) for the Bullet simulation; 'none': HandState from the shared joint model")
+      ->capture_default_str();
+  app.add_option("--cases", cases, "directory of patient cases (*.toml)")->capture_default_str();
+  app.add_flag("--list-dofs", list_dofs, "print the hand's joint rotations in HandState.joint_angles_rad order and exit");
   app.add_option("--seconds", seconds, "stop after this many seconds (0 = until Ctrl-C)");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
@@ -36,14 +44,28 @@ int main(int argc, char** argv) {
     ServerConfig cfg = config_path.empty() ? ServerConfig{} : loadServerConfig(config_path);
     if (!db.empty()) cfg.db_path = db;
     if (hand_hz > 0.0) cfg.hand_state_hz = hand_hz;
+    if (cfg.hand_model.empty()) cfg.hand_model = hand == "none" ? "" : hand;
+    if (cfg.cases_dir.empty()) cfg.cases_dir = cases;
+    std::optional<server::sim::HandModel> hand_model;
+    if (!cfg.hand_model.empty()) hand_model = server::sim::HandModel::load(cfg.hand_model);
+    if (list_dofs) {
+      if (!hand_model) throw ConfigError("--list-dofs needs a hand model");
+      int i = 0;
+      for (const auto& n : hand_model->dofNames()) std::cout << i++ << " " << n << "\n";
+      return 0;
+    }
+    if (listPatientCases(cfg.cases_dir).empty()) {
+      throw ConfigError("no patient cases (*.toml) in '" + cfg.cases_dir + "'");
+    }
 
     server::session::SqliteStore store(cfg.db_path);
     server::link::ServerLink link(dds_opts);
-    server::session::SessionManager manager(store, link, cfg);
+    server::session::SessionManager manager(store, link, cfg, hand_model ? &*hand_model : nullptr);
     std::signal(SIGINT, onSignal);
     std::signal(SIGTERM, onSignal);
-    spdlog::info("serving on DDS domain {} partition '{}', records in {}", dds_opts.domain,
-                 dds_opts.partition, store.location());
+    spdlog::info("serving on DDS domain {} partition '{}', records in {}, hand {}, cases in {}",
+                 dds_opts.domain, dds_opts.partition, store.location(),
+                 hand_model ? cfg.hand_model : "none (shared joint model)", cfg.cases_dir);
 
     std::atomic<bool> stop{false};
     const auto t0 = std::chrono::steady_clock::now();

@@ -8,6 +8,7 @@
 #include "telehand/common/error.h"
 #include "telehand/common/thimble.h"
 #include "telehand/common/wire.h"
+#include "server/sim/hand_sim.h"
 
 namespace telehand::server::session {
 
@@ -16,8 +17,14 @@ struct SessionManager::Session {
   uint64_t client_id = 0;
   uint32_t request_seq = 0;  // the OPEN this session answers
   telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
+  PatientCase patient;
   JointModelParams params;
   JointModel model{params};
+  std::unique_ptr<sim::HandSim> sim;   // null: HandState from the shared joint model
+  double treatment_s = 0.0;            // time the pads pressed the joint (recovery)
+  int64_t next_recovery_check_ns = 0;
+  Exploration exploration;
+  std::vector<SessionStore::Reach> baseline;
   // live stream
   bool have_live = false;
   telehand_msg_DeviceState last{};
@@ -44,8 +51,9 @@ struct SessionManager::Session {
   int64_t close_deadline_ns = 0;
 };
 
-SessionManager::SessionManager(SessionStore& store, Outbox& out, const ServerConfig& config)
-    : store_(store), out_(out), config_(config) {}
+SessionManager::SessionManager(SessionStore& store, Outbox& out, const ServerConfig& config,
+                               const sim::HandModel* hand)
+    : store_(store), out_(out), config_(config), hand_(hand) {}
 
 SessionManager::~SessionManager() = default;
 
@@ -99,6 +107,11 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
         return;
       }
       event(cmd.session_id, cmd.client_id, telehand_msg_EVENT_MARK, cmd.text, now_ns);
+      Session& s = sessions_.at(cmd.session_id);
+      if (std::string(cmd.text) == "reassessment") {
+        endExploration(s, now_ns);
+        s.exploration.begin("reassessment");
+      }
       return;
     }
   }
@@ -109,12 +122,24 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
 
 void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   const std::string case_name = cmd.case_name;
-  // Patient cases arrive with the hand simulation; until then the paper's healthy joint.
-  if (case_name != "healthy") {
-    ++stats_.bad_commands;
-    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-          "unknown patient case '" + case_name + "' (known: healthy)", now_ns);
-    return;
+  PatientCase patient;
+  if (config_.cases_dir.empty()) {
+    if (case_name != "healthy") {
+      ++stats_.bad_commands;
+      event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+            "unknown patient case '" + case_name + "' (known: healthy)", now_ns);
+      return;
+    }
+    patient.name = "healthy";
+    patient.model = healthyIndexMcp();
+  } else {
+    try {
+      patient = loadPatientCaseByName(config_.cases_dir, case_name);
+    } catch (const ConfigError& e) {
+      ++stats_.bad_commands;
+      event(0, cmd.client_id, telehand_msg_EVENT_ERROR, e.what(), now_ns);
+      return;
+    }
   }
   SessionInfo info;
   info.user = cmd.user;
@@ -134,8 +159,13 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   s.info = info;
   s.client_id = cmd.client_id;
   s.mode = cmd.mode;
-  s.params = healthyIndexMcp();
+  s.patient = patient;
+  s.params = patient.at(0.0);
+  s.params.version = 1;
   s.model = JointModel(s.params);
+  if (hand_) s.sim = std::make_unique<sim::HandSim>(*hand_, s.params);
+  if (cmd.mode == telehand_msg_MODE_EXPLORATION) s.exploration.begin("baseline");
+  s.next_recovery_check_ns = now_ns + kNsPerS;
   s.last_data_ns = now_ns;
   s.rate_window_ns = now_ns;
   s.next_hand_ns = now_ns;
@@ -209,6 +239,20 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     return;
   }
   ++stats_.live_samples;
+  if (s.sim && (!s.have_live || d.seq > s.last.seq)) {
+    // The simulation runs on device time: one 1 ms step per sample, lost ones included.
+    const uint64_t steps = s.have_live ? std::min<uint64_t>(d.seq - s.last.seq, 100) : 1;
+    s.sim->setFingerTargets(thimblePositions(d), true);
+    for (uint64_t i = 0; i < steps; ++i) {
+      s.sim->step();
+      const auto f = s.sim->contactForcesDevice();
+      const double force = f[0].norm() + f[1].norm();
+      s.exploration.observe(s.sim->mcpAngles(), force);
+      if (force > 1.0) s.treatment_s += 1e-3;
+    }
+  } else if (!s.sim && s.exploration.active()) {
+    s.exploration.observe(s.model.anglesFromGrip(thimblePositions(d)), 0.0);
+  }
   if (s.have_live && d.seq > s.last.seq + 1) s.live_lost += d.seq - s.last.seq - 1;
   if (!s.have_live || d.seq > s.last.seq) s.last = d;
   s.have_live = true;
@@ -285,7 +329,36 @@ void SessionManager::publishHand(Session& s, int64_t now_ns) {
     }
     s.prev_angles = angles;
     s.prev_angles_ns = d.source_time_ns;
-    const Vec3 tau = s.model.passiveTorqueNm(angles, rates);
+    Vec3 tau = s.model.passiveTorqueNm(angles, rates);
+    Vec3 mcp = angles;
+    if (s.sim) {
+      // The authoritative hand: its angles, torques, bones, spheres and contacts.
+      const sim::HandSim& hs = *s.sim;
+      h.source = telehand_msg_HAND_SOURCE_BULLET;
+      mcp = hs.mcpAngles();
+      tau = hs.mcpPassiveTorque();
+      const auto dofs = hs.jointAngles();
+      h.dof_count = static_cast<uint16_t>(std::min<std::size_t>(dofs.size(), 32));
+      for (std::size_t i = 0; i < h.dof_count; ++i) h.joint_angles_rad[i] = dofs[i];
+      const auto& bones = hs.model().bones();
+      const sim::Pose to_device = hs.deviceToWorld().inverse();
+      h.bone_count = static_cast<uint16_t>(std::min<std::size_t>(bones.size(), 24));
+      for (std::size_t b = 0; b < h.bone_count; ++b) {
+        const sim::Pose pose = to_device * hs.bonePose(static_cast<int>(b));
+        const Quat q(pose.linear());
+        const double v[7] = {pose.translation().x(), pose.translation().y(), pose.translation().z(),
+                             q.w(), q.x(), q.y(), q.z()};
+        for (int i = 0; i < 7; ++i) h.bone_pose[b][i] = v[i];
+      }
+      const auto spheres = hs.spherePositionsDevice();
+      const auto contact = hs.contactForcesDevice();
+      for (int k = 0; k < 2; ++k) {
+        for (int i = 0; i < 3; ++i) {
+          h.sphere_m[k][i] = spheres[k][i];
+          h.contact_force_n[k][i] = contact[k][i];
+        }
+      }
+    }
     Vec3 applied = Vec3::Zero();
     for (int k = 0; k < 2; ++k) {
       const auto& f = d.fingers[k];
@@ -298,7 +371,7 @@ void SessionManager::publishHand(Session& s, int64_t now_ns) {
       }
     }
     for (int i = 0; i < 3; ++i) {
-      h.mcp_angles_rad[i] = angles[i];
+      h.mcp_angles_rad[i] = mcp[i];
       h.mcp_torque_nm[i] = tau[i];
     }
     h.applied_force_ref_n = static_cast<float>(applied.norm() / s.params.force_scale);
@@ -322,6 +395,10 @@ void SessionManager::tick(int64_t now_ns) {
       if (s.next_hand_ns < now_ns) s.next_hand_ns = now_ns + hand_period;
     }
     if (!s.pending.empty()) store(s, {}, {});
+    if (s.patient.recovers && now_ns >= s.next_recovery_check_ns) {
+      s.next_recovery_check_ns = now_ns + kNsPerS;
+      recover(s, now_ns);
+    }
     if (s.closing && ((s.recorded >= s.expected && s.pending.empty()) || now_ns >= s.close_deadline_ns)) {
       done.push_back(id);
     } else if (!s.closing && now_ns - s.last_data_ns > kIdleTimeoutNs) {
@@ -343,7 +420,51 @@ void SessionManager::tick(int64_t now_ns) {
   }
 }
 
+void SessionManager::recover(Session& s, int64_t now_ns) {
+  JointModelParams next = s.patient.at(s.treatment_s);
+  double grown = 0.0;
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    grown = std::max({grown, s.params.axes[i].min_deg - next.axes[i].min_deg,
+                      next.axes[i].max_deg - s.params.axes[i].max_deg});
+  }
+  if (grown < kRecoveryStepDeg) return;  // not a change anyone would feel
+  next.version = s.params.version + 1;
+  s.params = next;
+  s.model = JointModel(s.params);
+  if (s.sim) s.sim->setMcpModel(s.params);
+  telehand_msg_JointModel m{};
+  toWire(s.params, s.info.id, m);
+  m.source_time_ns = wallNs();
+  out_.publish(m);
+  char text[160];
+  std::snprintf(text, sizeof text, "recovery: after %.0f s of treatment, flexion range %.1f..%.1f deg (model v%u)",
+                s.treatment_s, s.params.axes[kFlexion].min_deg, s.params.axes[kFlexion].max_deg,
+                s.params.version);
+  event(s.info.id, 0, telehand_msg_EVENT_INFO, text, now_ns);
+}
+
+void SessionManager::endExploration(Session& s, int64_t now_ns) {
+  if (!s.exploration.active()) return;
+  const std::string phase = s.exploration.phase();
+  const auto reached = s.exploration.finish();
+  if (reached.empty()) return;
+  for (const auto& r : reached) {
+    try {
+      store_.appendReach(s.info.id, r);
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("session {}: {}", s.info.id, e.what());
+    }
+  }
+  const bool baseline = phase == "baseline";
+  event(s.info.id, s.client_id, telehand_msg_EVENT_SCORE,
+        phase + ": " + Exploration::summary(reached, baseline ? decltype(s.baseline){} : s.baseline),
+        now_ns);
+  if (baseline) s.baseline = reached;
+}
+
 void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state) {
+  endExploration(s, now_ns);
   try {
     store_.closeSession(s.info.id, wallNs(), s.expected, state);
   } catch (const StoreError& e) {

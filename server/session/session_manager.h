@@ -7,6 +7,10 @@
 #include <string>
 #include <vector>
 
+#include <memory>
+
+#include "server/session/exploration.h"
+#include "server/sim/hand_model.h"
 #include "server/session/store.h"
 #include "telehand.h"
 #include "telehand/common/config.h"
@@ -35,7 +39,10 @@ struct ManagerStats {
 
 class SessionManager {
  public:
-  SessionManager(SessionStore& store, Outbox& out, const ServerConfig& config);
+  /// With `hand`, every session runs the Bullet hand (server/sim) and HandState comes from
+  /// it; without, from the shared joint model.
+  SessionManager(SessionStore& store, Outbox& out, const ServerConfig& config,
+                 const sim::HandModel* hand = nullptr);
   ~SessionManager();
 
   void onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
@@ -53,12 +60,16 @@ class SessionManager {
 
   /// Idle sessions (no data at all for this long) are closed as abandoned.
   static constexpr int64_t kIdleTimeoutNs = 30'000'000'000;
+  /// A recovering joint's range is republished when it has grown by this much.
+  static constexpr double kRecoveryStepDeg = 0.5;
 
  private:
   struct Session;
   void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   void finish(Session& s, int64_t now_ns, const std::string& state);
+  void recover(Session& s, int64_t now_ns);
+  void endExploration(Session& s, int64_t now_ns);
   void publishStatus(const Session& s, telehand_msg_SessionState state, int64_t now_ns);
   void publishHand(Session& s, int64_t now_ns);
   void store(Session& s, std::vector<telehand_msg_DeviceState>&& samples,
@@ -71,6 +82,7 @@ class SessionManager {
   SessionStore& store_;
   Outbox& out_;
   ServerConfig config_;
+  const sim::HandModel* hand_;
   std::map<uint64_t, Session> sessions_;
   std::map<uint64_t, int64_t> unknown_reported_ns_;
   uint64_t event_seq_ = 0;

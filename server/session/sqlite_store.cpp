@@ -39,6 +39,12 @@ CREATE TABLE IF NOT EXISTS events (
   kind TEXT NOT NULL,
   text TEXT NOT NULL);
 CREATE INDEX IF NOT EXISTS events_by_session ON events(session_id, time_ns);
+CREATE TABLE IF NOT EXISTS explorations (
+  session_id INTEGER NOT NULL,
+  phase TEXT NOT NULL,
+  direction TEXT NOT NULL,
+  angle_deg REAL NOT NULL,
+  force_n REAL NOT NULL);
 )sql";
 
 class Statement {
@@ -202,6 +208,29 @@ void SqliteStore::appendEvent(uint64_t session_id, const EventRecord& e) {
   sqlite3_bind_text(st.get(), 3, e.kind.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_text(st.get(), 4, e.text.c_str(), -1, SQLITE_TRANSIENT);
   st.step();
+}
+
+void SqliteStore::appendReach(uint64_t session_id, const Reach& r) {
+  Statement st(db_, "INSERT INTO explorations (session_id, phase, direction, angle_deg, force_n) "
+                    "VALUES (?,?,?,?,?)");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  sqlite3_bind_text(st.get(), 2, r.phase.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_text(st.get(), 3, r.direction.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_double(st.get(), 4, r.angle_deg);
+  sqlite3_bind_double(st.get(), 5, r.force_n);
+  st.step();
+}
+
+std::vector<SessionStore::Reach> SqliteStore::reaches(uint64_t session_id) {
+  Statement st(db_, "SELECT phase, direction, angle_deg, force_n FROM explorations "
+                    "WHERE session_id = ? ORDER BY rowid");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  std::vector<Reach> out;
+  while (st.step()) {
+    out.push_back({st.text(0), st.text(1), sqlite3_column_double(st.get(), 2),
+                   sqlite3_column_double(st.get(), 3)});
+  }
+  return out;
 }
 
 void SqliteStore::closeSession(uint64_t session_id, int64_t ended_ns, uint64_t samples_expected,

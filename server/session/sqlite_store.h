@@ -21,6 +21,8 @@ class SqliteStore final : public SessionStore {
   uint64_t appendSamples(uint64_t session_id, std::span<const telehand_msg_DeviceState> samples,
                          std::span<const uint8_t> valid) override;
   void appendEvent(uint64_t session_id, const EventRecord& e) override;
+  void appendReach(uint64_t session_id, const Reach& r) override;
+  std::vector<Reach> reaches(uint64_t session_id) override;
   void closeSession(uint64_t session_id, int64_t ended_ns, uint64_t samples_expected,
                     const std::string& state) override;
   std::vector<SessionInfo> listSessions() override;

@@ -41,6 +41,15 @@ class SessionStore {
                                  std::span<const telehand_msg_DeviceState> samples,
                                  std::span<const uint8_t> valid) = 0;
   virtual void appendEvent(uint64_t session_id, const EventRecord& e) = 0;
+  /// Exploration result: the angle reached in one direction of one axis and the force there.
+  struct Reach {
+    std::string phase;      ///< baseline, reassessment
+    std::string direction;  ///< flexion, extension, abduction, adduction, supination, pronation
+    double angle_deg = 0.0;
+    double force_n = 0.0;   ///< contact force at that moment, reference scale
+  };
+  virtual void appendReach(uint64_t session_id, const Reach& r) = 0;
+  virtual std::vector<Reach> reaches(uint64_t session_id) = 0;
   virtual void closeSession(uint64_t session_id, int64_t ended_ns, uint64_t samples_expected,
                             const std::string& state) = 0;
   virtual std::vector<SessionInfo> listSessions() = 0;

@@ -5,6 +5,10 @@
 #include <cstdint>
 #include <string>
 
+#include <array>
+#include <vector>
+
+#include "telehand/common/joint_model.h"
 #include "telehand/common/safety.h"
 
 namespace telehand {
@@ -34,6 +38,8 @@ struct ServerConfig {
   std::string db_path = "records/telehand.db";
   double hand_state_hz = 100.0;  ///< decimated HandState, 60-100 Hz (DESIGN.md)
   double close_grace_s = 5.0;    ///< how long a closing session waits for in-flight records
+  std::string cases_dir;         ///< patient cases (*.toml); empty = the built-in healthy case only
+  std::string hand_model;        ///< URDF of the hand; empty = HandState from the shared joint model
 };
 
 /// Load from TOML text; `origin` names the source in error messages.
@@ -42,6 +48,26 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
 /// Load from a file; a missing or unreadable file is a ConfigError naming it.
 ClientConfig loadClientConfig(const std::string& path);
 ServerConfig loadServerConfig(const std::string& path);
+
+/// A patient: the joint model a session starts with, and how it changes with treatment.
+/// Files under deploy/cases/ (README "Patient cases").
+struct PatientCase {
+  std::string name;
+  std::string description;
+  std::string source;               ///< where the numbers come from
+  JointModelParams model;           ///< at the start of a session
+  bool recovers = false;            ///< the range grows with treatment time
+  std::array<double, kAxes> final_min_deg{};
+  std::array<double, kAxes> final_max_deg{};
+  double recovery_treatment_s = 0.0;
+  /// The joint after this much treatment (ranges interpolated; unchanged if it does not recover).
+  JointModelParams at(double treatment_s) const;
+};
+PatientCase parsePatientCase(const std::string& text, const std::string& origin);
+PatientCase loadPatientCase(const std::string& path);
+/// `dir`/`name`.toml; ConfigError listing the known cases when there is none by that name.
+PatientCase loadPatientCaseByName(const std::string& dir, const std::string& name);
+std::vector<std::string> listPatientCases(const std::string& dir);
 
 /// Range checks shared by the file loaders and the command-line options.
 void validate(const OperatorConfig& c, const std::string& origin);

@@ -35,6 +35,8 @@ struct CubicCurve {
 
   double eval(double deg) const noexcept;
   double slope(double deg) const noexcept;  ///< dF/da in N/deg
+
+  bool operator==(const CubicCurve&) const = default;
 };
 
 /// Stiffness of the end-of-range wall beyond [min_deg, max_deg], N/deg at reference scale:
@@ -57,6 +59,10 @@ struct JointModelParams {
   double lever_arm_m = 0.01;          ///< paper: forces measured about 1 cm from the centre
   double force_scale = 0.25;          ///< device force / reference force, paper: 1:4
   double damping_nms_per_rad = 0.0;   ///< viscous term, reference scale
+  /// Half width of a zero-force band around each axis' rest angle (a lax joint), degrees.
+  std::array<double, kAxes> neutral_zone_deg{};
+  /// Protective spasm: the passive force grows by this factor per rad/s of movement speed.
+  double speed_gain_s_per_rad = 0.0;
   Vec3 joint_origin_m = Vec3::Zero();
   Quat joint_orientation = Quat::Identity();
   std::array<char, 64> case_name{};
@@ -74,13 +80,15 @@ JointModelParams healthyIndexMcp();
 /// Pure functions of an immutable parameter set. No allocation, no exceptions.
 class JointModel {
  public:
-  explicit JointModel(const JointModelParams& params) : p_(params) {}
+  explicit JointModel(const JointModelParams& params);
   const JointModelParams& params() const noexcept { return p_; }
 
-  /// Reference-scale force (N at the lever arm) holding `axis` at `angle_rad`.
+  /// Reference-scale force (N at the lever arm) holding `axis` at `angle_rad`: the cubic,
+  /// with the neutral zone cut out around the rest angle. Speed-independent.
   double holdingForceN(int axis, double angle_rad) const noexcept;
 
-  /// Passive (restoring) torque per axis at reference scale: −F(angle)·lever − b·rate.
+  /// Passive (restoring) torque per axis at reference scale:
+  /// −F(angle)·lever·(1 + speed_gain·|rate|) − b·rate.
   Vec3 passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept;
 
   /// MCP angles from the two thimble positions (device frame).
@@ -116,6 +124,7 @@ class JointModel {
 
  private:
   JointModelParams p_;
+  std::array<double, kAxes> rest_deg_{};  // of the cubic alone, where the neutral zone centres
 };
 
 /// What the proxy renders on one tick.
