@@ -31,6 +31,8 @@ int main(int argc, char** argv) {
   auto* exp = app.add_subcommand("export", "export one session's samples to CSV (one row per sample)");
   uint64_t session_id = 0;
   std::string out_path;
+  auto* show = app.add_subcommand("show", "one session: summary, events (marks, errors, scores) and exploration reaches");
+  show->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("-o,--output", out_path, "CSV file to write (default: stdout)");
   TELEHAND_CLI_PARSE(app, argc, argv)
@@ -60,6 +62,30 @@ int main(int argc, char** argv) {
       return 0;
     }
     const auto info = store.session(session_id);
+    if (info && *show) {
+      const uint64_t missing = info->samples_expected > info->samples ? info->samples_expected - info->samples : 0;
+      std::cout << "session " << info->id << ": " << info->mode << " on case '" << info->case_name
+                << "' for " << info->user << ", " << info->state << ", started "
+                << formatTime(info->started_ns) << "\n  samples " << info->samples << " (missing "
+                << missing << ", flagged invalid " << info->rejected << ")\n";
+      const auto events = store.events(session_id);
+      std::cout << "events (" << events.size() << "):\n";
+      for (const auto& e : events) {
+        std::cout << "  " << formatTime(e.time_ns) << "  " << std::left << std::setw(9) << e.kind
+                  << e.text << "\n";
+      }
+      const auto reaches = store.reaches(session_id);
+      if (!reaches.empty()) {
+        std::cout << "exploration:\n  " << std::left << std::setw(14) << "phase" << std::setw(12)
+                  << "direction" << std::right << std::setw(10) << "angle" << std::setw(12) << "force\n";
+        for (const auto& r : reaches) {
+          std::cout << "  " << std::left << std::setw(14) << r.phase << std::setw(12) << r.direction
+                    << std::right << std::setw(8) << std::fixed << std::setprecision(1) << r.angle_deg
+                    << " deg" << std::setw(8) << r.force_n << " N\n";
+        }
+      }
+      return 0;
+    }
     if (!info) {
       std::cerr << "telehand-records: no session " << session_id << " in " << db
                 << " (run 'telehand-records --db " << db << " list')\n";
