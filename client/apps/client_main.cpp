@@ -16,11 +16,6 @@
 #include "telehand/common/log.h"
 #include "telehand/common/wire.h"
 
-namespace {
-std::atomic<bool> g_stop{false};
-void onSignal(int) { g_stop.store(true); }
-}  // namespace
-
 int main(int argc, char** argv) {
   using namespace telehand;
   using namespace std::chrono_literals;
@@ -84,15 +79,14 @@ int main(int argc, char** argv) {
               << "', device " << device.name() << ", " << cfg.op.frequency_hz << " Hz in "
               << cfg.op.band_min_n << "-" << cfg.op.band_max_n << " N" << std::endl;
 
-    std::signal(SIGINT, onSignal);
-    std::signal(SIGTERM, onSignal);
+    installStopSignals();
     link.start();
     loop.start();
     const auto t0 = std::chrono::steady_clock::now();
     const bool tty = isatty(STDOUT_FILENO) != 0;
     double applied_min = 1e9, applied_max = 0.0;
     auto next_print = t0 + 1s;
-    while (!g_stop.load()) {
+    while (!g_stop_requested.load()) {
       std::this_thread::sleep_for(50ms);
       const auto now = std::chrono::steady_clock::now();
       const double t = std::chrono::duration<double>(now - t0).count();

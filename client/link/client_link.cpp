@@ -53,11 +53,7 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
-  telehand_msg_SessionCommand cmd{};
-  cmd.client_id = client_id_;
-  cmd.request_seq = ++request_seq_;
-  cmd.source_time_ns = wallNs();
-  cmd.kind = telehand_msg_CMD_OPEN;
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_OPEN);
   cmd.mode = req.mode;
   copyString(cmd.case_name, req.case_name);
   copyString(cmd.user, req.user);
@@ -196,13 +192,18 @@ std::vector<std::string> ClientLink::takeMessages() {
   return std::exchange(messages_, {});
 }
 
-void ClientLink::mark(const std::string& text) {
+telehand_msg_SessionCommand ClientLink::command(telehand_msg_CommandKind kind) {
   telehand_msg_SessionCommand cmd{};
   cmd.client_id = client_id_;
   cmd.request_seq = ++request_seq_;
   cmd.source_time_ns = wallNs();
-  cmd.kind = telehand_msg_CMD_MARK;
+  cmd.kind = kind;
   cmd.session_id = session_id_;
+  return cmd;
+}
+
+void ClientLink::mark(const std::string& text) {
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_MARK);
   copyString(cmd.text, text);
   command_writer_.write(cmd);
 }
@@ -210,12 +211,7 @@ void ClientLink::mark(const std::string& text) {
 CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
   CloseResult r;
   const uint64_t sent = stats_.samples_sent.load();
-  telehand_msg_SessionCommand cmd{};
-  cmd.client_id = client_id_;
-  cmd.request_seq = ++request_seq_;
-  cmd.source_time_ns = wallNs();
-  cmd.kind = telehand_msg_CMD_CLOSE;
-  cmd.session_id = session_id_;
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_CLOSE);
   cmd.samples_sent = sent;
   cmd.last_seq = sent == 0 ? 0 : stats_.last_seq.load();
   if (command_writer_.write(cmd) < 0) return r;

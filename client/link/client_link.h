@@ -69,6 +69,8 @@ class ClientLink {
 
  private:
   void run();
+  /// A command from this client for its session, with the next request number.
+  telehand_msg_SessionCommand command(telehand_msg_CommandKind kind);
   void pump(bool final_flush);
   void flushChunk(bool force);
   void pollModels();

@@ -9,11 +9,6 @@
 #include "server/session/sqlite_store.h"
 #include "telehand/common/log.h"
 
-namespace {
-std::atomic<bool> g_stop{false};
-void onSignal(int) { g_stop.store(true); }
-}  // namespace
-
 int main(int argc, char** argv) {
   using namespace telehand;
   CLI::App app{"telehand-server: authoritative session host. Opens and closes sessions on "
@@ -61,8 +56,7 @@ int main(int argc, char** argv) {
     server::session::SqliteStore store(cfg.db_path);
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(store, link, cfg, hand_model ? &*hand_model : nullptr);
-    std::signal(SIGINT, onSignal);
-    std::signal(SIGTERM, onSignal);
+    installStopSignals();
     spdlog::info("serving on DDS domain {} partition '{}', records in {}, hand {}, cases in {}",
                  dds_opts.domain, dds_opts.partition, store.location(),
                  hand_model ? cfg.hand_model : "none (shared joint model)", cfg.cases_dir);
@@ -75,7 +69,7 @@ int main(int argc, char** argv) {
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
         const bool timed_out = seconds > 0.0 && std::chrono::steady_clock::now() - t0 >
                                                     std::chrono::duration<double>(seconds);
-        if (g_stop.load() || timed_out) {
+        if (g_stop_requested.load() || timed_out) {
           stop.store(true);
           link.wake();
         }

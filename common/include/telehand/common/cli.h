@@ -9,3 +9,19 @@
   } catch (const CLI::ParseError& cli_error) {      \
     return (app).exit(cli_error) == 0 ? 0 : 2;      \
   }
+
+#include <atomic>
+#include <csignal>
+
+namespace telehand {
+
+/// Set by SIGINT or SIGTERM once installStopSignals() has run: programs finish their work
+/// (close the session, flush the record) instead of dying mid-write.
+inline std::atomic<bool> g_stop_requested{false};
+inline void installStopSignals() {
+  auto handler = [](int) { g_stop_requested.store(true); };
+  std::signal(SIGINT, handler);
+  std::signal(SIGTERM, handler);
+}
+
+}  // namespace telehand
