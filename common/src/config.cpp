@@ -237,10 +237,17 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
     if (!(curve.min_deg < curve.max_deg)) fail(origin, "'" + name + "' range is empty");
     requireRange(origin, (name + ".neutral_zone_deg").c_str(), m.neutral_zone_deg[ax], 0.0, 30.0);
     // A joint must resist being moved: the holding force may not fall anywhere in range.
-    for (double a = curve.min_deg; a < curve.max_deg; a += 0.5) {
-      if (curve.slope(a) <= 0.0) {
-        fail(origin, "'" + name + ".coeffs' fall at " + std::to_string(a) + " deg: a passive joint's force must rise with the angle");
+    // The slope is a quadratic, so its least value is at a range end or at its vertex.
+    double steepest = curve.min_deg;
+    std::vector<double> candidates = {curve.min_deg, curve.max_deg};
+    if (curve.coeffs[0] != 0.0) candidates.push_back(-curve.coeffs[1] / (3.0 * curve.coeffs[0]));
+    for (double a : candidates) {
+      if (a >= curve.min_deg && a <= curve.max_deg && curve.slope(a) < curve.slope(steepest)) {
+        steepest = a;
       }
+    }
+    if (!(curve.slope(steepest) > 0.0)) {
+      fail(origin, "'" + name + ".coeffs' fall at " + std::to_string(steepest) + " deg: a passive joint's force must rise with the angle");
     }
   }
   TableReader rec(root, "recovery", origin);

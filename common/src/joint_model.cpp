@@ -46,14 +46,19 @@ JointModel::JointModel(const JointModelParams& params) : p_(params) {
 
 double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
   const auto i = static_cast<std::size_t>(axis);
-  double deg = radToDeg(angle_rad);
+  const CubicCurve& c = p_.axes[i];
+  const double deg = radToDeg(angle_rad);
   const double zone = p_.neutral_zone_deg[i];
-  if (zone > 0.0) {
-    // The band around rest is free; outside it, the curve resumes from the band's edge.
-    const double off = deg - rest_deg_[i];
-    deg = std::abs(off) <= zone ? rest_deg_[i] : deg - std::copysign(zone, off);
-  }
-  return p_.axes[i].eval(deg);
+  if (zone <= 0.0) return c.eval(deg);
+  // The band around rest is free; outside it, the curve resumes from the band's edge. The
+  // end-of-range wall stays at min_deg/max_deg, where the server's hand stops the joint: the
+  // shift applies to the curve, not to the range.
+  const double in = std::clamp(deg, c.min_deg, c.max_deg);
+  const double off = in - rest_deg_[i];
+  const double shifted = std::abs(off) <= zone ? rest_deg_[i] : in - std::copysign(zone, off);
+  const double excess = deg - in;
+  if (excess == 0.0) return c.eval(shifted);
+  return c.eval(shifted) + (c.slope(shifted) + kWallNPerDeg) * excess;
 }
 
 Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept {

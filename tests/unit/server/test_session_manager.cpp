@@ -1,0 +1,453 @@
+// The session manager on the authoritative hand: patient cases at open, exploration phases
+// recorded from the Bullet hand driven by scripted grips, recovery republishing the joint.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "server/session/session_manager.h"
+#include "server/session/sqlite_store.h"
+#include "server/sim/hand_model.h"
+#include "telehand/common/clock.h"
+#include "telehand/common/wire.h"
+
+namespace telehand::server::session {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::AllOf;
+using ::testing::HasSubstr;
+
+const std::string kDeploy = TELEHAND_DEPLOY_DIR;
+
+/// Everything the manager publishes, in order per kind.
+class RecordingOutbox : public Outbox {
+ public:
+  void publish(const telehand_msg_SessionStatus& s) override { statuses.push_back(s); }
+  void publish(const telehand_msg_JointModel& m) override { models.push_back(m); }
+  void publish(const telehand_msg_HandState& h) override { hands.push_back(h); }
+  void publish(const telehand_msg_SessionEvent& e) override { events.push_back(e); }
+
+  std::vector<const telehand_msg_SessionEvent*> eventsOf(telehand_msg_EventKind kind) const {
+    std::vector<const telehand_msg_SessionEvent*> out;
+    for (const auto& e : events) {
+      if (e.kind == kind) out.push_back(&e);
+    }
+    return out;
+  }
+
+  std::vector<telehand_msg_SessionStatus> statuses;
+  std::vector<telehand_msg_JointModel> models;
+  std::vector<telehand_msg_HandState> hands;
+  std::vector<telehand_msg_SessionEvent> events;
+};
+
+/// The 24-DoF hand, loaded once for the whole program.
+const sim::HandModel& hand() {
+  static const sim::HandModel model = sim::HandModel::load(kDeploy + "/hand/hand24.urdf");
+  return model;
+}
+
+std::string format(const char* fmt, double a, double b = 0.0) {
+  char buf[128];
+  std::snprintf(buf, sizeof buf, fmt, a, b);
+  return buf;
+}
+
+telehand_msg_SessionCommand command(telehand_msg_CommandKind kind, uint64_t session_id = 0) {
+  telehand_msg_SessionCommand c{};
+  c.client_id = 7;
+  c.request_seq = 1;
+  c.kind = kind;
+  c.session_id = session_id;
+  return c;
+}
+
+/// A fresh record database per test, removed afterwards.
+class SessionManagerTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ =
+        fs::temp_directory_path() / ("telehand-manager-" + std::string(info->name()) + "-" +
+                                     std::to_string(::getpid()) + "-" + std::to_string(counter++));
+    fs::remove_all(dir_);
+    ASSERT_TRUE(fs::create_directories(dir_));
+    config_.db_path = (dir_ / "telehand.db").string();
+    config_.cases_dir = kDeploy + "/cases";
+    config_.hand_state_hz = 100.0;
+    store_ = std::make_unique<SqliteStore>(config_.db_path);
+    manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  }
+  void TearDown() override {
+    manager_.reset();
+    store_.reset();
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  /// Opens a session and returns its id (0 if none was opened).
+  uint64_t open(const std::string& case_name,
+                telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION) {
+    auto c = command(telehand_msg_CMD_OPEN);
+    c.mode = mode;
+    copyString(c.case_name, case_name);
+    copyString(c.user, "student");
+    const std::size_t before = out_.statuses.size();
+    manager_->onCommand(c, now_ns_);
+    if (out_.statuses.size() == before) return 0;
+    session_ = out_.statuses.back().session_id;
+    const auto params = fromWire(out_.models.back(), nullptr);
+    EXPECT_TRUE(params.has_value());
+    if (params) grip_model_ = std::make_unique<JointModel>(*params);
+    angles_ = Vec3::Zero();
+    return session_;
+  }
+
+  /// One live sample with the thimbles pinching the phalanx at `angles`, then 1 ms passes
+  /// (the hand state is due every 10 ms).
+  void sample(const Vec3& angles) {
+    telehand_msg_DeviceState d{};
+    d.session_id = session_;
+    d.seq = seq_++;
+    d.source_time_ns = now_ns_;
+    d.model_version = 1;
+    const PerFinger<Vec3> p = grip_model_->gripFromAngles(angles, 0.008);
+    for (int k = 0; k < 2; ++k) {
+      const Quat q = grip_model_->thimbleOrientation(k, angles);
+      const double qv[4] = {q.w(), q.x(), q.y(), q.z()};
+      for (int i = 0; i < 3; ++i) d.fingers[k].position_m[i] = p[k][i];
+      for (int i = 0; i < 4; ++i) d.fingers[k].orientation_q[i] = qv[i];
+    }
+    for (int i = 0; i < 3; ++i) d.mcp_angles_rad[i] = angles[i];
+    manager_->onDeviceState(d, now_ns_);
+    now_ns_ += 1'000'000;
+    if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
+    angles_ = angles;
+  }
+
+  /// Move the grip from where it is to `target` at `speed_deg_s` along a straight line.
+  void moveTo(const Vec3& target, double speed_deg_s = 30.0) {
+    const Vec3 from = angles_;
+    const double span_deg = radToDeg((target - from).cwiseAbs().maxCoeff());
+    const int steps = std::max(1, static_cast<int>(std::ceil(span_deg / speed_deg_s * 1000.0)));
+    for (int i = 1; i <= steps; ++i)
+      sample(from + (target - from) * (static_cast<double>(i) / steps));
+  }
+  void hold(int ms) {
+    const Vec3 at = angles_;
+    for (int i = 0; i < ms; ++i) sample(at);
+  }
+  void moveToDeg(double flexion, double abduction = 0.0, double axial = 0.0) {
+    Vec3 a;
+    a[kFlexion] = degToRad(flexion);
+    a[kAbduction] = degToRad(abduction);
+    a[kAxial] = degToRad(axial);
+    moveTo(a);
+    hold(300);
+  }
+
+  void mark(const std::string& text) {
+    auto c = command(telehand_msg_CMD_MARK, session_);
+    copyString(c.text, text);
+    manager_->onCommand(c, now_ns_);
+  }
+  void close() {
+    auto c = command(telehand_msg_CMD_CLOSE, session_);
+    c.samples_sent = 0;  // nothing on the record stream: the session may close at once
+    manager_->onCommand(c, now_ns_);
+    now_ns_ += 10'000'000;
+    manager_->tick(now_ns_);
+  }
+
+  static const SessionStore::Reach* reach(const std::vector<SessionStore::Reach>& rs,
+                                          const std::string& phase, const std::string& dir) {
+    for (const auto& r : rs) {
+      if (r.phase == phase && r.direction == dir) return &r;
+    }
+    return nullptr;
+  }
+
+  fs::path dir_;
+  ServerConfig config_;
+  RecordingOutbox out_;
+  std::unique_ptr<SqliteStore> store_;
+  std::unique_ptr<SessionManager> manager_;
+  uint64_t session_ = 0;
+  uint64_t seq_ = 1;
+  int64_t now_ns_ = 1'000'000'000;
+  std::unique_ptr<JointModel> grip_model_;
+  Vec3 angles_ = Vec3::Zero();
+};
+
+TEST_F(SessionManagerTest, OpeningACasePublishesItsJointModel) {
+  const uint64_t id = open("stiff");
+  ASSERT_NE(id, 0u);
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+  ASSERT_EQ(out_.statuses.size(), 1u);
+  EXPECT_EQ(out_.statuses[0].state, telehand_msg_SESSION_ACTIVE);
+  EXPECT_STREQ(out_.statuses[0].case_name, "stiff");
+  ASSERT_EQ(out_.models.size(), 1u);
+  EXPECT_EQ(out_.models[0].session_id, id);
+  std::string why;
+  const auto got = fromWire(out_.models[0], &why);
+  ASSERT_TRUE(got.has_value()) << why;
+  JointModelParams want = loadPatientCaseByName(config_.cases_dir, "stiff").model;
+  want.version = 1;
+  EXPECT_EQ(*got, want);
+  EXPECT_EQ(got->axes[kFlexion].coeffs, (std::array<double, 4>{2.0e-4, -0.027, 1.739, -41.805}));
+  EXPECT_EQ(got->axes[kFlexion].min_deg, 10.0);
+  EXPECT_EQ(got->axes[kFlexion].max_deg, 70.0);
+  EXPECT_EQ(got->damping_nms_per_rad, 0.01);
+  EXPECT_STREQ(got->case_name.data(), "stiff");
+  // The new fields travel too.
+  const uint64_t lax = open("lax");
+  ASSERT_NE(lax, 0u);
+  const auto lax_params = fromWire(out_.models.back(), nullptr);
+  ASSERT_TRUE(lax_params.has_value());
+  EXPECT_EQ(lax_params->neutral_zone_deg, (std::array<double, 3>{10.0, 5.0, 4.0}));
+  open("spasm");
+  EXPECT_EQ(fromWire(out_.models.back(), nullptr)->speed_gain_s_per_rad, 1.5);
+  EXPECT_EQ(manager_->activeSessions(), 3u);
+  EXPECT_THAT(out_.eventsOf(telehand_msg_EVENT_INFO)[0]->text, HasSubstr("case 'stiff'"));
+}
+
+TEST_F(SessionManagerTest, UnknownCaseIsAnErrorNamingTheKnownOnesAndOpensNothing) {
+  EXPECT_EQ(open("floppy"), 0u);
+  EXPECT_EQ(open("../cases/healthy"), 0u);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_TRUE(out_.statuses.empty());
+  EXPECT_TRUE(out_.models.empty());
+  EXPECT_TRUE(store_->listSessions().empty());
+  const auto errors = out_.eventsOf(telehand_msg_EVENT_ERROR);
+  ASSERT_EQ(errors.size(), 2u);
+  EXPECT_THAT(errors[0]->text,
+              AllOf(HasSubstr("'floppy'"), HasSubstr("healthy, lax, recovery, spasm, stiff")));
+  EXPECT_EQ(errors[0]->client_id, 7u);
+  EXPECT_EQ(errors[0]->session_id, 0u);
+  EXPECT_THAT(errors[1]->text, HasSubstr("'../cases/healthy'"));
+  EXPECT_EQ(manager_->stats().bad_commands, 2u);
+  // The manager goes on serving.
+  EXPECT_NE(open("healthy"), 0u);
+}
+
+TEST_F(SessionManagerTest, HandStateComesFromTheBulletHand) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(20.0);
+  ASSERT_FALSE(out_.hands.empty());
+  const telehand_msg_HandState& h = out_.hands.back();
+  EXPECT_EQ(h.session_id, session_);
+  EXPECT_EQ(h.source, telehand_msg_HAND_SOURCE_BULLET);
+  EXPECT_EQ(h.dof_count, 25u);
+  EXPECT_EQ(h.dof_count, hand().dofCount());
+  EXPECT_EQ(h.bone_count, std::min<std::size_t>(hand().bones().size(), 24));
+  EXPECT_EQ(h.model_version, 1u);
+  EXPECT_LE(h.device_seq, seq_ - 1);  // the newest sample at the last tick (every 10 ms)
+  EXPECT_GT(h.device_seq + 10, seq_ - 1);
+  // The hand followed the grip, and its joint angles carry the same MCP flexion.
+  EXPECT_NEAR(radToDeg(h.mcp_angles_rad[kFlexion]), 20.0, 1.0);
+  const auto names = hand().dofNames();
+  const auto at = std::find(names.begin(), names.end(), "index_mcp_flexion") - names.begin();
+  EXPECT_NEAR(h.joint_angles_rad[at], h.mcp_angles_rad[kFlexion], 1e-6);
+  // The pads press the phalanx (more than the 1 N that counts as treatment), and the
+  // spheres sit where the thimbles are.
+  double pressing = 0.0;
+  for (int k = 0; k < 2; ++k) {
+    const Vec3 f(h.contact_force_n[k][0], h.contact_force_n[k][1], h.contact_force_n[k][2]);
+    const Vec3 sphere(h.sphere_m[k][0], h.sphere_m[k][1], h.sphere_m[k][2]);
+    const Vec3 tip(h.fingertip_m[k][0], h.fingertip_m[k][1], h.fingertip_m[k][2]);
+    EXPECT_LT((sphere - tip).norm(), 0.5e-3) << k;
+    EXPECT_GT(f.norm(), 0.0) << k;
+    pressing += f.norm();
+  }
+  EXPECT_GT(pressing, 1.0);
+  // About 100 Hz of them over the 0.97 s of samples.
+  EXPECT_GE(out_.hands.size(), 90u);
+  EXPECT_LE(out_.hands.size(), 100u);
+}
+
+TEST_F(SessionManagerTest, WithoutAHandModelHandStateComesFromTheSharedJointModel) {
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, nullptr);
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(20.0);
+  ASSERT_FALSE(out_.hands.empty());
+  EXPECT_EQ(out_.hands.back().source, telehand_msg_HAND_SOURCE_SHARED_JOINT_MODEL);
+  EXPECT_EQ(out_.hands.back().dof_count, 0u);
+  EXPECT_NEAR(radToDeg(out_.hands.back().mcp_angles_rad[kFlexion]), 20.0, 1e-6);
+}
+
+TEST_F(SessionManagerTest, ExplorationRecordsBaselineAndReassessment) {
+  ASSERT_NE(open("healthy", telehand_msg_MODE_EXPLORATION), 0u);
+  // Baseline: flex to 60, extend to -30, back to neutral.
+  moveToDeg(60.0);
+  moveToDeg(-30.0);
+  moveToDeg(0.0);
+  EXPECT_TRUE(store_->reaches(session_).empty());  // recorded when the phase ends
+  mark("reassessment");
+  {
+    // The baseline ends here: its six reaches are stored and scored.
+    const auto rs = store_->reaches(session_);
+    ASSERT_EQ(rs.size(), 6u);
+    const auto scores = out_.eventsOf(telehand_msg_EVENT_SCORE);
+    ASSERT_EQ(scores.size(), 1u);
+    EXPECT_THAT(
+        scores[0]->text,
+        AllOf(::testing::StartsWith("baseline: "),
+              HasSubstr(format("flexion %.1f deg", reach(rs, "baseline", "flexion")->angle_deg)),
+              HasSubstr(
+                  format("extension %.1f deg", reach(rs, "baseline", "extension")->angle_deg))));
+    EXPECT_THAT(scores[0]->text, ::testing::Not(HasSubstr("vs baseline")));
+    EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), 1u);
+  }
+  // Reassessment: more flexion than before.
+  moveToDeg(70.0);
+  moveToDeg(0.0);
+  close();
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  ASSERT_FALSE(out_.statuses.empty());
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_CLOSED);
+
+  const auto rs = store_->reaches(session_);
+  ASSERT_EQ(rs.size(), 12u);
+  for (const char* phase : {"baseline", "reassessment"}) {
+    for (const char* dir : Exploration::kDirections) {
+      EXPECT_NE(reach(rs, phase, dir), nullptr) << phase << " " << dir;
+    }
+  }
+  ASSERT_NE(reach(rs, "baseline", "flexion"), nullptr);
+  EXPECT_NEAR(reach(rs, "baseline", "flexion")->angle_deg, 60.0, 1.0);
+  EXPECT_NEAR(reach(rs, "baseline", "extension")->angle_deg, -30.0, 1.0);
+  EXPECT_NEAR(reach(rs, "reassessment", "flexion")->angle_deg, 70.0, 1.0);
+  EXPECT_NEAR(reach(rs, "reassessment", "extension")->angle_deg, 0.0, 1.0);
+  // The force at the reach: the joint's holding force there plus the pinch, a few newtons.
+  EXPECT_GT(reach(rs, "baseline", "flexion")->force_n, reach(rs, "baseline", "extension")->force_n);
+  EXPECT_GT(reach(rs, "reassessment", "flexion")->force_n, 5.0);
+  // Baseline rows first, then reassessment.
+  EXPECT_EQ(rs.front().phase, "baseline");
+  EXPECT_EQ(rs.back().phase, "reassessment");
+
+  const auto scores = out_.eventsOf(telehand_msg_EVENT_SCORE);
+  ASSERT_EQ(scores.size(), 2u);
+  EXPECT_EQ(scores[1]->session_id, session_);
+  const double gained =
+      reach(rs, "reassessment", "flexion")->angle_deg - reach(rs, "baseline", "flexion")->angle_deg;
+  EXPECT_NEAR(gained, 10.0, 2.0);
+  EXPECT_THAT(scores[1]->text,
+              AllOf(::testing::StartsWith("reassessment: flexion "),
+                    HasSubstr(format("flexion %.1f deg (%+.1f vs baseline)",
+                                     reach(rs, "reassessment", "flexion")->angle_deg, gained))));
+  // The scores are in the session's record too.
+  int stored_scores = 0;
+  for (const auto& e : store_->events(session_)) stored_scores += e.kind == "score";
+  EXPECT_EQ(stored_scores, 2);
+}
+
+TEST_F(SessionManagerTest, MobilizationSessionRecordsNoReaches) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(30.0);
+  close();
+  EXPECT_TRUE(store_->reaches(session_).empty());
+  EXPECT_TRUE(out_.eventsOf(telehand_msg_EVENT_SCORE).empty());
+}
+
+TEST_F(SessionManagerTest, RecoveryRepublishesTheJointAsItsRangeGrows) {
+  ASSERT_NE(open("recovery"), 0u);
+  const PatientCase pc = loadPatientCaseByName(config_.cases_dir, "recovery");
+  ASSERT_EQ(out_.models.size(), 1u);
+  EXPECT_EQ(out_.models[0].version, 1u);
+  EXPECT_EQ(out_.models[0].axes[kFlexion].max_deg, pc.model.axes[kFlexion].max_deg);
+  // Pinch the joint and mobilise it gently inside its starting range: the pads press it
+  // (> 1 N together), which is what counts as treatment.
+  const int seconds = 20;
+  for (int i = 0; i < seconds; ++i) {
+    moveToDeg(i % 2 == 0 ? 20.0 : 5.0);  // 0.5 s move (the first 0.67 s) + 0.3 s hold...
+    hold(200);                           // ...+ 0.2 s: about one second
+  }
+  // 0.5 deg of range takes 7.5 s of treatment (flexion max grows 40 deg in 600 s): versions
+  // 2 and 3 within 20 s, and never a 4th (that needs 22.5 s of treatment).
+  ASSERT_EQ(out_.models.size(), 3u);
+  double prev_max = out_.models[0].axes[kFlexion].max_deg;
+  double prev_min = out_.models[0].axes[kFlexion].min_deg;
+  for (std::size_t i = 1; i < out_.models.size(); ++i) {
+    const auto& m = out_.models[i];
+    EXPECT_EQ(m.version, i + 1);
+    EXPECT_EQ(m.session_id, session_);
+    EXPECT_GE(m.axes[kFlexion].max_deg, prev_max + SessionManager::kRecoveryStepDeg);
+    EXPECT_LT(m.axes[kFlexion].min_deg, prev_min);
+    EXPECT_LE(m.axes[kFlexion].max_deg, pc.final_max_deg[kFlexion]);
+    // Only the range changes.
+    for (int c = 0; c < 4; ++c) {
+      EXPECT_EQ(m.axes[kFlexion].coeffs[c], out_.models[0].axes[kFlexion].coeffs[c]);
+    }
+    std::string why;
+    EXPECT_TRUE(fromWire(m, &why).has_value()) << why;
+    prev_max = m.axes[kFlexion].max_deg;
+    prev_min = m.axes[kFlexion].min_deg;
+  }
+  // No more range than the elapsed time could have earned, and at least 15 s worth.
+  EXPECT_LE(out_.models.back().axes[kFlexion].max_deg, pc.at(seconds + 1.0).axes[kFlexion].max_deg);
+  EXPECT_GE(out_.models.back().axes[kFlexion].max_deg, pc.at(15.0).axes[kFlexion].max_deg);
+  // People are told, and the hand state carries the new version.
+  const auto infos = out_.eventsOf(telehand_msg_EVENT_INFO);
+  int recovery_events = 0;
+  for (const auto* e : infos) {
+    if (std::string(e->text).find("recovery:") == 0) {
+      ++recovery_events;
+      EXPECT_THAT(e->text, HasSubstr("flexion range"));
+    }
+  }
+  EXPECT_EQ(recovery_events, 2);
+  EXPECT_EQ(out_.hands.back().model_version, 3u);
+}
+
+TEST_F(SessionManagerTest, RecoveryNeedsTreatment) {
+  ASSERT_NE(open("recovery"), 0u);
+  // Ten seconds of ticks with nobody touching the joint: no treatment, no new version.
+  for (int i = 0; i < 1000; ++i) {
+    now_ns_ += 10'000'000;
+    manager_->tick(now_ns_);
+  }
+  EXPECT_EQ(out_.models.size(), 1u);
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+}
+
+TEST_F(SessionManagerTest, CasesThatDoNotRecoverAreNeverRepublished) {
+  ASSERT_NE(open("healthy"), 0u);
+  for (int i = 0; i < 3; ++i) moveToDeg(i % 2 == 0 ? 20.0 : 5.0);
+  EXPECT_EQ(out_.models.size(), 1u);
+}
+
+TEST_F(SessionManagerTest, CloseEndsTheBaselineWhenThereIsNoReassessment) {
+  ASSERT_NE(open("healthy", telehand_msg_MODE_EXPLORATION), 0u);
+  moveToDeg(40.0);
+  moveToDeg(-10.0);
+  close();
+  const auto rs = store_->reaches(session_);
+  ASSERT_EQ(rs.size(), 6u);
+  for (const auto& r : rs) EXPECT_EQ(r.phase, "baseline");
+  EXPECT_NEAR(reach(rs, "baseline", "flexion")->angle_deg, 40.0, 1.0);
+  EXPECT_NEAR(reach(rs, "baseline", "extension")->angle_deg, -10.0, 1.0);
+  const auto scores = out_.eventsOf(telehand_msg_EVENT_SCORE);
+  ASSERT_EQ(scores.size(), 1u);
+  EXPECT_THAT(scores[0]->text, ::testing::StartsWith("baseline: flexion "));
+}
+
+TEST_F(SessionManagerTest, MarkForAnUnknownSessionIsAnError) {
+  session_ = 999;
+  mark("reassessment");
+  ASSERT_EQ(out_.eventsOf(telehand_msg_EVENT_ERROR).size(), 1u);
+  EXPECT_THAT(out_.eventsOf(telehand_msg_EVENT_ERROR)[0]->text, HasSubstr("999"));
+  EXPECT_EQ(manager_->stats().bad_commands, 1u);
+}
+
+}  // namespace
+}  // namespace telehand::server::session
