@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <memory>
 
 #include "server/sim/hand_sim.h"
 #include "telehand/common/error.h"
@@ -250,6 +251,77 @@ TEST(HandSim, QuasiStaticTorqueMatchesOnEveryAxisWithoutSkinFriction) {
   HandSimConfig frictionless;
   frictionless.skin_friction = 0.0;
   quasiStatic(frictionless, true);
+}
+
+/// Fingers nobody touches fall asleep (the server's idle cost); every input must still reach
+/// a sleeping finger. Each case idles a hand until it sleeps, applies one input, and compares
+/// with a hand that never slept started from the same rest pose.
+TEST(HandSim, SleepingFingersWakeForEveryInput) {
+  const HandModel model = HandModel::load(kHand);
+  const JointModelParams params = healthyIndexMcp();
+  const JointModel proxy(params);
+  const PerFinger<Vec3> none{Vec3::Zero(), Vec3::Zero()};
+  auto asleep = [&](HandSim& sim) {
+    for (int i = 0; i < 5000; ++i) {  // settles in ~1.5 s, sleeps after 2 s at rest
+      sim.setFingerTargets(none, false);
+      sim.step();
+    }
+  };
+  auto fresh = [&](const Vec3& angles) {  // awake from construction, same rest pose
+    auto sim = std::make_unique<HandSim>(model, params);
+    sim->resetMcp(angles);
+    return sim;
+  };
+  {  // a push on the MCP
+    HandSim sim(model, params);
+    asleep(sim);
+    const Vec3 rest = sim.mcpAngles();
+    auto ref = fresh(rest);
+    sim.setExternalMcpTorque(Vec3(0.06, 0, 0));
+    ref->setExternalMcpTorque(Vec3(0.06, 0, 0));
+    for (int i = 0; i < 300; ++i) {
+      sim.step();
+      ref->step();
+    }
+    EXPECT_GT(sim.mcpAngles()[kFlexion], rest[kFlexion] + degToRad(5.0));
+    EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]), radToDeg(ref->mcpAngles()[kFlexion]), 0.01);
+  }
+  {  // resetMcp away from rest: the passive torque pulls the phalanx back
+    HandSim sim(model, params);
+    asleep(sim);
+    const Vec3 moved = sim.mcpAngles() + Vec3(degToRad(20.0), 0, 0);
+    sim.resetMcp(moved);
+    auto ref = fresh(moved);
+    for (int i = 0; i < 300; ++i) {
+      sim.step();
+      ref->step();
+    }
+    EXPECT_LT(sim.mcpAngles()[kFlexion], moved[kFlexion] - degToRad(5.0));
+    EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]), radToDeg(ref->mcpAngles()[kFlexion]), 0.01);
+  }
+  {  // a new model whose rest angle lies elsewhere
+    HandSim sim(model, params);
+    asleep(sim);
+    const double before = sim.mcpAngles()[kFlexion];
+    JointModelParams stiffer = params;
+    stiffer.version = 2;
+    stiffer.axes[kFlexion].coeffs[3] -= 1.0;  // 1 N more flexing pull everywhere
+    sim.setMcpModel(stiffer);
+    for (int i = 0; i < 1000; ++i) sim.step();
+    EXPECT_GT(std::abs(sim.mcpAngles()[kFlexion] - before), degToRad(1.0));
+    EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]), radToDeg(JointModel(stiffer).restAngleRad(kFlexion)), 1.0);
+  }
+  {  // the pinch: contacts reach a sleeping phalanx
+    HandSim sim(model, params);
+    asleep(sim);
+    const Vec3 goal = sim.mcpAngles() + Vec3(degToRad(15.0), 0, 0);
+    for (int i = 0; i < 1000; ++i) {
+      sim.setFingerTargets(proxy.gripFromAngles(goal, 0.008), true);
+      sim.step();
+    }
+    EXPECT_GT(sim.contactForcesDevice()[kIndex].norm(), 1.0);
+    EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]), radToDeg(goal[kFlexion]), 2.0);
+  }
 }
 
 }  // namespace
