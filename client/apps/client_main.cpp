@@ -3,6 +3,7 @@
 // model the server publishes.
 #include "telehand/common/cli.h"
 #include <algorithm>
+#include <cstring>
 #include <atomic>
 #include <chrono>
 #include <thread>
@@ -43,6 +44,9 @@ int main(int argc, char** argv) {
   app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file");
   app.add_option("--connect-timeout", connect_timeout, "seconds to wait for the server")->capture_default_str();
   app.add_flag("-q,--quiet", quiet, "no progress line");
+  auto* rt = app.add_option("--rt-priority", cfg.loop.rt_priority,
+                            "run the 1 kHz loop at this SCHED_FIFO priority (1-99; needs CAP_SYS_NICE)")
+                 ->check(CLI::Range(1, 99));
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
 
@@ -51,11 +55,13 @@ int main(int argc, char** argv) {
     if (!config_path.empty()) {
       const ClientConfig file = loadClientConfig(config_path);
       const OperatorConfig cli_op = cfg.op;
+      const int rt_cli = cfg.loop.rt_priority;
       cfg = file;
       if (*freq) cfg.op.frequency_hz = cli_op.frequency_hz;
       if (*bmin) cfg.op.band_min_n = cli_op.band_min_n;
       if (*bmax) cfg.op.band_max_n = cli_op.band_max_n;
       if (*seed) cfg.op.seed = cli_op.seed;
+      if (*rt) cfg.loop.rt_priority = rt_cli;
     }
     validate(cfg.op, "command line");
 
@@ -82,6 +88,13 @@ int main(int argc, char** argv) {
     installStopSignals();
     link.start();
     loop.start();
+    if (cfg.loop.rt_priority > 0) {
+      std::this_thread::sleep_for(10ms);
+      if (const int err = loop.realtimeError()) {
+        std::cerr << "telehand-client: SCHED_FIFO priority " << cfg.loop.rt_priority
+                  << " refused (" << std::strerror(err) << "): the loop runs at normal priority\n";
+      }
+    }
     const auto t0 = std::chrono::steady_clock::now();
     const bool tty = isatty(STDOUT_FILENO) != 0;
     double applied_min = 1e9, applied_max = 0.0;

@@ -131,7 +131,9 @@ void HapticLoop::run() {
   if (config_.rt_priority > 0) {
     sched_param sp{};
     sp.sched_priority = config_.rt_priority;
-    pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);  // best effort; counters show it
+    // Best effort: without CAP_SYS_NICE the loop runs at normal priority and says so.
+    rt_error_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp),
+                    std::memory_order_release);
   }
   const int64_t period = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
   timespec ts{};

@@ -57,6 +57,8 @@ class HapticLoop {
   void start();
   void stop();
   bool running() const noexcept { return running_.load(std::memory_order_acquire); }
+  /// 0, or the errno of the failed SCHED_FIFO request (e.g. EPERM), once the thread runs.
+  int realtimeError() const noexcept { return rt_error_.load(std::memory_order_acquire); }
 
   /// Tag outgoing samples with this session (set before start or between ticks).
   void setSession(uint64_t session_id) noexcept {
@@ -85,6 +87,7 @@ class HapticLoop {
   std::atomic<bool> actuators_{true};
   std::atomic<uint64_t> next_seq_{0};
   std::atomic<bool> running_{false};
+  std::atomic<int> rt_error_{0};
   std::thread thread_;
   device::DeviceSample sample_{};
   int64_t wall_offset_ns_ = 0;  // wall clock minus the loop clock, fixed at construction
