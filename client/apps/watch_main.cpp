@@ -182,14 +182,11 @@ class Watcher {
  public:
   explicit Watcher(const dds::Options& options)
       : participant_(options),
-        status_topic_(participant_, dds::topic::kSessionStatus),
-        model_topic_(participant_, dds::topic::kJointModel),
-        hand_topic_(participant_, dds::topic::kHandState),
-        event_topic_(participant_, dds::topic::kSessionEvent),
-        status_reader_(participant_, status_topic_, dds::qos::sessionStatus()),
-        model_reader_(participant_, model_topic_, dds::qos::jointModel()),
-        hand_reader_(participant_, hand_topic_, dds::qos::handState().keepLast(kHandReaderDepth)),
-        event_reader_(participant_, event_topic_, dds::qos::sessionEvent()),
+        topics_(participant_),
+        status_reader_(participant_, topics_.session_status, dds::qos::sessionStatus()),
+        model_reader_(participant_, topics_.joint_model, dds::qos::jointModel()),
+        hand_reader_(participant_, topics_.hand_state, dds::qos::handStateReader(kHandReaderDepth)),
+        event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
         waitset_(participant_) {
     waitset_.attach(status_reader_.handle(), 1);
     waitset_.attach(model_reader_.handle(), 2);
@@ -311,10 +308,7 @@ class Watcher {
   }
 
   dds::Participant participant_;
-  dds::Topic<telehand_msg_SessionStatus> status_topic_;
-  dds::Topic<telehand_msg_JointModel> model_topic_;
-  dds::Topic<telehand_msg_HandState> hand_topic_;
-  dds::Topic<telehand_msg_SessionEvent> event_topic_;
+  dds::Topics topics_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;
   dds::Reader<telehand_msg_JointModel> model_reader_;
   dds::Reader<telehand_msg_HandState> hand_reader_;

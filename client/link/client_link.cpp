@@ -23,18 +23,13 @@ uint64_t randomClientId() {
 ClientLink::ClientLink(const dds::Options& options, loop::HapticLoop& loop)
     : loop_(loop),
       participant_(options),
-      device_topic_(participant_, dds::topic::kDeviceState),
-      chunk_topic_(participant_, dds::topic::kRecordChunk),
-      model_topic_(participant_, dds::topic::kJointModel),
-      command_topic_(participant_, dds::topic::kSessionCommand),
-      status_topic_(participant_, dds::topic::kSessionStatus),
-      event_topic_(participant_, dds::topic::kSessionEvent),
-      device_writer_(participant_, device_topic_, dds::qos::deviceState()),
-      chunk_writer_(participant_, chunk_topic_, dds::qos::recordChunk()),
-      command_writer_(participant_, command_topic_, dds::qos::sessionCommand()),
-      model_reader_(participant_, model_topic_, dds::qos::jointModel()),
-      status_reader_(participant_, status_topic_, dds::qos::sessionStatus()),
-      event_reader_(participant_, event_topic_, dds::qos::sessionEvent()),
+      topics_(participant_),
+      device_writer_(participant_, topics_.device_state, dds::qos::deviceState()),
+      chunk_writer_(participant_, topics_.record_chunk, dds::qos::recordChunk()),
+      command_writer_(participant_, topics_.session_command, dds::qos::sessionCommand()),
+      model_reader_(participant_, topics_.joint_model, dds::qos::jointModel()),
+      status_reader_(participant_, topics_.session_status, dds::qos::sessionStatus()),
+      event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
       client_id_(randomClientId()) {
   chunk_.reserve(kChunkSamples);
 }

@@ -78,12 +78,7 @@ class ClientLink {
 
   loop::HapticLoop& loop_;
   dds::Participant participant_;
-  dds::Topic<telehand_msg_DeviceState> device_topic_;
-  dds::Topic<telehand_msg_RecordChunk> chunk_topic_;
-  dds::Topic<telehand_msg_JointModel> model_topic_;
-  dds::Topic<telehand_msg_SessionCommand> command_topic_;
-  dds::Topic<telehand_msg_SessionStatus> status_topic_;
-  dds::Topic<telehand_msg_SessionEvent> event_topic_;
+  dds::Topics topics_;
   dds::Writer<telehand_msg_DeviceState> device_writer_;
   dds::Writer<telehand_msg_RecordChunk> chunk_writer_;
   dds::Writer<telehand_msg_SessionCommand> command_writer_;

@@ -157,6 +157,17 @@ Participant::Participant(const Options& options) : options_(options) {
                              "create subscriber"));
 }
 
+Topics::Topics(const Participant& p)
+    : device_state(p, topic::kDeviceState),
+      record_chunk(p, topic::kRecordChunk),
+      joint_model(p, topic::kJointModel),
+      hand_state(p, topic::kHandState),
+      session_command(p, topic::kSessionCommand),
+      session_status(p, topic::kSessionStatus),
+      session_event(p, topic::kSessionEvent),
+      latency_ping(p, topic::kLatencyPing),
+      latency_pong(p, topic::kLatencyPong) {}
+
 std::vector<dds_attach_t> WaitSet::wait(std::chrono::nanoseconds timeout) {
   dds_attach_t xs[16];
   const dds_return_t n = dds_waitset_wait(e_.handle(), xs, 16, timeout.count());

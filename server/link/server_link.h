@@ -40,15 +40,7 @@ class ServerLink final : public session::Outbox {
   void echoLoop();
 
   dds::Participant participant_;
-  dds::Topic<telehand_msg_DeviceState> device_topic_;
-  dds::Topic<telehand_msg_RecordChunk> chunk_topic_;
-  dds::Topic<telehand_msg_JointModel> model_topic_;
-  dds::Topic<telehand_msg_HandState> hand_topic_;
-  dds::Topic<telehand_msg_SessionCommand> command_topic_;
-  dds::Topic<telehand_msg_SessionStatus> status_topic_;
-  dds::Topic<telehand_msg_SessionEvent> event_topic_;
-  dds::Topic<telehand_msg_DeviceState> ping_topic_;
-  dds::Topic<telehand_msg_DeviceState> pong_topic_;
+  dds::Topics topics_;
   dds::Reader<telehand_msg_DeviceState> device_reader_;
   dds::Reader<telehand_msg_RecordChunk> chunk_reader_;
   dds::Reader<telehand_msg_SessionCommand> command_reader_;

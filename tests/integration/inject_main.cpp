@@ -18,16 +18,12 @@ using namespace std::chrono_literals;
 struct Peer {
   explicit Peer(const dds::Options& o)
       : participant(o),
-        device_topic(participant, dds::topic::kDeviceState),
-        chunk_topic(participant, dds::topic::kRecordChunk),
-        command_topic(participant, dds::topic::kSessionCommand),
-        status_topic(participant, dds::topic::kSessionStatus),
-        event_topic(participant, dds::topic::kSessionEvent),
-        device(participant, device_topic, dds::qos::deviceState()),
-        chunk(participant, chunk_topic, dds::qos::recordChunk()),
-        command(participant, command_topic, dds::qos::sessionCommand()),
-        status(participant, status_topic, dds::qos::sessionStatus()),
-        events(participant, event_topic, dds::qos::sessionEvent()) {}
+        topics(participant),
+        device(participant, topics.device_state, dds::qos::deviceState()),
+        chunk(participant, topics.record_chunk, dds::qos::recordChunk()),
+        command(participant, topics.session_command, dds::qos::sessionCommand()),
+        status(participant, topics.session_status, dds::qos::sessionStatus()),
+        events(participant, topics.session_event, dds::qos::sessionEvent()) {}
 
   bool awaitServer(std::chrono::seconds timeout) {
     const auto deadline = std::chrono::steady_clock::now() + timeout;
@@ -75,11 +71,7 @@ struct Peer {
   }
 
   dds::Participant participant;
-  dds::Topic<telehand_msg_DeviceState> device_topic;
-  dds::Topic<telehand_msg_RecordChunk> chunk_topic;
-  dds::Topic<telehand_msg_SessionCommand> command_topic;
-  dds::Topic<telehand_msg_SessionStatus> status_topic;
-  dds::Topic<telehand_msg_SessionEvent> event_topic;
+  dds::Topics topics;
   dds::Writer<telehand_msg_DeviceState> device;
   dds::Writer<telehand_msg_RecordChunk> chunk;
   dds::Writer<telehand_msg_SessionCommand> command;

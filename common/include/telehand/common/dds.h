@@ -151,6 +151,20 @@ class Topic {
   Entity e_;
 };
 
+/// Every telehand topic on one participant: the one place names meet types.
+struct Topics {
+  explicit Topics(const Participant& p);
+  Topic<telehand_msg_DeviceState> device_state;
+  Topic<telehand_msg_RecordChunk> record_chunk;
+  Topic<telehand_msg_JointModel> joint_model;
+  Topic<telehand_msg_HandState> hand_state;
+  Topic<telehand_msg_SessionCommand> session_command;
+  Topic<telehand_msg_SessionStatus> session_status;
+  Topic<telehand_msg_SessionEvent> session_event;
+  Topic<telehand_msg_DeviceState> latency_ping;
+  Topic<telehand_msg_DeviceState> latency_pong;
+};
+
 template <typename T>
 class Writer {
  public:
