@@ -76,7 +76,7 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
         [&](const telehand_msg_DeviceState& d, const dds_sample_info_t&) {
           manager.onDeviceState(d, now);
         },
-        4096);
+        256);  // then tick: HandState and closing sessions wait at most one batch
     manager.tick(clock.nowNs());
   }
   // Whatever is still in the readers belongs in the record.

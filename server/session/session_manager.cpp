@@ -240,8 +240,12 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
   }
   ++stats_.live_samples;
   if (s.sim && (!s.have_live || d.seq > s.last.seq)) {
-    // The simulation runs on device time: one 1 ms step per sample, lost ones included.
-    const uint64_t steps = s.have_live ? std::min<uint64_t>(d.seq - s.last.seq, 100) : 1;
+    // The simulation runs on device time: one 1 ms step per sample, and a few more for
+    // samples lost on the way. An overloaded server must not try to catch up on every
+    // lost millisecond (each catch-up would fall further behind): past kMaxCatchUpSteps
+    // the hand skips time and the gap shows in HandState.device_lost.
+    const uint64_t steps =
+        s.have_live ? std::min<uint64_t>(d.seq - s.last.seq, kMaxCatchUpSteps) : 1;
     s.sim->setFingerTargets(thimblePositions(d), true);
     for (uint64_t i = 0; i < steps; ++i) {
       s.sim->step();

@@ -62,6 +62,8 @@ class SessionManager {
   static constexpr int64_t kIdleTimeoutNs = 30'000'000'000;
   /// A recovering joint's range is republished when it has grown by this much.
   static constexpr double kRecoveryStepDeg = 0.5;
+  /// Simulation steps one live sample may trigger (itself plus lost predecessors).
+  static constexpr uint64_t kMaxCatchUpSteps = 3;
 
  private:
   struct Session;
