@@ -4,7 +4,6 @@
 #include <filesystem>
 #include <fstream>
 #include <cstring>
-#include <regex>
 #include <sstream>
 #include <toml++/toml.h>
 #include <utility>
@@ -293,8 +292,12 @@ std::vector<std::string> listPatientCases(const std::string& dir) {
 }
 
 PatientCase loadPatientCaseByName(const std::string& dir, const std::string& name) {
-  static const std::regex kName("[a-z0-9_-]{1,63}");
-  if (!std::regex_match(name, kName)) {
+  const bool well_formed =
+      !name.empty() && name.size() <= 63 &&
+      std::all_of(name.begin(), name.end(), [](char ch) {
+        return (ch >= 'a' && ch <= 'z') || (ch >= '0' && ch <= '9') || ch == '_' || ch == '-';
+      });
+  if (!well_formed) {
     throw ConfigError("patient case name '" + name + "' is not of the form [a-z0-9_-]+");
   }
   const std::string path = (std::filesystem::path(dir) / (name + ".toml")).string();
