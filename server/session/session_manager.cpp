@@ -326,16 +326,19 @@ void SessionManager::publishHand(Session& s, int64_t now_ns) {
     h.device_seq = d.seq;
     h.device_time_ns = d.source_time_ns;
     const PerFinger<Vec3> p = thimblePositions(d);
-    const Vec3 angles = s.model.anglesFromGrip(p);
-    Vec3 rates = Vec3::Zero();
-    if (s.prev_angles_ns != 0 && d.source_time_ns > s.prev_angles_ns) {
-      rates = (angles - s.prev_angles) / (static_cast<double>(d.source_time_ns - s.prev_angles_ns) * 1e-9);
-    }
-    s.prev_angles = angles;
-    s.prev_angles_ns = d.source_time_ns;
-    Vec3 tau = s.model.passiveTorqueNm(angles, rates);
-    Vec3 mcp = angles;
-    if (s.sim) {
+    Vec3 mcp, tau;
+    if (!s.sim) {
+      // No hand: the shared joint model at the thimbles, rates from successive states.
+      mcp = s.model.anglesFromGrip(p);
+      Vec3 rates = Vec3::Zero();
+      if (s.prev_angles_ns != 0 && d.source_time_ns > s.prev_angles_ns) {
+        rates = (mcp - s.prev_angles) /
+                (static_cast<double>(d.source_time_ns - s.prev_angles_ns) * 1e-9);
+      }
+      s.prev_angles = mcp;
+      s.prev_angles_ns = d.source_time_ns;
+      tau = s.model.passiveTorqueNm(mcp, rates);
+    } else {
       // The authoritative hand: its angles, torques, bones, spheres and contacts.
       const sim::HandSim& hs = *s.sim;
       h.source = telehand_msg_HAND_SOURCE_BULLET;
