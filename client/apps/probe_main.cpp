@@ -56,7 +56,7 @@ int main(int argc, char** argv) {
       next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
       std::this_thread::sleep_until(next);
       for (const auto& m : dev.takeMessages()) std::cout << "# " << m << "\n";
-      mf2::StatePacket s;
+      proto::StatePacket s;
       DeviceSample ds;
       const bool have_raw = dev.latestRaw(s);
       dev.read(ds);

@@ -5,7 +5,7 @@
 
 namespace telehand::client::device {
 
-void LinearMf2Calibration::toFingers(const mf2::StatePacket& raw,
+void LinearMf2Calibration::toFingers(const proto::StatePacket& raw,
                                      PerFinger<FingerSample>& out) const noexcept {
   for (int k = 0; k < 2; ++k) {
     FingerSample& f = out[k];
@@ -25,7 +25,7 @@ void LinearMf2Calibration::toFingers(const mf2::StatePacket& raw,
   }
 }
 
-void LinearMf2Calibration::toCurrents(const PerFinger<Vec3>& force_n, const mf2::StatePacket&,
+void LinearMf2Calibration::toCurrents(const PerFinger<Vec3>& force_n, const proto::StatePacket&,
                                       CurrentsMa& out) const noexcept {
   const double limit_ma = p_.max_current_a * 1000.0;
   for (int k = 0; k < 2; ++k) {

@@ -12,15 +12,15 @@
 
 namespace telehand::client::device {
 
-using CurrentsMa = std::array<int16_t, mf2::kActuators>;
+using CurrentsMa = std::array<int16_t, proto::kActuators>;
 
 class Mf2Calibration {
  public:
   virtual ~Mf2Calibration() = default;
   /// Thimble positions, orientations and FSR forces from one state packet.
-  virtual void toFingers(const mf2::StatePacket& raw, PerFinger<FingerSample>& out) const noexcept = 0;
+  virtual void toFingers(const proto::StatePacket& raw, PerFinger<FingerSample>& out) const noexcept = 0;
   /// Motor currents that produce `force_n` at the thimbles in the pose of `raw`.
-  virtual void toCurrents(const PerFinger<Vec3>& force_n, const mf2::StatePacket& raw,
+  virtual void toCurrents(const PerFinger<Vec3>& force_n, const proto::StatePacket& raw,
                           CurrentsMa& out) const noexcept = 0;
 };
 
@@ -35,7 +35,7 @@ struct LinearMf2CalibrationParams {
   double counts_per_rad = 16384.0 / (2.0 * kPi);   ///< 14-bit gimbal encoders
   PerFinger<Vec3> origin_m{Vec3::Zero(), Vec3::Zero()};
   double fsr_n_per_count = 20.0 / 4095.0;          ///< 0-20 N over the 12-bit ADC
-  std::array<uint16_t, mf2::kFsrs> fsr_zero_counts{};  ///< ADC counts at no load
+  std::array<uint16_t, proto::kFsrs> fsr_zero_counts{};  ///< ADC counts at no load
   double n_per_amp = 2.0;                          ///< thimble force per motor amp
   double max_current_a = 3.0;                      ///< the motor driver's limit
 };
@@ -43,8 +43,8 @@ struct LinearMf2CalibrationParams {
 class LinearMf2Calibration final : public Mf2Calibration {
  public:
   explicit LinearMf2Calibration(const LinearMf2CalibrationParams& p = {}) : p_(p) {}
-  void toFingers(const mf2::StatePacket& raw, PerFinger<FingerSample>& out) const noexcept override;
-  void toCurrents(const PerFinger<Vec3>& force_n, const mf2::StatePacket& raw,
+  void toFingers(const proto::StatePacket& raw, PerFinger<FingerSample>& out) const noexcept override;
+  void toCurrents(const PerFinger<Vec3>& force_n, const proto::StatePacket& raw,
                   CurrentsMa& out) const noexcept override;
   const LinearMf2CalibrationParams& params() const noexcept { return p_; }
 

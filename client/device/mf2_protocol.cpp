@@ -1,6 +1,6 @@
 #include "client/device/mf2_protocol.h"
 
-namespace telehand::client::device::mf2 {
+namespace telehand::client::device::proto {
 
 namespace {
 
@@ -223,4 +223,4 @@ SequenceTracker::Verdict SequenceTracker::check(uint32_t seq, uint64_t time_us) 
   return v;
 }
 
-}  // namespace telehand::client::device::mf2
+}  // namespace telehand::client::device::proto

@@ -9,7 +9,7 @@
 #include <span>
 #include <string_view>
 
-namespace telehand::client::device::mf2 {
+namespace telehand::client::device::proto {
 
 constexpr uint8_t kProtocolVersion = 1;
 constexpr std::array<uint8_t, 2> kMagic = {'M', '2'};
@@ -132,4 +132,4 @@ class SequenceTracker {
   uint64_t accepted_ = 0, lost_ = 0, stale_ = 0, out_of_order_ = 0, resyncs_ = 0;
 };
 
-}  // namespace telehand::client::device::mf2
+}  // namespace telehand::client::device::proto

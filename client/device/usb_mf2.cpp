@@ -44,17 +44,17 @@ bool hasMf2Interface(libusb_device* dev) {
     const libusb_interface& itf = cfg->interface[i];
     if (itf.num_altsetting < 1) continue;
     const libusb_interface_descriptor& alt = itf.altsetting[0];
-    if (alt.bInterfaceNumber != mf2::kInterfaceNumber ||
+    if (alt.bInterfaceNumber != proto::kInterfaceNumber ||
         alt.bInterfaceClass != LIBUSB_CLASS_VENDOR_SPEC) {
       continue;
     }
     for (int e = 0; e < alt.bNumEndpoints; ++e) {
       const libusb_endpoint_descriptor& ep = alt.endpoint[e];
       const bool interrupt = (ep.bmAttributes & 0x3) == LIBUSB_TRANSFER_TYPE_INTERRUPT;
-      in |= interrupt && ep.bEndpointAddress == mf2::kEndpointIn &&
-            ep.wMaxPacketSize >= mf2::kStateSize;
-      out |= interrupt && ep.bEndpointAddress == mf2::kEndpointOut &&
-             ep.wMaxPacketSize >= mf2::kCommandSize;
+      in |= interrupt && ep.bEndpointAddress == proto::kEndpointIn &&
+            ep.wMaxPacketSize >= proto::kStateSize;
+      out |= interrupt && ep.bEndpointAddress == proto::kEndpointOut &&
+             ep.wMaxPacketSize >= proto::kCommandSize;
     }
   }
   libusb_free_config_descriptor(cfg);
@@ -164,14 +164,14 @@ UsbMf2::UsbMf2(const UsbMf2Config& config, const Mf2Calibration& calibration, co
       clock_(clock),
       samples_(std::make_unique<TripleBuffer<DeviceSample>>()),
       forces_(std::make_unique<TripleBuffer<TimedForce>>()),
-      raw_(std::make_unique<TripleBuffer<mf2::StatePacket>>()),
+      raw_(std::make_unique<TripleBuffer<proto::StatePacket>>()),
       rtt_(std::make_unique<SpscRing<int64_t, 4096>>()) {
   if (cfg_.in_flight < 1 || cfg_.in_flight > kMaxInFlight) {
     throw DeviceError("usb: in_flight must be 1.." + std::to_string(kMaxInFlight));
   }
-  if (cfg_.watchdog_ms < mf2::kWatchdogMinMs || cfg_.watchdog_ms > mf2::kWatchdogMaxMs) {
-    throw DeviceError("usb: watchdog_ms must be " + std::to_string(mf2::kWatchdogMinMs) + ".." +
-                      std::to_string(mf2::kWatchdogMaxMs));
+  if (cfg_.watchdog_ms < proto::kWatchdogMinMs || cfg_.watchdog_ms > proto::kWatchdogMaxMs) {
+    throw DeviceError("usb: watchdog_ms must be " + std::to_string(proto::kWatchdogMinMs) + ".." +
+                      std::to_string(proto::kWatchdogMaxMs));
   }
   status_text_ = "not started";
 }
@@ -324,7 +324,7 @@ void UsbMf2::tryOpen() {
       libusb_close(h);
       continue;
     }
-    rc = libusb_claim_interface(h, mf2::kInterfaceNumber);
+    rc = libusb_claim_interface(h, proto::kInterfaceNumber);
     if (rc != 0) {
       problem = "MF-2 at " + where + ": cannot claim its interface (" + usbError(rc) + ")" +
                 (rc == LIBUSB_ERROR_BUSY ? ": another program (another telehand-client?) uses it" : "");
@@ -362,7 +362,7 @@ void UsbMf2::tryOpen() {
 
 void UsbMf2::submitIn(int i) {
   if (handle_ == nullptr || disconnect_pending_ || closing_ || in_busy_[i]) return;
-  libusb_fill_interrupt_transfer(in_xfer_[i], handle_, mf2::kEndpointIn, in_buf_[i].data(),
+  libusb_fill_interrupt_transfer(in_xfer_[i], handle_, proto::kEndpointIn, in_buf_[i].data(),
                                  static_cast<int>(in_buf_[i].size()), &UsbMf2Callbacks::in, this,
                                  static_cast<unsigned>(cfg_.in_timeout_ms));
   const int rc = libusb_submit_transfer(in_xfer_[i]);
@@ -408,7 +408,7 @@ void UsbMf2::onIn(libusb_transfer* t) {
     case LIBUSB_TRANSFER_OVERFLOW:
       bump(stats_.overflows);
       note("MF-2 at " + where_ + ": a state packet overflowed the " +
-           std::to_string(mf2::kMaxPacketIn) + "-byte buffer (overflow); dropped");
+           std::to_string(proto::kMaxPacketIn) + "-byte buffer (overflow); dropped");
       submitIn(i);
       return;
     case LIBUSB_TRANSFER_NO_DEVICE:
@@ -428,15 +428,15 @@ void UsbMf2::onIn(libusb_transfer* t) {
 }
 
 void UsbMf2::handlePacket(const uint8_t* data, int length) {
-  mf2::StatePacket s;
-  const mf2::DecodeError e =
-      mf2::decodeState({data, static_cast<std::size_t>(std::max(length, 0))}, s);
-  if (e != mf2::DecodeError::kOk) {
+  proto::StatePacket s;
+  const proto::DecodeError e =
+      proto::decodeState({data, static_cast<std::size_t>(std::max(length, 0))}, s);
+  if (e != proto::DecodeError::kOk) {
     bump(stats_.rejected[static_cast<std::size_t>(e)]);
-    if (e == mf2::DecodeError::kBadVersion && length > 2) {
+    if (e == proto::DecodeError::kBadVersion && length > 2) {
       setStatus(DeviceStatus::kFault,
                 "MF-2 at " + where_ + " speaks protocol version " + std::to_string(data[2]) +
-                    "; this client speaks version " + std::to_string(mf2::kProtocolVersion),
+                    "; this client speaks version " + std::to_string(proto::kProtocolVersion),
                 true);
     }
     return;
@@ -448,7 +448,7 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   bump(stats_.out_of_order, tracker_.outOfOrder() - ooo0);
   bump(stats_.lost, tracker_.lost() - lost0);
   bump(stats_.resyncs, tracker_.resyncs() - resync0);
-  if (verdict != mf2::SequenceTracker::Verdict::kAccept) return;
+  if (verdict != proto::SequenceTracker::Verdict::kAccept) return;
 
   const int64_t now = clock_.nowNs();
   bump(stats_.packets_in);
@@ -474,10 +474,10 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   samples_->write(sample);
   raw_->write(s);
 
-  if (s.status & (mf2::kStatusEstopButton | mf2::kStatusEstopLatched)) {
+  if (s.status & (proto::kStatusEstopButton | proto::kStatusEstopLatched)) {
     setStatus(DeviceStatus::kFault,
               "MF-2 at " + where_ + ": emergency stop " +
-                  ((s.status & mf2::kStatusEstopButton) ? "button pressed" : "latched (clear it to resume)"),
+                  ((s.status & proto::kStatusEstopButton) ? "button pressed" : "latched (clear it to resume)"),
               true);
   } else {
     setStatus(DeviceStatus::kOk, "MF-2 streaming from " + where_, true);
@@ -495,7 +495,7 @@ void UsbMf2::sendCommand() {
   const int64_t now = clock_.nowNs();
   forces_->read(force_);
   const bool fresh = force_.time_ns != 0 && now - force_.time_ns <= cfg_.command_fresh_ns;
-  mf2::CommandPacket c;
+  proto::CommandPacket c;
   c.seq = ++cmd_seq_;
   if (fresh) {
     cal_.toCurrents(force_.force.force_n, state_, c.current_ma);
@@ -503,13 +503,13 @@ void UsbMf2::sendCommand() {
     bump(stats_.stale_loop_output);
   }
   const bool estop = estop_request_.load(std::memory_order_acquire);
-  c.flags = static_cast<uint8_t>((fresh && !estop ? mf2::kCommandEnable : 0) |
-                                 (estop ? mf2::kCommandEstop : 0));
-  if (!estop && clear_request_.exchange(false)) c.flags |= mf2::kCommandClearFault;
+  c.flags = static_cast<uint8_t>((fresh && !estop ? proto::kCommandEnable : 0) |
+                                 (estop ? proto::kCommandEstop : 0));
+  if (!estop && clear_request_.exchange(false)) c.flags |= proto::kCommandClearFault;
   c.watchdog_ms = cfg_.watchdog_ms;
-  mf2::encodeCommand(c, out_buf_);
+  proto::encodeCommand(c, out_buf_);
   sent_ns_[c.seq % sent_ns_.size()] = now;
-  libusb_fill_interrupt_transfer(out_xfer_, handle_, mf2::kEndpointOut, out_buf_.data(),
+  libusb_fill_interrupt_transfer(out_xfer_, handle_, proto::kEndpointOut, out_buf_.data(),
                                  static_cast<int>(out_buf_.size()), &UsbMf2Callbacks::out, this,
                                  static_cast<unsigned>(cfg_.out_timeout_ms));
   const int rc = libusb_submit_transfer(out_xfer_);
@@ -582,7 +582,7 @@ void UsbMf2::afterEvents() {
     return;
   }
   if (clear_halt_in_ && !any_in_busy) {
-    const int rc = libusb_clear_halt(handle_, mf2::kEndpointIn);
+    const int rc = libusb_clear_halt(handle_, proto::kEndpointIn);
     if (rc == LIBUSB_ERROR_NO_DEVICE) {
       markDisconnected("unplugged");
       return;
@@ -594,7 +594,7 @@ void UsbMf2::afterEvents() {
     for (int i = 0; i < cfg_.in_flight; ++i) submitIn(i);
   }
   if (clear_halt_out_ && !out_busy_) {
-    const int rc = libusb_clear_halt(handle_, mf2::kEndpointOut);
+    const int rc = libusb_clear_halt(handle_, proto::kEndpointOut);
     if (rc == LIBUSB_ERROR_NO_DEVICE) {
       markDisconnected("unplugged");
       return;
@@ -634,16 +634,16 @@ void UsbMf2::closeDevice() {
   }
   if (orderly && have_state_) {
     // Leave the device with zero current and its actuators disabled.
-    mf2::CommandPacket c;
+    proto::CommandPacket c;
     c.seq = ++cmd_seq_;
     c.watchdog_ms = cfg_.watchdog_ms;
-    std::array<uint8_t, mf2::kCommandSize> buf{};
-    mf2::encodeCommand(c, buf);
+    std::array<uint8_t, proto::kCommandSize> buf{};
+    proto::encodeCommand(c, buf);
     int done = 0;
-    libusb_interrupt_transfer(handle_, mf2::kEndpointOut, buf.data(), static_cast<int>(buf.size()),
+    libusb_interrupt_transfer(handle_, proto::kEndpointOut, buf.data(), static_cast<int>(buf.size()),
                               &done, 50);
   }
-  libusb_release_interface(handle_, mf2::kInterfaceNumber);
+  libusb_release_interface(handle_, proto::kInterfaceNumber);
   libusb_close(handle_);
   handle_ = nullptr;
   in_busy_ = {};

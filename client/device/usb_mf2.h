@@ -34,8 +34,8 @@ struct libusb_device;
 namespace telehand::client::device {
 
 struct UsbMf2Config {
-  uint16_t vendor_id = mf2::kDefaultVendorId;
-  uint16_t product_id = mf2::kDefaultProductId;
+  uint16_t vendor_id = proto::kDefaultVendorId;
+  uint16_t product_id = proto::kDefaultProductId;
   std::string serial;                   ///< empty: the first MF-2 found
   uint16_t watchdog_ms = 20;            ///< the device zeroes current after this long without a command
   int in_timeout_ms = 100;              ///< no state packet for this long is a timeout error
@@ -49,7 +49,7 @@ struct UsbMf2Config {
 struct UsbMf2Stats {
   std::atomic<uint64_t> packets_in{0};       ///< state packets accepted
   std::atomic<uint64_t> commands_out{0};     ///< command packets the device took
-  std::array<std::atomic<uint64_t>, 8> rejected{};  ///< by mf2::DecodeError
+  std::array<std::atomic<uint64_t>, 8> rejected{};  ///< by proto::DecodeError
   std::atomic<uint64_t> stale{0};            ///< repeated seq or device time
   std::atomic<uint64_t> out_of_order{0};     ///< seq behind the last accepted one
   std::atomic<uint64_t> lost{0};             ///< seq gaps: packets never seen
@@ -82,8 +82,8 @@ struct UsbMf2Info {
 
 /// Lists attached devices with the given IDs (opens each briefly to read its serial and to
 /// check permissions). Throws DeviceError if libusb cannot start.
-std::vector<UsbMf2Info> listUsbMf2(uint16_t vendor_id = mf2::kDefaultVendorId,
-                                   uint16_t product_id = mf2::kDefaultProductId);
+std::vector<UsbMf2Info> listUsbMf2(uint16_t vendor_id = proto::kDefaultVendorId,
+                                   uint16_t product_id = proto::kDefaultProductId);
 
 /// The list as the probe and `telehand-client --list-devices` print it.
 std::string formatUsbMf2List(const std::vector<UsbMf2Info>& devices, uint16_t vendor_id,
@@ -124,7 +124,7 @@ class UsbMf2 final : public Device {
   std::vector<std::string> takeMessages();
   const UsbMf2Stats& stats() const noexcept { return stats_; }
   /// The newest accepted raw state packet (one consumer thread only).
-  bool latestRaw(mf2::StatePacket& out) noexcept { return raw_->read(out); }
+  bool latestRaw(proto::StatePacket& out) noexcept { return raw_->read(out); }
   /// Command -> echo round trips in ns (one consumer thread only; new ones dropped when full).
   SpscRing<int64_t, 4096>& roundTrips() noexcept { return *rtt_; }
   /// Latch an emergency stop on the device (true), or clear a latched one (false).
@@ -166,7 +166,7 @@ class UsbMf2 final : public Device {
   // Hand-offs with the real-time loop and the probe.
   std::unique_ptr<TripleBuffer<DeviceSample>> samples_;
   std::unique_ptr<TripleBuffer<TimedForce>> forces_;
-  std::unique_ptr<TripleBuffer<mf2::StatePacket>> raw_;
+  std::unique_ptr<TripleBuffer<proto::StatePacket>> raw_;
   std::unique_ptr<SpscRing<int64_t, 4096>> rtt_;
   UsbMf2Stats stats_;
 
@@ -179,10 +179,10 @@ class UsbMf2 final : public Device {
   static constexpr int kMaxInFlight = 4;
   std::array<libusb_transfer*, kMaxInFlight> in_xfer_{};
   std::array<bool, kMaxInFlight> in_busy_{};
-  std::array<std::array<uint8_t, mf2::kMaxPacketIn>, kMaxInFlight> in_buf_{};
+  std::array<std::array<uint8_t, proto::kMaxPacketIn>, kMaxInFlight> in_buf_{};
   libusb_transfer* out_xfer_ = nullptr;
   bool out_busy_ = false;
-  std::array<uint8_t, mf2::kCommandSize> out_buf_{};
+  std::array<uint8_t, proto::kCommandSize> out_buf_{};
   bool command_pending_ = false;
   bool clear_halt_in_ = false;
   bool clear_halt_out_ = false;
@@ -190,8 +190,8 @@ class UsbMf2 final : public Device {
   bool closing_ = false;
   bool have_state_ = false;
   int consecutive_errors_ = 0;
-  mf2::SequenceTracker tracker_;
-  mf2::StatePacket state_{};
+  proto::SequenceTracker tracker_;
+  proto::StatePacket state_{};
   TimedForce force_{};
   uint32_t cmd_seq_ = 0;
   uint32_t last_echo_ = 0;

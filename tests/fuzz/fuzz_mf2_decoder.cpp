@@ -11,14 +11,14 @@
 
 #include "client/device/mf2_protocol.h"
 
-namespace mf2 = telehand::client::device::mf2;
+namespace proto = telehand::client::device::proto;
 
 namespace {
 
 template <typename Packet, std::size_t kSize, typename Decode, typename Encode>
 void roundTrip(const uint8_t* data, std::size_t size, Decode decode, Encode encode) {
   Packet p;
-  if (decode(std::span<const uint8_t>(data, size), p) != mf2::DecodeError::kOk) return;
+  if (decode(std::span<const uint8_t>(data, size), p) != proto::DecodeError::kOk) return;
   uint8_t again[kSize];
   if (size != kSize || encode(p, std::span<uint8_t>(again, kSize)) != kSize ||
       std::memcmp(again, data, kSize) != 0) {
@@ -29,29 +29,29 @@ void roundTrip(const uint8_t* data, std::size_t size, Decode decode, Encode enco
 void withCrcFixed(const uint8_t* data, std::size_t size, std::size_t packet_size) {
   if (size != packet_size) return;
   std::vector<uint8_t> b(data, data + size);
-  const uint32_t crc = mf2::crc32(std::span<const uint8_t>(b.data(), size - 4));
+  const uint32_t crc = proto::crc32(std::span<const uint8_t>(b.data(), size - 4));
   for (int i = 0; i < 4; ++i) b[size - 4 + i] = static_cast<uint8_t>(crc >> (8 * i));
-  roundTrip<mf2::StatePacket, mf2::kStateSize>(b.data(), size, mf2::decodeState,
-                                               [](const mf2::StatePacket& p, std::span<uint8_t> o) {
-                                                 return mf2::encodeState(p, o);
+  roundTrip<proto::StatePacket, proto::kStateSize>(b.data(), size, proto::decodeState,
+                                               [](const proto::StatePacket& p, std::span<uint8_t> o) {
+                                                 return proto::encodeState(p, o);
                                                });
-  roundTrip<mf2::CommandPacket, mf2::kCommandSize>(
-      b.data(), size, mf2::decodeCommand,
-      [](const mf2::CommandPacket& p, std::span<uint8_t> o) { return mf2::encodeCommand(p, o); });
+  roundTrip<proto::CommandPacket, proto::kCommandSize>(
+      b.data(), size, proto::decodeCommand,
+      [](const proto::CommandPacket& p, std::span<uint8_t> o) { return proto::encodeCommand(p, o); });
 }
 
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
-  auto enc_state = [](const mf2::StatePacket& p, std::span<uint8_t> o) { return mf2::encodeState(p, o); };
-  auto enc_cmd = [](const mf2::CommandPacket& p, std::span<uint8_t> o) { return mf2::encodeCommand(p, o); };
-  roundTrip<mf2::StatePacket, mf2::kStateSize>(data, size, mf2::decodeState, enc_state);
-  roundTrip<mf2::CommandPacket, mf2::kCommandSize>(data, size, mf2::decodeCommand, enc_cmd);
-  withCrcFixed(data, size, mf2::kStateSize);
-  withCrcFixed(data, size, mf2::kCommandSize);
+  auto enc_state = [](const proto::StatePacket& p, std::span<uint8_t> o) { return proto::encodeState(p, o); };
+  auto enc_cmd = [](const proto::CommandPacket& p, std::span<uint8_t> o) { return proto::encodeCommand(p, o); };
+  roundTrip<proto::StatePacket, proto::kStateSize>(data, size, proto::decodeState, enc_state);
+  roundTrip<proto::CommandPacket, proto::kCommandSize>(data, size, proto::decodeCommand, enc_cmd);
+  withCrcFixed(data, size, proto::kStateSize);
+  withCrcFixed(data, size, proto::kCommandSize);
 
   // The input as a stream of (seq, time) pairs.
-  mf2::SequenceTracker t;
+  proto::SequenceTracker t;
   bool have = false;
   uint32_t last_seq = 0;
   uint64_t last_time = 0;
@@ -61,7 +61,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
     std::memcpy(&dt, data + i + 4, 4);
     const uint64_t time = dt;
     const uint64_t resyncs = t.resyncs();
-    if (t.check(seq, time) == mf2::SequenceTracker::Verdict::kAccept) {
+    if (t.check(seq, time) == proto::SequenceTracker::Verdict::kAccept) {
       const bool ahead = !have || (static_cast<int32_t>(seq - last_seq) > 0 && time > last_time);
       if (!ahead && t.resyncs() == resyncs) std::abort();
       have = true;

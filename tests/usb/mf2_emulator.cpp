@@ -54,9 +54,9 @@ std::vector<uint8_t> descriptors(const EmulatorOptions& o) {
       // interface 0: two endpoints, vendor specific
       0x09, 0x04, 0x00, 0x00, 0x02, 0xff, 0x00, 0x00, 0x00,
       // endpoint 0x81 interrupt IN, 128 bytes, bInterval 4 (2^3 microframes = 1 ms)
-      0x07, 0x05, mf2::kEndpointIn, 0x03, lo(mf2::kMaxPacketIn), hi(mf2::kMaxPacketIn), 0x04,
+      0x07, 0x05, proto::kEndpointIn, 0x03, lo(proto::kMaxPacketIn), hi(proto::kMaxPacketIn), 0x04,
       // endpoint 0x01 interrupt OUT, 64 bytes, 1 ms
-      0x07, 0x05, mf2::kEndpointOut, 0x03, 0x40, 0x00, 0x04};
+      0x07, 0x05, proto::kEndpointOut, 0x03, 0x40, 0x00, 0x04};
 }
 
 std::vector<uint8_t> stringDescriptor(const std::string& s) {
@@ -238,9 +238,9 @@ bool Mf2Emulator::produceIn(Urb& u, int64_t now_ns) {
     u.actual = urb->buffer_length;
     return true;
   }
-  std::array<uint8_t, mf2::kStateSize> pkt{};
-  mf2::encodeState(fw_.tick(), pkt);
-  std::array<uint8_t, mf2::kStateSize> out = pkt;
+  std::array<uint8_t, proto::kStateSize> pkt{};
+  proto::encodeState(fw_.tick(), pkt);
+  std::array<uint8_t, proto::kStateSize> out = pkt;
   std::size_t len = out.size();
   if (corrupt_left_ > 0) {
     --corrupt_left_;
@@ -250,9 +250,9 @@ bool Mf2Emulator::produceIn(Urb& u, int64_t now_ns) {
       case Corruption::kShort: len = 60; break;
       case Corruption::kBadMagic: out[0] = 'X'; break;
       case Corruption::kBadVersion: {
-        mf2::StatePacket s;
-        mf2::decodeState(pkt, s);
-        mf2::encodeState(s, out, 2);
+        proto::StatePacket s;
+        proto::decodeState(pkt, s);
+        proto::encodeState(s, out, 2);
         break;
       }
       case Corruption::kDuplicate:  // the last packet the host got, again
@@ -339,10 +339,10 @@ bool Mf2Emulator::handleIoctl(UMockdevIoctlClient* client) {
       unsigned int ep = 0;
       std::memcpy(&ep, d->data, sizeof ep);
       umockdev_ioctl_data_unref(d);
-      if (ep == mf2::kEndpointIn && halted_in_) {
+      if (ep == proto::kEndpointIn && halted_in_) {
         halted_in_ = false;
         ++counters_.stalls_cleared;
-      } else if (ep == mf2::kEndpointOut && halted_out_) {
+      } else if (ep == proto::kEndpointOut && halted_out_) {
         halted_out_ = false;
         ++counters_.stalls_cleared;
       }
@@ -366,9 +366,9 @@ bool Mf2Emulator::handleIoctl(UMockdevIoctlClient* client) {
       if (urb->type == USBDEVFS_URB_TYPE_CONTROL && urb->endpoint == 0) {
         answerControl(u);
         done_.push_back(u);
-      } else if (urb->endpoint == mf2::kEndpointIn) {
+      } else if (urb->endpoint == proto::kEndpointIn) {
         pending_in_.push_back(u);
-      } else if (urb->endpoint == mf2::kEndpointOut) {
+      } else if (urb->endpoint == proto::kEndpointOut) {
         ++counters_.commands_received;
         if (halted_out_) {
           u.status = -EPIPE;

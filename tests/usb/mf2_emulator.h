@@ -28,8 +28,8 @@ typedef struct _UMockdevIoctlData UMockdevIoctlData;
 namespace telehand::test::usb {
 
 struct EmulatorOptions {
-  uint16_t vendor_id = mf2::kDefaultVendorId;
-  uint16_t product_id = mf2::kDefaultProductId;
+  uint16_t vendor_id = proto::kDefaultVendorId;
+  uint16_t product_id = proto::kDefaultProductId;
   uint16_t bcd_device = 0x0100;
   std::string serial = "MF2-EMU-0001";
   /// 0: a state packet whenever the host asks (as fast as the emulation goes);
@@ -115,7 +115,7 @@ class Mf2Emulator {
   Corruption corruption_ = Corruption::kBitFlip;
   int corrupt_left_ = 0;
   int64_t next_due_ns_ = 0;
-  std::array<uint8_t, mf2::kStateSize> prev_{}, prev2_{};  // the last two good packets sent
+  std::array<uint8_t, proto::kStateSize> prev_{}, prev2_{};  // the last two good packets sent
   int prev_count_ = 0;
   std::deque<Urb> pending_in_;  // waiting for the device's next state packet
   std::deque<Urb> done_;        // completed, waiting to be reaped

@@ -13,7 +13,7 @@ Mf2Firmware::Mf2Firmware(const FirmwareParams& p) : p_(p) { reset(); }
 
 void Mf2Firmware::reset() {
   tick_ = 0;
-  for (int i = 0; i < mf2::kActuators; ++i) {
+  for (int i = 0; i < proto::kActuators; ++i) {
     x0_[i] = x_[i] = p_.start_counts[i] / p_.counts_per_m;
     v_[i] = applied_a_[i] = 0.0;
   }
@@ -26,14 +26,14 @@ void Mf2Firmware::reset() {
 }
 
 bool Mf2Firmware::receive(std::span<const uint8_t> bytes) {
-  mf2::CommandPacket c;
-  if (mf2::decodeCommand(bytes, c) != mf2::DecodeError::kOk) {
+  proto::CommandPacket c;
+  if (proto::decodeCommand(bytes, c) != proto::DecodeError::kOk) {
     ++rx_errors_;
     last_rejected_ = true;
     return false;
   }
-  if (c.flags & mf2::kCommandEstop) estop_latched_ = true;
-  if ((c.flags & mf2::kCommandClearFault) && !(c.flags & mf2::kCommandEstop) && !estop_button_) {
+  if (c.flags & proto::kCommandEstop) estop_latched_ = true;
+  if ((c.flags & proto::kCommandClearFault) && !(c.flags & proto::kCommandEstop) && !estop_button_) {
     estop_latched_ = false;
   }
   last_ = c;
@@ -44,13 +44,13 @@ bool Mf2Firmware::receive(std::span<const uint8_t> bytes) {
   return true;
 }
 
-mf2::StatePacket Mf2Firmware::tick() {
+proto::StatePacket Mf2Firmware::tick() {
   if (estop_button_) estop_latched_ = true;
   watchdog_expired_ = !have_command_ || tick_ - last_command_tick_ >= last_.watchdog_ms;
-  enabled_ = have_command_ && (last_.flags & mf2::kCommandEnable) && !estop_latched_ &&
+  enabled_ = have_command_ && (last_.flags & proto::kCommandEnable) && !estop_latched_ &&
              !watchdog_expired_;
   overcurrent_ = false;
-  for (int i = 0; i < mf2::kActuators; ++i) {
+  for (int i = 0; i < proto::kActuators; ++i) {
     double a = enabled_ ? last_.current_ma[i] / 1000.0 : 0.0;
     if (std::abs(a) > p_.max_current_a) {
       a = std::clamp(a, -p_.max_current_a, p_.max_current_a);
@@ -71,23 +71,23 @@ mf2::StatePacket Mf2Firmware::tick() {
     }
   }
 
-  mf2::StatePacket s;
+  proto::StatePacket s;
   s.seq = static_cast<uint32_t>(tick_);
   s.device_time_us = tick_ * 1000u;
-  for (int i = 0; i < mf2::kActuators; ++i) {
+  for (int i = 0; i < proto::kActuators; ++i) {
     s.actuator_counts[i] = static_cast<int32_t>(std::lround(x_[i] * p_.counts_per_m));
   }
   s.gimbal_counts = p_.gimbal_counts;
-  for (int i = 0; i < mf2::kFsrs; ++i) {
+  for (int i = 0; i < proto::kFsrs; ++i) {
     const long c = std::lround(fsr_n_[i] * p_.fsr_counts_per_n);
-    s.fsr_raw[i] = static_cast<uint16_t>(std::clamp<long>(c, 0, mf2::kFsrMaxRaw));
+    s.fsr_raw[i] = static_cast<uint16_t>(std::clamp<long>(c, 0, proto::kFsrMaxRaw));
   }
-  s.status = static_cast<uint16_t>((enabled_ ? mf2::kStatusEnabled : 0) |
-                                   (estop_button_ ? mf2::kStatusEstopButton : 0) |
-                                   (estop_latched_ ? mf2::kStatusEstopLatched : 0) |
-                                   (watchdog_expired_ ? mf2::kStatusWatchdogExpired : 0) |
-                                   (overcurrent_ ? mf2::kStatusOvercurrent : 0) |
-                                   (last_rejected_ ? mf2::kStatusCommandRejected : 0));
+  s.status = static_cast<uint16_t>((enabled_ ? proto::kStatusEnabled : 0) |
+                                   (estop_button_ ? proto::kStatusEstopButton : 0) |
+                                   (estop_latched_ ? proto::kStatusEstopLatched : 0) |
+                                   (watchdog_expired_ ? proto::kStatusWatchdogExpired : 0) |
+                                   (overcurrent_ ? proto::kStatusOvercurrent : 0) |
+                                   (last_rejected_ ? proto::kStatusCommandRejected : 0));
   s.rx_errors = static_cast<uint16_t>(std::min<uint32_t>(rx_errors_, 0xffff));
   s.last_command_seq = last_.seq;
   if (keep_history_) states_.push_back(s);

@@ -9,7 +9,7 @@
 #include "client/device/mf2_protocol.h"
 #include "mf2_firmware.h"
 
-namespace telehand::client::device::mf2 {
+namespace telehand::client::device::proto {
 namespace {
 
 std::vector<uint8_t> fromHex(const std::string& h) {
@@ -221,7 +221,7 @@ TEST(SequenceTracker, ResynchronizesAfterTheDeviceRestartsItsCounter) {
 }
 
 }  // namespace
-}  // namespace telehand::client::device::mf2
+}  // namespace telehand::client::device::proto
 
 namespace telehand::test::usb {
 namespace {
@@ -230,33 +230,33 @@ using client::device::CurrentsMa;
 using client::device::FingerSample;
 using client::device::LinearMf2Calibration;
 
-std::vector<uint8_t> command(uint32_t seq, std::array<int16_t, mf2::kActuators> ma, uint8_t flags,
+std::vector<uint8_t> command(uint32_t seq, std::array<int16_t, proto::kActuators> ma, uint8_t flags,
                              uint16_t watchdog_ms = 10) {
-  mf2::CommandPacket c;
+  proto::CommandPacket c;
   c.seq = seq;
   c.current_ma = ma;
   c.flags = flags;
   c.watchdog_ms = watchdog_ms;
-  std::vector<uint8_t> b(mf2::kCommandSize);
-  mf2::encodeCommand(c, b);
+  std::vector<uint8_t> b(proto::kCommandSize);
+  proto::encodeCommand(c, b);
   return b;
 }
 
 TEST(Mf2Firmware, DrivesOnlyWhenEnabledAndWithinTheWatchdog) {
   Mf2Firmware fw;
-  mf2::StatePacket s = fw.tick();
-  EXPECT_TRUE(s.status & mf2::kStatusWatchdogExpired) << "no command yet";
-  EXPECT_FALSE(s.status & mf2::kStatusEnabled);
+  proto::StatePacket s = fw.tick();
+  EXPECT_TRUE(s.status & proto::kStatusWatchdogExpired) << "no command yet";
+  EXPECT_FALSE(s.status & proto::kStatusEnabled);
 
-  ASSERT_TRUE(fw.receive(command(1, {500, 0, 0, 0, 0, 0, 0}, mf2::kCommandEnable, 10)));
+  ASSERT_TRUE(fw.receive(command(1, {500, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable, 10)));
   s = fw.tick();
-  EXPECT_TRUE(s.status & mf2::kStatusEnabled);
+  EXPECT_TRUE(s.status & proto::kStatusEnabled);
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.5);
   EXPECT_EQ(s.last_command_seq, 1u);
   for (int i = 0; i < 9; ++i) fw.tick();
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.5) << "the 10th tick: still within 10 ms";
   s = fw.tick();
-  EXPECT_TRUE(s.status & mf2::kStatusWatchdogExpired);
+  EXPECT_TRUE(s.status & proto::kStatusWatchdogExpired);
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.0) << "10 ms without a command: zero";
   EXPECT_GT(fw.positionM(0), 0.0) << "the axis moved along the pushed direction";
 
@@ -267,25 +267,25 @@ TEST(Mf2Firmware, DrivesOnlyWhenEnabledAndWithinTheWatchdog) {
 
 TEST(Mf2Firmware, EmergencyStopLatchesUntilCleared) {
   Mf2Firmware fw;
-  ASSERT_TRUE(fw.receive(command(1, {800, 0, 0, 0, 0, 0, 0}, mf2::kCommandEnable)));
+  ASSERT_TRUE(fw.receive(command(1, {800, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable)));
   fw.tick();
   ASSERT_TRUE(fw.enabled());
   fw.pressEstopButton(true);
-  mf2::StatePacket s = fw.tick();
-  EXPECT_TRUE(s.status & mf2::kStatusEstopButton);
+  proto::StatePacket s = fw.tick();
+  EXPECT_TRUE(s.status & proto::kStatusEstopButton);
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.0);
   fw.pressEstopButton(false);
-  ASSERT_TRUE(fw.receive(command(2, {800, 0, 0, 0, 0, 0, 0}, mf2::kCommandEnable)));
+  ASSERT_TRUE(fw.receive(command(2, {800, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable)));
   s = fw.tick();
-  EXPECT_TRUE(s.status & mf2::kStatusEstopLatched) << "released button: still latched";
+  EXPECT_TRUE(s.status & proto::kStatusEstopLatched) << "released button: still latched";
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.0);
   ASSERT_TRUE(fw.receive(command(3, {800, 0, 0, 0, 0, 0, 0},
-                                 mf2::kCommandEnable | mf2::kCommandClearFault)));
+                                 proto::kCommandEnable | proto::kCommandClearFault)));
   s = fw.tick();
-  EXPECT_FALSE(s.status & mf2::kStatusEstopLatched);
+  EXPECT_FALSE(s.status & proto::kStatusEstopLatched);
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.8);
   ASSERT_TRUE(fw.receive(command(4, {800, 0, 0, 0, 0, 0, 0},
-                                 mf2::kCommandEnable | mf2::kCommandEstop)));
+                                 proto::kCommandEnable | proto::kCommandEstop)));
   fw.tick();
   EXPECT_TRUE(fw.estopLatched()) << "the host's e-stop bit latches too";
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.0);
@@ -293,15 +293,15 @@ TEST(Mf2Firmware, EmergencyStopLatchesUntilCleared) {
 
 TEST(Mf2Firmware, RejectsBadCommandsAndClampsOvercurrent) {
   Mf2Firmware fw;
-  std::vector<uint8_t> bad = command(1, {100, 0, 0, 0, 0, 0, 0}, mf2::kCommandEnable);
+  std::vector<uint8_t> bad = command(1, {100, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable);
   bad[10] ^= 1;
   EXPECT_FALSE(fw.receive(bad));
-  mf2::StatePacket s = fw.tick();
+  proto::StatePacket s = fw.tick();
   EXPECT_EQ(s.rx_errors, 1);
-  EXPECT_TRUE(s.status & mf2::kStatusCommandRejected);
-  ASSERT_TRUE(fw.receive(command(2, {-9000, 0, 0, 0, 0, 0, 0}, mf2::kCommandEnable)));
+  EXPECT_TRUE(s.status & proto::kStatusCommandRejected);
+  ASSERT_TRUE(fw.receive(command(2, {-9000, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable)));
   s = fw.tick();
-  EXPECT_TRUE(s.status & mf2::kStatusOvercurrent);
+  EXPECT_TRUE(s.status & proto::kStatusOvercurrent);
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], -3.0);
 }
 
@@ -310,7 +310,7 @@ TEST(LinearMf2Calibration, CountsToUnitsAndForcesToCurrents) {
   p.origin_m[telehand::kIndex] = Vec3(0.1, 0.0, 0.0);
   p.fsr_zero_counts[4] = 10;
   LinearMf2Calibration cal(p);
-  mf2::StatePacket s;
+  proto::StatePacket s;
   s.actuator_counts = {1000, -2000, 3000, 100, 0, -100, 55};
   s.gimbal_counts = {0, 0, 0, static_cast<int32_t>(std::lround(p.counts_per_rad * kPi / 2)), 0, 0};
   s.fsr_raw = {0, 4095, 2048, 1, 10, 20, 0, 4095};

@@ -42,10 +42,10 @@ std::string joined(const std::vector<std::string>& v) {
 
 /// Encoder counts that put the thimbles on the healthy joint's grip at this flexion (the
 /// bench calibration reads 10 um per count from the device origin).
-std::array<int32_t, mf2::kActuators> startCounts(double flexion_rad) {
+std::array<int32_t, proto::kActuators> startCounts(double flexion_rad) {
   const JointModel joint(healthyIndexMcp());
   const PerFinger<Vec3> p = joint.gripFromAngles(Vec3(flexion_rad, 0.0, 0.0), 0.008);
-  std::array<int32_t, mf2::kActuators> c{};
+  std::array<int32_t, proto::kActuators> c{};
   for (int k = 0; k < 2; ++k) {
     for (int i = 0; i < 3; ++i) c[3 * k + i] = static_cast<int32_t>(std::lround(p[k][i] * 1e5));
   }
@@ -95,8 +95,8 @@ class UsbMf2Test : public ::testing::Test {
 TEST_F(UsbMf2Test, ListsAndOpensByVendorAndProductId) {
   const auto found = client::device::listUsbMf2();
   ASSERT_EQ(found.size(), 1u) << "the testbed's bus holds exactly the emulated MF-2";
-  EXPECT_EQ(found[0].vendor_id, mf2::kDefaultVendorId);
-  EXPECT_EQ(found[0].product_id, mf2::kDefaultProductId);
+  EXPECT_EQ(found[0].vendor_id, proto::kDefaultVendorId);
+  EXPECT_EQ(found[0].product_id, proto::kDefaultProductId);
   EXPECT_EQ(found[0].serial, "MF2-EMU-0001");
   EXPECT_EQ(found[0].bcd_device, 0x0100);
   EXPECT_EQ(found[0].problem, "");
@@ -132,7 +132,7 @@ TEST_F(UsbMf2Test, NamesWhatIsMissingWhenNoMatchingDevice) {
 
 TEST_F(UsbMf2Test, Streams5000CyclesWithContentCheckedBothWays) {
   constexpr int kCycles = 5000;
-  const std::array<double, mf2::kFsrs> fsr = {0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 19.9};
+  const std::array<double, proto::kFsrs> fsr = {0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 19.9};
   emu_->withFirmware([&](Mf2Firmware& fw) { fw.setFsrForces(fsr); });
   UsbMf2& dev = startDevice();
   ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
@@ -174,7 +174,7 @@ TEST_F(UsbMf2Test, Streams5000CyclesWithContentCheckedBothWays) {
       }
       prev_seq = s.seq;
       ASSERT_LT(s.seq, states.size());
-      const mf2::StatePacket& raw = states[s.seq];
+      const proto::StatePacket& raw = states[s.seq];
       PerFinger<client::device::FingerSample> expect;
       cal_.toFingers(raw, expect);
       for (int k = 0; k < 2; ++k) {
@@ -196,7 +196,7 @@ TEST_F(UsbMf2Test, Streams5000CyclesWithContentCheckedBothWays) {
       const auto& c = cmds[i];
       ASSERT_EQ(c.seq, i + 1) << "command sequence numbers run 1, 2, 3...";
       ASSERT_EQ(c.watchdog_ms, 20);
-      if (!(c.flags & mf2::kCommandEnable)) {
+      if (!(c.flags & proto::kCommandEnable)) {
         ASSERT_EQ(c.current_ma, (client::device::CurrentsMa{})) << "disabled means zero";
         continue;
       }
@@ -224,13 +224,13 @@ TEST_F(UsbMf2Test, CorruptShortStaleAndOutOfOrderPacketsAreRejectedAndCounted) {
   streamFor(20);
   const struct {
     Corruption kind;
-    mf2::DecodeError error;  // kOk: a sequence check rejects it
-  } cases[] = {{Corruption::kBitFlip, mf2::DecodeError::kBadCrc},
-               {Corruption::kShort, mf2::DecodeError::kShort},
-               {Corruption::kBadMagic, mf2::DecodeError::kBadMagic},
-               {Corruption::kDuplicate, mf2::DecodeError::kOk},
-               {Corruption::kOutOfOrder, mf2::DecodeError::kOk},
-               {Corruption::kBadVersion, mf2::DecodeError::kBadVersion}};
+    proto::DecodeError error;  // kOk: a sequence check rejects it
+  } cases[] = {{Corruption::kBitFlip, proto::DecodeError::kBadCrc},
+               {Corruption::kShort, proto::DecodeError::kShort},
+               {Corruption::kBadMagic, proto::DecodeError::kBadMagic},
+               {Corruption::kDuplicate, proto::DecodeError::kOk},
+               {Corruption::kOutOfOrder, proto::DecodeError::kOk},
+               {Corruption::kBadVersion, proto::DecodeError::kBadVersion}};
   uint64_t last_seq = 0;
   for (const auto& c : cases) {
     const uint64_t sent0 = emu_->counters().corrupted_sent;
@@ -247,10 +247,10 @@ TEST_F(UsbMf2Test, CorruptShortStaleAndOutOfOrderPacketsAreRejectedAndCounted) {
     streamFor(10);  // and streaming goes on
   }
   const auto& st = dev.stats();
-  EXPECT_EQ(st.rejected[static_cast<int>(mf2::DecodeError::kBadCrc)].load(), 5u);
-  EXPECT_EQ(st.rejected[static_cast<int>(mf2::DecodeError::kShort)].load(), 5u);
-  EXPECT_EQ(st.rejected[static_cast<int>(mf2::DecodeError::kBadMagic)].load(), 5u);
-  EXPECT_EQ(st.rejected[static_cast<int>(mf2::DecodeError::kBadVersion)].load(), 5u);
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kBadCrc)].load(), 5u);
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kShort)].load(), 5u);
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kBadMagic)].load(), 5u);
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kBadVersion)].load(), 5u);
   EXPECT_EQ(st.stale.load(), 5u);
   EXPECT_EQ(st.out_of_order.load(), 5u);
   EXPECT_EQ(st.rejectedTotal(), 20u);
