@@ -125,13 +125,15 @@ bool SimulatedMf2::read(DeviceSample& out) noexcept {
   if (!updatePose(pose)) return false;  // out of the linkage's reach
   out.seq = seq_;
   out.time_ns = sim_ns_;
-  // The net push goes through whichever finger's pad faces it; the axial couple is shared.
-  const Vec3 net = operator_force_[kThumb] + operator_force_[kIndex];
-  const Vec3 couple = operator_force_[kIndex] - 0.5 * net;
-  const Vec3 thumb_normal = geometry_.thimbleOrientation(kThumb, angles_) * Vec3::UnitZ();
-  const bool thumb_pushes = net.dot(thumb_normal) >= 0.0;
-  const PerFinger<Vec3> pressed = thumb_pushes ? PerFinger<Vec3>{net - couple, couple}
-                                               : PerFinger<Vec3>{-couple, net + couple};
+  // A pad can only push: where the shared split would pull on a pad, the clinician squeezes
+  // (equal and opposite forces along the line between the pads: no net force, no moment).
+  // A flexion push then goes through the pad that faces it; side forces stay shared.
+  const Vec3 n_thumb = geometry_.thimbleOrientation(kThumb, angles_) * Vec3::UnitZ();
+  const Vec3 n_index = geometry_.thimbleOrientation(kIndex, angles_) * Vec3::UnitZ();
+  const double squeeze = std::max({0.0, -operator_force_[kThumb].dot(n_thumb),
+                                   -operator_force_[kIndex].dot(n_index)});
+  const PerFinger<Vec3> pressed{operator_force_[kThumb] + squeeze * n_thumb,
+                                operator_force_[kIndex] + squeeze * n_index};
   for (int k = 0; k < 2; ++k) {
     out.fingers[k].position_m = pose[k].position_m;
     out.fingers[k].orientation = pose[k].orientation;
