@@ -26,7 +26,7 @@ int main(int argc, char** argv) {
                "by a virtual clinician performing the paper's MCP mobilization."};
   std::string config_path, device_kind = "sim", mode_name = "mobilization", case_name = "healthy";
   std::string user = "student", log_level = "warn";
-  std::string usb_vid = "1209", usb_pid = "4d32", usb_serial;
+  std::string usb_vid = "1209", usb_pid = "4d32", usb_serial, device_file;
   double seconds = 20.0, connect_timeout = 10.0, device_timeout = 5.0;
   bool quiet = false, list_devices = false;
   dds::Options dds_opts;
@@ -36,6 +36,10 @@ int main(int argc, char** argv) {
   app.add_option("--device", device_kind, "sim: the simulated MF-2; usb: an MF-2 on USB")
       ->check(CLI::IsMember({"sim", "usb"}))->capture_default_str();
   app.add_flag("--list-devices", list_devices, "list the MF-2s attached over USB and exit");
+  app.add_option("--device-file", device_file,
+                 "MF-2 device file: kinematics, encoders, thimble calibration (default: the "
+                 "built-in values of deploy/devices/mf2.toml)")
+      ->check(CLI::ExistingFile);
   app.add_option("--usb-vid", usb_vid, "MF-2 USB vendor ID, hex")->capture_default_str();
   app.add_option("--usb-pid", usb_pid, "MF-2 USB product ID, hex")->capture_default_str();
   app.add_option("--usb-serial", usb_serial, "use the MF-2 with this serial number");
@@ -87,9 +91,9 @@ int main(int argc, char** argv) {
 
     SteadyClock clock;
     const JointModelParams initial = healthyIndexMcp();
-    // Encoder and FSR counts to units. The bench calibration until the MF-2 device model
-    // provides the linkage's kinematics and the thimbles' FSR calibration.
-    client::device::LinearMf2Calibration usb_calibration;
+    const mf2::Mf2Description mf2_device =
+        device_file.empty() ? mf2::defaultMf2() : mf2::loadMf2Description(device_file);
+    client::device::Mf2ModelCalibration usb_calibration(mf2_device);
     std::unique_ptr<client::device::Device> device_owner;
     client::device::UsbMf2* usb = nullptr;
     if (device_kind == "usb") {
@@ -104,7 +108,8 @@ int main(int argc, char** argv) {
                           usb->statusText());
       }
     } else {
-      device_owner = std::make_unique<client::device::SimulatedMf2>(initial, cfg.op, clock);
+      device_owner = std::make_unique<client::device::SimulatedMf2>(
+          initial, cfg.op, clock, client::device::SimulatedMf2Dynamics{}, mf2_device);
     }
     client::device::Device& device = *device_owner;
     client::loop::HapticLoop loop(device, clock, initial, cfg.safety, cfg.loop);

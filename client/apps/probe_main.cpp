@@ -17,11 +17,13 @@ int main(int argc, char** argv) {
   CLI::App app{"telehand-probe: list the MF-2 haptic devices attached over USB; --live streams "
                "one and prints its readings. Exit code 0 when an MF-2 is usable, 1 when none "
                "is, 2 on bad options."};
-  std::string vid = "1209", pid = "4d32", serial;
+  std::string vid = "1209", pid = "4d32", serial, device_file;
   double live_s = 0.0, rate_hz = 10.0;
   app.add_option("--usb-vid", vid, "USB vendor ID, hex")->capture_default_str();
   app.add_option("--usb-pid", pid, "USB product ID, hex")->capture_default_str();
   app.add_option("--serial", serial, "pick the MF-2 with this serial number");
+  app.add_option("--device-file", device_file, "MF-2 device file for --live (default: built in)")
+      ->check(CLI::ExistingFile);
   app.add_option("--live", live_s, "stream for this many seconds and print readings")
       ->check(CLI::PositiveNumber);
   app.add_option("--rate", rate_hz, "lines per second with --live")->check(CLI::Range(0.5, 100.0))
@@ -40,7 +42,8 @@ int main(int argc, char** argv) {
     if (live_s <= 0.0) return usable ? 0 : 1;
 
     SteadyClock clock;
-    LinearMf2Calibration cal;
+    Mf2ModelCalibration cal(device_file.empty() ? mf2::defaultMf2()
+                                                : mf2::loadMf2Description(device_file));
     UsbMf2 dev(cfg, cal, clock);
     dev.start();
     if (!dev.waitReady(2s)) {
@@ -72,7 +75,11 @@ int main(int argc, char** argv) {
       for (const int32_t c : s.actuator_counts) std::printf(" %d", c);
       std::printf(" | gimbal");
       for (const int32_t c : s.gimbal_counts) std::printf(" %d", c);
-      std::printf(" | fsr N");
+      std::printf(" | thumb %.1f %.1f %.1f mm, index %.1f %.1f %.1f mm |",
+                  ds.fingers[0].position_m.x() * 1e3, ds.fingers[0].position_m.y() * 1e3,
+                  ds.fingers[0].position_m.z() * 1e3, ds.fingers[1].position_m.x() * 1e3,
+                  ds.fingers[1].position_m.y() * 1e3, ds.fingers[1].position_m.z() * 1e3);
+      std::printf(" fsr N");
       for (int k = 0; k < 2; ++k) {
         for (const float f : ds.fingers[k].fsr_n) std::printf(" %.2f", static_cast<double>(f));
       }

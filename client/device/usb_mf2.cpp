@@ -158,7 +158,7 @@ uint16_t parseUsbId(const std::string& text, const std::string& what) {
   return static_cast<uint16_t>(std::stoul(digits, nullptr, 16));
 }
 
-UsbMf2::UsbMf2(const UsbMf2Config& config, const Mf2Calibration& calibration, const Clock& clock)
+UsbMf2::UsbMf2(const UsbMf2Config& config, Mf2Calibration& calibration, const Clock& clock)
     : cfg_(config),
       cal_(calibration),
       clock_(clock),
@@ -348,6 +348,7 @@ void UsbMf2::tryOpen() {
     return;
   }
   tracker_.reset();
+  cal_.reset();
   have_state_ = false;
   disconnect_pending_ = false;
   clear_halt_in_ = clear_halt_out_ = false;
@@ -450,6 +451,11 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   bump(stats_.resyncs, tracker_.resyncs() - resync0);
   if (verdict != proto::SequenceTracker::Verdict::kAccept) return;
 
+  DeviceSample sample;
+  if (!cal_.toFingers(s, sample.fingers)) {
+    bump(stats_.bad_pose);
+    return;
+  }
   const int64_t now = clock_.nowNs();
   bump(stats_.packets_in);
   stats_.device_rx_errors.store(s.rx_errors, std::memory_order_relaxed);
@@ -465,10 +471,8 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   }
   last_echo_ = s.last_command_seq;
 
-  DeviceSample sample;
   sample.seq = s.seq;
   sample.time_ns = now;
-  cal_.toFingers(s, sample.fingers);
   state_ = s;
   have_state_ = true;
   samples_->write(sample);

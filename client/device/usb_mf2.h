@@ -54,6 +54,7 @@ struct UsbMf2Stats {
   std::atomic<uint64_t> out_of_order{0};     ///< seq behind the last accepted one
   std::atomic<uint64_t> lost{0};             ///< seq gaps: packets never seen
   std::atomic<uint64_t> resyncs{0};          ///< device counter restarted without re-enumerating
+  std::atomic<uint64_t> bad_pose{0};         ///< encoder counts the linkage cannot take: rejected
   std::atomic<uint64_t> stalls{0};           ///< endpoint halts (cleared and resumed)
   std::atomic<uint64_t> timeouts{0};         ///< IN or OUT transfers that timed out
   std::atomic<uint64_t> overflows{0};        ///< IN packets larger than the buffer
@@ -95,9 +96,10 @@ uint16_t parseUsbId(const std::string& text, const std::string& what);
 
 class UsbMf2 final : public Device {
  public:
-  /// `calibration` and `clock` must outlive the device. Samples are stamped with `clock`
-  /// when they arrive (the loop's clock: its watchdog compares against it).
-  UsbMf2(const UsbMf2Config& config, const Mf2Calibration& calibration, const Clock& clock);
+  /// `calibration` and `clock` must outlive the device (the calibration is used by the USB
+  /// thread only). Samples are stamped with `clock` when they arrive (the loop's clock: its
+  /// watchdog compares against it).
+  UsbMf2(const UsbMf2Config& config, Mf2Calibration& calibration, const Clock& clock);
   ~UsbMf2() override;
   UsbMf2(const UsbMf2&) = delete;
   UsbMf2& operator=(const UsbMf2&) = delete;
@@ -154,7 +156,7 @@ class UsbMf2 final : public Device {
   friend struct UsbMf2Callbacks;
 
   UsbMf2Config cfg_;
-  const Mf2Calibration& cal_;
+  Mf2Calibration& cal_;
   const Clock& clock_;
 
   std::atomic<DeviceStatus> status_{DeviceStatus::kNotReady};

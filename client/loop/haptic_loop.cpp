@@ -60,6 +60,7 @@ StepStatus HapticLoop::step() noexcept {
   const ProxyOutput rendered = proxy_.render(p, now);
   PerFinger<Vec3> request = rendered.force_device_n;
   if (!actuators_.load(std::memory_order_relaxed)) request = {Vec3::Zero(), Vec3::Zero()};
+  gate_.setCapture(!actuators_.load(std::memory_order_relaxed));
   const SafetyOutput safe = gate_.apply(request, now, last_sample_time_ns_);
   if (safe.flags & kSafetyWatchdog) bump(health_.watchdog_trips);
   if (safe.flags & kSafetyNonFinite) bump(health_.nonfinite);
@@ -78,7 +79,10 @@ StepStatus HapticLoop::step() noexcept {
   s.source_time_ns = sample_.time_ns + wall_offset_ns_;  // wire timestamps are wall clock
   s.model_version = proxy_.version();
   s.flags = safe.flags | (rendered.blending ? telehand_msg_kFlagModelBlending : 0u) |
-            (actuators_.load(std::memory_order_relaxed) ? 0u : telehand_msg_kFlagCapture);
+            (actuators_.load(std::memory_order_relaxed) ? 0u : telehand_msg_kFlagCapture) |
+            (static_cast<uint32_t>(sample_.fingers[kThumb].fsr_fault_mask & 0xFu) |
+             static_cast<uint32_t>(sample_.fingers[kIndex].fsr_fault_mask & 0xFu) << 4)
+                << telehand_msg_kFlagFsrFaultShift;
   Vec3 applied = Vec3::Zero();
   double force_max = 0.0;
   for (int k = 0; k < 2; ++k) {

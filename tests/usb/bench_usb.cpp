@@ -44,7 +44,7 @@ int main(int argc, char** argv) {
     test::usb::Mf2Emulator emu(opt);
     emu.withFirmware([](test::usb::Mf2Firmware& fw) { fw.keepHistory(false); return 0; });
     SteadyClock clock;
-    client::device::LinearMf2Calibration cal;
+    client::device::Mf2ModelCalibration cal(mf2::defaultMf2());
     client::device::UsbMf2Config cfg;
     cfg.in_flight = in_flight;
     client::device::UsbMf2 dev(cfg, cal, clock);

@@ -20,11 +20,12 @@ int main(int argc, char** argv) {
   CLI::App app{"telehand-mf2-emu: run a command against an emulated MF-2 (run this under "
                "umockdev-wrapper)"};
   int64_t pace_us = 1000;
-  double push_n = 1.0, push_hz = 1.0;
+  double push_nm = 0.05, push_hz = 1.0;
   std::vector<double> fsr;
   std::vector<std::string> command;
   app.add_option("--pace-us", pace_us, "state packet period, us (0: as fast as asked)")->capture_default_str();
-  app.add_option("--push", push_n, "operator push on the thumb's x axis, N amplitude")->capture_default_str();
+  app.add_option("--push", push_nm, "operator torque on the thumb's first crank, N m amplitude")
+      ->capture_default_str();
   app.add_option("--push-hz", push_hz, "operator push frequency")->capture_default_str();
   app.add_option("--fsr", fsr, "the 8 FSR forces, N (thumb 1-4, index 1-4)")->expected(8);
   app.add_option("command", command, "the command to run")->required();
@@ -34,7 +35,8 @@ int main(int argc, char** argv) {
   try {
     test::usb::EmulatorOptions opt;
     opt.pace_ns = pace_us * 1000;
-    opt.firmware.operator_amplitude_n = push_n;
+    opt.firmware.operator_actuator = 2;
+    opt.firmware.operator_amplitude_nm = push_nm;
     opt.firmware.operator_hz = push_hz;
     test::usb::Mf2Emulator emu(opt);
     emu.withFirmware([&](test::usb::Mf2Firmware& fw) {

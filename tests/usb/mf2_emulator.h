@@ -35,7 +35,7 @@ struct EmulatorOptions {
   /// 0: a state packet whenever the host asks (as fast as the emulation goes);
   /// 1'000'000: at most one per millisecond, like the real device.
   int64_t pace_ns = 0;
-  FirmwareParams firmware{};
+  FirmwareParams firmware = firmwareFor(mf2::defaultMf2());
 };
 
 enum class Corruption {

@@ -3,10 +3,51 @@
 #include <algorithm>
 #include <cmath>
 
+#include "telehand/common/joint_model.h"
+
 namespace telehand::test::usb {
 
 namespace {
 constexpr double kDt = 1e-3;
+}
+
+FirmwareParams firmwareFor(const mf2::Mf2Description& d, const client::device::Mf2Motors& motors,
+                           double flexion_rad) {
+  FirmwareParams p;
+  for (int i = 0; i < proto::kActuators; ++i) {
+    const auto& e = d.actuator_encoders[i];
+    p.counts_per_rad[i] = e.counts_per_rad;
+    p.zero_counts[i] = static_cast<double>(e.zero_counts);
+    p.min_rad[i] = e.min_rad;
+    p.max_rad[i] = e.max_rad;
+    p.nm_per_amp[i] = motors.nm_per_amp[i];
+  }
+  p.max_current_a = motors.max_current_a;
+  for (int k = 0; k < 2; ++k) {
+    for (int j = 0; j < 4; ++j) {
+      p.fsr_zero_counts[4 * k + j] = d.thimbles[k].fsr[j].zero_counts;
+      p.fsr_counts_per_n[4 * k + j] = d.thimbles[k].fsr[j].counts_per_n;
+    }
+  }
+  // Where the device model puts the thimbles on the default joint's grip.
+  const JointModel joint(healthyIndexMcp());
+  const Vec3 angles(flexion_rad, 0.0, 0.0);
+  const PerFinger<Vec3> grip = joint.gripFromAngles(angles, 0.008);
+  PerFinger<mf2::ThimblePose> target;
+  for (int k = 0; k < 2; ++k) {
+    target[k].position_m = grip[k];
+    target[k].orientation = joint.thimbleOrientation(k, angles);
+  }
+  const mf2::Mf2Kinematics kin(d);
+  mf2::JointAngles q;
+  if (kin.inverse(target, 0.0, q)) {
+    const mf2::EncoderCounts c = kin.countsFromAngles(q);
+    for (int i = 0; i < proto::kActuators; ++i) p.start_counts[i] = static_cast<int32_t>(c.actuators[i]);
+    for (int k = 0; k < 2; ++k) {
+      for (int j = 0; j < 3; ++j) p.gimbal_counts[3 * k + j] = static_cast<int32_t>(c.gimbal[k][j]);
+    }
+  }
+  return p;
 }
 
 Mf2Firmware::Mf2Firmware(const FirmwareParams& p) : p_(p) { reset(); }
@@ -14,7 +55,7 @@ Mf2Firmware::Mf2Firmware(const FirmwareParams& p) : p_(p) { reset(); }
 void Mf2Firmware::reset() {
   tick_ = 0;
   for (int i = 0; i < proto::kActuators; ++i) {
-    x0_[i] = x_[i] = p_.start_counts[i] / p_.counts_per_m;
+    q_[i] = (p_.start_counts[i] - p_.zero_counts[i]) / p_.counts_per_rad[i];
     v_[i] = applied_a_[i] = 0.0;
   }
   last_ = {};
@@ -40,7 +81,10 @@ bool Mf2Firmware::receive(std::span<const uint8_t> bytes) {
   have_command_ = true;
   last_command_tick_ = tick_;
   last_rejected_ = false;
-  if (keep_history_) commands_.push_back(c);
+  if (keep_history_) {
+    commands_.push_back(c);
+    command_ticks_.push_back(tick_);
+  }
   return true;
 }
 
@@ -59,14 +103,15 @@ proto::StatePacket Mf2Firmware::tick() {
     applied_a_[i] = a;
   }
   const double t_s = static_cast<double>(tick_) * kDt;
-  for (int i = 0; i < 6; ++i) {  // the base joint (6) is held by its brake in this model
-    double f = p_.n_per_amp * applied_a_[i] + external_n_[i] - p_.damping_n_s_per_m * v_[i];
-    if (i == p_.operator_axis) f += p_.operator_amplitude_n * std::sin(2.0 * M_PI * p_.operator_hz * t_s);
-    v_[i] += f / p_.mass_kg * kDt;
-    x_[i] += v_[i] * kDt;
-    const double lo = x0_[i] - p_.travel_m, hi = x0_[i] + p_.travel_m;
-    if (x_[i] < lo || x_[i] > hi) {
-      x_[i] = std::clamp(x_[i], lo, hi);
+  for (int i = 0; i < proto::kActuators; ++i) {
+    double tau = p_.nm_per_amp[i] * applied_a_[i] + external_nm_[i] - p_.damping_nm_s_per_rad * v_[i];
+    if (i == p_.operator_actuator) {
+      tau += p_.operator_amplitude_nm * std::sin(2.0 * M_PI * p_.operator_hz * t_s);
+    }
+    v_[i] += tau / p_.inertia_kgm2 * kDt;  // semi-implicit Euler
+    q_[i] += v_[i] * kDt;
+    if (q_[i] < p_.min_rad[i] || q_[i] > p_.max_rad[i]) {  // end stop
+      q_[i] = std::clamp(q_[i], p_.min_rad[i], p_.max_rad[i]);
       v_[i] = 0.0;
     }
   }
@@ -75,12 +120,14 @@ proto::StatePacket Mf2Firmware::tick() {
   s.seq = static_cast<uint32_t>(tick_);
   s.device_time_us = tick_ * 1000u;
   for (int i = 0; i < proto::kActuators; ++i) {
-    s.actuator_counts[i] = static_cast<int32_t>(std::lround(x_[i] * p_.counts_per_m));
+    s.actuator_counts[i] = static_cast<int32_t>(std::lround(p_.zero_counts[i] + q_[i] * p_.counts_per_rad[i]));
   }
   s.gimbal_counts = p_.gimbal_counts;
   for (int i = 0; i < proto::kFsrs; ++i) {
-    const long c = std::lround(fsr_n_[i] * p_.fsr_counts_per_n);
-    s.fsr_raw[i] = static_cast<uint16_t>(std::clamp<long>(c, 0, proto::kFsrMaxRaw));
+    // One count of ADC noise, as a powered FSR channel always shows.
+    const double noise = static_cast<double>(static_cast<int>((tick_ + static_cast<uint64_t>(i)) % 3) - 1);
+    const double c = std::round(p_.fsr_zero_counts[i] + p_.fsr_counts_per_n[i] * fsr_n_[i]) + noise;
+    s.fsr_raw[i] = static_cast<uint16_t>(std::clamp(c, 0.0, static_cast<double>(proto::kFsrMaxRaw)));
   }
   s.status = static_cast<uint16_t>((enabled_ ? proto::kStatusEnabled : 0) |
                                    (estop_button_ ? proto::kStatusEstopButton : 0) |

@@ -1,14 +1,16 @@
 #pragma once
 // The MF-2 controller board's firmware, as the emulated device runs it: a 1 kHz tick that
-// integrates the commanded motor currents through a simple dynamic model (each actuated
-// axis a mass with viscous friction and end stops, pushed by its motor and by the operator),
-// produces the state packet, and honours the enable bit, the command watchdog and the
-// emergency stop. Not thread-safe: the emulator serializes access.
+// integrates the commanded motor currents through a simple dynamic model (each actuator a
+// rotating inertia with viscous friction and end stops, driven by its motor and by the
+// operator's hand), produces the state packet, and honours the enable bit, the command
+// watchdog and the emergency stop. It knows the hardware (encoder scales, motor constants,
+// FSR amplifiers), not the kinematics. Not thread-safe: the emulator serializes access.
 #include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
 
+#include "client/device/mf2_calibration.h"
 #include "client/device/mf2_protocol.h"
 
 namespace telehand::test::usb {
@@ -16,24 +18,31 @@ namespace telehand::test::usb {
 namespace proto = client::device::proto;
 
 struct FirmwareParams {
-  double counts_per_m = 100'000.0;   ///< matches LinearMf2CalibrationParams
-  double n_per_amp = 2.0;            ///< motor force constant at the thimble
-  double max_current_a = 3.0;        ///< the motor driver clamps here and flags overcurrent
-  double mass_kg = 0.05;             ///< moving mass per axis
-  double damping_n_s_per_m = 3.0;    ///< viscous friction per axis
-  double travel_m = 0.05;            ///< end stops at +-travel from the start position
-  double fsr_counts_per_n = 4095.0 / 20.0;
+  std::array<double, proto::kActuators> counts_per_rad{};
+  std::array<double, proto::kActuators> zero_counts{};
+  std::array<double, proto::kActuators> min_rad{}, max_rad{};
+  std::array<double, proto::kActuators> nm_per_amp{};
+  double max_current_a = 6.0;      ///< the motor driver clamps here and flags overcurrent
+  double inertia_kgm2 = 5e-4;      ///< per joint: ~50 g at a 10 cm crank
+  double damping_nm_s_per_rad = 5e-3;
+  std::array<double, proto::kFsrs> fsr_zero_counts{}, fsr_counts_per_n{};
   std::array<int32_t, proto::kActuators> start_counts{};
   std::array<int32_t, proto::kGimbals> gimbal_counts{};
-  // A hand on the thimbles: a sinusoidal push on one axis (amplitude 0: none).
-  int operator_axis = 0;
-  double operator_amplitude_n = 0.0;
+  // A hand on the thimbles: a sinusoidal torque on one actuator (amplitude 0: none).
+  int operator_actuator = 1;
+  double operator_amplitude_nm = 0.0;
   double operator_hz = 1.0;
 };
 
+/// Firmware parameters for the hardware a device file and motor constants describe, with
+/// the thimbles resting on the grip of the default index MCP joint at `flexion_rad`.
+FirmwareParams firmwareFor(const mf2::Mf2Description& device,
+                           const client::device::Mf2Motors& motors = {},
+                           double flexion_rad = 20.0 * 3.14159265358979 / 180.0);
+
 class Mf2Firmware {
  public:
-  explicit Mf2Firmware(const FirmwareParams& p = {});
+  explicit Mf2Firmware(const FirmwareParams& p = firmwareFor(mf2::defaultMf2()));
 
   /// Power-up: counters from zero, actuators disabled, watchdog expired, e-stop clear.
   void reset();
@@ -44,15 +53,17 @@ class Mf2Firmware {
 
   // The operator and the hardware.
   void setFsrForces(const std::array<double, proto::kFsrs>& n) { fsr_n_ = n; }
-  void setExternalForce(int actuator, double n) { external_n_[actuator] = n; }
+  void setExternalTorque(int actuator, double nm) { external_nm_[actuator] = nm; }
   void pressEstopButton(bool pressed) { estop_button_ = pressed; }
 
   // What happened (tests check content against these).
   const std::vector<proto::CommandPacket>& commands() const { return commands_; }
+  /// For each accepted command, how many state packets had been produced when it arrived.
+  const std::vector<uint64_t>& commandTicks() const { return command_ticks_; }
   const std::vector<proto::StatePacket>& states() const { return states_; }
   void keepHistory(bool on) { keep_history_ = on; }
   const std::array<double, proto::kActuators>& appliedCurrentA() const { return applied_a_; }
-  double positionM(int actuator) const { return x_[actuator]; }
+  double angleRad(int actuator) const { return q_[actuator]; }
   bool enabled() const { return enabled_; }
   bool estopLatched() const { return estop_latched_; }
   bool watchdogExpired() const { return watchdog_expired_; }
@@ -63,7 +74,7 @@ class Mf2Firmware {
  private:
   FirmwareParams p_;
   uint64_t tick_ = 0;
-  std::array<double, proto::kActuators> x_{}, v_{}, x0_{}, applied_a_{}, external_n_{};
+  std::array<double, proto::kActuators> q_{}, v_{}, applied_a_{}, external_nm_{};
   std::array<double, proto::kFsrs> fsr_n_{};
   proto::CommandPacket last_{};
   bool have_command_ = false;
@@ -73,6 +84,7 @@ class Mf2Firmware {
   uint32_t rx_errors_ = 0;
   bool keep_history_ = true;
   std::vector<proto::CommandPacket> commands_;
+  std::vector<uint64_t> command_ticks_;
   std::vector<proto::StatePacket> states_;
 };
 

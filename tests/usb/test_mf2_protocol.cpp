@@ -8,6 +8,7 @@
 #include "client/device/mf2_calibration.h"
 #include "client/device/mf2_protocol.h"
 #include "mf2_firmware.h"
+#include "telehand/common/joint_model.h"
 
 namespace telehand::client::device::proto {
 namespace {
@@ -228,7 +229,8 @@ namespace {
 
 using client::device::CurrentsMa;
 using client::device::FingerSample;
-using client::device::LinearMf2Calibration;
+using client::device::Mf2ModelCalibration;
+using client::device::Mf2Motors;
 
 std::vector<uint8_t> command(uint32_t seq, std::array<int16_t, proto::kActuators> ma, uint8_t flags,
                              uint16_t watchdog_ms = 10) {
@@ -258,7 +260,7 @@ TEST(Mf2Firmware, DrivesOnlyWhenEnabledAndWithinTheWatchdog) {
   s = fw.tick();
   EXPECT_TRUE(s.status & proto::kStatusWatchdogExpired);
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.0) << "10 ms without a command: zero";
-  EXPECT_GT(fw.positionM(0), 0.0) << "the axis moved along the pushed direction";
+  EXPECT_GT(fw.angleRad(0), 0.0) << "the joint turned the way it was pushed";
 
   ASSERT_TRUE(fw.receive(command(2, {500, 0, 0, 0, 0, 0, 0}, 0)));
   fw.tick();
@@ -302,36 +304,78 @@ TEST(Mf2Firmware, RejectsBadCommandsAndClampsOvercurrent) {
   ASSERT_TRUE(fw.receive(command(2, {-9000, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable)));
   s = fw.tick();
   EXPECT_TRUE(s.status & proto::kStatusOvercurrent);
-  EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], -3.0);
+  EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], -6.0) << "the driver's 6 A";
 }
 
-TEST(LinearMf2Calibration, CountsToUnitsAndForcesToCurrents) {
-  client::device::LinearMf2CalibrationParams p;
-  p.origin_m[telehand::kIndex] = Vec3(0.1, 0.0, 0.0);
-  p.fsr_zero_counts[4] = 10;
-  LinearMf2Calibration cal(p);
+TEST(Mf2ModelCalibration, CountsGoThroughTheDeviceModel) {
+  const mf2::Mf2Description d = mf2::defaultMf2();
+  Mf2ModelCalibration cal(d);
+  const mf2::Mf2Kinematics kin(d);
+  const FirmwareParams fp = firmwareFor(d);  // the thimbles on the joint's grip
   proto::StatePacket s;
-  s.actuator_counts = {1000, -2000, 3000, 100, 0, -100, 55};
-  s.gimbal_counts = {0, 0, 0, static_cast<int32_t>(std::lround(p.counts_per_rad * kPi / 2)), 0, 0};
-  s.fsr_raw = {0, 4095, 2048, 1, 10, 20, 0, 4095};
+  s.actuator_counts = fp.start_counts;
+  s.gimbal_counts = fp.gimbal_counts;
+  for (int i = 0; i < proto::kFsrs; ++i) {
+    s.fsr_raw[i] = static_cast<uint16_t>(std::lround(fp.fsr_zero_counts[i] + fp.fsr_counts_per_n[i] * (i + 1)));
+  }
   PerFinger<FingerSample> f;
-  cal.toFingers(s, f);
-  EXPECT_NEAR((f[0].position_m - Vec3(0.01, -0.02, 0.03)).norm(), 0.0, 1e-12);
-  EXPECT_NEAR((f[1].position_m - Vec3(0.101, 0.0, -0.001)).norm(), 0.0, 1e-12);
-  EXPECT_NEAR((f[1].orientation * Vec3::UnitX() - Vec3::UnitY()).norm(), 0.0, 1e-3)
-      << "gimbal 3 is the index thimble's yaw";
-  EXPECT_NEAR(f[0].fsr_n[1], 20.0, 1e-5);
-  EXPECT_NEAR(f[1].fsr_n[0], 0.0, 1e-6) << "at the zero-load count";
-  EXPECT_NEAR(f[1].fsr_n[1], 20 * p.fsr_n_per_count, 1e-6);
+  ASSERT_TRUE(cal.toFingers(s, f));
+  PerFinger<mf2::ThimblePose> pose;
+  ASSERT_TRUE(kin.forward(kin.anglesFromCounts(Mf2ModelCalibration::encoderCounts(s)), pose));
+  const JointModel joint(healthyIndexMcp());
+  const PerFinger<Vec3> grip = joint.gripFromAngles(Vec3(degToRad(20.0), 0, 0), 0.008);
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_EQ(f[k].position_m, pose[k].position_m);
+    EXPECT_NEAR((f[k].position_m - grip[k]).norm(), 0.0, 1e-4) << "within encoder resolution";
+    for (int j = 0; j < 4; ++j) {
+      EXPECT_NEAR(f[k].fsr_n[j], 4 * k + j + 1, 0.01) << "thimble calibration, sensor " << j + 1;
+    }
+    EXPECT_EQ(f[k].fsr_fault_mask, 0);
+  }
+  // Counts beyond what the linkage can reach are no pose.
+  proto::StatePacket broken = s;
+  broken.actuator_counts[1] = static_cast<int32_t>(fp.counts_per_rad[1] * degToRad(70.0));
+  EXPECT_FALSE(cal.toFingers(broken, f)) << "thumb yaw 10 degrees past its 60 degree stop";
+  broken = s;
+  broken.gimbal_counts[4] = static_cast<int32_t>(651.9 * degToRad(95.0));
+  EXPECT_FALSE(cal.toFingers(broken, f)) << "index gimbal 2 past its 80 degree stop";
+  broken = s;
+  broken.actuator_counts[1] = static_cast<int32_t>(fp.counts_per_rad[1] * degToRad(62.0));
+  EXPECT_TRUE(cal.toFingers(broken, f)) << "2 degrees past a stop: calibration tolerance";
+}
 
+TEST(Mf2ModelCalibration, CurrentsRenderTheForceThroughTheJacobian) {
+  const mf2::Mf2Description d = mf2::defaultMf2();
+  const Mf2Motors motors;
+  const Mf2ModelCalibration cal(d, motors);
+  const mf2::Mf2Kinematics kin(d);
+  const FirmwareParams fp = firmwareFor(d);
+  proto::StatePacket s;
+  s.actuator_counts = fp.start_counts;
+  s.gimbal_counts = fp.gimbal_counts;
+  const mf2::ActuatorAngles q = kin.anglesFromCounts(Mf2ModelCalibration::encoderCounts(s)).actuators;
+  const PerFinger<Vec3> want{Vec3(0.5, -1.0, 2.0), Vec3(-1.5, 0.25, -0.5)};
   CurrentsMa ma{};
-  cal.toCurrents({Vec3(1.0, -2.0, 0.001), Vec3(10.0, std::nan(""), 0.0)}, s, ma);
-  EXPECT_EQ(ma[0], 500);
-  EXPECT_EQ(ma[1], -1000);
-  EXPECT_EQ(ma[2], 1);
-  EXPECT_EQ(ma[3], 3000) << "clamped to the driver's 3 A";
-  EXPECT_EQ(ma[4], 0) << "non-finite becomes zero";
-  EXPECT_EQ(ma[6], 0);
+  cal.toCurrents(want, s, ma);
+  mf2::ActuatorTorques tau;
+  for (int i = 0; i < proto::kActuators; ++i) tau[i] = ma[i] / 1000.0 * motors.nm_per_amp[i];
+  PerFinger<Vec3> got;
+  ASSERT_TRUE(kin.fingertipForces(q, tau, got));
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_NEAR((got[k] - want[k]).norm(), 0.0, 0.02) << "1 mA of quantization";
+  }
+  // Beyond an actuator's limit the torques scale down together: same direction, less force.
+  const PerFinger<Vec3> big{Vec3(0.0, 0.0, 400.0), Vec3::Zero()};
+  cal.toCurrents(big, s, ma);
+  for (int i = 0; i < proto::kActuators; ++i) {
+    tau[i] = ma[i] / 1000.0 * motors.nm_per_amp[i];
+    EXPECT_LE(std::abs(tau[i]), d.max_torque_nm[i] + 1e-3) << i;
+  }
+  ASSERT_TRUE(kin.fingertipForces(q, tau, got));
+  EXPECT_GT(got[0].normalized().dot(Vec3::UnitZ()), 0.999);
+  EXPECT_LT(got[0].norm(), 400.0);
+  cal.toCurrents({Vec3(std::nan(""), 0, 0), Vec3::Zero()}, s, ma);
+  EXPECT_EQ(ma, CurrentsMa{}) << "non-finite: zero";
 }
 
 }  // namespace

@@ -22,16 +22,9 @@ TEST(UsbMf2Alloc, StepAllocatesNothingWhileStreamingUnpluggedAndBack) {
   prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
   EmulatorOptions opt;
   opt.pace_ns = 1'000'000;
-  const PerFinger<Vec3> grip =
-      JointModel(healthyIndexMcp()).gripFromAngles(Vec3(degToRad(20.0), 0.0, 0.0), 0.008);
-  for (int k = 0; k < 2; ++k) {
-    for (int i = 0; i < 3; ++i) {
-      opt.firmware.start_counts[3 * k + i] = static_cast<int32_t>(std::lround(grip[k][i] * 1e5));
-    }
-  }
   Mf2Emulator emu(opt);
   SteadyClock clock;
-  client::device::LinearMf2Calibration cal;
+  client::device::Mf2ModelCalibration cal(mf2::defaultMf2());
   client::device::UsbMf2 dev({}, cal, clock);
   dev.start();
   ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();

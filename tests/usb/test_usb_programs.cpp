@@ -13,7 +13,6 @@
 #include "mf2_emulator.h"
 #include "process.h"
 #include "server/session/sqlite_store.h"
-#include "telehand/common/joint_model.h"
 
 namespace telehand::test::usb {
 namespace {
@@ -70,7 +69,9 @@ TEST_F(UsbProgramsTest, ProbeListsAndStreamsTheDevice) {
   EXPECT_EQ(live.wait(20s), 0) << live.output();
   const std::string out = live.output();
   EXPECT_GE(matchNumber(out, R"(seq (\d+) t )"), 1u) << out;
-  EXPECT_NE(out.find("| fsr N 0.00 0.00 0.00 10.0"), std::string::npos) << out;
+  EXPECT_TRUE(std::regex_search(out, std::regex(R"(\| fsr N 0\.0\d 0\.0\d 0\.0\d (9\.99|10\.0\d) )")))
+      << "the thumb's pad FSR at 10 N, the others at 0 (one count of ADC noise)\n"
+      << out;
   EXPECT_NE(out.find("rejected 0, lost"), std::string::npos) << out;
 
   Process none({TELEHAND_PROBE_BIN, "--usb-pid", "beef"}, path("none.log"));
@@ -101,15 +102,8 @@ TEST_F(UsbProgramsTest, SessionWithTheUsbDeviceIsRecorded) {
   // fro and presses the index pad with 3 N.
   EmulatorOptions opt;
   opt.pace_ns = 1'000'000;
-  const JointModel joint(healthyIndexMcp());
-  const PerFinger<Vec3> grip = joint.gripFromAngles(Vec3(degToRad(20.0), 0.0, 0.0), 0.008);
-  for (int k = 0; k < 2; ++k) {
-    for (int i = 0; i < 3; ++i) {
-      opt.firmware.start_counts[3 * k + i] = static_cast<int32_t>(std::lround(grip[k][i] * 1e5));
-    }
-  }
-  opt.firmware.operator_axis = 2;
-  opt.firmware.operator_amplitude_n = 1.0;
+  opt.firmware.operator_actuator = 2;  // the thumb's first crank
+  opt.firmware.operator_amplitude_nm = 0.05;
   opt.firmware.operator_hz = 2.0;
   Mf2Emulator emu(opt);
   emu.withFirmware([](Mf2Firmware& fw) {
@@ -145,23 +139,26 @@ TEST_F(UsbProgramsTest, SessionWithTheUsbDeviceIsRecorded) {
   EXPECT_EQ(info->state, "closed");
   EXPECT_EQ(info->samples, sent);
   uint64_t expect_seq = 0, gaps = 0, pressed = 0, forced = 0;
+  double force_max = 0.0;
   double z_min = 1e9, z_max = -1e9;
   store.forEachSample(session, [&](const telehand_msg_DeviceState& s, bool valid) {
     gaps += s.seq != expect_seq;
     expect_seq = s.seq + 1;
     EXPECT_TRUE(valid);
     // The index pad's 3 N arrives through the protocol and the calibration (12-bit ADC).
-    pressed += std::abs(s.fingers[1].fsr_n[3] - 3.0f) < 0.01f;
+    pressed += std::abs(s.fingers[1].fsr_n[3] - 3.0f) < 0.02f;
     const Vec3 f(s.fingers[0].command_n[0], s.fingers[0].command_n[1], s.fingers[0].command_n[2]);
     forced += f.norm() > 0.05;
+    force_max = std::max(force_max, f.norm());
     z_min = std::min(z_min, s.fingers[0].position_m[2]);
     z_max = std::max(z_max, s.fingers[0].position_m[2]);
   });
   EXPECT_EQ(gaps, 0u);
   EXPECT_EQ(expect_seq, sent);
   EXPECT_GT(pressed, sent * 9 / 10) << "the index pad force in the record";
-  EXPECT_GT(forced, sent / 2) << "the joint pushed back through the device";
-  EXPECT_GT(z_max - z_min, 0.001) << "the operator moved the thumb";
+  EXPECT_GT(forced, sent / 10) << "the joint pushed back through the device";
+  EXPECT_GT(force_max, 0.3);
+  EXPECT_GT(z_max - z_min, 0.0005) << "the operator moved the thumb";
 }
 
 }  // namespace
