@@ -24,7 +24,7 @@ constexpr uint8_t kInterfaceNumber = 0;
 constexpr uint8_t kEndpointIn = 0x81;   ///< interrupt IN, 1 ms interval: state packets
 constexpr uint8_t kEndpointOut = 0x01;  ///< interrupt OUT: command packets
 
-constexpr int kActuators = 7;   ///< 0-2 thumb 5-bar + base, 3-5 index, 6 the shared base joint
+constexpr int kActuators = 7;   ///< 0 the shared base joint, 1-3 thumb, 4-6 index (device model order)
 constexpr int kGimbals = 6;     ///< 0-2 thumb gimbal, 3-5 index gimbal
 constexpr int kFsrs = 8;        ///< 0-3 thumb FSRs 1..4, 4-7 index FSRs 1..4
 constexpr uint16_t kFsrMaxRaw = 4095;  ///< 12-bit ADC
