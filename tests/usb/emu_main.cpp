@@ -1,11 +1,11 @@
 // telehand-mf2-emu: runs a command against an emulated MF-2 (no hardware). The emulated USB
 // bus is visible to the command and its children. Run under umockdev-wrapper:
-//   umockdev-wrapper build/release/tests/usb/telehand-mf2-emu --
-//       build/release/client/telehand-probe --live 3   (one line)
+//   umockdev-wrapper build/release/tests/usb/telehand-mf2-emu build/release/client/telehand-probe --live 3
 #include <spawn.h>
 #include <sys/prctl.h>
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <string>
 #include <vector>
@@ -21,15 +21,37 @@ int main(int argc, char** argv) {
                "umockdev-wrapper)"};
   int64_t pace_us = 1000;
   double push_nm = 0.05, push_hz = 1.0;
+  std::string fsr_text;
   std::vector<double> fsr;
   std::vector<std::string> command;
   app.add_option("--pace-us", pace_us, "state packet period, us (0: as fast as asked)")->capture_default_str();
   app.add_option("--push", push_nm, "operator torque on the thumb's first crank, N m amplitude")
       ->capture_default_str();
   app.add_option("--push-hz", push_hz, "operator push frequency")->capture_default_str();
-  app.add_option("--fsr", fsr, "the 8 FSR forces, N (thumb 1-4, index 1-4)")->expected(8);
-  app.add_option("command", command, "the command to run")->required();
+  app.add_option("--fsr", fsr_text, "the 8 FSR forces, N, comma-separated (thumb 1-4, index 1-4)");
+  app.prefix_command();  // everything from the first non-option on is the command
+  app.footer("Usage: telehand-mf2-emu [OPTIONS] COMMAND [ARGS...]");
   TELEHAND_CLI_PARSE(app, argc, argv)
+  for (std::size_t pos = 0; !fsr_text.empty() && pos <= fsr_text.size();) {
+    const std::size_t comma = std::min(fsr_text.find(',', pos), fsr_text.size());
+    try {
+      fsr.push_back(std::stod(fsr_text.substr(pos, comma - pos)));
+    } catch (const std::exception&) {
+      std::fprintf(stderr, "telehand-mf2-emu: --fsr: '%s' is not a list of numbers\n", fsr_text.c_str());
+      return 2;
+    }
+    pos = comma + 1;
+  }
+  if (!fsr.empty() && fsr.size() != 8) {
+    std::fprintf(stderr, "telehand-mf2-emu: --fsr needs 8 values, got %zu\n", fsr.size());
+    return 2;
+  }
+  command = app.remaining();
+  if (!command.empty() && command.front() == "--") command.erase(command.begin());
+  if (command.empty()) {
+    std::fprintf(stderr, "telehand-mf2-emu: no command to run (see --help)\n");
+    return 2;
+  }
 
   prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
   try {
