@@ -195,18 +195,18 @@ void UsbMf2::start() {
     }
     for (auto& t : in_xfer_) t = libusb_alloc_transfer(0);
     out_xfer_ = libusb_alloc_transfer(0);
-    has_hotplug_ = libusb_has_capability(LIBUSB_CAP_HAS_HOTPLUG) != 0;
-    if (has_hotplug_) {
-      const int rc = libusb_hotplug_register_callback(
-          ctx_,
-          static_cast<libusb_hotplug_event>(LIBUSB_HOTPLUG_EVENT_DEVICE_ARRIVED |
-                                            LIBUSB_HOTPLUG_EVENT_DEVICE_LEFT),
-          static_cast<libusb_hotplug_flag>(0), cfg_.vendor_id, cfg_.product_id,
-          LIBUSB_HOTPLUG_MATCH_ANY, &UsbMf2Callbacks::hotplug, this, &hotplug_handle_);
-      has_hotplug_ = rc == 0;  // without it the thread polls for the device
-    }
   }
-  setStatus(DeviceStatus::kNotReady, "looking for the MF-2 (USB " + ids(cfg_.vendor_id, cfg_.product_id) + ")", false);
+  if (!has_hotplug_ && libusb_has_capability(LIBUSB_CAP_HAS_HOTPLUG) != 0) {
+    const int rc = libusb_hotplug_register_callback(
+        ctx_,
+        static_cast<libusb_hotplug_event>(LIBUSB_HOTPLUG_EVENT_DEVICE_ARRIVED |
+                                          LIBUSB_HOTPLUG_EVENT_DEVICE_LEFT),
+        static_cast<libusb_hotplug_flag>(0), cfg_.vendor_id, cfg_.product_id,
+        LIBUSB_HOTPLUG_MATCH_ANY, &UsbMf2Callbacks::hotplug, this, &hotplug_handle_);
+    has_hotplug_ = rc == 0;  // without it the thread only polls for the device
+  }
+  setStatus(DeviceStatus::kNotReady,
+            "looking for the MF-2 (USB " + ids(cfg_.vendor_id, cfg_.product_id) + ")", false);
   running_.store(true);
   thread_ = std::thread([this] { run(); });
 }
