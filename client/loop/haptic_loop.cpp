@@ -5,6 +5,7 @@
 #include <sys/prctl.h>
 #include <time.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "telehand/common/error.h"
@@ -47,6 +48,12 @@ StepStatus HapticLoop::step() noexcept {
   } else {
     bump(health_.device_read_failures);
     status = StepStatus::kNoSample;
+  }
+  // A device that reports itself unplugged, faulted or not streaming is stale now: the gate
+  // zeroes the force on this tick instead of after the watchdog period.
+  if (device_.status() != device::DeviceStatus::kOk) {
+    bump(health_.device_not_ok);
+    last_sample_time_ns_ = std::min(last_sample_time_ns_, now - gate_.limits().watchdog_ns - 1);
   }
 
   PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};

@@ -34,6 +34,7 @@ struct LoopHealth {
   std::atomic<double> last_force_n{0.0};      ///< thumb + index commanded force magnitude
   std::atomic<double> applied_ref_n{0.0};     ///< student's applied force, reference scale
   std::atomic<int64_t> max_lateness_ns{0};    ///< worst wake-up after a deadline
+  std::atomic<uint64_t> device_not_ok{0};     ///< ticks the device was not streaming (zero force)
 };
 
 enum class StepStatus { kOk, kNoSample, kSafetyFault };
