@@ -17,6 +17,8 @@ packages=(
   libsqlite3-dev libcli11-dev libspdlog-dev libtomlplusplus-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # plots of fitted captures (telehand-records fit)
+  gnuplot-nox
   # network namespaces for system tests
   iproute2
 )

@@ -170,8 +170,7 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
     o << "\n[" << kAxisNames[i] << "]";
     if (a.ok) {
       std::snprintf(buf, sizeof buf,
-                    "   # RMS residual %.3f N over %zu samples; neutral zone (|F| < threshold) "
-                    "%.1f..%.1f deg",
+                    "   # RMS residual %.3f N over %zu samples; lax zone (|F| < 1 N) %.1f..%.1f deg",
                     a.rms_n, a.samples, a.neutral_min_deg, a.neutral_max_deg);
       o << buf;
     } else {
@@ -184,6 +183,7 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
                   c.min_deg, c.max_deg, model.neutral_zone_deg[i]);
     o << buf;
   }
+  o << "\n";
   return o.str();
 }
 
