@@ -52,7 +52,7 @@ class SessionStore {
     std::string phase;      ///< baseline, reassessment
     std::string direction;  ///< flexion, extension, abduction, adduction, supination, pronation
     double angle_deg = 0.0;
-    double force_n = 0.0;   ///< contact force at that moment, reference scale
+    double force_n = 0.0;   ///< force holding the joint at that moment (N at the lever arm)
   };
   virtual void appendReach(uint64_t session_id, const Reach& r) = 0;
   virtual std::vector<Reach> reaches(uint64_t session_id) = 0;
