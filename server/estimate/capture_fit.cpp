@@ -47,6 +47,13 @@ std::optional<CapturePoint> capturePoint(const JointModel& geometry,
   return c;
 }
 
+JointModelParams captureGeometry(const JointModelParams& joint) {
+  JointModelParams g = joint;
+  g.force_scale = 1.0;
+  g.knn = nullptr;
+  return g;
+}
+
 CaptureFitter::CaptureFitter(const JointModelParams& geometry, const FitOptions& options)
     : geometry_(geometry), options_(options) {}
 

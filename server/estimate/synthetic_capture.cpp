@@ -1,8 +1,5 @@
 #include "server/estimate/synthetic_capture.h"
 
-#include <filesystem>
-#include <fstream>
-#include <sstream>
 
 #include "client/device/simulated_mf2.h"
 #include "client/loop/haptic_loop.h"
@@ -14,12 +11,6 @@ namespace telehand::server::estimate {
 namespace {
 constexpr double kPhalanxInertiaKgM2 = 2.1e-5;
 }  // namespace
-
-JointModelParams captureGeometry(const JointModelParams& joint) {
-  JointModelParams g = joint;
-  g.force_scale = 1.0;  // the thimbles measure real forces; 1:4 is a rendering scale
-  return g;
-}
 
 SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
                                    const std::function<void(double)>& progress) {
@@ -63,21 +54,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
 
 std::vector<session::SessionFile> deviceFiles(const mf2::Mf2Description& d) {
   std::vector<session::SessionFile> files;
-  auto read = [](const std::string& path) {
-    std::ifstream in(path);
-    if (!in) throw ConfigError("cannot read '" + path + "' to store it with the session");
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    return ss.str();
-  };
-  if (d.path.empty()) {
-    files.push_back({"device.toml", "# built-in MF-2 description (mf2::defaultMf2): " + d.source + "\n"});
-    return files;
-  }
-  files.push_back({"device/" + std::filesystem::path(d.path).filename().string(), read(d.path)});
-  for (const auto& t : d.thimble_files) {
-    files.push_back({"thimble/" + std::filesystem::path(t).filename().string(), read(t)});
-  }
+  for (auto& f : mf2::descriptionFiles(d)) files.push_back({std::move(f.name), std::move(f.content)});
   return files;
 }
 

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "client/device/sweep_operator.h"
+#include "server/estimate/capture_fit.h"
 #include "server/session/store.h"
 #include "telehand.h"
 #include "telehand/common/joint_model.h"
@@ -39,9 +40,6 @@ struct SyntheticCapture {
 /// Runs the capture (deterministic for a seed). `progress(fraction)` now and then.
 SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
                                    const std::function<void(double)>& progress = {});
-
-/// Geometry a capture is fitted with: the truth's frame and lever arm at reference scale.
-JointModelParams captureGeometry(const JointModelParams& joint);
 
 /// Store as a capture session with its device and thimble calibration files; returns its id.
 uint64_t storeCapture(session::SessionStore& store, const SyntheticCapture& capture,
