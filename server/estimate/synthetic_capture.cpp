@@ -20,6 +20,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
   out.plan.seconds_per_axis = o.seconds_per_axis;
   out.plan.frequency_hz = o.frequency_hz;
   out.plan.repeat = false;
+  out.plan.combined = o.combined_sweep;
   client::device::SweepOperator clinician(out.plan);
 
   ManualClock clock(kNsPerS);
@@ -33,6 +34,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
   dyn.mass_kg += kPhalanxInertiaKgM2 / (o.truth.lever_arm_m * o.truth.lever_arm_m);
   client::device::SimulatedMf2 dev(out.geometry, op, clock, dyn, o.device);
   dev.setPatient(o.truth);
+  if (o.patient) dev.setPatient(o.patient);
   dev.setOperator(&clinician);
   dev.setAxisForceNoise(o.noise_n);
 

@@ -29,6 +29,10 @@ struct SyntheticCaptureOptions {
   double range_fraction = 0.9;
   uint64_t seed = 1;
   mf2::Mf2Description device = mf2::defaultMf2();
+  /// A joint the cubics cannot express (coupled axes): moves the finger instead of `truth`,
+  /// which still plans the sweep. Not owned.
+  const client::device::PatientJoint* patient = nullptr;
+  bool combined_sweep = false;  ///< flexion and abduction together (SweepPlan::combined)
 };
 
 struct SyntheticCapture {

@@ -1,6 +1,6 @@
-// The cross-continent demonstration on loopback: an expert captures a (simulated) stiff
-// finger with the actuators off while a follower in another session feels the server's
-// live fit of it. Processes in a partition of their own, stopped by PID.
+// The cross-continent demonstration on loopback: an expert captures a (simulated) healthy
+// finger with the actuators off while a follower in another session, who starts on the lax
+// joint the capture session opened with, feels the server's live fit of it. Processes in a partition of their own, stopped by PID.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -49,14 +49,16 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   };
   const std::string db = (dir / "records.db").string();
   Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "90"}), (dir / "server.log").string());
-  // The expert: the stiff (post-stroke) case's finger in the grip, each axis mobilized for 4 s.
-  Process expert(cmd(TELEHAND_CLIENT_BIN, {"--mode", "capture", "--patient", "stiff", "--sweep-seconds", "4",
+  // The expert: the healthy case's finger in the grip, each axis mobilized for 4 s; the
+  // session opens on the lax case (its model until the first fit).
+  Process expert(cmd(TELEHAND_CLIENT_BIN, {"--mode", "capture", "--case", "lax", "--patient", "healthy",
+                                           "--sweep-seconds", "4",
                                            "--seconds", "16", "-q", "--device-file",
                                            TELEHAND_DEPLOY_DIR "/devices/mf2.toml"}),
                  (dir / "expert.log").string());
   const uint64_t capture = waitForSession(expert, 20s);
   ASSERT_GT(capture, 0u) << expert.output() << server.output();
-  // The follower: a student elsewhere, starting on the healthy joint until the fit arrives,
+  // The follower: a student elsewhere, starting on the lax joint until the fit arrives,
   // mobilizing with 6-10 N (the expert went to 15 N: the student stays in the captured range).
   Process follower(cmd(TELEHAND_CLIENT_BIN, {"--follow", std::to_string(capture), "--seconds", "13", "-q",
                                              "--band-min", "6", "--band-max", "10"}),
@@ -78,7 +80,7 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   EXPECT_EQ(store.session(capture)->mode, "capture");
 
   // The follower's record: the model version it rendered, its angles and rendered torque.
-  const JointModel truth(loadPatientCase(TELEHAND_DEPLOY_DIR "/cases/stiff.toml").model);
+  const JointModel truth(loadPatientCase(TELEHAND_DEPLOY_DIR "/cases/healthy.toml").model);
   std::vector<telehand_msg_DeviceState> s;
   store.forEachSample(follow_session, [&](const telehand_msg_DeviceState& d, bool) { s.push_back(d); });
   ASSERT_GT(s.size(), 8000u);
@@ -104,7 +106,7 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   }
   EXPECT_EQ(first_version, 1u);
   EXPECT_GE(last_version, 3u) << "the live fit reached the follower, version after version";
-  ASSERT_GT(early.n, 100) << "the follower rendered the initial (healthy) joint first";
+  ASSERT_GT(early.n, 100) << "the follower rendered the initial (lax) joint first";
   ASSERT_GT(late.n, 1000);
   const double e0 = early.error / early.n, e1 = late.error / late.n, t1 = late.truth / late.n;
   std::printf("follower flexion torque error: %.4f N m on model v1, %.4f N m at the end (v%u), truth %.4f N m\n",
