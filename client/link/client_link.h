@@ -15,6 +15,7 @@
 
 #include "client/loop/haptic_loop.h"
 #include "telehand/common/dds.h"
+#include "telehand/common/deadband.h"
 
 namespace telehand::client::link {
 
@@ -27,12 +28,15 @@ struct LinkStats {
   std::atomic<uint64_t> models_received{0};
   std::atomic<uint64_t> models_rejected{0};
   std::atomic<uint64_t> last_seq{0};
+  std::atomic<uint64_t> live_sent{0};          ///< DeviceState packets that went out (deadband)
+  std::atomic<uint64_t> direct_forces{0};      ///< DirectForce packets received (direct mode)
 };
 
 struct OpenRequest {
   telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
   std::string case_name = "healthy";
   std::string user = "student";
+  bool direct_force = false;   ///< baseline: the server computes the force
 };
 
 struct CloseResult {
@@ -52,6 +56,9 @@ class ClientLink {
   uint64_t open(const OpenRequest& req, std::chrono::milliseconds timeout);
   /// Wait for the session's first JointModel and hand it to the loop; false on timeout.
   bool awaitModel(std::chrono::milliseconds timeout);
+
+  /// Deadband coding of the live DeviceState stream (set before start).
+  void setDeadband(const DeadbandConfig& c) { deadband_ = DeviceStateDeadband(c); }
 
   void start();
   /// Drain every remaining sample and chunk (the loop must be stopped first).
@@ -75,6 +82,7 @@ class ClientLink {
   void flushChunk(bool force);
   void pollModels();
   void pollEvents();
+  void pollDirectForces();
 
   loop::HapticLoop& loop_;
   dds::Participant participant_;
@@ -85,6 +93,8 @@ class ClientLink {
   dds::Reader<telehand_msg_JointModel> model_reader_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;
   dds::Reader<telehand_msg_SessionEvent> event_reader_;
+  dds::Reader<telehand_msg_DirectForce> direct_reader_;
+  DeviceStateDeadband deadband_;
 
   uint64_t client_id_;
   uint32_t request_seq_ = 0;

@@ -14,6 +14,7 @@
 #include "server/session/store.h"
 #include "telehand.h"
 #include "telehand/common/config.h"
+#include "telehand/common/deadband.h"
 #include "telehand/common/joint_model.h"
 
 namespace telehand::server::session {
@@ -26,6 +27,8 @@ class Outbox {
   virtual void publish(const telehand_msg_JointModel& m) = 0;
   virtual void publish(const telehand_msg_HandState& h) = 0;
   virtual void publish(const telehand_msg_SessionEvent& e) = 0;
+  /// Direct mode only (the baseline design).
+  virtual void publish(const telehand_msg_DirectForce& f) { (void)f; }
 };
 
 struct ManagerStats {
@@ -64,6 +67,9 @@ class SessionManager {
   static constexpr double kRecoveryStepDeg = 0.5;
   /// Simulation steps one live sample may trigger (itself plus lost predecessors).
   static constexpr uint64_t kMaxCatchUpSteps = 3;
+  /// Steps one deadband-coded sample may trigger: the withheld samples it stands for, held
+  /// at the last value received (zero-order hold). Beyond this the hand skips time.
+  static constexpr uint64_t kMaxHeldSteps = 200;
 
  private:
   struct Session;
