@@ -10,6 +10,8 @@
 #include <sstream>
 #include <variant>
 
+#include <spdlog/spdlog.h>
+
 #include "client/device/simulated_mf2.h"
 #include "server/session/session_manager.h"
 #include "server/session/sqlite_store.h"
@@ -110,6 +112,7 @@ struct Chunk {
 CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   using client::loop::HapticLoop;
   CellResult r;
+  spdlog::set_level(spdlog::level::warn);  // the server's per-session info lines, 36 times over
   ManualClock clock(1'000 * kNsPerS);
   CaseDir cases(spec.case_name, spec.recovery_treatment_s);
   ServerConfig cfg;
