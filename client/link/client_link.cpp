@@ -25,7 +25,10 @@ ClientLink::ClientLink(const dds::Options& options, loop::HapticLoop& loop)
       participant_(options),
       topics_(participant_),
       device_writer_(participant_, topics_.device_state, dds::qos::deviceState()),
-      chunk_writer_(participant_, topics_.record_chunk, dds::qos::recordChunk()),
+      // A full reliable history (a long, lossy link) must not hold up the live stream that
+      // shares this thread: the chunk is kept and retried instead of blocking.
+      chunk_writer_(participant_, topics_.record_chunk,
+                    dds::qos::recordChunk().reliable(std::chrono::milliseconds(1))),
       command_writer_(participant_, topics_.session_command, dds::qos::sessionCommand()),
       model_reader_(participant_, topics_.joint_model, dds::qos::jointModel()),
       status_reader_(participant_, topics_.session_status, dds::qos::sessionStatus()),
