@@ -17,6 +17,8 @@ packages=(
   libsqlite3-dev libcli11-dev libspdlog-dev libtomlplusplus-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # the emulated MF-2 (USB tests) and the fuzz targets (clang's libFuzzer)
+  umockdev libumockdev-dev clang libclang-rt-14-dev
   # network namespaces for system tests
   iproute2
 )

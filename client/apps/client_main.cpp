@@ -1,6 +1,6 @@
 // telehand-client: the device PC side. Runs the 1 kHz haptic loop on an MF-2 (simulated by
-// default), opens a session on the server, streams every sample and renders the joint
-// model the server publishes.
+// default, or over USB), opens a session on the server, streams every sample and renders
+// the joint model the server publishes.
 #include "telehand/common/cli.h"
 #include <algorithm>
 #include <cstring>
@@ -10,9 +10,11 @@
 #include <csignal>
 #include <cstdio>
 #include <iostream>
+#include <memory>
 #include <unistd.h>
 
 #include "client/device/simulated_mf2.h"
+#include "client/device/usb_mf2.h"
 #include "client/link/client_link.h"
 #include "telehand/common/log.h"
 #include "telehand/common/wire.h"
@@ -24,13 +26,21 @@ int main(int argc, char** argv) {
                "by a virtual clinician performing the paper's MCP mobilization."};
   std::string config_path, device_kind = "sim", mode_name = "mobilization", case_name = "healthy";
   std::string user = "student", log_level = "warn";
-  double seconds = 20.0, connect_timeout = 10.0;
-  bool quiet = false;
+  std::string usb_vid = "1209", usb_pid = "4d32", usb_serial;
+  double seconds = 20.0, connect_timeout = 10.0, device_timeout = 5.0;
+  bool quiet = false, list_devices = false;
   dds::Options dds_opts;
   ClientConfig cfg;
   app.add_option("-c,--config", config_path, "TOML file with [operator], [safety], [loop] tables")
       ->check(CLI::ExistingFile);
-  app.add_option("--device", device_kind, "device driver")->check(CLI::IsMember({"sim"}))->capture_default_str();
+  app.add_option("--device", device_kind, "sim: the simulated MF-2; usb: an MF-2 on USB")
+      ->check(CLI::IsMember({"sim", "usb"}))->capture_default_str();
+  app.add_flag("--list-devices", list_devices, "list the MF-2s attached over USB and exit");
+  app.add_option("--usb-vid", usb_vid, "MF-2 USB vendor ID, hex")->capture_default_str();
+  app.add_option("--usb-pid", usb_pid, "MF-2 USB product ID, hex")->capture_default_str();
+  app.add_option("--usb-serial", usb_serial, "use the MF-2 with this serial number");
+  app.add_option("--device-timeout", device_timeout, "seconds to wait for the USB MF-2 to stream")
+      ->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--seconds", seconds, "session length (Ctrl-C ends it early)")->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--mode", mode_name, "session mode")->check(CLI::IsMember({"mobilization", "exploration", "capture"}))->capture_default_str();
   app.add_option("--case", case_name, "patient case on the server")->capture_default_str();
@@ -75,10 +85,39 @@ int main(int argc, char** argv) {
       if (*rt) cfg.loop.rt_priority = rt_cli;
     }
     validate(cfg.op, "command line");
+    client::device::UsbMf2Config usb_cfg;
+    usb_cfg.vendor_id = client::device::parseUsbId(usb_vid, "--usb-vid");
+    usb_cfg.product_id = client::device::parseUsbId(usb_pid, "--usb-pid");
+    usb_cfg.serial = usb_serial;
+    if (list_devices) {
+      std::cout << client::device::formatUsbMf2List(
+          client::device::listUsbMf2(usb_cfg.vendor_id, usb_cfg.product_id), usb_cfg.vendor_id,
+          usb_cfg.product_id);
+      return 0;
+    }
 
     SteadyClock clock;
     const JointModelParams initial = healthyIndexMcp();
-    client::device::SimulatedMf2 device(initial, cfg.op, clock);
+    // Encoder and FSR counts to units. The bench calibration until the MF-2 device model
+    // provides the linkage's kinematics and the thimbles' FSR calibration.
+    client::device::LinearMf2Calibration usb_calibration;
+    std::unique_ptr<client::device::Device> device_owner;
+    client::device::UsbMf2* usb = nullptr;
+    if (device_kind == "usb") {
+      auto d = std::make_unique<client::device::UsbMf2>(usb_cfg, usb_calibration, clock);
+      usb = d.get();
+      device_owner = std::move(d);
+      usb->start();
+      if (!usb->waitReady(std::chrono::milliseconds(static_cast<int64_t>(device_timeout * 1000)))) {
+        char waited[32];
+        std::snprintf(waited, sizeof waited, "%.1f s", device_timeout);
+        throw DeviceError(std::string("the MF-2 is not streaming after ") + waited + ": " +
+                          usb->statusText());
+      }
+    } else {
+      device_owner = std::make_unique<client::device::SimulatedMf2>(initial, cfg.op, clock);
+    }
+    client::device::Device& device = *device_owner;
     client::loop::TeleopOptions teleop;
     teleop.render = render == "direct" ? client::loop::RenderMode::kDirect : client::loop::RenderMode::kModel;
     teleop.passivity.control = !no_pc;
@@ -126,6 +165,9 @@ int main(int argc, char** argv) {
         applied_max = std::max(applied_max, h.applied_ref_n.load());
       }
       for (const auto& m : link.takeMessages()) std::cerr << "server: " << m << "\n";
+      if (usb != nullptr) {
+        for (const auto& m : usb->takeMessages()) std::cerr << "device: " << m << "\n";
+      }
       if (t >= seconds) break;
       if (!quiet && now >= next_print) {
         next_print += 1s;
@@ -142,6 +184,10 @@ int main(int argc, char** argv) {
       }
     }
     loop.stop();
+    if (usb != nullptr) {
+      usb->stop();
+      for (const auto& m : usb->takeMessages()) std::cerr << "device: " << m << "\n";
+    }
     const double duration = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     link.stop();
     if (!quiet && tty) std::cout << "\n";
@@ -177,6 +223,25 @@ int main(int argc, char** argv) {
                 static_cast<unsigned long long>(h.passivity_activations.load()),
                 static_cast<unsigned long long>(h.models_applied.load()), h.update_step_max_n.load(),
                 h.update_step_max_ratio.load());
+    if (usb != nullptr) {
+      const auto& u = usb->stats();
+      const uint64_t rtts = u.rtt_count.load();
+      std::printf("  usb: %llu state packets, %llu commands, %llu rejected (%llu stale, %llu out of "
+                  "order), %llu lost, %llu stalls, %llu timeouts, %llu overflows, %llu disconnects; "
+                  "command round trip mean %.0f us, max %.0f us\n",
+                  static_cast<unsigned long long>(u.packets_in.load()),
+                  static_cast<unsigned long long>(u.commands_out.load()),
+                  static_cast<unsigned long long>(u.rejectedTotal()),
+                  static_cast<unsigned long long>(u.stale.load()),
+                  static_cast<unsigned long long>(u.out_of_order.load()),
+                  static_cast<unsigned long long>(u.lost.load()),
+                  static_cast<unsigned long long>(u.stalls.load()),
+                  static_cast<unsigned long long>(u.timeouts.load()),
+                  static_cast<unsigned long long>(u.overflows.load()),
+                  static_cast<unsigned long long>(u.disconnects.load()),
+                  rtts ? static_cast<double>(u.rtt_sum_ns.load()) / static_cast<double>(rtts) / 1e3 : 0.0,
+                  static_cast<double>(u.rtt_max_ns.load()) / 1e3);
+    }
     if (!closed.confirmed) {
       std::printf("  record: the server did not confirm the close within 15 s\n");
       return 3;

@@ -13,6 +13,9 @@ struct FingerSample {
   Vec3 position_m = Vec3::Zero();  ///< thimble centre, device frame
   Quat orientation = Quat::Identity();
   FsrReadings fsr_n{};
+  /// Bit i: FSR i+1 is flagged saturated or dead (mf2::FsrMonitor); its reading is not to
+  /// be trusted.
+  uint8_t fsr_fault_mask = 0;
 };
 
 struct DeviceSample {

@@ -10,14 +10,22 @@ constexpr int kMaxCatchUpSteps = 200;   // a stalled caller skips ahead instead 
 }  // namespace
 
 SimulatedMf2::SimulatedMf2(const JointModelParams& geometry, const OperatorConfig& op,
-                           const Clock& clock, const SimulatedMf2Dynamics& dyn)
+                           const Clock& clock, const SimulatedMf2Dynamics& dyn,
+                           const mf2::Mf2Description& device)
     : geometry_(geometry),
+      kin_(device),
+      fsr_{mf2::FsrMonitor(device.thimbles[kThumb]), mf2::FsrMonitor(device.thimbles[kIndex])},
       op_(op),
       clock_(clock),
       dyn_(dyn),
       rng_(op.seed),
       start_ns_(clock.nowNs()),
       sim_ns_(start_ns_) {}
+
+void SimulatedMf2::setPatient(const JointModelParams& truth) {
+  patient_ = JointModel(truth);
+  has_patient_ = true;
+}
 
 double SimulatedMf2::targetForceN(double t_s) const noexcept {
   const double ramp = op_.ramp_s > 0.0 ? std::clamp(t_s / op_.ramp_s, 0.0, 1.0) : 1.0;
@@ -36,16 +44,26 @@ void SimulatedMf2::integrate(double dt) noexcept {
   const double t_s = static_cast<double>(sim_ns_ - start_ns_) * 1e-9;
 
   Vec3 tau_op;
-  tau_op[kFlexion] = targetForceN(t_s) * g.force_scale * lever;
-  tau_op[kAbduction] = -k * angles_[kAbduction];
-  tau_op[kAxial] = -k * angles_[kAxial];
+  if (script_) {
+    tau_op = script_->torqueNm(t_s, angles_, rates_);
+  } else {
+    tau_op[kFlexion] = targetForceN(t_s) * g.force_scale * lever;
+    tau_op[kAbduction] = -k * angles_[kAbduction];
+    tau_op[kAxial] = -k * angles_[kAxial];
+  }
 
   const PerFinger<Vec3> p = geometry_.gripFromAngles(angles_, dyn_.half_width_m);
-  // What the operator's fingers press on the thimbles (FSRs see this, not the damping).
-  operator_force_ = geometry_.fingertipForces(p, angles_, tau_op);
-  const Vec3 tau_render = geometry_.axisTorque(p, angles_, command_.force_n);
+  // What the operator's fingers press on the thimbles (FSRs see this, not the damping), as
+  // the thimbles measure it.
+  Vec3 tau_seen = tau_op;
+  if (axis_noise_n_ > 0.0) {
+    for (int i = 0; i < kAxes; ++i) tau_seen[i] += axis_noise_n_ * lever * noise_(rng_);
+  }
+  operator_force_ = geometry_.fingertipForces(p, angles_, tau_seen);
+  const Vec3 tau_render = geometry_.axisTorque(p, angles_, rendered_);
+  const Vec3 tau_patient = has_patient_ ? patient_.passiveTorqueNm(angles_, rates_) : Vec3::Zero();
 
-  const Vec3 acc = (tau_op + tau_render - b * rates_) / inertia;
+  const Vec3 acc = (tau_op + tau_render + tau_patient - b * rates_) / inertia;
   rates_ += acc * dt;  // semi-implicit Euler
   angles_ += rates_ * dt;
 }
@@ -63,43 +81,93 @@ void SimulatedMf2::advanceTo(int64_t t_ns) noexcept {
   }
 }
 
-FsrReadings SimulatedMf2::fsrFor(int finger, const Vec3& force_device) noexcept {
+void SimulatedMf2::fsrFor(int finger, const Vec3& force_device, FingerSample& out) noexcept {
   const Quat q = geometry_.thimbleOrientation(finger, angles_);
   const Vec3 local = q.conjugate() * force_device;
   const double normal = std::max(local.z(), 0.0);  // FSRs only sense pressure
   const double pad = degToRad(dyn_.pad_angle_deg);
   const std::array<double, 4> truth = {normal * std::sin(pad), std::max(local.y(), 0.0),
                                        std::max(-local.y(), 0.0), normal * std::cos(pad)};
-  FsrReadings out{};
+  // Raw 12-bit ADC counts through the thimble's calibration (noise in newtons first).
+  std::array<uint16_t, mf2::kFsrPerThimble> counts{};
+  const auto& cal = fsr_[finger].calibration();
   for (std::size_t i = 0; i < 4; ++i) {
     const double v = truth[i] + op_.sensor_noise_n * noise_(rng_);
-    out[i] = static_cast<float>(std::max(v, 0.0));
+    const double c = std::clamp(std::round(cal.fsr[i].countsFor(std::max(v, 0.0))), 0.0, 4095.0);
+    counts[i] = static_cast<uint16_t>(c);
   }
-  return out;
+  const mf2::ThimbleReading r = fsr_[finger].update(counts);
+  out.fsr_n = r.fsr_n;
+  out.fsr_fault_mask = r.faultMask();
+}
+
+bool SimulatedMf2::updatePose(PerFinger<mf2::ThimblePose>& measured) noexcept {
+  // The thimbles where the phalanx holds them -> joint angles -> encoder counts, and back
+  // through the forward kinematics as a driver would.
+  const PerFinger<Vec3> p = geometry_.gripFromAngles(angles_, dyn_.half_width_m);
+  PerFinger<mf2::ThimblePose> truth;
+  for (int k = 0; k < 2; ++k) {
+    truth[k].position_m = p[k];
+    truth[k].orientation = geometry_.thimbleOrientation(k, angles_);
+  }
+  mf2::JointAngles q;
+  if (!kin_.inverse(truth, 0.0, q)) return false;
+  const mf2::JointAngles read = kin_.anglesFromCounts(kin_.countsFromAngles(q));
+  if (!kin_.forward(read, measured)) return false;
+  q_act_ = read.actuators;
+  have_q_ = true;
+  return true;
 }
 
 bool SimulatedMf2::read(DeviceSample& out) noexcept {
   advanceTo(clock_.nowNs());
+  PerFinger<mf2::ThimblePose> pose;
+  if (!updatePose(pose)) return false;  // out of the linkage's reach
   out.seq = seq_;
   out.time_ns = sim_ns_;
-  const PerFinger<Vec3> p = geometry_.gripFromAngles(angles_, dyn_.half_width_m);
-  // The net push goes through whichever finger's pad faces it; the axial couple is shared.
-  const Vec3 net = operator_force_[kThumb] + operator_force_[kIndex];
-  const Vec3 couple = operator_force_[kIndex] - 0.5 * net;
-  const Vec3 thumb_normal = geometry_.thimbleOrientation(kThumb, angles_) * Vec3::UnitZ();
-  const bool thumb_pushes = net.dot(thumb_normal) >= 0.0;
-  const PerFinger<Vec3> pressed = thumb_pushes ? PerFinger<Vec3>{net - couple, couple}
-                                               : PerFinger<Vec3>{-couple, net + couple};
+  // A pad can only push: where the shared split would pull on a pad, the clinician squeezes
+  // (equal and opposite forces along the line between the pads: no net force, no moment).
+  // A flexion push then goes through the pad that faces it; side forces stay shared.
+  const Vec3 n_thumb = geometry_.thimbleOrientation(kThumb, angles_) * Vec3::UnitZ();
+  const Vec3 n_index = geometry_.thimbleOrientation(kIndex, angles_) * Vec3::UnitZ();
+  const double squeeze = std::max({0.0, -operator_force_[kThumb].dot(n_thumb),
+                                   -operator_force_[kIndex].dot(n_index)});
+  const PerFinger<Vec3> pressed{operator_force_[kThumb] + squeeze * n_thumb,
+                                operator_force_[kIndex] + squeeze * n_index};
   for (int k = 0; k < 2; ++k) {
-    out.fingers[k].position_m = p[k];
-    out.fingers[k].orientation = geometry_.thimbleOrientation(k, angles_);
-    out.fingers[k].fsr_n = fsrFor(k, pressed[k]);
+    out.fingers[k].position_m = pose[k].position_m;
+    out.fingers[k].orientation = pose[k].orientation;
+    fsrFor(k, pressed[k], out.fingers[k]);
   }
   return true;
 }
 
 bool SimulatedMf2::write(const ForceCommand& cmd) noexcept {
   command_ = cmd;
+  // Through the actuators: torques J^T F, scaled down together if one exceeds its limit
+  // (the direction is kept), and the fingertip forces those torques actually make.
+  if (!have_q_) {
+    PerFinger<mf2::ThimblePose> pose;
+    if (!updatePose(pose)) return false;
+  }
+  mf2::ActuatorTorques tau;
+  if (!kin_.actuatorTorques(q_act_, cmd.force_n, tau)) {
+    rendered_ = {Vec3::Zero(), Vec3::Zero()};
+    tau_act_.setZero();
+    return false;
+  }
+  const auto& limit = kin_.description().max_torque_nm;
+  double scale = 1.0;
+  for (int i = 0; i < mf2::kActuators; ++i) {
+    if (std::abs(tau[i]) > limit[i]) scale = std::min(scale, limit[i] / std::abs(tau[i]));
+  }
+  tau_act_ = tau * scale;
+  PerFinger<Vec3> f;
+  if (!kin_.fingertipForces(q_act_, tau_act_, f)) {
+    rendered_ = {Vec3::Zero(), Vec3::Zero()};
+    return false;
+  }
+  rendered_ = f;
   return true;
 }
 

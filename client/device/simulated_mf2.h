@@ -3,12 +3,20 @@
 /// pushes the proximal phalanx in flexion with a force that rises to a band (12-16 N at
 /// reference scale) and oscillates across it at a set frequency, against whatever force the
 /// loop renders back. Deterministic for a given seed and clock.
+///
+/// The device itself is the MF-2 device model (common/mf2_device.h): the thimble poses go
+/// through inverse kinematics to encoder counts and back through forward kinematics (so
+/// positions carry encoder quantization), forces are synthesized as raw FSR ADC counts and
+/// calibrated with the thimbles' calibration (quantization, saturation and dead-channel
+/// flags included), and force commands are rendered through the actuators: J^T F, the
+/// actuators' torque limits, and back to the fingertip forces those torques make.
 #include <random>
 
 #include "client/device/device.h"
 #include "telehand/common/clock.h"
 #include "telehand/common/config.h"
 #include "telehand/common/joint_model.h"
+#include "telehand/common/mf2_device.h"
 
 namespace telehand::client::device {
 
@@ -21,10 +29,30 @@ struct SimulatedMf2Dynamics {
   double pad_angle_deg = 20.0;      ///< how the normal load splits over FSRs 1 (end) and 4 (pad)
 };
 
+/// Who holds the thimbles: the torque per MCP axis (reference scale, N·m) their fingers
+/// press on the phalanx at time t. Called from the device's 1 kHz step: no allocation.
+class Operator {
+ public:
+  virtual ~Operator() = default;
+  virtual Vec3 torqueNm(double t_s, const Vec3& angles_rad, const Vec3& rates_rad_s) noexcept = 0;
+};
+
 class SimulatedMf2 final : public Device {
  public:
   SimulatedMf2(const JointModelParams& geometry, const OperatorConfig& op, const Clock& clock,
-               const SimulatedMf2Dynamics& dyn = {});
+               const SimulatedMf2Dynamics& dyn = {},
+               const mf2::Mf2Description& device = mf2::defaultMf2());
+
+  /// A real finger in the grip (capture): its passive torques act on the phalanx besides
+  /// whatever the device renders. Call before the first read.
+  void setPatient(const JointModelParams& truth);
+  /// Replace the built-in mobilization (flexion force band, other axes held) by a script.
+  /// The operator must outlive the device.
+  void setOperator(Operator* op) noexcept { script_ = op; }
+  /// Thimble measurement error expressed per MCP axis: the force each axis sees through the
+  /// thimbles gets N(0, sigma^2) newtons at the lever arm (reference scale), independently
+  /// per sample and axis; the phalanx moves under the true force.
+  void setAxisForceNoise(double sigma_n) noexcept { axis_noise_n_ = sigma_n; }
 
   bool read(DeviceSample& out) noexcept override;
   bool write(const ForceCommand& cmd) noexcept override;
@@ -33,15 +61,31 @@ class SimulatedMf2 final : public Device {
 
   /// Ground truth for tests.
   const Vec3& angles() const noexcept { return angles_; }
+  const Vec3& rates() const noexcept { return rates_; }
+  /// Force rendered at each thimble after the actuators (device frame) and their torques.
+  const PerFinger<Vec3>& renderedForce() const noexcept { return rendered_; }
+  const mf2::ActuatorTorques& actuatorTorques() const noexcept { return tau_act_; }
+  const mf2::Mf2Kinematics& kinematics() const noexcept { return kin_; }
   /// Force the operator wants to apply now, reference scale (N).
   double targetForceN(double t_s) const noexcept;
 
  private:
   void advanceTo(int64_t t_ns) noexcept;
   void integrate(double dt) noexcept;
-  FsrReadings fsrFor(int finger, const Vec3& force_device) noexcept;
+  void fsrFor(int finger, const Vec3& force_device, FingerSample& out) noexcept;
+  bool updatePose(PerFinger<mf2::ThimblePose>& measured) noexcept;
 
   JointModel geometry_;  // joint frame and lever arm; the stiffness comes from what is rendered
+  mf2::Mf2Kinematics kin_;
+  PerFinger<mf2::FsrMonitor> fsr_;
+  JointModel patient_{JointModelParams{}};
+  bool has_patient_ = false;
+  Operator* script_ = nullptr;
+  double axis_noise_n_ = 0.0;
+  mf2::ActuatorAngles q_act_ = mf2::ActuatorAngles::Zero();
+  bool have_q_ = false;
+  PerFinger<Vec3> rendered_{Vec3::Zero(), Vec3::Zero()};
+  mf2::ActuatorTorques tau_act_ = mf2::ActuatorTorques::Zero();
   OperatorConfig op_;
   const Clock& clock_;
   SimulatedMf2Dynamics dyn_;

@@ -5,6 +5,7 @@
 #include <sys/prctl.h>
 #include <time.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "telehand/common/error.h"
@@ -51,6 +52,12 @@ StepStatus HapticLoop::step() noexcept {
     bump(health_.device_read_failures);
     status = StepStatus::kNoSample;
   }
+  // A device that reports itself unplugged, faulted or not streaming is stale now: the gate
+  // zeroes the force on this tick instead of after the watchdog period.
+  if (device_.status() != device::DeviceStatus::kOk) {
+    bump(health_.device_not_ok);
+    last_sample_time_ns_ = std::min(last_sample_time_ns_, now - gate_.limits().watchdog_ns - 1);
+  }
 
   PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};
   // The energy the last tick's force exchanged with the operator.
@@ -70,6 +77,7 @@ StepStatus HapticLoop::step() noexcept {
   PerFinger<Vec3> request = direct ? direct_force_.force_n : rendered.force_device_n;
   if (!actuators_.load(std::memory_order_relaxed)) request = {Vec3::Zero(), Vec3::Zero()};
   const PassivityOutput guarded = passivity_.control(request);
+  gate_.setCapture(!actuators_.load(std::memory_order_relaxed));
   const SafetyOutput safe = gate_.apply(guarded.force_n, now, last_sample_time_ns_);
   last_command_ = safe.force_n;
   if (guarded.damping_ns_per_m > 0.0) bump(health_.passivity_activations);
@@ -108,7 +116,10 @@ StepStatus HapticLoop::step() noexcept {
   s.flags = safe.flags | (rendered.blending ? telehand_msg_kFlagModelBlending : 0u) |
             (actuators_.load(std::memory_order_relaxed) ? 0u : telehand_msg_kFlagCapture) |
             (guarded.damping_ns_per_m > 0.0 ? telehand_msg_kFlagPassivityControl : 0u) |
-            (direct ? telehand_msg_kFlagDirectForce : 0u);
+            (direct ? telehand_msg_kFlagDirectForce : 0u) |
+            (static_cast<uint32_t>(sample_.fingers[kThumb].fsr_fault_mask & 0xFu) |
+             static_cast<uint32_t>(sample_.fingers[kIndex].fsr_fault_mask & 0xFu) << 4)
+                << telehand_msg_kFlagFsrFaultShift;
   s.passivity_energy_j = static_cast<float>(energy);
   s.passivity_damping = static_cast<float>(guarded.damping_ns_per_m);
   Vec3 applied = Vec3::Zero();

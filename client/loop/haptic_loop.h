@@ -35,6 +35,7 @@ struct LoopHealth {
   std::atomic<double> last_force_n{0.0};      ///< thumb + index commanded force magnitude
   std::atomic<double> applied_ref_n{0.0};     ///< student's applied force, reference scale
   std::atomic<int64_t> max_lateness_ns{0};    ///< worst wake-up after a deadline
+  std::atomic<uint64_t> device_not_ok{0};     ///< ticks the device was not streaming (zero force)
   // Teleoperation.
   std::atomic<double> passivity_energy_j{0.0};    ///< observer energy now (device J)
   std::atomic<double> passivity_min_energy_j{0.0};///< lowest observer energy seen

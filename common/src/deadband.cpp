@@ -20,7 +20,12 @@ bool outsideDeadband(const double* value, const double* ref, int n, double weber
 
 namespace {
 
+// Flags that do not by themselves make a sample worth sending: bookkeeping, and the gate's
+// clamp and rate limit, which flicker on every few ticks at the force limits (the record has
+// them all). Faults (watchdog, non-finite, FSR faults) and capture always go out.
 constexpr uint32_t kUncodedFlags = telehand_msg_kFlagModelBlending |
+                                   telehand_msg_kFlagSafetyClamped |
+                                   telehand_msg_kFlagSafetyRateLimited |
                                    telehand_msg_kFlagPassivityControl |
                                    telehand_msg_kFlagSentLive | telehand_msg_kFlagDeadband;
 

@@ -20,7 +20,8 @@ class Exploration {
   void begin(const std::string& phase);
   bool active() const noexcept { return active_; }
   const std::string& phase() const noexcept { return phase_; }
-  /// One authoritative sample: MCP angles (flexion, abduction, axial) and contact force.
+  /// One authoritative sample: MCP angles (flexion, abduction, axial) and the force holding
+  /// the joint there (N at the lever arm).
   void observe(const Vec3& angles_rad, double force_n) noexcept;
   /// The six reaches of the phase (nothing observed: empty); the phase ends.
   std::vector<SessionStore::Reach> finish();

@@ -291,9 +291,14 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     for (uint64_t i = (coded && s.have_live) ? steps - 1 : 0; i < steps; ++i) {
       s.sim->step();
       const auto f = s.sim->contactForcesDevice();
-      const double force = f[0].norm() + f[1].norm();
-      s.exploration.observe(s.sim->mcpAngles(), force);
-      if (force > 1.0) s.treatment_s += 1e-3;
+      const Vec3 angles = s.sim->mcpAngles();
+      // The force at the reach is what holds the joint there: the pads' torque about it as a
+      // force at the lever arm, as the paper's curves give it (the squeeze cancels out).
+      const double holding_n =
+          s.model.axisTorque(s.sim->contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}).norm() /
+          s.model.params().lever_arm_m;
+      s.exploration.observe(angles, holding_n);
+      if (f[0].norm() + f[1].norm() > 1.0) s.treatment_s += 1e-3;
     }
   } else if (!s.sim && s.exploration.active()) {
     s.exploration.observe(s.model.anglesFromGrip(thimblePositions(d)), 0.0);

@@ -48,6 +48,11 @@ CREATE TABLE IF NOT EXISTS explorations (
   direction TEXT NOT NULL,
   angle_deg REAL NOT NULL,
   force_n REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS session_files (
+  session_id INTEGER NOT NULL,
+  name TEXT NOT NULL,
+  content BLOB NOT NULL,
+  PRIMARY KEY (session_id, name));
 )sql";
 
 class Statement {
@@ -302,6 +307,28 @@ void SqliteStore::forEachSample(
     std::memcpy(&s, sqlite3_column_blob(st.get(), 3), static_cast<std::size_t>(bytes));
     fn(s, sqlite3_column_int(st.get(), 1) != 0);
   }
+}
+
+void SqliteStore::appendFile(uint64_t session_id, const SessionFile& f) {
+  Statement st(db_, "INSERT OR REPLACE INTO session_files (session_id, name, content) VALUES (?,?,?)");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  sqlite3_bind_text(st.get(), 2, f.name.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(st.get(), 3, f.content.data(), static_cast<int>(f.content.size()), SQLITE_TRANSIENT);
+  st.step();
+}
+
+std::vector<SessionFile> SqliteStore::files(uint64_t session_id) {
+  std::vector<SessionFile> out;
+  // Records written before files were kept have no such table.
+  Statement check(db_, "SELECT count(*) FROM sqlite_master WHERE name = 'session_files'");
+  if (!check.step() || sqlite3_column_int(check.get(), 0) == 0) return out;
+  Statement st(db_, "SELECT name, content FROM session_files WHERE session_id = ? ORDER BY name");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  while (st.step()) {
+    const auto* b = static_cast<const char*>(sqlite3_column_blob(st.get(), 1));
+    out.push_back({st.text(0), std::string(b ? b : "", static_cast<std::size_t>(sqlite3_column_bytes(st.get(), 1)))});
+  }
+  return out;
 }
 
 std::vector<EventRecord> SqliteStore::events(uint64_t session_id) {

@@ -30,6 +30,8 @@ class SqliteStore final : public SessionStore {
   void forEachSample(uint64_t session_id,
                      const std::function<void(const telehand_msg_DeviceState&, bool)>& fn) override;
   std::vector<EventRecord> events(uint64_t session_id) override;
+  void appendFile(uint64_t session_id, const SessionFile& f) override;
+  std::vector<SessionFile> files(uint64_t session_id) override;
   std::string location() const override { return path_; }
 
  private:

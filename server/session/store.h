@@ -30,6 +30,12 @@ struct EventRecord {
   std::string text;
 };
 
+/// A file kept with a session (a capture's device and thimble calibration files).
+struct SessionFile {
+  std::string name;
+  std::string content;
+};
+
 class SessionStore {
  public:
   virtual ~SessionStore() = default;
@@ -46,7 +52,7 @@ class SessionStore {
     std::string phase;      ///< baseline, reassessment
     std::string direction;  ///< flexion, extension, abduction, adduction, supination, pronation
     double angle_deg = 0.0;
-    double force_n = 0.0;   ///< contact force at that moment, reference scale
+    double force_n = 0.0;   ///< force holding the joint at that moment (N at the lever arm)
   };
   virtual void appendReach(uint64_t session_id, const Reach& r) = 0;
   virtual std::vector<Reach> reaches(uint64_t session_id) = 0;
@@ -58,6 +64,9 @@ class SessionStore {
   virtual void forEachSample(uint64_t session_id,
                              const std::function<void(const telehand_msg_DeviceState&, bool valid)>& fn) = 0;
   virtual std::vector<EventRecord> events(uint64_t session_id) = 0;
+  /// Keep a file with the session (same name again: replaced).
+  virtual void appendFile(uint64_t session_id, const SessionFile& f) = 0;
+  virtual std::vector<SessionFile> files(uint64_t session_id) = 0;
   /// Where the record lives, for people.
   virtual std::string location() const = 0;
 };

@@ -127,6 +127,78 @@ void configureBulletForMillimetres() {
   });
 }
 
+/// Skin friction of one pad as rows of Bullet's solver: the pad's point on the skin is held
+/// to the point of the bone it touched down on, in the two directions across the contact normal,
+/// by a spring-damper solved implicitly (ERP/CFM form), its force bounded by the friction
+/// limit. Implicit, so the spring may be far stiffer than an explicit one could be against
+/// the finger's small axial inertia at 1 ms; bounded, so the pad slips when the load
+/// exceeds the friction. Body A is the sphere (no rotation), body B the bone.
+class PadGrip final : public btTypedConstraint {
+ public:
+  PadGrip(btRigidBody& pad, btRigidBody& bone) : btTypedConstraint(CONTACT_CONSTRAINT_TYPE, pad, bone) {
+    setJointFeedback(&feedback_);
+    enableFeedback(true);
+  }
+  /// Per step: where the pad is anchored (bone frame), the contact normal (world), the spring
+  /// and the friction limit (N). A zero limit switches the rows off.
+  void set(const Vec3& anchor_local, const Vec3& normal, double pad_radius, double stiffness,
+           double damping, double limit_n) noexcept {
+    anchor_local_ = anchor_local;
+    pad_radius_ = pad_radius;
+    normal_ = normal;
+    stiffness_ = stiffness;
+    damping_ = damping;
+    limit_n_ = limit_n;
+  }
+  /// Tangential force the bone exerted on the pad in the last step (world).
+  Vec3 force() const noexcept { return eig(feedback_.m_appliedForceBodyA); }
+  /// The friction limit the rows had in the last step (N).
+  double limit() const noexcept { return limit_n_; }
+
+  void getInfo1(btConstraintInfo1* info) override {
+    info->m_numConstraintRows = limit_n_ > 0.0 ? 2 : 0;
+    info->nub = 6 - info->m_numConstraintRows;
+  }
+  void getInfo2(btConstraintInfo2* info) override {
+    const btRigidBody& pad = getRigidBodyA();
+    const btRigidBody& bone = getRigidBodyB();
+    const btVector3 anchor = bone.getCenterOfMassTransform() * bt(anchor_local_);
+    const btVector3 r_b = anchor - bone.getCenterOfMassPosition();
+    // The pad's point on the skin (the sphere does not rotate: no angular part on its side).
+    const btVector3 x = pad.getCenterOfMassPosition() - bt(normal_) * pad_radius_ - anchor;
+    btVector3 t[2];
+    btPlaneSpace1(bt(normal_), t[0], t[1]);
+    const double h = 1.0 / info->fps;
+    const double kc = stiffness_ * h + damping_;  // implicit spring-damper: k·h + c
+    const int s = info->rowskip;
+    for (int r = 0; r < 2; ++r) {
+      const btVector3 rxt = r_b.cross(t[r]);
+      for (int i = 0; i < 3; ++i) {
+        info->m_J1linearAxis[r * s + i] = t[r][i];
+        info->m_J2linearAxis[r * s + i] = -t[r][i];
+        info->m_J2angularAxis[r * s + i] = -rxt[i];
+      }
+      // Effective mass of the row, as the solver computes it (the pad has no rotational
+      // inertia: it does not rotate).
+      const double d = 1.0 / (pad.getInvMass() + bone.getInvMass() +
+                              rxt.dot(bone.getInvInertiaTensorWorld() * rxt));
+      // Relative velocity after the step: -k·x/(k·h + c) - impulse/(h·(k·h + c)).
+      info->m_constraintError[r * s] = -stiffness_ * x.dot(t[r]) / kc;
+      info->cfm[r * s] = d / (h * kc);
+      info->m_lowerLimit[r * s] = -limit_n_ * h;
+      info->m_upperLimit[r * s] = limit_n_ * h;
+    }
+  }
+  void setParam(int, btScalar, int) override {}
+  btScalar getParam(int, int) const override { return 0.0; }
+
+ private:
+  btJointFeedback feedback_{};
+  Vec3 anchor_local_ = Vec3::Zero();
+  Vec3 normal_ = Vec3::UnitZ();
+  double pad_radius_ = 0.0, stiffness_ = 0.0, damping_ = 0.0, limit_n_ = 0.0;
+};
+
 }  // namespace
 
 struct HandSim::Impl {
@@ -151,15 +223,17 @@ struct HandSim::Impl {
   std::vector<int> chain;                               // per bone: component id (-1: static)
   Vec3 external_seen = Vec3::Zero();                    // wakes the MCP's finger on a change
 
-  /// Skin friction of one pad, as a spring to the point of the bone it first touched,
-  /// limited by the friction cone. Bullet's own point-contact friction made a pinched
-  /// millimetre phalanx creep sideways, so its contacts are frictionless and this acts.
+  /// Skin friction of one pad: anchored to the point of the bone it touched down on, held
+  /// there by rows of the solver (PadGrip) up to the friction limit, and slipping beyond.
+  /// Bullet's own point-contact friction made a pinched millimetre phalanx creep sideways,
+  /// so its contacts are frictionless and this acts.
   struct Grip {
     btRigidBody* bone = nullptr;
     Vec3 anchor_local = Vec3::Zero();  // sphere centre at touch-down, bone frame
     Vec3 normal = Vec3::Zero();        // bone -> sphere, world
     double normal_n = 0.0;
     Vec3 force = Vec3::Zero();         // tangential force on the sphere, last step
+    std::unique_ptr<PadGrip> rows;     // in the world while the pad touches `bone`
   };
   PerFinger<Grip> grips;
 
@@ -296,10 +370,9 @@ HandSim::HandSim(const HandModel& model, const JointModelParams& mcp, const Hand
   for (int k = kIndex; k >= kThumb; --k) {
     auto* shape = new btSphereShape(config_.sphere_radius_m);
     im.shapes.emplace_back(shape);
-    const double m = config_.sphere_mass_kg;
-    btVector3 inertia;
-    shape->calculateLocalInertia(m, inertia);
-    btRigidBody::btRigidBodyConstructionInfo info(m, nullptr, shape, inertia);
+    // No rotational inertia: the pad translates only (see the angular factor below).
+    btRigidBody::btRigidBodyConstructionInfo info(config_.sphere_mass_kg, nullptr, shape,
+                                                  btVector3(0, 0, 0));
     info.m_friction = 0.0;
     im.spheres[k] = std::make_unique<btRigidBody>(info);
     im.spheres[k]->setActivationState(DISABLE_DEACTIVATION);
@@ -309,6 +382,7 @@ HandSim::HandSim(const HandModel& model, const JointModelParams& mcp, const Hand
     im.world.addRigidBody(im.spheres[k].get(), kSphereGroup, kBoneGroup);
   }
   setMcpModel(mcp);
+  pinch_n_ = config_.pinch_preload_n;
   setFingerTargets({Vec3::Zero(), Vec3::Zero()}, false);
 }
 
@@ -316,6 +390,9 @@ HandSim::~HandSim() {
   Impl& im = *impl_;
   for (auto& c : im.constraints) {
     if (c) im.world.removeConstraint(c.get());
+  }
+  for (auto& g : im.grips) {
+    if (g.rows) im.world.removeConstraint(g.rows.get());
   }
   for (auto& s : im.spheres) im.world.removeRigidBody(s.get());
   for (auto& b : im.bodies) im.world.removeRigidBody(b.get());
@@ -345,15 +422,8 @@ void HandSim::setMcpModel(const JointModelParams& mcp) {
 
 void HandSim::setFingerTargets(const PerFinger<Vec3>& p_device, bool engaged) noexcept {
   Impl& im = *impl_;
-  // A pinch squeezes: each target moves toward the other by preload / stiffness, so the two
-  // spheres hold the phalanx between them with that force (and friction) on every axis.
-  const Vec3 across = p_device[kIndex] - p_device[kThumb];
-  const double gap = across.norm();
-  const Vec3 squeeze = gap > 1e-9 ? Vec3(across / gap * (config_.pinch_preload_n /
-                                                          config_.coupling_stiffness_n_per_m))
-                                  : Vec3::Zero();
   for (int k = 0; k < 2; ++k) {
-    Vec3 target = device_to_world_ * (p_device[k] + (k == kThumb ? squeeze : Vec3(-squeeze)));
+    Vec3 target = device_to_world_ * p_device[k];
     if (!engaged) {
       // Parked above the back of the hand, apart, out of reach of every bone.
       target = device_to_world_ * Vec3(0.0, k == kThumb ? 0.03 : -0.03, 0.08);
@@ -372,6 +442,7 @@ void HandSim::setFingerTargets(const PerFinger<Vec3>& p_device, bool engaged) no
     }
     target_world_[k] = target;
   }
+  if (engaged != engaged_) pinch_n_ = config_.pinch_preload_n;  // a new grip starts light
   engaged_ = engaged;
 }
 
@@ -465,42 +536,31 @@ void HandSim::applyJointTorques() {
     child.applyTorque(bt(tau_world));
     if (parent.getInvMass() != 0.0) parent.applyTorque(bt(Vec3(-tau_world)));
   }
+  // A pinch squeezes: each target moves toward the other by pinch / stiffness, so the two
+  // spheres hold the phalanx between them with that force (and friction) on every axis.
+  Vec3 squeeze = Vec3::Zero();
+  if (engaged_) {
+    const Vec3 across = target_world_[kIndex] - target_world_[kThumb];
+    const double gap = across.norm();
+    if (gap > 1e-9) squeeze = across / gap * (pinch_n_ / config_.coupling_stiffness_n_per_m);
+  }
   for (int k = 0; k < 2; ++k) {
     btRigidBody& s = *im.spheres[k];
+    const Vec3 target = target_world_[k] + (k == kThumb ? squeeze : Vec3(-squeeze));
     // Damping as backward Euler would apply it, so a light sphere stays stable at 1 ms.
     const double c = config_.coupling_damping_ns_per_m /
                      (1.0 + config_.coupling_damping_ns_per_m * config_.dt_s / config_.sphere_mass_kg);
-    Vec3 f = config_.coupling_stiffness_n_per_m * (target_world_[k] - eig(s.getCenterOfMassPosition())) +
+    Vec3 f = config_.coupling_stiffness_n_per_m * (target - eig(s.getCenterOfMassPosition())) +
              c * (target_velocity_[k] - eig(s.getLinearVelocity()));
     const double n = f.norm();
     if (n > kMaxCouplingForceN) f *= kMaxCouplingForceN / n;
     s.applyCentralForce(bt(f));
 
     Impl::Grip& g = im.grips[k];
-    g.force.setZero();
-    if (!g.bone) continue;
-    const Pose bone = eig(g.bone->getCenterOfMassTransform());
-    const Vec3 centre = eig(s.getCenterOfMassPosition());
-    Vec3 slip = centre - bone * g.anchor_local;
-    slip -= g.normal * g.normal.dot(slip);
-    const Vec3 rel_v = eig(s.getLinearVelocity()) -
-                       eig(g.bone->getVelocityInLocalPoint(bt(Vec3(centre - bone.translation()))));
-    Vec3 ft = -config_.grip_stiffness_n_per_m * slip -
-              config_.grip_damping_ns_per_m * (rel_v - g.normal * g.normal.dot(rel_v));
-    const double limit = config_.skin_friction * g.normal_n;
-    if (ft.norm() > limit) {
-      // Sliding: the anchor follows the pad so that the spring holds exactly the cone.
-      const double slip_n = slip.norm();
-      if (slip_n > 1e-12) {
-        const Vec3 keep = slip * (limit / config_.grip_stiffness_n_per_m / slip_n);
-        g.anchor_local = bone.inverse() * Vec3(centre - (slip - keep));
-      }
-      ft *= limit / ft.norm();
+    if (g.rows) {
+      g.rows->set(g.anchor_local, g.normal, config_.sphere_radius_m, config_.grip_stiffness_n_per_m,
+                  config_.grip_damping_ns_per_m, config_.skin_friction * g.normal_n);
     }
-    g.force = ft;
-    s.applyCentralForce(bt(ft));
-    g.bone->applyForce(bt(Vec3(-ft)), bt(Vec3(centre - g.normal * config_.sphere_radius_m -
-                                                 bone.translation())));
   }
 }
 
@@ -538,25 +598,56 @@ void HandSim::readContacts() {
     }
   }
   const Mat3 to_device = device_to_world_.linear().transpose();
+  double shortfall_n = -1e9;  // the most any pad lacks of the normal force it needs
   for (int k = 0; k < 2; ++k) {
     Impl::Grip& g = im.grips[k];
+    g.force = g.rows ? g.rows->force() : Vec3::Zero();  // what the rows carried this step
     const double normal_n = f[k].norm();
     if (!touched[k] || normal_n <= 0.0) {
+      if (g.rows) im.world.removeConstraint(g.rows.get());
       g = {};
     } else {
-      if (g.bone != touched[k]) {
-        g.bone = touched[k];
-        g.anchor_local = eig(g.bone->getCenterOfMassTransform()).inverse() *
-                         eig(im.spheres[k]->getCenterOfMassPosition());
-      }
       g.normal = f[k] / normal_n;
       g.normal_n = normal_n;
+      const Pose bone = eig(g.bone == touched[k] ? g.bone->getCenterOfMassTransform()
+                                                 : touched[k]->getCenterOfMassTransform());
+      const Vec3 skin = eig(im.spheres[k]->getCenterOfMassPosition()) - g.normal * config_.sphere_radius_m;
+      if (g.bone != touched[k]) {
+        if (g.rows) im.world.removeConstraint(g.rows.get());
+        g.bone = touched[k];
+        g.anchor_local = bone.inverse() * skin;
+        g.rows = std::make_unique<PadGrip>(*im.spheres[k], *g.bone);
+        im.world.addConstraint(g.rows.get(), false);  // the pad still collides with the bone
+      }
+      // At the friction limit (a row at its bound, or past the cone at a corner of the box
+      // the rows bound) the pad slides: the anchor follows it so that the spring holds just
+      // the limit.
+      const double used = g.rows->limit();
+      if (used > 0.0 && g.force.norm() >= used * (1.0 - 1e-6)) {
+        Vec3 slip = skin - bone * g.anchor_local;
+        slip -= g.normal * g.normal.dot(slip);
+        const double keep_m = config_.skin_friction * normal_n / config_.grip_stiffness_n_per_m;
+        const double slip_m = slip.norm();
+        if (slip_m > keep_m) g.anchor_local = bone.inverse() * Vec3(skin - slip * (keep_m / slip_m));
+      }
     }
+    // The squeeze this pad asks for: enough normal force to carry its tangential load with a
+    // margin, and at least a light touch.
+    const double need = std::max(config_.min_pad_force_n, config_.grip_safety_margin * g.force.norm() /
+                                                              std::max(config_.skin_friction, 1e-6));
+    shortfall_n = std::max(shortfall_n, need - (g.bone ? normal_n : 0.0));
     contact_device_[k] = to_device * (f[k] + g.force);
     const Vec3 centre = eig(im.spheres[k]->getCenterOfMassPosition());
     contact_point_device_[k] =
         device_to_world_.inverse() * Vec3(centre - g.normal * config_.sphere_radius_m);
   }
+  // Grip follows load, as people hold objects: the squeeze rises (fast) and relaxes (slowly)
+  // until the pad that needs it most has a safety margin above slipping. Both pads must touch:
+  // a pad that does not lacks the whole light touch.
+  if (!engaged_) return;
+  const double want = std::clamp(pinch_n_ + shortfall_n, config_.pinch_preload_n, config_.max_pinch_n);
+  const double tau = want > pinch_n_ ? config_.grip_rise_s : config_.grip_fall_s;
+  pinch_n_ += (want - pinch_n_) * std::min(1.0, config_.dt_s / tau);
 }
 
 Vec3 HandSim::mcpAngles() const {

@@ -5,7 +5,9 @@
 /// as external torques before every step (Bullet's own springs are linear and get capped at
 /// low rates: FACTS.md "Bullet"). The student's thumb and index are spheres pulled toward
 /// the thimble positions by a spring-damper (virtual coupling); they push the proximal
-/// phalanx through contacts. Immutable HandModel, mutable HandSim.
+/// phalanx through frictionless contacts and hold it by skin friction, solved inside
+/// Bullet's solver and bounded by the friction limit, with a squeeze that follows the load
+/// (grip-load coupling). Immutable HandModel, mutable HandSim.
 #include <memory>
 #include <vector>
 
@@ -32,11 +34,22 @@ struct HandSimConfig {
   double sphere_mass_kg = 1.0;
   double coupling_stiffness_n_per_m = 2.0e5;
   double coupling_damping_ns_per_m = 894.0;
-  double pinch_preload_n = 3.0;          ///< squeeze of the pinch grip (assumption)
-  /// Skin friction (pad on skin, an assumption) and the tangential spring that carries it.
+  double pinch_preload_n = 3.0;          ///< least squeeze of the pinch grip (assumption)
+  /// Skin friction (pad on skin, an assumption) and the tangential spring that carries it,
+  /// solved implicitly: 1 N per micrometre keeps the pads' shear under 0.2 deg of axial
+  /// rotation at the largest load.
   double skin_friction = 1.0;
-  double grip_stiffness_n_per_m = 2.0e4;
-  double grip_damping_ns_per_m = 20.0;
+  double grip_stiffness_n_per_m = 1.0e6;
+  double grip_damping_ns_per_m = 200.0;
+  /// Grip-load coupling (Johansson & Westling, Exp Brain Res 1984: people grip a safety
+  /// margin above the slip limit and raise the grip within about 0.1 s of a load change;
+  /// the figures here are assumptions in that range): squeeze = margin * load / friction,
+  /// at least the preload and at most max_pinch_n, both pads touching.
+  double grip_safety_margin = 1.4;
+  double grip_rise_s = 0.03;
+  double grip_fall_s = 0.3;
+  double max_pinch_n = 20.0;
+  double min_pad_force_n = 1.0;          ///< the lighter pad keeps at least this contact
 };
 
 class HandSim {
@@ -74,6 +87,8 @@ class HandSim {
   PerFinger<Vec3> contactForcesDevice() const noexcept { return contact_device_; }
   /// Where each pad touches the skin (the sphere centre when it touches nothing), device frame.
   PerFinger<Vec3> contactPointsDevice() const noexcept { return contact_point_device_; }
+  /// Present squeeze of the pinch (N): the preload, raised with the load the pads carry.
+  double pinchForce() const noexcept { return pinch_n_; }
   /// Device frame -> world.
   const Pose& deviceToWorld() const noexcept { return device_to_world_; }
   /// Moment of inertia of the index finger (proximal, middle, distal) about the MCP
@@ -101,6 +116,7 @@ class HandSim {
   Vec3 last_passive_ = Vec3::Zero();
   PerFinger<Vec3> contact_device_{Vec3::Zero(), Vec3::Zero()};
   PerFinger<Vec3> contact_point_device_{Vec3::Zero(), Vec3::Zero()};
+  double pinch_n_ = 0.0;  ///< present squeeze of the pinch (grip-load coupling)
   double time_s_ = 0.0;
 };
 

@@ -234,5 +234,26 @@ TEST(SafetyGate, RandomAbuseNeverExceedsTheLimits) {
   }
 }
 
+TEST(SafetyGateCapture, ZeroWhateverIsRequestedThenRampsOut) {
+  SafetyGate gate;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  int64_t t = 1'000'000'000;
+  gate.apply({Vec3(0, 0, 3.0), Vec3::Zero()}, t, t);
+  gate.setCapture(true);
+  for (const PerFinger<Vec3>& req :
+       {PerFinger<Vec3>{Vec3(0, 0, 3.0), Vec3(1, 1, 1)}, PerFinger<Vec3>{Vec3(1e6, 0, 0), Vec3::Zero()},
+        PerFinger<Vec3>{Vec3(nan, 0, 0), Vec3::Zero()}}) {
+    t += 1'000'000;
+    const SafetyOutput out = gate.apply(req, t, t - 100'000'000);  // even with a stale sample
+    EXPECT_EQ(out.force_n[0], Vec3::Zero());
+    EXPECT_EQ(out.force_n[1], Vec3::Zero());
+    EXPECT_EQ(out.flags, kSafetyCapture);
+  }
+  gate.setCapture(false);
+  t += 1'000'000;
+  const SafetyOutput out = gate.apply({Vec3(0, 0, 3.0), Vec3::Zero()}, t, t);
+  EXPECT_NEAR(out.force_n[0].norm(), 200.0 * 1e-3, 1e-9) << "leaves capture through the rate limit";
+}
+
 }  // namespace
 }  // namespace telehand

@@ -2,7 +2,9 @@
 // torque agreement with the client proxy (FACTS.md "Bullet").
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <utility>
 #include <memory>
 
 #include "server/sim/hand_sim.h"
@@ -322,6 +324,90 @@ TEST(HandSim, SleepingFingersWakeForEveryInput) {
     EXPECT_GT(sim.contactForcesDevice()[kIndex].norm(), 1.0);
     EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]), radToDeg(goal[kFlexion]), 2.0);
   }
+}
+
+
+/// Exploration ground truth: a scripted student pinches the phalanx and carries the grip to
+/// known angles in each of the six directions at 30 deg/s; the hand reaches them.
+TEST(HandSim, ScriptedPinchReachesKnownAnglesInEveryDirection) {
+  const HandModel model = HandModel::load(kHand);
+  const JointModelParams params = healthyIndexMcp();
+  const JointModel proxy(params);
+  struct Reach {
+    const char* name;
+    double flexion, abduction, axial;
+  };
+  for (const Reach& r : {Reach{"flexion", 60, 0, 0}, Reach{"extension", -30, 0, 0},
+                         Reach{"abduction", 20, 15, 0}, Reach{"adduction", 20, -15, 0},
+                         Reach{"supination", 20, 0, 12}, Reach{"pronation", 20, 0, -8}}) {
+    HandSim sim(model, params);
+    Vec3 cur(proxy.restAngleRad(kFlexion), 0, 0);
+    sim.resetMcp(cur);
+    Vec3 goal;
+    goal[kFlexion] = degToRad(r.flexion);
+    goal[kAbduction] = degToRad(r.abduction);
+    goal[kAxial] = degToRad(r.axial);
+    const Vec3 from = cur;
+    const int steps = static_cast<int>(std::ceil(radToDeg((goal - from).cwiseAbs().maxCoeff()) / 30.0 * 1000.0));
+    for (int i = 1; i <= steps + 300; ++i) {
+      cur = from + (goal - from) * std::min(1.0, static_cast<double>(i) / steps);
+      sim.setFingerTargets(proxy.gripFromAngles(cur, 0.008), true);
+      sim.step();
+    }
+    const Vec3 got = sim.mcpAngles();
+    for (int axis = 0; axis < 3; ++axis) {
+      EXPECT_NEAR(radToDeg(got[axis]), radToDeg(goal[axis]), 1.0)
+          << r.name << ": " << kAxisNames[static_cast<std::size_t>(axis)];
+    }
+  }
+}
+
+
+/// The pads hold the phalanx by friction: the squeeze rises with the load they carry (grip
+/// follows load) and relaxes when it goes; a squeeze that may not rise lets the pads slip.
+TEST(HandSim, GripFollowsLoadAndPadsSlipPastTheFrictionLimit) {
+  const HandModel model = HandModel::load(kHand);
+  const JointModelParams params = healthyIndexMcp();
+  const JointModel proxy(params);
+  auto supinate = [&](const HandSimConfig& config, double* peak_pinch) {
+    HandSim sim(model, params, config);
+    Vec3 cur(degToRad(20.0), 0, 0);
+    sim.resetMcp(cur);
+    *peak_pinch = 0.0;
+    for (int i = 0; i < 800; ++i) {  // 12 deg of supination at 30 deg/s, then held
+      cur[kAxial] = degToRad(12.0) * std::min(1.0, i / 400.0);
+      sim.setFingerTargets(proxy.gripFromAngles(cur, 0.008), true);
+      sim.step();
+      *peak_pinch = std::max(*peak_pinch, sim.pinchForce());
+    }
+    const double reached = radToDeg(sim.mcpAngles()[kAxial]);
+    for (int i = 0; i < 400; ++i) {  // back to neutral rotation: the load goes
+      cur[kAxial] = degToRad(12.0) * std::max(0.0, 1.0 - i / 400.0);
+      sim.setFingerTargets(proxy.gripFromAngles(cur, 0.008), true);
+      sim.step();
+    }
+    for (int i = 0; i < 1500; ++i) {
+      sim.setFingerTargets(proxy.gripFromAngles(cur, 0.008), true);
+      sim.step();
+    }
+    return std::pair{reached, sim.pinchForce()};
+  };
+  const HandSimConfig normal;
+  double peak = 0.0;
+  const auto [reached, relaxed] = supinate(normal, &peak);
+  // 0.08 N·m of axial torque through two pads 5 mm off the axis: about 8 N each, so the
+  // squeeze rose well past the 3 N preload, and fell back once the load was gone.
+  EXPECT_NEAR(reached, 12.0, 1.0);
+  EXPECT_GT(peak, 2.0 * normal.pinch_preload_n);
+  EXPECT_LT(relaxed, 0.5 * peak);
+  // The same student who does not squeeze harder: the pads slip and the joint stays short.
+  HandSimConfig light;
+  light.max_pinch_n = light.pinch_preload_n;
+  double light_peak = 0.0;
+  const double light_reached = supinate(light, &light_peak).first;
+  EXPECT_LE(light_peak, light.pinch_preload_n + 1e-9);
+  EXPECT_LT(light_reached, reached - 3.0);
+  EXPECT_GT(light_reached, 0.5);  // friction still turned it some way
 }
 
 }  // namespace

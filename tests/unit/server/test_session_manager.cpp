@@ -294,9 +294,15 @@ TEST_F(SessionManagerTest, WithoutAHandModelHandStateComesFromTheSharedJointMode
 
 TEST_F(SessionManagerTest, ExplorationRecordsBaselineAndReassessment) {
   ASSERT_NE(open("healthy", telehand_msg_MODE_EXPLORATION), 0u);
-  // Baseline: flex to 60, extend to -30, back to neutral.
+  // Baseline: a scripted student takes the joint to known angles in all six directions
+  // (abduction and axial rotation from 20 deg of flexion), back to neutral in between.
   moveToDeg(60.0);
   moveToDeg(-30.0);
+  moveToDeg(20.0, 15.0);
+  moveToDeg(20.0, -15.0);
+  moveToDeg(20.0);
+  moveToDeg(20.0, 0.0, 12.0);
+  moveToDeg(20.0, 0.0, -8.0);
   moveToDeg(0.0);
   EXPECT_TRUE(store_->reaches(session_).empty());  // recorded when the phase ends
   mark("reassessment");
@@ -333,9 +339,21 @@ TEST_F(SessionManagerTest, ExplorationRecordsBaselineAndReassessment) {
   ASSERT_NE(reach(rs, "baseline", "flexion"), nullptr);
   EXPECT_NEAR(reach(rs, "baseline", "flexion")->angle_deg, 60.0, 1.0);
   EXPECT_NEAR(reach(rs, "baseline", "extension")->angle_deg, -30.0, 1.0);
+  EXPECT_NEAR(reach(rs, "baseline", "abduction")->angle_deg, 15.0, 1.0);
+  EXPECT_NEAR(reach(rs, "baseline", "adduction")->angle_deg, -15.0, 1.0);
+  EXPECT_NEAR(reach(rs, "baseline", "supination")->angle_deg, 12.0, 1.0);
+  EXPECT_NEAR(reach(rs, "baseline", "pronation")->angle_deg, -8.0, 1.0);
   EXPECT_NEAR(reach(rs, "reassessment", "flexion")->angle_deg, 70.0, 1.0);
   EXPECT_NEAR(reach(rs, "reassessment", "extension")->angle_deg, 0.0, 1.0);
-  // The force at the reach: the joint's holding force there plus the pinch, a few newtons.
+  // The force at the reach is what holds the joint there (N at the lever arm, the squeeze
+  // cancelled): at the flexion reach, the joint model's own holding force within 10 %.
+  for (const char* phase : {"baseline", "reassessment"}) {
+    Vec3 at = Vec3::Zero();
+    at[kFlexion] = degToRad(reach(rs, phase, "flexion")->angle_deg);
+    const double want = std::abs(grip_model_->passiveTorqueNm(at, Vec3::Zero())[kFlexion]) /
+                        grip_model_->params().lever_arm_m;
+    EXPECT_NEAR(reach(rs, phase, "flexion")->force_n, want, 0.1 * want) << phase;
+  }
   EXPECT_GT(reach(rs, "baseline", "flexion")->force_n, reach(rs, "baseline", "extension")->force_n);
   EXPECT_GT(reach(rs, "reassessment", "flexion")->force_n, 5.0);
   // Baseline rows first, then reassessment.

@@ -18,6 +18,7 @@ enum SafetyFlag : uint32_t {
   kSafetyRateLimited = 2u,
   kSafetyWatchdog = 4u,
   kSafetyNonFinite = 8u,
+  kSafetyCapture = 32u,  ///< capture mode: actuators off, every output is zero
 };
 
 struct SafetyOutput {
@@ -38,6 +39,10 @@ class SafetyGate {
 
   /// Forget the last output (next output rate-limits from zero).
   void reset() noexcept;
+  /// Capture mode: every output is zero whatever is requested (the clinician moves a real
+  /// finger with the actuators off); leaving it ramps up from zero through the rate limit.
+  void setCapture(bool on) noexcept { capture_ = on; }
+  bool capture() const noexcept { return capture_; }
   const SafetyLimits& limits() const noexcept { return limits_; }
 
  private:
@@ -45,6 +50,7 @@ class SafetyGate {
   PerFinger<Vec3> last_{Vec3::Zero(), Vec3::Zero()};
   int64_t last_ns_ = 0;
   bool have_last_ = false;
+  bool capture_ = false;
 };
 
 }  // namespace telehand

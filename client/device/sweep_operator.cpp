@@ -1,0 +1,52 @@
+#include "client/device/sweep_operator.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace telehand::client::device {
+
+SweepPlan planSweep(const JointModelParams& joint, double max_force_n, double range_fraction) {
+  SweepPlan plan;
+  const JointModel m(joint);
+  for (int i = 0; i < kAxes; ++i) {
+    const auto ax = static_cast<std::size_t>(i);
+    const CubicCurve& c = joint.axes[ax];
+    const double rest = radToDeg(m.restAngleRad(i));
+    plan.hold_deg[ax] = rest;
+    // Walk out from rest until the force or the range fraction is reached.
+    const double lo_lim = rest + range_fraction * (c.min_deg - rest);
+    const double hi_lim = rest + range_fraction * (c.max_deg - rest);
+    double lo = rest, hi = rest;
+    constexpr double kStep = 0.05;
+    while (lo - kStep >= lo_lim && std::abs(m.holdingForceN(i, degToRad(lo - kStep))) <= max_force_n) lo -= kStep;
+    while (hi + kStep <= hi_lim && std::abs(m.holdingForceN(i, degToRad(hi + kStep))) <= max_force_n) hi += kStep;
+    plan.lo_deg[ax] = lo;
+    plan.hi_deg[ax] = hi;
+  }
+  return plan;
+}
+
+Vec3 SweepOperator::target(double t_s) const noexcept {
+  Vec3 a;
+  for (int i = 0; i < kAxes; ++i) a[i] = degToRad(plan_.hold_deg[static_cast<std::size_t>(i)]);
+  if (t_s < 0.0) return a;
+  const double total = plan_.durationS();
+  double t = plan_.repeat ? std::fmod(t_s, total) : std::min(t_s, total);
+  const int axis = std::min(static_cast<int>(t / plan_.seconds_per_axis), kAxes - 1);
+  t -= axis * plan_.seconds_per_axis;
+  const auto ax = static_cast<std::size_t>(axis);
+  // Smooth in and out of each sweep: no step in the planned angle.
+  const double ramp = plan_.ramp_s > 0.0 ? std::clamp(std::min(t, plan_.seconds_per_axis - t) / plan_.ramp_s, 0.0, 1.0) : 1.0;
+  const double w = ramp * ramp * (3.0 - 2.0 * ramp);
+  const double centre = 0.5 * (plan_.lo_deg[ax] + plan_.hi_deg[ax]);
+  const double amp = 0.5 * (plan_.hi_deg[ax] - plan_.lo_deg[ax]);
+  const double sweep = centre + amp * std::sin(2.0 * kPi * plan_.frequency_hz * t);
+  a[axis] = degToRad(plan_.hold_deg[ax] + w * (sweep - plan_.hold_deg[ax]));
+  return a;
+}
+
+Vec3 SweepOperator::torqueNm(double t_s, const Vec3& angles, const Vec3& rates) noexcept {
+  return plan_.stiffness_nm_per_rad * (target(t_s) - angles) - plan_.damping_nms_per_rad * rates;
+}
+
+}  // namespace telehand::client::device

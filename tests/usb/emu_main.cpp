@@ -1,0 +1,69 @@
+// telehand-mf2-emu: runs a command against an emulated MF-2 (no hardware). The emulated USB
+// bus is visible to the command and its children. Run under umockdev-wrapper:
+//   umockdev-wrapper build/release/tests/usb/telehand-mf2-emu --
+//       build/release/client/telehand-probe --live 3   (one line)
+#include <spawn.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "mf2_emulator.h"
+#include "telehand/common/cli.h"
+
+extern char** environ;
+
+int main(int argc, char** argv) {
+  using namespace telehand;
+  CLI::App app{"telehand-mf2-emu: run a command against an emulated MF-2 (run this under "
+               "umockdev-wrapper)"};
+  int64_t pace_us = 1000;
+  double push_n = 1.0, push_hz = 1.0;
+  std::vector<double> fsr;
+  std::vector<std::string> command;
+  app.add_option("--pace-us", pace_us, "state packet period, us (0: as fast as asked)")->capture_default_str();
+  app.add_option("--push", push_n, "operator push on the thumb's x axis, N amplitude")->capture_default_str();
+  app.add_option("--push-hz", push_hz, "operator push frequency")->capture_default_str();
+  app.add_option("--fsr", fsr, "the 8 FSR forces, N (thumb 1-4, index 1-4)")->expected(8);
+  app.add_option("command", command, "the command to run")->required();
+  TELEHAND_CLI_PARSE(app, argc, argv)
+
+  prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+  try {
+    test::usb::EmulatorOptions opt;
+    opt.pace_ns = pace_us * 1000;
+    opt.firmware.operator_amplitude_n = push_n;
+    opt.firmware.operator_hz = push_hz;
+    test::usb::Mf2Emulator emu(opt);
+    emu.withFirmware([&](test::usb::Mf2Firmware& fw) {
+      fw.keepHistory(false);
+      if (fsr.size() == 8) {
+        std::array<double, 8> f{};
+        std::copy(fsr.begin(), fsr.end(), f.begin());
+        fw.setFsrForces(f);
+      }
+      return 0;
+    });
+    std::vector<char*> args;
+    for (auto& a : command) args.push_back(a.data());
+    args.push_back(nullptr);
+    pid_t pid = -1;
+    if (posix_spawnp(&pid, args[0], nullptr, nullptr, args.data(), environ) != 0) {
+      std::fprintf(stderr, "telehand-mf2-emu: cannot run %s\n", args[0]);
+      return 2;
+    }
+    int status = 0;
+    waitpid(pid, &status, 0);
+    const auto c = emu.counters();
+    std::fprintf(stderr, "telehand-mf2-emu: %llu state packets, %llu commands, %llu unhandled ioctls\n",
+                 static_cast<unsigned long long>(c.states_sent),
+                 static_cast<unsigned long long>(c.commands_received),
+                 static_cast<unsigned long long>(c.unhandled_ioctls));
+    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "telehand-mf2-emu: %s\n", e.what());
+    return 2;
+  }
+}

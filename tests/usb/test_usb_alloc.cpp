@@ -1,0 +1,69 @@
+// HapticLoop::step() with the USB MF-2 allocates nothing, while the driver streams, while
+// the device is unplugged and after it is back (the USB thread allocates as it likes: the
+// guard counts only the thread that steps). Runs under umockdev-wrapper.
+#include <gtest/gtest.h>
+#include <sys/prctl.h>
+
+#include <chrono>
+#include <thread>
+
+#include "alloc_guard.h"
+#include "client/device/usb_mf2.h"
+#include "client/loop/haptic_loop.h"
+#include "mf2_emulator.h"
+
+namespace telehand::test::usb {
+namespace {
+
+using namespace std::chrono_literals;
+using client::device::DeviceStatus;
+
+TEST(UsbMf2Alloc, StepAllocatesNothingWhileStreamingUnpluggedAndBack) {
+  prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+  EmulatorOptions opt;
+  opt.pace_ns = 1'000'000;
+  const PerFinger<Vec3> grip =
+      JointModel(healthyIndexMcp()).gripFromAngles(Vec3(degToRad(20.0), 0.0, 0.0), 0.008);
+  for (int k = 0; k < 2; ++k) {
+    for (int i = 0; i < 3; ++i) {
+      opt.firmware.start_counts[3 * k + i] = static_cast<int32_t>(std::lround(grip[k][i] * 1e5));
+    }
+  }
+  Mf2Emulator emu(opt);
+  SteadyClock clock;
+  client::device::LinearMf2Calibration cal;
+  client::device::UsbMf2 dev({}, cal, clock);
+  dev.start();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  client::loop::HapticLoop loop(dev, clock, healthyIndexMcp(), SafetyLimits{});
+
+  std::size_t allocations = 0, deallocations = 0;
+  int fresh = 0, down = 0;
+  telehand_msg_DeviceState rec;
+  for (int i = 0; i < 3000; ++i) {
+    if (i == 1000) emu.unplug();
+    if (i == 1500) emu.replug();
+    {
+      AllocationGuard guard;
+      if (loop.step() == client::loop::StepStatus::kOk) ++fresh;
+      allocations += guard.allocations();
+      deallocations += guard.deallocations();
+    }
+    down += dev.status() != DeviceStatus::kOk;
+    while (loop.samples().tryPop(rec)) {
+    }
+    std::this_thread::sleep_for(1ms);
+  }
+  EXPECT_EQ(allocations, 0u) << "HapticLoop::step() with the USB MF-2 allocated";
+  EXPECT_EQ(deallocations, 0u);
+  // The run really streamed, went through the unplug and came back.
+  EXPECT_GT(fresh, 1000);
+  EXPECT_GT(down, 10);
+  EXPECT_EQ(dev.stats().connects.load(), 2u);
+  EXPECT_EQ(dev.status(), DeviceStatus::kOk) << dev.statusText();
+  dev.stop();
+  EXPECT_EQ(emu.counters().unhandled_ioctls, 0u);
+}
+
+}  // namespace
+}  // namespace telehand::test::usb

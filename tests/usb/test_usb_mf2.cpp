@@ -1,0 +1,435 @@
+// The USB MF-2 driver against an emulated MF-2 (umockdev): opening, streaming with content
+// checked both ways, corrupt packets, stall, timeout, overflow, unplug and reconnect, the
+// emergency stop. Runs under umockdev-wrapper (see CMakeLists.txt).
+#include <gtest/gtest.h>
+#include <sys/prctl.h>
+
+#include <chrono>
+#include <thread>
+
+#include "client/device/usb_mf2.h"
+#include "client/loop/haptic_loop.h"
+#include "mf2_emulator.h"
+
+namespace telehand::test::usb {
+namespace {
+
+using namespace std::chrono_literals;
+using client::device::DeviceSample;
+using client::device::DeviceStatus;
+using client::device::ForceCommand;
+using client::device::LinearMf2Calibration;
+using client::device::LinearMf2CalibrationParams;
+using client::device::UsbMf2;
+using client::device::UsbMf2Config;
+
+/// Polls `pred` until it holds or `timeout` passes.
+template <typename Pred>
+bool eventually(Pred pred, std::chrono::milliseconds timeout = 5s) {
+  const auto end = std::chrono::steady_clock::now() + timeout;
+  while (!pred()) {
+    if (std::chrono::steady_clock::now() > end) return false;
+    std::this_thread::sleep_for(1ms);
+  }
+  return true;
+}
+
+std::string joined(const std::vector<std::string>& v) {
+  std::string s;
+  for (const auto& m : v) s += m + "\n";
+  return s;
+}
+
+/// Encoder counts that put the thimbles on the healthy joint's grip at this flexion (the
+/// bench calibration reads 10 um per count from the device origin).
+std::array<int32_t, proto::kActuators> startCounts(double flexion_rad) {
+  const JointModel joint(healthyIndexMcp());
+  const PerFinger<Vec3> p = joint.gripFromAngles(Vec3(flexion_rad, 0.0, 0.0), 0.008);
+  std::array<int32_t, proto::kActuators> c{};
+  for (int k = 0; k < 2; ++k) {
+    for (int i = 0; i < 3; ++i) c[3 * k + i] = static_cast<int32_t>(std::lround(p[k][i] * 1e5));
+  }
+  return c;
+}
+
+class UsbMf2Test : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    // FACTS.md: 1 ns timer slack speeds up the emulation's ioctl round trips; umockdev's
+    // worker thread inherits it from here.
+    prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+    options_.firmware.start_counts = startCounts(degToRad(20.0));
+    options_.firmware.gimbal_counts = {100, 200, 300, -100, -200, -300};
+    emu_ = std::make_unique<Mf2Emulator>(options_);
+  }
+  void TearDown() override {
+    if (dev_) dev_->stop();
+    dev_.reset();
+    if (emu_) {
+      EXPECT_EQ(emu_->counters().unhandled_ioctls, 0u) << "an ioctl the emulation lacks";
+    }
+    emu_.reset();
+  }
+  UsbMf2& startDevice(UsbMf2Config cfg = {}) {
+    dev_ = std::make_unique<UsbMf2>(cfg, cal_, clock_);
+    dev_->start();
+    return *dev_;
+  }
+  /// Keeps the loop's side alive: writes a force, returns when a new sample came.
+  bool cycle(const ForceCommand& f, DeviceSample& s, std::chrono::milliseconds timeout = 2s) {
+    dev_->write(f);
+    return eventually([&] { return dev_->read(s); }, timeout);
+  }
+  void streamFor(int cycles) {
+    DeviceSample s;
+    for (int i = 0; i < cycles; ++i) ASSERT_TRUE(cycle(ForceCommand{}, s)) << i;
+  }
+
+  EmulatorOptions options_;
+  std::unique_ptr<Mf2Emulator> emu_;
+  SteadyClock clock_;
+  LinearMf2Calibration cal_;
+  std::unique_ptr<UsbMf2> dev_;
+};
+
+TEST_F(UsbMf2Test, ListsAndOpensByVendorAndProductId) {
+  const auto found = client::device::listUsbMf2();
+  ASSERT_EQ(found.size(), 1u) << "the testbed's bus holds exactly the emulated MF-2";
+  EXPECT_EQ(found[0].vendor_id, proto::kDefaultVendorId);
+  EXPECT_EQ(found[0].product_id, proto::kDefaultProductId);
+  EXPECT_EQ(found[0].serial, "MF2-EMU-0001");
+  EXPECT_EQ(found[0].bcd_device, 0x0100);
+  EXPECT_EQ(found[0].problem, "");
+  EXPECT_TRUE(client::device::listUsbMf2(0x1209, 0xbeef).empty());
+  EXPECT_NE(client::device::formatUsbMf2List(found, 0x1209, 0x4d32)
+                .find("MF-2 1209:4d32 at bus 001 address 001, firmware 1.00, serial MF2-EMU-0001: ready"),
+            std::string::npos);
+
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  EXPECT_NE(dev.statusText().find("streaming from bus 1 address 1, serial MF2-EMU-0001"),
+            std::string::npos) << dev.statusText();
+  EXPECT_EQ(dev.stats().connects.load(), 1u);
+}
+
+TEST_F(UsbMf2Test, NamesWhatIsMissingWhenNoMatchingDevice) {
+  UsbMf2Config other;
+  other.product_id = 0xbeef;
+  UsbMf2& dev = startDevice(other);
+  EXPECT_FALSE(dev.waitReady(500ms));
+  EXPECT_EQ(dev.status(), DeviceStatus::kNotReady);
+  EXPECT_NE(dev.statusText().find("no MF-2 (USB 1209:beef) attached"), std::string::npos)
+      << dev.statusText();
+  dev.stop();
+
+  UsbMf2Config serial;
+  serial.serial = "MF2-0042";
+  UsbMf2& dev2 = startDevice(serial);
+  EXPECT_FALSE(dev2.waitReady(500ms));
+  EXPECT_NE(dev2.statusText().find("has serial 'MF2-EMU-0001', not 'MF2-0042'"), std::string::npos)
+      << dev2.statusText();
+}
+
+TEST_F(UsbMf2Test, Streams5000CyclesWithContentCheckedBothWays) {
+  constexpr int kCycles = 5000;
+  const std::array<double, proto::kFsrs> fsr = {0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 19.9};
+  emu_->withFirmware([&](Mf2Firmware& fw) { fw.setFsrForces(fsr); });
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+
+  // Each cycle writes a force whose thumb-x current encodes the cycle number, reads the
+  // sample that follows and checks it against what the firmware sent with that seq.
+  std::vector<DeviceSample> samples;
+  samples.reserve(kCycles);
+  auto forceFor = [](int i) {
+    ForceCommand f;
+    const int ma = i % 2000 - 1000;  // thumb x: -1000..999 mA
+    f.force_n[kThumb] = Vec3(ma * 2e-3, 0.5, 0.0);   // n_per_amp = 2
+    f.force_n[kIndex] = Vec3(0.0, -0.25, -1.5);
+    return f;
+  };
+  const auto t0 = std::chrono::steady_clock::now();
+  for (int i = 0; i < kCycles; ++i) {
+    DeviceSample s;
+    ASSERT_TRUE(cycle(forceFor(i), s)) << "no sample in cycle " << i << ": " << dev.statusText();
+    samples.push_back(s);
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  dev.stop();
+  std::printf("5000 cycles in %.2f s: %.0f cycles/s\n", seconds, kCycles / seconds);
+
+  const auto& st = dev.stats();
+  EXPECT_EQ(st.rejectedTotal(), 0u);
+  EXPECT_EQ(st.stale.load() + st.out_of_order.load(), 0u);
+  EXPECT_GE(st.packets_in.load(), static_cast<uint64_t>(kCycles));
+
+  emu_->withFirmware([&](const Mf2Firmware& fw) {
+    // Device -> host: every sample is the firmware's state of that seq, through the calibration.
+    const auto& states = fw.states();
+    uint64_t prev_seq = 0;
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+      const DeviceSample& s = samples[i];
+      if (i > 0) {
+        ASSERT_GT(s.seq, prev_seq) << i;
+      }
+      prev_seq = s.seq;
+      ASSERT_LT(s.seq, states.size());
+      const proto::StatePacket& raw = states[s.seq];
+      PerFinger<client::device::FingerSample> expect;
+      cal_.toFingers(raw, expect);
+      for (int k = 0; k < 2; ++k) {
+        ASSERT_NEAR((s.fingers[k].position_m - expect[k].position_m).norm(), 0.0, 1e-12) << i;
+        ASSERT_NEAR(s.fingers[k].orientation.angularDistance(expect[k].orientation), 0.0, 1e-12);
+        for (int j = 0; j < 4; ++j) {
+          ASSERT_NEAR(s.fingers[k].fsr_n[j], fsr[4 * k + j], 0.5 * 20.0 / 4095.0 + 1e-6) << i;
+        }
+      }
+    }
+    // Host -> device: the firmware got one command per state, in order, none rejected, each
+    // carrying a force the loop wrote, and the cycle numbers never go backwards.
+    const auto& cmds = fw.commands();
+    EXPECT_GE(cmds.size(), static_cast<std::size_t>(kCycles));
+    EXPECT_EQ(fw.rxErrors(), 0u);
+    int last_cycle = -1;
+    int enabled = 0;
+    for (std::size_t i = 0; i < cmds.size(); ++i) {
+      const auto& c = cmds[i];
+      ASSERT_EQ(c.seq, i + 1) << "command sequence numbers run 1, 2, 3...";
+      ASSERT_EQ(c.watchdog_ms, 20);
+      if (!(c.flags & proto::kCommandEnable)) {
+        ASSERT_EQ(c.current_ma, (client::device::CurrentsMa{})) << "disabled means zero";
+        continue;
+      }
+      ++enabled;
+      ASSERT_EQ(c.current_ma[1], 250);
+      ASSERT_EQ(c.current_ma[2], 0);
+      ASSERT_EQ(c.current_ma[3], 0);
+      ASSERT_EQ(c.current_ma[4], -125);
+      ASSERT_EQ(c.current_ma[5], -750);
+      ASSERT_EQ(c.current_ma[6], 0);
+      const int cycle_mod = c.current_ma[0] + 1000;  // i % 2000
+      int cycle = last_cycle < 0 ? cycle_mod : last_cycle - last_cycle % 2000 + cycle_mod;
+      if (cycle < last_cycle) cycle += 2000;
+      ASSERT_LE(cycle - std::max(last_cycle, 0), 3) << "command " << i << " skipped cycles";
+      last_cycle = cycle;
+    }
+    EXPECT_GE(enabled, kCycles - 2);
+    EXPECT_GE(last_cycle, kCycles - 3) << "the last forces written reached the device";
+  });
+}
+
+TEST_F(UsbMf2Test, CorruptShortStaleAndOutOfOrderPacketsAreRejectedAndCounted) {
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  streamFor(20);
+  const struct {
+    Corruption kind;
+    proto::DecodeError error;  // kOk: a sequence check rejects it
+  } cases[] = {{Corruption::kBitFlip, proto::DecodeError::kBadCrc},
+               {Corruption::kShort, proto::DecodeError::kShort},
+               {Corruption::kBadMagic, proto::DecodeError::kBadMagic},
+               {Corruption::kDuplicate, proto::DecodeError::kOk},
+               {Corruption::kOutOfOrder, proto::DecodeError::kOk},
+               {Corruption::kBadVersion, proto::DecodeError::kBadVersion}};
+  uint64_t last_seq = 0;
+  for (const auto& c : cases) {
+    const uint64_t sent0 = emu_->counters().corrupted_sent;
+    emu_->corruptNext(c.kind, 5);
+    DeviceSample s;
+    ASSERT_TRUE(eventually([&] {
+      dev.write(ForceCommand{});
+      while (dev.read(s)) {
+        EXPECT_GT(s.seq, last_seq) << "a sample went backwards";
+        last_seq = s.seq;
+      }
+      return emu_->counters().corrupted_sent >= sent0 + 5;
+    }));
+    streamFor(10);  // and streaming goes on
+  }
+  const auto& st = dev.stats();
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kBadCrc)].load(), 5u);
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kShort)].load(), 5u);
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kBadMagic)].load(), 5u);
+  EXPECT_EQ(st.rejected[static_cast<int>(proto::DecodeError::kBadVersion)].load(), 5u);
+  EXPECT_EQ(st.stale.load(), 5u);
+  EXPECT_EQ(st.out_of_order.load(), 5u);
+  EXPECT_EQ(st.rejectedTotal(), 20u);
+  // Each bad packet took the place of a good one: the seq gaps are counted as lost.
+  EXPECT_EQ(st.lost.load(), 30u);
+  const std::string log = joined(dev.takeMessages());
+  EXPECT_NE(log.find("speaks protocol version 2; this client speaks version 1"), std::string::npos) << log;
+  EXPECT_EQ(dev.status(), DeviceStatus::kOk) << dev.statusText();
+}
+
+TEST_F(UsbMf2Test, StallsAreClearedAndStreamingResumes) {
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  streamFor(20);
+  emu_->stallIn();
+  ASSERT_TRUE(eventually([&] { return dev.stats().stalls.load() >= 1; }));
+  streamFor(50);
+  EXPECT_EQ(dev.status(), DeviceStatus::kOk);
+  emu_->stallOut();
+  ASSERT_TRUE(eventually([&] { return dev.stats().stalls.load() >= 2; }));
+  const uint64_t cmds = dev.stats().commands_out.load();
+  streamFor(50);
+  EXPECT_GT(dev.stats().commands_out.load(), cmds + 20) << "commands flow again";
+  EXPECT_EQ(emu_->counters().stalls_cleared, 2u);
+  const std::string log = joined(dev.takeMessages());
+  EXPECT_NE(log.find("state endpoint 0x81 stalled; clearing the halt"), std::string::npos) << log;
+  EXPECT_NE(log.find("state endpoint halt cleared; resuming"), std::string::npos) << log;
+  EXPECT_NE(log.find("command endpoint 0x01 stalled; clearing the halt"), std::string::npos) << log;
+  EXPECT_NE(log.find("command endpoint halt cleared; resuming"), std::string::npos) << log;
+}
+
+TEST_F(UsbMf2Test, ATimeoutIsReportedAndStreamingResumes) {
+  UsbMf2Config cfg;
+  cfg.in_timeout_ms = 50;
+  UsbMf2& dev = startDevice(cfg);
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  streamFor(20);
+  emu_->silence(300'000'000);
+  ASSERT_TRUE(eventually([&] { return dev.status() == DeviceStatus::kNotReady; }, 2s));
+  EXPECT_NE(dev.statusText().find("no state packet for 50 ms (IN transfer timeout)"), std::string::npos)
+      << dev.statusText();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  EXPECT_GE(dev.stats().timeouts.load(), 2u);
+  streamFor(50);
+  EXPECT_GE(emu_->counters().discarded, 2u) << "timed-out transfers were cancelled";
+}
+
+TEST_F(UsbMf2Test, OverflowsAreCountedAndStreamingContinues) {
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  streamFor(20);
+  emu_->overflowNext(3);
+  ASSERT_TRUE(eventually([&] { return dev.stats().overflows.load() >= 3; }));
+  streamFor(50);
+  EXPECT_EQ(dev.stats().overflows.load(), 3u);
+  EXPECT_EQ(dev.status(), DeviceStatus::kOk);
+  const std::string log = joined(dev.takeMessages());
+  EXPECT_NE(log.find("overflowed the 128-byte buffer (overflow); dropped"), std::string::npos) << log;
+}
+
+TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
+  // The operator pushes both thimbles: the loop renders a real force against the push.
+  const JointModel joint(healthyIndexMcp());
+  const auto a = joint.gripFromAngles(Vec3(degToRad(20.0), 0, 0), 0.008);
+  const auto b = joint.gripFromAngles(Vec3(degToRad(21.0), 0, 0), 0.008);
+  const Vec3 flex = (b[0] + b[1] - a[0] - a[1]).normalized();  // where flexion moves the grip
+  emu_->withFirmware([&](Mf2Firmware& fw) {
+    for (int i = 0; i < 3; ++i) {
+      fw.setExternalForce(i, 1.0 * flex[i]);
+      fw.setExternalForce(3 + i, 1.0 * flex[i]);
+    }
+  });
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  const JointModelParams model = healthyIndexMcp();
+  client::loop::HapticLoop loop(dev, clock_, model, SafetyLimits{});
+  telehand_msg_DeviceState rec{};
+  auto forceOf = [](const telehand_msg_DeviceState& s) {
+    return Vec3(s.fingers[0].command_n[0], s.fingers[0].command_n[1], s.fingers[0].command_n[2]).norm() +
+           Vec3(s.fingers[1].command_n[0], s.fingers[1].command_n[1], s.fingers[1].command_n[2]).norm();
+  };
+  // One tick per millisecond from this thread; returns the status seen before the tick.
+  auto tick = [&](telehand_msg_DeviceState& out) {
+    const DeviceStatus before = dev.status();
+    loop.step();
+    EXPECT_TRUE(loop.samples().tryPop(out));
+    std::this_thread::sleep_for(1ms);
+    return before;
+  };
+  double force = 0.0;
+  for (int i = 0; i < 300; ++i) {
+    tick(rec);
+    force = forceOf(rec);
+  }
+  ASSERT_GT(force, 0.2) << "the loop renders a force before the unplug; flags " << rec.flags
+                        << " angles " << rec.mcp_angles_rad[0] << " " << rec.mcp_angles_rad[1]
+                        << " torque " << rec.mcp_torque_nm[0] << " status " << dev.statusText()
+                        << " read failures " << loop.health().device_read_failures.load();
+
+  const auto t_unplug = std::chrono::steady_clock::now();
+  emu_->unplug();
+  bool seen_down = false;
+  int ticks_after = 0;
+  for (int i = 0; i < 2000 && ticks_after < 50; ++i) {
+    const DeviceStatus before = tick(rec);
+    if (before != DeviceStatus::kOk) {
+      if (!seen_down) {
+        const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                                    t_unplug).count();
+        std::printf("unplug seen by the driver after %.1f ms\n", ms);
+        EXPECT_LT(ms, 1000.0);
+      }
+      seen_down = true;
+      ASSERT_EQ(forceOf(rec), 0.0) << "the first tick after the driver knew, and every one after";
+      ASSERT_TRUE(rec.flags & telehand_msg_kFlagWatchdog);
+      ++ticks_after;
+    }
+  }
+  ASSERT_TRUE(seen_down);
+  EXPECT_EQ(dev.status(), DeviceStatus::kDisconnected);
+  EXPECT_NE(dev.statusText().find("disconnected (unplugged): forces zeroed"), std::string::npos)
+      << dev.statusText();
+  EXPECT_EQ(dev.stats().disconnects.load(), 1u);
+
+  emu_->replug();
+  bool back = false;
+  for (int i = 0; i < 5000 && !back; ++i) back = tick(rec) == DeviceStatus::kOk;
+  ASSERT_TRUE(back) << dev.statusText();
+  EXPECT_EQ(dev.stats().connects.load(), 2u);
+  // Force returns, ramped from zero by the safety gate's rate limit (200 N/s per finger).
+  EXPECT_LT(forceOf(rec), 0.5) << "the first tick back";
+  for (int i = 0; i < 300; ++i) {
+    tick(rec);
+    force = forceOf(rec);
+  }
+  EXPECT_GT(force, 0.2);
+  const std::string log = joined(dev.takeMessages());
+  EXPECT_NE(log.find("disconnected (unplugged)"), std::string::npos) << log;
+  EXPECT_NE(log.find("MF-2 streaming from bus 1 address 1"), std::string::npos) << log;
+  EXPECT_GT(loop.health().device_not_ok.load(), 0u);
+}
+
+TEST_F(UsbMf2Test, DeviceGetsZeroWhenTheLoopStopsWritingAndHonoursTheEmergencyStop) {
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  ForceCommand push;
+  push.force_n[kThumb] = Vec3(1.0, 0.0, 0.0);
+  DeviceSample s;
+  for (int i = 0; i < 30; ++i) ASSERT_TRUE(cycle(push, s));
+  EXPECT_NEAR(emu_->withFirmware([](Mf2Firmware& fw) { return fw.appliedCurrentA()[0]; }), 0.5, 1e-9);
+
+  // The loop stops writing: after command_fresh_ns the device is sent zero, disabled.
+  std::this_thread::sleep_for(50ms);
+  ASSERT_TRUE(eventually([&] {
+    return emu_->withFirmware([](Mf2Firmware& fw) { return !fw.enabled() && fw.appliedCurrentA()[0] == 0.0; });
+  }));
+  EXPECT_GT(dev.stats().stale_loop_output.load(), 0u);
+
+  // Emergency stop from the host: latched on the device, reported, cleared on request.
+  for (int i = 0; i < 10; ++i) ASSERT_TRUE(cycle(push, s));
+  dev.emergencyStop(true);
+  ASSERT_TRUE(eventually([&] { return dev.status() == DeviceStatus::kFault; }));
+  EXPECT_NE(dev.statusText().find("emergency stop"), std::string::npos) << dev.statusText();
+  EXPECT_TRUE(emu_->withFirmware([](Mf2Firmware& fw) { return fw.estopLatched(); }));
+  EXPECT_EQ(emu_->withFirmware([](Mf2Firmware& fw) { return fw.appliedCurrentA()[0]; }), 0.0);
+  dev.emergencyStop(false);
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return dev.status() == DeviceStatus::kOk;
+  })) << dev.statusText();
+
+  // The hardware button.
+  emu_->withFirmware([](Mf2Firmware& fw) { fw.pressEstopButton(true); });
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return dev.status() == DeviceStatus::kFault;
+  }));
+  EXPECT_NE(dev.statusText().find("emergency stop button pressed"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace telehand::test::usb
