@@ -65,6 +65,17 @@ int main(int argc, char** argv) {
   auto* rt = app.add_option("--rt-priority", cfg.loop.rt_priority,
                             "run the 1 kHz loop at this SCHED_FIFO priority (1-99; needs CAP_SYS_NICE)")
                  ->check(CLI::Range(1, 99));
+  std::string render = "model";
+  double deadband = 0.0;
+  bool no_pc = false;
+  app.add_option("--render", render,
+                 "model: render from the local joint model (model-mediated); direct: render the "
+                 "force the server computes (the baseline design)")
+      ->check(CLI::IsMember({"model", "direct"}))->capture_default_str();
+  app.add_option("--deadband", deadband,
+                 "perceptual deadband on the live DeviceState stream, Weber fraction (e.g. 0.05; 0 = every sample)")
+      ->check(CLI::Range(0.0, 0.5))->capture_default_str();
+  app.add_flag("--no-passivity-control", no_pc, "passivity observer only, no added damping");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   uint64_t follow = 0;
   std::string stiffness = "cubic", patient_name = "healthy", cases_dir = TELEHAND_DEPLOY_DIR "/cases";
@@ -150,8 +161,12 @@ int main(int argc, char** argv) {
       device_owner = std::move(sim);
     }
     client::device::Device& device = *device_owner;
-    client::loop::HapticLoop loop(device, clock, initial, cfg.safety, cfg.loop);
+    client::loop::TeleopOptions teleop;
+    teleop.render = render == "direct" ? client::loop::RenderMode::kDirect : client::loop::RenderMode::kModel;
+    teleop.passivity.control = !no_pc;
+    client::loop::HapticLoop loop(device, clock, initial, cfg.safety, cfg.loop, teleop);
     client::link::ClientLink link(dds_opts, loop);
+    link.setDeadband(DeadbandConfig{deadband});
 
     client::link::OpenRequest req;
     req.mode = mode;
@@ -159,6 +174,7 @@ int main(int argc, char** argv) {
     req.user = user;
     req.follow_session = follow;
     req.stiffness = stiffness == "knn" ? telehand_msg_STIFFNESS_KNN : telehand_msg_STIFFNESS_CUBIC;
+    req.direct_force = teleop.render == client::loop::RenderMode::kDirect;
     const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(connect_timeout * 1000));
     const uint64_t session = link.open(req, timeout);
     if (!link.awaitModel(timeout)) {
@@ -192,6 +208,7 @@ int main(int argc, char** argv) {
     const bool tty = isatty(STDOUT_FILENO) != 0;
     double applied_min = 1e9, applied_max = 0.0;
     auto next_print = t0 + 1s;
+    uint64_t live_prev = 0;
     while (!g_stop_requested.load()) {
       std::this_thread::sleep_for(50ms);
       const auto now = std::chrono::steady_clock::now();
@@ -208,12 +225,15 @@ int main(int argc, char** argv) {
       if (t >= seconds) break;
       if (!quiet && now >= next_print) {
         next_print += 1s;
-        char line[200];
+        const uint64_t live = link.stats().live_sent.load();
+        char line[240];
         std::snprintf(line, sizeof line,
-                      "%s t=%5.1fs  sent %7llu  overruns %llu  force %.2f N  applied %5.1f N ref  model v%u",
+                      "%s t=%5.1fs  sent %7llu  live %4llu/s  overruns %llu  force %.2f N  applied %5.1f N ref  model v%u  PO %.3f J",
                       tty ? "\r" : "", t, static_cast<unsigned long long>(link.stats().samples_sent.load()),
+                      static_cast<unsigned long long>(live - live_prev),
                       static_cast<unsigned long long>(h.overruns.load()), h.last_force_n.load(),
-                      h.applied_ref_n.load(), h.model_version.load());
+                      h.applied_ref_n.load(), h.model_version.load(), h.passivity_energy_j.load());
+        live_prev = live;
         std::cout << line << (tty ? "" : "\n") << std::flush;
       }
     }
@@ -252,6 +272,19 @@ int main(int argc, char** argv) {
                   h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max,
                   cfg.op.band_min_n, cfg.op.band_max_n);
     }
+    std::printf("  teleop: render %s; DeviceState live %.1f packets/s (%llu of %llu samples%s)%s; "
+                "passivity energy %.4f J (lowest %.4f J), controller active %llu ticks; "
+                "%llu model updates, largest update step %.3f N (%.2f of the bound)\n",
+                render.c_str(), static_cast<double>(link.stats().live_sent.load()) / std::max(duration, 1e-3),
+                static_cast<unsigned long long>(link.stats().live_sent.load()),
+                static_cast<unsigned long long>(sent), deadband > 0.0 ? ", deadband" : "",
+                render == "direct" ? (", " + std::to_string(link.stats().direct_forces.load()) +
+                                      " server forces received").c_str()
+                                   : "",
+                h.passivity_energy_j.load(), h.passivity_min_energy_j.load(),
+                static_cast<unsigned long long>(h.passivity_activations.load()),
+                static_cast<unsigned long long>(h.models_applied.load()), h.update_step_max_n.load(),
+                h.update_step_max_ratio.load());
     if (usb != nullptr) {
       const auto& u = usb->stats();
       const uint64_t rtts = u.rtt_count.load();

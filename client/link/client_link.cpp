@@ -26,11 +26,15 @@ ClientLink::ClientLink(const dds::Options& options, loop::HapticLoop& loop)
       participant_(options),
       topics_(participant_),
       device_writer_(participant_, topics_.device_state, dds::qos::deviceState()),
-      chunk_writer_(participant_, topics_.record_chunk, dds::qos::recordChunk()),
+      // A full reliable history (a long, lossy link) must not hold up the live stream that
+      // shares this thread: the chunk is kept and retried instead of blocking.
+      chunk_writer_(participant_, topics_.record_chunk,
+                    dds::qos::recordChunk().reliable(std::chrono::milliseconds(1))),
       command_writer_(participant_, topics_.session_command, dds::qos::sessionCommand()),
       model_reader_(participant_, topics_.joint_model, dds::qos::jointModel()),
       status_reader_(participant_, topics_.session_status, dds::qos::sessionStatus()),
       event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
+      direct_reader_(participant_, topics_.direct_force, dds::qos::directForce(64)),
       client_id_(randomClientId()),
       capture_topics_(participant_),
       file_writer_(participant_, capture_topics_.session_file, dds::qos::sessionFile()),
@@ -54,6 +58,7 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
   }
   telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_OPEN);
   cmd.mode = req.mode;
+  cmd.direct_force = req.direct_force;
   copyString(cmd.case_name, req.case_name);
   copyString(cmd.user, req.user);
   copyString(cmd.text, "");
@@ -106,6 +111,7 @@ void ClientLink::run() {
   prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);  // its 0.5 ms naps are the samples' latency
   while (running_.load(std::memory_order_acquire)) {
     pump(false);
+    pollDirectForces();
     pollModels();
     pollEvents();
     std::this_thread::sleep_for(std::chrono::microseconds(500));
@@ -115,7 +121,14 @@ void ClientLink::run() {
 void ClientLink::pump(bool final_flush) {
   telehand_msg_DeviceState s;
   while (loop_.samples().tryPop(s)) {
-    if (device_writer_.write(s) < 0) stats_.live_write_errors.fetch_add(1);
+    // Deadband: the live stream carries only what a remote side would notice; the record
+    // (chunks below) carries every sample, marked with whether it also went out live.
+    if (deadband_.config().enabled()) s.flags |= telehand_msg_kFlagDeadband;
+    if (deadband_.admit(s, s.source_time_ns)) {
+      s.flags |= telehand_msg_kFlagSentLive;
+      if (device_writer_.write(s) < 0) stats_.live_write_errors.fetch_add(1);
+      stats_.live_sent.fetch_add(1, std::memory_order_relaxed);
+    }
     stats_.samples_sent.fetch_add(1, std::memory_order_relaxed);
     stats_.last_seq.store(s.seq, std::memory_order_relaxed);
     if (chunk_.empty()) chunk_started_ = std::chrono::steady_clock::now();
@@ -223,6 +236,17 @@ void ClientLink::sendFiles(const std::vector<mf2::NamedFile>& files) {
     w.content = const_cast<char*>(f.content.c_str());
     dds::check(file_writer_.write(w), "write SessionFile");
   }
+}
+
+void ClientLink::pollDirectForces() {
+  direct_reader_.take([&](const telehand_msg_DirectForce& f, const dds_sample_info_t&) {
+    if (f.session_id != session_id_) return;
+    loop::DirectForceSample d;
+    d.device_seq = f.device_seq;
+    for (int k = 0; k < 2; ++k) d.force_n[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
+    stats_.direct_forces.fetch_add(1, std::memory_order_relaxed);
+    loop_.directForces().tryPush(d);  // full: the loop holds the last one it took
+  });
 }
 
 void ClientLink::pollEvents() {

@@ -18,6 +18,7 @@
 #include "telehand/common/dds_capture.h"
 #include "telehand/common/knn_model.h"
 #include "telehand/common/mf2_device.h"
+#include "telehand/common/deadband.h"
 
 namespace telehand::client::link {
 
@@ -30,6 +31,8 @@ struct LinkStats {
   std::atomic<uint64_t> models_received{0};
   std::atomic<uint64_t> models_rejected{0};
   std::atomic<uint64_t> last_seq{0};
+  std::atomic<uint64_t> live_sent{0};          ///< DeviceState packets that went out (deadband)
+  std::atomic<uint64_t> direct_forces{0};      ///< DirectForce packets received (direct mode)
 };
 
 struct OpenRequest {
@@ -38,6 +41,7 @@ struct OpenRequest {
   std::string user = "student";
   uint64_t follow_session = 0;  ///< render this capture session's live fit
   telehand_msg_StiffnessKind stiffness = telehand_msg_STIFFNESS_CUBIC;
+  bool direct_force = false;   ///< baseline: the server computes the force
 };
 
 struct CloseResult {
@@ -57,6 +61,9 @@ class ClientLink {
   uint64_t open(const OpenRequest& req, std::chrono::milliseconds timeout);
   /// Wait for the session's first JointModel and hand it to the loop; false on timeout.
   bool awaitModel(std::chrono::milliseconds timeout);
+
+  /// Deadband coding of the live DeviceState stream (set before start).
+  void setDeadband(const DeadbandConfig& c) { deadband_ = DeviceStateDeadband(c); }
 
   void start();
   /// Drain every remaining sample and chunk (the loop must be stopped first).
@@ -82,6 +89,7 @@ class ClientLink {
   void flushChunk(bool force);
   void pollModels();
   void pollEvents();
+  void pollDirectForces();
 
   loop::HapticLoop& loop_;
   dds::Participant participant_;
@@ -92,6 +100,8 @@ class ClientLink {
   dds::Reader<telehand_msg_JointModel> model_reader_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;
   dds::Reader<telehand_msg_SessionEvent> event_reader_;
+  dds::Reader<telehand_msg_DirectForce> direct_reader_;
+  DeviceStateDeadband deadband_;
 
   uint64_t client_id_;
   uint32_t request_seq_ = 0;

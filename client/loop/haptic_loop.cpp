@@ -19,14 +19,17 @@ void bump(std::atomic<uint64_t>& c) noexcept { c.fetch_add(1, std::memory_order_
 
 HapticLoop::HapticLoop(device::Device& device, const Clock& clock,
                        const JointModelParams& initial_model, const SafetyLimits& limits,
-                       const LoopConfig& config)
+                       const LoopConfig& config, const TeleopOptions& teleop)
     : device_(device),
       clock_(clock),
       config_(config),
-      proxy_(initial_model),
+      proxy_(initial_model, teleop.blend_ns),
       gate_(limits),
       samples_(std::make_unique<SampleRing>()),
-      models_(std::make_unique<ModelRing>()) {
+      models_(std::make_unique<ModelRing>()),
+      forces_(std::make_unique<ForceRing>()),
+      passivity_(teleop.passivity),
+      direct_(teleop.render == RenderMode::kDirect) {
   health_.model_version.store(initial_model.version, std::memory_order_relaxed);
   wall_offset_ns_ = wallNs() - clock_.nowNs();
 }
@@ -57,11 +60,43 @@ StepStatus HapticLoop::step() noexcept {
   }
 
   PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};
+  // The energy the last tick's force exchanged with the operator.
+  passivity_.observe(p, last_command_, sample_.time_ns);
+  const double energy = passivity_.energyJ();
+  // A model fade may only add what the rendered joint has dissipated so far: the observed
+  // energy minus what the joint stores now.
+  proxy_.setEnergyBudget(energy - stored_energy_j_);
   const ProxyOutput rendered = proxy_.render(p, now);
-  PerFinger<Vec3> request = rendered.force_device_n;
+  stored_energy_j_ = rendered.potential_j;
+  const bool direct = direct_.load(std::memory_order_relaxed);
+  DirectForceSample df;
+  while (forces_->tryPop(df)) {
+    if (df.device_seq >= direct_force_.device_seq) direct_force_ = df;  // reordered: keep newest
+    bump(health_.direct_forces);
+  }
+  PerFinger<Vec3> request = direct ? direct_force_.force_n : rendered.force_device_n;
   if (!actuators_.load(std::memory_order_relaxed)) request = {Vec3::Zero(), Vec3::Zero()};
+  const PassivityOutput guarded = passivity_.control(request);
   gate_.setCapture(!actuators_.load(std::memory_order_relaxed));
-  const SafetyOutput safe = gate_.apply(request, now, last_sample_time_ns_);
+  const SafetyOutput safe = gate_.apply(guarded.force_n, now, last_sample_time_ns_);
+  last_command_ = safe.force_n;
+  if (guarded.damping_ns_per_m > 0.0) bump(health_.passivity_activations);
+  health_.passivity_energy_j.store(energy, std::memory_order_relaxed);
+  if (energy < health_.passivity_min_energy_j.load(std::memory_order_relaxed)) {
+    health_.passivity_min_energy_j.store(energy, std::memory_order_relaxed);
+  }
+  if (rendered.update_step_n > 0.0) {
+    double force = 0.0;
+    for (int k = 0; k < 2; ++k) force = std::max(force, rendered.force_device_n[k].norm());
+    const double ratio = rendered.update_step_n /
+                         std::max(JointProxy::kUpdateStepFraction * force, JointProxy::kUpdateStepFloorN);
+    if (rendered.update_step_n > health_.update_step_max_n.load(std::memory_order_relaxed)) {
+      health_.update_step_max_n.store(rendered.update_step_n, std::memory_order_relaxed);
+    }
+    if (ratio > health_.update_step_max_ratio.load(std::memory_order_relaxed)) {
+      health_.update_step_max_ratio.store(ratio, std::memory_order_relaxed);
+    }
+  }
   if (safe.flags & kSafetyWatchdog) bump(health_.watchdog_trips);
   if (safe.flags & kSafetyNonFinite) bump(health_.nonfinite);
   if (safe.flags & kSafetyClamped) bump(health_.clamped);
@@ -80,9 +115,13 @@ StepStatus HapticLoop::step() noexcept {
   s.model_version = proxy_.version();
   s.flags = safe.flags | (rendered.blending ? telehand_msg_kFlagModelBlending : 0u) |
             (actuators_.load(std::memory_order_relaxed) ? 0u : telehand_msg_kFlagCapture) |
+            (guarded.damping_ns_per_m > 0.0 ? telehand_msg_kFlagPassivityControl : 0u) |
+            (direct ? telehand_msg_kFlagDirectForce : 0u) |
             (static_cast<uint32_t>(sample_.fingers[kThumb].fsr_fault_mask & 0xFu) |
              static_cast<uint32_t>(sample_.fingers[kIndex].fsr_fault_mask & 0xFu) << 4)
                 << telehand_msg_kFlagFsrFaultShift;
+  s.passivity_energy_j = static_cast<float>(energy);
+  s.passivity_damping = static_cast<float>(guarded.damping_ns_per_m);
   Vec3 applied = Vec3::Zero();
   double force_max = 0.0;
   for (int k = 0; k < 2; ++k) {

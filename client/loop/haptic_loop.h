@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "client/device/device.h"
+#include "client/loop/passivity.h"
 #include "telehand.h"
 #include "telehand/common/clock.h"
 #include "telehand/common/config.h"
@@ -35,6 +36,29 @@ struct LoopHealth {
   std::atomic<double> applied_ref_n{0.0};     ///< student's applied force, reference scale
   std::atomic<int64_t> max_lateness_ns{0};    ///< worst wake-up after a deadline
   std::atomic<uint64_t> device_not_ok{0};     ///< ticks the device was not streaming (zero force)
+  // Teleoperation.
+  std::atomic<double> passivity_energy_j{0.0};    ///< observer energy now (device J)
+  std::atomic<double> passivity_min_energy_j{0.0};///< lowest observer energy seen
+  std::atomic<uint64_t> passivity_activations{0}; ///< ticks the controller added damping
+  std::atomic<double> update_step_max_n{0.0};     ///< largest force step from a model update
+  std::atomic<double> update_step_max_ratio{0.0}; ///< ... over max(5 % of the force, 0.1 N)
+  std::atomic<uint64_t> direct_forces{0};         ///< server forces taken (direct mode)
+};
+
+/// A force the server computed for the device sample `device_seq` (direct mode).
+struct DirectForceSample {
+  uint64_t device_seq = 0;
+  PerFinger<Vec3> force_n{Vec3::Zero(), Vec3::Zero()};
+};
+
+/// How the loop renders: from the local joint model (model-mediated, the product), or the
+/// force the server sends back (direct, the baseline design it is compared with).
+enum class RenderMode { kModel, kDirect };
+
+struct TeleopOptions {
+  RenderMode render = RenderMode::kModel;
+  PassivityConfig passivity;
+  int64_t blend_ns = 200'000'000;  ///< nominal model fade
 };
 
 enum class StepStatus { kOk, kNoSample, kSafetyFault };
@@ -43,9 +67,11 @@ class HapticLoop {
  public:
   using SampleRing = SpscRing<telehand_msg_DeviceState, 16384>;  // 16 s of samples at 1 kHz
   using ModelRing = SpscRing<JointModelParams, 8>;
+  using ForceRing = SpscRing<DirectForceSample, 256>;
 
   HapticLoop(device::Device& device, const Clock& clock, const JointModelParams& initial_model,
-             const SafetyLimits& limits, const LoopConfig& config = {});
+             const SafetyLimits& limits, const LoopConfig& config = {},
+             const TeleopOptions& teleop = {});
   ~HapticLoop();
   HapticLoop(const HapticLoop&) = delete;
   HapticLoop& operator=(const HapticLoop&) = delete;
@@ -70,6 +96,12 @@ class HapticLoop {
 
   SampleRing& samples() noexcept { return *samples_; }   ///< RT produces, link consumes
   ModelRing& models() noexcept { return *models_; }      ///< link produces, RT consumes
+  ForceRing& directForces() noexcept { return *forces_; }  ///< link produces, RT consumes
+  /// Set before start or between ticks.
+  void setRenderMode(RenderMode m) noexcept { direct_.store(m == RenderMode::kDirect, std::memory_order_release); }
+  RenderMode renderMode() const noexcept {
+    return direct_.load(std::memory_order_acquire) ? RenderMode::kDirect : RenderMode::kModel;
+  }
   const LoopHealth& health() const noexcept { return health_; }
   uint64_t nextSeq() const noexcept { return next_seq_.load(std::memory_order_acquire); }
 
@@ -83,7 +115,13 @@ class HapticLoop {
   SafetyGate gate_;
   std::unique_ptr<SampleRing> samples_;
   std::unique_ptr<ModelRing> models_;
+  std::unique_ptr<ForceRing> forces_;
+  PassivityGuard passivity_;
   LoopHealth health_;
+  std::atomic<bool> direct_{false};
+  PerFinger<Vec3> last_command_{Vec3::Zero(), Vec3::Zero()};
+  DirectForceSample direct_force_{};
+  double stored_energy_j_ = 0.0;  // the rendered joint's potential energy last tick
   std::atomic<uint64_t> session_id_{0};
   std::atomic<bool> actuators_{true};
   std::atomic<uint64_t> next_seq_{0};

@@ -189,7 +189,9 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
   sv.read("close_grace_s", c.close_grace_s);
   sv.read("cases_dir", c.cases_dir);
   sv.read("hand_model", c.hand_model);
+  sv.read("hand_deadband_weber", c.hand_deadband_weber);
   sv.rejectUnknown();
+  requireRange(origin, "server.hand_deadband_weber", c.hand_deadband_weber, 0.0, 0.5);
   if (c.db_path.empty()) fail(origin, "'server.db' must not be empty");
   requireRange(origin, "server.hand_state_hz", c.hand_state_hz, 1.0, 1000.0);
   requireRange(origin, "server.close_grace_s", c.close_grace_s, 0.0, 600.0);

@@ -94,6 +94,11 @@ Qos jointModel() {
   q.reliable().keepLast(1).transientLocal();
   return q;
 }
+Qos directForce(int32_t depth) {
+  Qos q;
+  q.bestEffort().keepLast(depth).volatileDurability();
+  return q;
+}
 Qos handState() {
   Qos q;
   q.bestEffort().keepLast(1).volatileDurability();
@@ -166,7 +171,8 @@ Topics::Topics(const Participant& p)
       session_status(p, topic::kSessionStatus),
       session_event(p, topic::kSessionEvent),
       latency_ping(p, topic::kLatencyPing),
-      latency_pong(p, topic::kLatencyPong) {}
+      latency_pong(p, topic::kLatencyPong),
+      direct_force(p, topic::kDirectForce) {}
 
 std::vector<dds_attach_t> WaitSet::wait(std::chrono::nanoseconds timeout) {
   dds_attach_t xs[16];

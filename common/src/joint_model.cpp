@@ -209,15 +209,59 @@ double JointModel::restAngleRad(int axis) const noexcept {
   return degToRad(0.5 * (lo + hi));
 }
 
-JointProxy::JointProxy(const JointModelParams& initial, int64_t blend_ns)
-    : current_(initial), previous_(initial), blend_ns_(blend_ns) {}
+double JointModel::potentialEnergyJ(const Vec3& angles_rad) const noexcept {
+  // Simpson's rule on each piece where the force is smooth: the cubic inside the range (exact
+  // without a neutral zone) and the wall beyond it.
+  auto integrate = [this](int axis, double from_deg, double to_deg) {
+    constexpr int kIntervals = 16;
+    const double h = (to_deg - from_deg) / kIntervals;
+    if (h == 0.0) return 0.0;
+    double sum = 0.0;
+    for (int i = 0; i <= kIntervals; ++i) {
+      const double w = (i == 0 || i == kIntervals) ? 1.0 : (i % 2 ? 4.0 : 2.0);
+      sum += w * holdingForceN(axis, degToRad(from_deg + i * h));
+    }
+    return sum * h / 3.0;  // N·deg
+  };
+  double j = 0.0;
+  for (int i = 0; i < kAxes; ++i) {
+    const CubicCurve& c = p_.axes[static_cast<std::size_t>(i)];
+    const double deg = radToDeg(angles_rad[i]);
+    if (!std::isfinite(deg)) return 0.0;
+    const double rest = rest_deg_[static_cast<std::size_t>(i)];
+    const double in = std::clamp(deg, c.min_deg, c.max_deg);
+    const double n_deg = integrate(i, rest, in) + integrate(i, in, deg);
+    j += std::max(n_deg, 0.0) * degToRad(1.0) * p_.lever_arm_m;
+  }
+  return j * p_.force_scale;
+}
 
-void JointProxy::setModel(const JointModelParams& next, int64_t now_ns) noexcept {
-  if (next == current_.params()) return;  // same joint (e.g. the first publication): no fade
+JointProxy::JointProxy(const JointModelParams& initial, int64_t blend_ns)
+    : current_(initial), previous_(initial), pending_(initial), blend_ns_(blend_ns) {}
+
+void JointProxy::startFade(const JointModelParams& next) noexcept {
   previous_ = current_;
   current_ = JointModel(next);
-  blend_start_ns_ = now_ns;
+  weight_ = blend_ns_ > 0 ? 0.0 : 1.0;
   blending_ = blend_ns_ > 0;
+  have_last_fade_ = false;
+}
+
+void JointProxy::setModel(const JointModelParams& next, int64_t now_ns) noexcept {
+  if (blending_) {
+    // Switching targets mid-fade would step the force: the newest version waits its turn.
+    if (next == current_.params()) {
+      have_pending_ = false;
+    } else {
+      pending_ = JointModel(next);
+      have_pending_ = true;
+    }
+    return;
+  }
+  if (next == current_.params()) return;  // same joint (e.g. the first publication): no fade
+  startFade(next);
+  fade_ns_ = now_ns;
+  have_last_fade_ = true;
 }
 
 ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p,
@@ -244,23 +288,64 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   last_ns_ = now_ns;
   last_angles_ = angles;
 
-  ProxyOutput out = renderWith(current_, p, angles, rates_);
-  if (blending_) {
-    const double w_lin = static_cast<double>(now_ns - blend_start_ns_) /
-                         static_cast<double>(blend_ns_);
-    if (w_lin >= 1.0) {
-      blending_ = false;
-    } else {
-      const double w = std::clamp(w_lin, 0.0, 1.0);
-      const double s = w * w * (3.0 - 2.0 * w);  // smoothstep: no slope step at either end
-      const ProxyOutput old = renderWith(previous_, p, angles, rates_);
-      out.torque_ref_nm = s * out.torque_ref_nm + (1.0 - s) * old.torque_ref_nm;
-      for (int k = 0; k < 2; ++k) {
-        out.force_device_n[k] = s * out.force_device_n[k] + (1.0 - s) * old.force_device_n[k];
-      }
-      out.blending = true;
+  if (!blending_ && have_pending_) {
+    have_pending_ = false;
+    if (!(pending_.params() == current_.params())) {
+      startFade(pending_.params());
     }
   }
+  if (!have_last_fade_) {  // a fade that starts on this tick
+    fade_ns_ = now_ns;
+    fade_start_ns_ = now_ns;
+    have_last_fade_ = true;
+  }
+
+  ProxyOutput out = renderWith(current_, p, angles, rates_);
+  const double v_current = current_.potentialEnergyJ(angles);
+  out.potential_j = v_current;
+  if (!blending_) return out;
+
+  const ProxyOutput old = renderWith(previous_, p, angles, rates_);
+  double gap = 0.0, now_force = 0.0;
+  for (int k = 0; k < 2; ++k) {
+    gap = std::max(gap, (out.force_device_n[k] - old.force_device_n[k]).norm());
+    now_force = std::max(now_force, (weight_ * out.force_device_n[k] +
+                                     (1.0 - weight_) * old.force_device_n[k]).norm());
+  }
+  // The nominal pace: the whole fade in blend_ns.
+  const double dt_ns = static_cast<double>(std::max<int64_t>(now_ns - fade_ns_, 0));
+  fade_ns_ = std::max(fade_ns_, now_ns);
+  double dw = std::min(dt_ns / static_cast<double>(blend_ns_), 1.0 - weight_);
+  // No tick's force changes by more than the bound because of the update (0.9: margin for
+  // the force itself moving within the tick).
+  const double bound = 0.9 * std::max(kUpdateStepFraction * now_force, kUpdateStepFloorN);
+  if (gap * dw > bound) dw = bound / gap;
+  // A stiffer model stores more energy at these angles: that difference must be paid for.
+  const double v_previous = previous_.potentialEnergyJ(angles);
+  const double dv = v_current - v_previous;
+  // A joint held where nothing dissipates would keep the old model for ever (a follower
+  // feeling a capture would never get the fit): after kEnergyWaitNs the fade goes on at its
+  // nominal pace, still under the step bound, and the passivity controller removes whatever
+  // energy it adds once the operator takes it back.
+  const bool waited_out = now_ns - fade_start_ns_ > kEnergyWaitNs;
+  if (dv > 0.0 && dw * dv > energy_budget_j_ && !waited_out) dw = std::max(energy_budget_j_, 0.0) / dv;
+  dw = std::max(dw, 0.0);
+  weight_ += dw;
+  energy_budget_j_ -= dw * dv;
+  out.update_step_n = dw * gap;
+  out.blend_energy_j = dw * dv;
+  if (weight_ >= 1.0 - 1e-9) {
+    weight_ = 1.0;
+    blending_ = false;
+    return out;  // exactly the new model from here on
+  }
+  const double w = weight_;
+  out.potential_j = w * v_current + (1.0 - w) * v_previous;
+  out.torque_ref_nm = w * out.torque_ref_nm + (1.0 - w) * old.torque_ref_nm;
+  for (int k = 0; k < 2; ++k) {
+    out.force_device_n[k] = w * out.force_device_n[k] + (1.0 - w) * old.force_device_n[k];
+  }
+  out.blending = true;
   return out;
 }
 

@@ -20,6 +20,10 @@ int main(int argc, char** argv) {
   app.add_option("-c,--config", config_path, "TOML file with a [server] table")->check(CLI::ExistingFile);
   app.add_option("--db", db, "record database (overrides server.db; default records/telehand.db)");
   app.add_option("--hand-rate", hand_hz, "HandState rate in Hz (60-100 recommended)");
+  double hand_deadband = -1.0;
+  app.add_option("--hand-deadband", hand_deadband,
+                 "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
+      ->check(CLI::Range(0.0, 0.5));
   app.add_option("--domain", dds_opts.domain, "DDS domain id")->check(CLI::Range(0, 230));
   app.add_option("--partition", dds_opts.partition, "DDS partition")->capture_default_str();
   app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
@@ -39,6 +43,7 @@ int main(int argc, char** argv) {
     ServerConfig cfg = config_path.empty() ? ServerConfig{} : loadServerConfig(config_path);
     if (!db.empty()) cfg.db_path = db;
     if (hand_hz > 0.0) cfg.hand_state_hz = hand_hz;
+    if (hand_deadband >= 0.0) cfg.hand_deadband_weber = hand_deadband;
     if (cfg.hand_model.empty()) cfg.hand_model = hand == "none" ? "" : hand;
     if (cfg.cases_dir.empty()) cfg.cases_dir = cases;
     std::optional<server::sim::HandModel> hand_model;

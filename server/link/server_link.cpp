@@ -23,6 +23,7 @@ ServerLink::ServerLink(const dds::Options& options)
       hand_writer_(participant_, topics_.hand_state, dds::qos::handState()),
       status_writer_(participant_, topics_.session_status, dds::qos::sessionStatus()),
       event_writer_(participant_, topics_.session_event, dds::qos::sessionEvent()),
+      direct_writer_(participant_, topics_.direct_force, dds::qos::directForce()),
       ping_reader_(participant_, topics_.latency_ping, dds::qos::latencyProbe()),
       pong_writer_(participant_, topics_.latency_pong, dds::qos::latencyProbe()),
       wake_(participant_),
@@ -59,6 +60,9 @@ void ServerLink::publish(const telehand_msg_HandState& h) {
 }
 void ServerLink::publish(const telehand_msg_KnnModel& k) {
   if (knn_writer_.write(k) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_DirectForce& f) {
+  if (direct_writer_.write(f) < 0) counters_.publish_errors.fetch_add(1);
 }
 void ServerLink::publish(const telehand_msg_SessionEvent& e) {
   if (event_writer_.write(e) < 0) counters_.publish_errors.fetch_add(1);

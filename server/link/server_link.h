@@ -29,6 +29,7 @@ class ServerLink final : public session::Outbox {
   void publish(const telehand_msg_HandState& h) override;
   void publish(const telehand_msg_SessionEvent& e) override;
   void publish(const telehand_msg_KnnModel& k) override;
+  void publish(const telehand_msg_DirectForce& f) override;
 
   /// Serve until `stop` becomes true; ticks the manager at least every `tick`.
   void serve(session::SessionManager& manager, const std::atomic<bool>& stop,
@@ -50,6 +51,7 @@ class ServerLink final : public session::Outbox {
   dds::Writer<telehand_msg_HandState> hand_writer_;
   dds::Writer<telehand_msg_SessionStatus> status_writer_;
   dds::Writer<telehand_msg_SessionEvent> event_writer_;
+  dds::Writer<telehand_msg_DirectForce> direct_writer_;
   dds::Reader<telehand_msg_DeviceState> ping_reader_;
   dds::Writer<telehand_msg_DeviceState> pong_writer_;
   dds::GuardCondition wake_;

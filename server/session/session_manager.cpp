@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <cmath>
+#include <cstdio>
 #include <deque>
 
 #include "telehand/common/knn_model.h"
@@ -54,6 +55,14 @@ struct SessionManager::Session {
   uint64_t follows = 0;                // the capture session this one renders
   bool wants_knn = false;
   std::deque<std::shared_ptr<const KnnTorqueModel>> knn_alive;  // rendered by model and sim
+  HandStateDeadband hand_deadband;
+  uint64_t hand_published = 0;
+  uint64_t hand_withheld = 0;
+  // teleoperation
+  bool deadband_coded = false;          // the client withholds samples inside its deadband
+  int64_t opened_ns = 0;
+  std::unique_ptr<JointProxy> direct;   // direct mode: the server renders the force
+  uint64_t direct_sent = 0;
   // closing
   bool closing = false;
   uint64_t expected = 0;
@@ -205,6 +214,9 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   }
   if (hand_) s.sim = std::make_unique<sim::HandSim>(*hand_, s.params);
   if (cmd.mode == telehand_msg_MODE_EXPLORATION) s.exploration.begin("baseline");
+  if (cmd.direct_force) s.direct = std::make_unique<JointProxy>(s.params);
+  s.hand_deadband = HandStateDeadband(DeadbandConfig{config_.hand_deadband_weber});
+  s.opened_ns = now_ns;
   s.next_recovery_check_ns = now_ns + kNsPerS;
   s.last_data_ns = now_ns;
   s.rate_window_ns = now_ns;
@@ -217,7 +229,8 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
         "opened: " + info.mode + " on case '" + case_name + "' for " + info.user +
             (capture ? std::string(", following capture session ") + std::to_string(cmd.follow_session) +
                            (s.wants_knn ? " (k-nearest-neighbour model)" : " (cubic model)")
-                     : ""),
+                     : "") +
+            (cmd.direct_force ? " (direct force: the server renders)" : ""),
         now_ns);
 }
 
@@ -280,15 +293,42 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     return;
   }
   ++stats_.live_samples;
+  const bool coded = (d.flags & telehand_msg_kFlagDeadband) != 0;
+  s.deadband_coded = coded;
+  if (s.direct && (!s.have_live || d.seq > s.last.seq)) {
+    // The baseline design: the server renders the force with the same proxy the client
+    // would run, on device time, and sends it back.
+    const ProxyOutput out = s.direct->render(thimblePositions(d), d.source_time_ns);
+    telehand_msg_DirectForce f{};
+    f.session_id = s.info.id;
+    f.device_seq = d.seq;
+    f.source_time_ns = wallNs();
+    for (int k = 0; k < 2; ++k) {
+      for (int i = 0; i < 3; ++i) f.force_n[k][i] = out.force_device_n[k][i];
+    }
+    out_.publish(f);
+    ++s.direct_sent;
+  }
   if (s.sim && (!s.have_live || d.seq > s.last.seq)) {
     // The simulation runs on device time: one 1 ms step per sample, and a few more for
     // samples lost on the way. An overloaded server must not try to catch up on every
     // lost millisecond (each catch-up would fall further behind): past kMaxCatchUpSteps
-    // the hand skips time and the gap shows in HandState.device_lost.
-    const uint64_t steps =
-        s.have_live ? std::min<uint64_t>(d.seq - s.last.seq, kMaxCatchUpSteps) : 1;
+    // the hand skips time and the gap shows in HandState.device_lost. A deadband-coded
+    // stream withholds samples on purpose: those steps run on the last state received.
+    const uint64_t gap = s.have_live ? d.seq - s.last.seq : 1;
+    const uint64_t steps = std::min<uint64_t>(gap, coded ? kMaxHeldSteps : kMaxCatchUpSteps);
+    if (coded && s.have_live) {
+      s.sim->setFingerTargets(thimblePositions(s.last), true);
+      for (uint64_t i = 1; i < steps; ++i) {
+        s.sim->step();
+        const auto f = s.sim->contactForcesDevice();
+        const double force = f[0].norm() + f[1].norm();
+        s.exploration.observe(s.sim->mcpAngles(), force);
+        if (force > 1.0) s.treatment_s += 1e-3;
+      }
+    }
     s.sim->setFingerTargets(thimblePositions(d), true);
-    for (uint64_t i = 0; i < steps; ++i) {
+    for (uint64_t i = (coded && s.have_live) ? steps - 1 : 0; i < steps; ++i) {
       s.sim->step();
       const auto f = s.sim->contactForcesDevice();
       const Vec3 angles = s.sim->mcpAngles();
@@ -303,7 +343,7 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
   } else if (!s.sim && s.exploration.active()) {
     s.exploration.observe(s.model.anglesFromGrip(thimblePositions(d)), 0.0);
   }
-  if (s.have_live && d.seq > s.last.seq + 1) s.live_lost += d.seq - s.last.seq - 1;
+  if (!coded && s.have_live && d.seq > s.last.seq + 1) s.live_lost += d.seq - s.last.seq - 1;
   if (!s.have_live || d.seq > s.last.seq) s.last = d;
   s.have_live = true;
   ++s.live_count;
@@ -454,7 +494,6 @@ void SessionManager::store(Session& s, std::vector<telehand_msg_DeviceState>&& s
 }
 
 void SessionManager::publishHand(Session& s, int64_t now_ns) {
-  (void)now_ns;
   telehand_msg_HandState h{};
   h.session_id = s.info.id;
   h.seq = s.hand_seq++;
@@ -525,6 +564,12 @@ void SessionManager::publishHand(Session& s, int64_t now_ns) {
     }
     h.applied_force_ref_n = static_cast<float>(applied.norm() / s.params.force_scale);
   }
+  if (!s.hand_deadband.admit(h, now_ns)) {
+    ++s.hand_withheld;
+    --s.hand_seq;  // viewers see consecutive numbers for what they get
+    return;
+  }
+  ++s.hand_published;
   out_.publish(h);
 }
 
@@ -582,6 +627,7 @@ void SessionManager::recover(Session& s, int64_t now_ns) {
   s.params = next;
   s.model = JointModel(s.params);
   if (s.sim) s.sim->setMcpModel(s.params);
+  if (s.direct) s.direct->setModel(s.params, s.last.source_time_ns);
   telehand_msg_JointModel m{};
   toWire(s.params, s.info.id, m);
   m.source_time_ns = wallNs();
@@ -624,6 +670,24 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
     if (it != sessions_.end()) it->second.follows = 0;  // keeps the last model it got
   }
   s.followers.clear();
+  {
+    // The link's packet rates, into the record.
+    const double secs = std::max(static_cast<double>(now_ns - s.opened_ns) * 1e-9, 1e-3);
+    char text[240];
+    std::snprintf(text, sizeof text,
+                  "link: DeviceState %.1f packets/s received live (%s), HandState %.1f/s "
+                  "published (%llu withheld by the deadband)%s",
+                  static_cast<double>(s.live_count) / secs,
+                  s.deadband_coded ? "deadband-coded" : "every sample",
+                  static_cast<double>(s.hand_published) / secs,
+                  static_cast<unsigned long long>(s.hand_withheld),
+                  s.direct ? (", DirectForce " +
+                              std::to_string(static_cast<long long>(
+                                  std::llround(static_cast<double>(s.direct_sent) / secs))) +
+                              "/s sent").c_str()
+                           : "");
+    event(s.info.id, s.client_id, telehand_msg_EVENT_INFO, text, now_ns);
+  }
   try {
     store_.closeSession(s.info.id, wallNs(), s.expected, state);
   } catch (const StoreError& e) {

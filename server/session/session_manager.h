@@ -15,6 +15,7 @@
 #include "server/session/store.h"
 #include "telehand.h"
 #include "telehand/common/config.h"
+#include "telehand/common/deadband.h"
 #include "telehand/common/joint_model.h"
 
 namespace telehand::server::session {
@@ -29,6 +30,8 @@ class Outbox {
   virtual void publish(const telehand_msg_SessionEvent& e) = 0;
   /// The samples behind a data-driven JointModel of the same session and version.
   virtual void publish(const telehand_msg_KnnModel& k) { (void)k; }
+  /// Direct mode only (the baseline design).
+  virtual void publish(const telehand_msg_DirectForce& f) { (void)f; }
 };
 
 struct ManagerStats {
@@ -74,6 +77,9 @@ class SessionManager {
   static constexpr uint64_t kMaxCatchUpSteps = 3;
   /// How capture sessions are refitted live (rate limit, JND); for sessions opened later.
   void setRefitOptions(const estimate::LiveRefitOptions& o) { refit_options_ = o; }
+  /// Steps one deadband-coded sample may trigger: the withheld samples it stands for, held
+  /// at the last value received (zero-order hold). Beyond this the hand skips time.
+  static constexpr uint64_t kMaxHeldSteps = 200;
 
  private:
   struct Session;

@@ -1,6 +1,7 @@
 #include "server/session/sqlite_store.h"
 
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <filesystem>
 #include <sstream>
@@ -13,7 +14,9 @@ namespace {
 
 // The sample is kept whole as its fixed-size wire struct (x86-64 layout) plus the columns a
 // query needs; kSampleFormat changes whenever idl/telehand.idl's DeviceState does.
-constexpr int kSampleFormat = 1;
+// Format 2 appended the passivity fields; format 1 samples (shorter) are read with them zero.
+constexpr int kSampleFormat = 2;
+constexpr int kSampleFormat1Bytes = static_cast<int>(offsetof(telehand_msg_DeviceState, passivity_energy_j));
 
 constexpr const char* kSchema = R"sql(
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -292,14 +295,16 @@ void SqliteStore::forEachSample(
   while (st.step()) {
     const int format = sqlite3_column_int(st.get(), 2);
     const int bytes = sqlite3_column_bytes(st.get(), 3);
-    if (format != kSampleFormat || bytes != static_cast<int>(sizeof(telehand_msg_DeviceState))) {
+    const bool current = format == kSampleFormat && bytes == static_cast<int>(sizeof(telehand_msg_DeviceState));
+    const bool older = format == 1 && bytes == kSampleFormat1Bytes;
+    if (!current && !older) {
       throw StoreError("sample " + std::to_string(sqlite3_column_int64(st.get(), 0)) +
                        " of session " + std::to_string(session_id) + " in '" + path_ +
                        "' has format " + std::to_string(format) + " (" + std::to_string(bytes) +
                        " bytes); this build reads format " + std::to_string(kSampleFormat));
     }
-    telehand_msg_DeviceState s;
-    std::memcpy(&s, sqlite3_column_blob(st.get(), 3), sizeof(s));
+    telehand_msg_DeviceState s{};
+    std::memcpy(&s, sqlite3_column_blob(st.get(), 3), static_cast<std::size_t>(bytes));
     fn(s, sqlite3_column_int(st.get(), 1) != 0);
   }
 }
@@ -382,6 +387,9 @@ const std::vector<Column>& columns() {
                      [k, i](std::ostream& o, const auto& s) { o << s.fingers[k].command_n[i]; }});
       }
     }
+    c.push_back({"passivity_energy_j", [](std::ostream& o, const auto& s) { o << s.passivity_energy_j; }});
+    c.push_back({"passivity_damping_ns_per_m",
+                 [](std::ostream& o, const auto& s) { o << s.passivity_damping; }});
     return c;
   }();
   return cols;

@@ -232,5 +232,50 @@ TEST(HapticLoopAlloc, KnnModelAndCaptureModeAllocateNothing) {
   EXPECT_GT(max_force, 0.5) << "the data-driven model rendered a force";
 }
 
+TEST(HapticLoopAlloc, StepAllocatesNothingWithPassivityControlDirectForcesAndQueuedModels) {
+  ManualClock clock(kNsPerS);
+  const JointModelParams model = healthyIndexMcp();
+  SimulatedMf2 sim(model, OperatorConfig{}, clock);
+  loop::TeleopOptions teleop;
+  teleop.render = loop::RenderMode::kDirect;
+  HapticLoop hl(sim, clock, model, SafetyLimits{}, LoopConfig{}, teleop);
+  JointModelParams v2 = model, v3 = model;
+  v2.version = 2;
+  v2.axes[kFlexion].coeffs = {3e-5, 0.002, 0.08, 1.0};
+  v3.version = 3;
+  std::size_t allocations = 0;
+  telehand_msg_DeviceState s;
+  for (int i = 0; i < 4000; ++i) {
+    clock.advance(kNsPerMs);
+    if (i == 500) {
+      ASSERT_TRUE(hl.models().tryPush(v2));
+    }
+    if (i == 550) {
+      ASSERT_TRUE(hl.models().tryPush(v3));  // mid-fade: queued in the proxy
+    }
+    if (i == 2000) hl.setRenderMode(loop::RenderMode::kModel);
+    if (i % 3 == 0) {
+      // A server that renders an active (energy-injecting) force: the controller must act.
+      loop::DirectForceSample f;
+      f.device_seq = static_cast<uint64_t>(i);
+      f.force_n = {Vec3(0.0, 0.0, 3.5 * std::sin(i * 0.2)), Vec3(0.0, 0.0, -3.5 * std::sin(i * 0.2))};
+      hl.directForces().tryPush(f);
+    }
+    {
+      AllocationGuard guard;
+      hl.step();
+      allocations += guard.allocations() + guard.deallocations();
+    }
+    while (hl.samples().tryPop(s)) {
+    }
+  }
+  EXPECT_EQ(allocations, 0u);
+  const loop::LoopHealth& h = hl.health();
+  EXPECT_GT(h.direct_forces.load(), 600u);
+  EXPECT_EQ(h.models_applied.load(), 2u);
+  EXPECT_EQ(h.model_version.load(), 3u) << "the queued version came after the first fade";
+  EXPECT_LE(h.update_step_max_ratio.load(), 1.0);
+}
+
 }  // namespace
 }  // namespace telehand::client

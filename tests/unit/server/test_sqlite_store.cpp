@@ -322,15 +322,16 @@ std::vector<std::string> split(const std::string& row) {
 TEST(SampleCsv, HeaderNamesEveryColumnOnce) {
   const auto& cols = sampleColumns();
   // 4 ids + 3 angles + 3 torques + 2 fingers x (3 pos + 4 quat + 4 fsr + 2 eq. 1-2 + 3 cmd)
-  // + valid.
-  EXPECT_EQ(cols.size(), 4u + 3u + 3u + 2u * 16u + 1u);
+  // + 2 passivity + valid.
+  EXPECT_EQ(cols.size(), 4u + 3u + 3u + 2u * 16u + 2u + 1u);
   EXPECT_EQ(cols.front(), "seq");
   EXPECT_EQ(cols.back(), "valid");
   std::vector<std::string> sorted = cols;
   std::sort(sorted.begin(), sorted.end());
   EXPECT_EQ(std::adjacent_find(sorted.begin(), sorted.end()), sorted.end()) << "duplicate name";
   for (const char* want : {"t_ns", "alpha_rad", "tau_gamma_nm", "thumb_fsr1_n", "index_fsr4_n",
-                           "index_tangential_n", "thumb_normal_n", "index_cmdz_n", "thumb_qw"}) {
+                           "index_tangential_n", "thumb_normal_n", "index_cmdz_n", "thumb_qw",
+                           "passivity_energy_j", "passivity_damping_ns_per_m"}) {
     EXPECT_NE(std::find(cols.begin(), cols.end(), want), cols.end()) << want;
   }
 }

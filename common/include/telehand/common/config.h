@@ -40,6 +40,7 @@ struct ServerConfig {
   double close_grace_s = 5.0;    ///< how long a closing session waits for in-flight records
   std::string cases_dir;         ///< patient cases (*.toml); empty = the built-in healthy case only
   std::string hand_model;        ///< URDF of the hand; empty = HandState from the shared joint model
+  double hand_deadband_weber = 0.0;  ///< HandState deadband (Weber fraction); 0 = every state
 };
 
 /// Load from TOML text; `origin` names the source in error messages.

@@ -84,6 +84,7 @@ Qos sessionCommand();               ///< reliable, keep-all, volatile
 Qos sessionStatus();                ///< reliable, transient-local, keep-last 1 per session
 Qos sessionEvent(int32_t depth = 64);  ///< reliable, transient-local, keep-last N (late joiners too)
 Qos latencyProbe();                 ///< as deviceState (the probe measures that path)
+Qos directForce(int32_t depth = 1); ///< best-effort, keep-last `depth`, volatile (direct mode)
 }  // namespace qos
 
 /// Topic names.
@@ -97,6 +98,7 @@ inline constexpr const char* kSessionStatus = "telehand_SessionStatus";
 inline constexpr const char* kSessionEvent = "telehand_SessionEvent";
 inline constexpr const char* kLatencyPing = "telehand_LatencyPing";
 inline constexpr const char* kLatencyPong = "telehand_LatencyPong";
+inline constexpr const char* kDirectForce = "telehand_DirectForce";
 }  // namespace topic
 
 /// Which DDS world to join.
@@ -137,6 +139,7 @@ TELEHAND_DDS_TOPIC_TYPE(telehand_msg_HandState);
 TELEHAND_DDS_TOPIC_TYPE(telehand_msg_SessionCommand);
 TELEHAND_DDS_TOPIC_TYPE(telehand_msg_SessionStatus);
 TELEHAND_DDS_TOPIC_TYPE(telehand_msg_SessionEvent);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_DirectForce);
 #undef TELEHAND_DDS_TOPIC_TYPE
 
 template <typename T>
@@ -163,6 +166,7 @@ struct Topics {
   Topic<telehand_msg_SessionEvent> session_event;
   Topic<telehand_msg_DeviceState> latency_ping;
   Topic<telehand_msg_DeviceState> latency_pong;
+  Topic<telehand_msg_DirectForce> direct_force;
 };
 
 template <typename T>

@@ -128,6 +128,10 @@ class JointModel {
   /// bisection over the curve's valid range; the nearest range end if none is inside.
   double restAngleRad(int axis) const noexcept;
 
+  /// Energy the passive joint stores at `angles_rad` (the work done against the holding
+  /// forces from the rest angles), at device scale in joules: zero at rest, never negative.
+  double potentialEnergyJ(const Vec3& angles_rad) const noexcept;
+
  private:
   JointModelParams p_;
   std::array<double, kAxes> rest_deg_{};  // of the cubic alone, where the neutral zone centres
@@ -139,32 +143,63 @@ struct ProxyOutput {
   Vec3 torque_ref_nm = Vec3::Zero();          ///< passive torque, reference scale
   PerFinger<Vec3> force_device_n{Vec3::Zero(), Vec3::Zero()};  ///< before the safety gate
   bool blending = false;
+  /// This tick's force change due to the model update alone (blend weight change times the
+  /// gap between the two models' forces), device N, largest finger.
+  double update_step_n = 0.0;
+  /// Energy the blend added to the rendered joint this tick (device J; negative: released).
+  double blend_energy_j = 0.0;
+  /// Energy the rendered joint stores at these angles (device J), see potentialEnergyJ.
+  double potential_j = 0.0;
 };
 
 /// The client's local stand-in for the joint: renders at 1 kHz from the latest model the
-/// server published, and cross-fades to a new version over `blend_ns` so that an update
-/// causes no force step. Allocation-free.
+/// server published, and fades to a new version so that an update causes no force step and
+/// injects no energy. The fade weight moves toward the new model by at most `dt / blend_ns`
+/// per tick, less when a tick's force change from the update would exceed
+/// max(kUpdateStepFraction · force, kUpdateStepFloorN), and only as far as the energy budget
+/// (setEnergyBudget) pays for what a stiffer model stores, for at most kEnergyWaitNs (then
+/// the passivity controller is the safety net). A version that arrives during a
+/// fade waits until the fade ends (the newest wins). Allocation-free.
 class JointProxy {
  public:
   explicit JointProxy(const JointModelParams& initial, int64_t blend_ns = 200'000'000);
 
-  /// Adopt a new model version; the cross-fade starts at `now_ns`.
+  /// Adopt a new model version; the fade starts at the next render after `now_ns`.
   void setModel(const JointModelParams& next, int64_t now_ns) noexcept;
   uint32_t version() const noexcept { return current_.params().version; }
   const JointModel& model() const noexcept { return current_; }
+  bool blending() const noexcept { return blending_; }
+
+  /// Energy (device J) a fade may add to the joint on the next render; the loop passes what
+  /// its passivity observer has seen dissipated. Infinite by default (no gating).
+  void setEnergyBudget(double joules) noexcept { energy_budget_j_ = joules; }
 
   /// One tick: thimble positions -> angles -> passive torque -> device fingertip forces.
   ProxyOutput render(const PerFinger<Vec3>& p_device_finger, int64_t now_ns) noexcept;
 
+  /// No tick's force may change by more than this share of the force, or the floor, because
+  /// of a model update (the force JND is 7-10 %, FACTS.md "Rendering and perception").
+  static constexpr double kUpdateStepFraction = 0.05;
+  static constexpr double kUpdateStepFloorN = 0.1;
+  /// How long a stiffer model waits for the energy budget before it fades in regardless.
+  static constexpr int64_t kEnergyWaitNs = 2'000'000'000;
+
  private:
   ProxyOutput renderWith(const JointModel& m, const PerFinger<Vec3>& p, const Vec3& angles,
                          const Vec3& rates) const noexcept;
+  void startFade(const JointModelParams& next) noexcept;
 
   JointModel current_;
   JointModel previous_;
+  JointModel pending_;
+  bool have_pending_ = false;
   int64_t blend_ns_;
-  int64_t blend_start_ns_ = 0;
+  double weight_ = 1.0;  // of current_ against previous_
   bool blending_ = false;
+  int64_t fade_ns_ = 0;  // time the weight was last advanced to
+  int64_t fade_start_ns_ = 0;
+  bool have_last_fade_ = true;
+  double energy_budget_j_ = 1e300;
   bool have_last_ = false;
   int64_t last_ns_ = 0;
   Vec3 last_angles_ = Vec3::Zero();

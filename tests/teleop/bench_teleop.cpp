@@ -1,0 +1,168 @@
+// telehand-teleop-bench: the teleoperation matrix in simulated time. Every cell runs the
+// client's HapticLoop (simulated MF-2, virtual clinician mobilizing at 3 Hz in 12-16 N) and
+// the server's SessionManager (Bullet hand, recovering joint publishing model updates)
+// across an emulated link, and prints per cell: stable or not, passive or not, RMS force
+// error against the zero-delay model-mediated run, the largest force step from a model
+// update, packets per second each way, and loop overruns.
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <iostream>
+#include <optional>
+#include <sstream>
+
+#include "telehand/common/cli.h"
+#include "telehand/common/error.h"
+#include "tests/teleop/teleop_harness.h"
+
+namespace {
+
+using namespace telehand;
+using namespace telehand::teleop;
+using client::loop::RenderMode;
+
+LinkProfile matrixLink(double rtt_ms, double loss_pct) {
+  LinkProfile p;
+  std::ostringstream n;
+  n << rtt_ms << "ms-" << loss_pct << "%";
+  p.name = n.str();
+  p.rtt_ms = rtt_ms;
+  p.jitter_ms = rtt_ms / 4.0;  // ±250 ms at 1 s RTT
+  p.jitter_corr_ms = 100.0;
+  p.loss_pct = loss_pct;
+  p.loss_burst = 4.0;
+  p.reorder_pct = rtt_ms > 0.0 ? 0.5 : 0.0;
+  return p;
+}
+
+const char* modeName(RenderMode m) { return m == RenderMode::kModel ? "model-mediated" : "direct"; }
+
+void printRow(const CellSpec& spec, const CellResult& r, double err, bool markdown) {
+  // In direct mode the client's proxy renders nothing: its fades are not felt.
+  char step[64] = "n/a";
+  if (spec.render == RenderMode::kModel) {
+    std::snprintf(step, sizeof step, "%.3f N (%.2f)", r.update_step_max_n, r.update_step_ratio);
+  }
+  char line[512];
+  std::snprintf(line, sizeof line,
+                markdown ? "| %s | %s | %.0f ±%.0f | %.0f | %s (%.1f %%) | %s (%.1f mJ, %llu) | %.1f %% | "
+                           "%s | %.0f | %.0f | %.0f | %llu (%.0f µs) |"
+                         : "%-15s %-18s %5.0f ±%-4.0f %4.0f  %-8s %5.1f%%  %-3s %7.1f mJ %6llu  %6.1f%%  "
+                           "%-15s  %6.0f %6.0f %6.0f  %llu (%.0f us)",
+                modeName(spec.render), spec.link.name.c_str(), spec.link.rtt_ms, spec.link.jitter_ms,
+                spec.link.loss_pct, stable(r) ? "stable" : "UNSTABLE", r.oscillation * 100.0,
+                passive(r) ? "yes" : "NO", r.po_min_j * 1e3, static_cast<unsigned long long>(r.pc_ticks),
+                err * 100.0, step, r.device_state_pps, r.up_pps, r.down_pps,
+                static_cast<unsigned long long>(r.overruns), r.step_max_us);
+  std::cout << line << std::endl;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"telehand-teleop-bench: model-mediated against direct rendering over emulated "
+               "links (RTT x loss), in simulated time, with the real loop and server code"};
+  std::vector<double> rtts = {0, 50, 150, 300, 600, 1000};
+  std::vector<double> losses = {0, 2, 10};
+  std::vector<std::string> modes = {"model", "direct"};
+  std::vector<std::string> profiles;
+  std::vector<double> deadbands;
+  double seconds = 20.0, steady = 4.0, treatment = 20.0;
+  uint64_t seed = 1;
+  bool markdown = false, no_hand = false, no_pc = false;
+  std::string case_name = "regain";
+  app.add_option("--rtt", rtts, "round trips, ms")->capture_default_str();
+  app.add_option("--loss", losses, "mean losses, % (bursty, 4 packets per burst)")->capture_default_str();
+  app.add_option("--modes", modes, "model, direct")->check(CLI::IsMember({"model", "direct"}))->capture_default_str();
+  app.add_option("--profile", profiles, "also run these link profiles (deploy/links/*.toml)")->check(CLI::ExistingFile);
+  app.add_option("--deadband", deadbands, "also run model-mediated cells with these Weber fractions")->check(CLI::Range(0.0, 0.5));
+  app.add_option("--seconds", seconds, "simulated session length")->capture_default_str()->check(CLI::Range(2.0, 3600.0));
+  app.add_option("--steady-from", steady, "metrics from this time on (after the ramp), s")->capture_default_str();
+  app.add_option("--case", case_name, "patient case (tests/teleop/cases, deploy/cases)")->capture_default_str();
+  app.add_option("--recovery-s", treatment, "treatment time over which a recovering case regains its range")->capture_default_str();
+  app.add_option("--seed", seed, "operator and link seed")->capture_default_str();
+  app.add_flag("--markdown", markdown, "print Markdown tables");
+  app.add_flag("--no-hand", no_hand, "no Bullet hand on the server (no treatment, no recovery updates)");
+  app.add_flag("--no-passivity-control", no_pc, "observe passivity but never add damping");
+  TELEHAND_CLI_PARSE(app, argc, argv)
+
+  try {
+    if (steady >= seconds) throw telehand::ConfigError("--steady-from must be below --seconds");
+    std::optional<server::sim::HandModel> hand;
+    if (!no_hand) hand = server::sim::HandModel::load(std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf");
+    auto spec = [&](const LinkProfile& link, RenderMode mode) {
+      CellSpec s;
+      s.link = link;
+      s.render = mode;
+      s.seconds = seconds;
+      s.steady_from_s = steady;
+      s.case_name = case_name;
+      s.recovery_treatment_s = treatment;
+      s.seed = seed;
+      s.passivity_control = !no_pc;
+      return s;
+    };
+    const CellSpec ref_spec = spec(matrixLink(0, 0), RenderMode::kModel);
+    const CellResult ref = runCell(ref_spec, hand ? &*hand : nullptr);
+    std::cout << "reference: model-mediated, no delay, no loss: " << ref.models_applied
+              << " model versions applied, " << ref.samples_recorded << " of " << ref.ticks
+              << " samples recorded\n\n";
+    if (markdown) {
+      std::cout << "| mode | link | RTT ms | loss % | stable (force above 15 Hz) | passive (lowest PO energy, PC ticks) | "
+                   "RMS force error | largest update step (/ bound) | DeviceState /s | up /s | down /s | overruns (worst step CPU) |\n"
+                   "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    } else {
+      std::cout << "mode            link               RTT ms      loss  stable   osc     passive  PO min  PC ticks  "
+                   "error   update step     DS/s   up/s down/s  overruns\n";
+    }
+    int failures = 0;
+    auto run = [&](const CellSpec& s) {
+      const CellResult r = runCell(s, hand ? &*hand : nullptr);
+      const double err = forceError(r, ref, s);
+      printRow(s, r, err, markdown);
+      if (r.samples_recorded != r.ticks) {
+        std::cout << "  record incomplete: " << r.samples_recorded << " of " << r.ticks << "\n";
+        ++failures;
+      }
+      return std::make_pair(r, err);
+    };
+    for (const auto& m : modes) {
+      const RenderMode mode = m == "model" ? RenderMode::kModel : RenderMode::kDirect;
+      for (double rtt : rtts) {
+        for (double loss : losses) run(spec(matrixLink(rtt, loss), mode));
+      }
+      for (const auto& path : profiles) run(spec(loadLinkProfile(path), mode));
+    }
+    if (!deadbands.empty()) {
+      std::cout << "\ndeadband (model-mediated): DeviceState packets against every sample, rendered "
+                   "force error against the same link without deadband, server-side reconstruction error\n";
+      if (markdown) {
+        std::cout << "| link | Weber | DeviceState /s | fewer packets | rendered force error | reconstruction error | HandState /s |\n"
+                     "|---|---|---|---|---|---|---|\n";
+      }
+      for (const auto& link : {matrixLink(0, 0), matrixLink(300, 2)}) {
+        const CellSpec base = spec(link, RenderMode::kModel);
+        const CellResult full = runCell(base, hand ? &*hand : nullptr);
+        for (double w : deadbands) {
+          CellSpec s = base;
+          s.deadband.weber = w;
+          const CellResult r = runCell(s, hand ? &*hand : nullptr);
+          char line[400];
+          std::snprintf(line, sizeof line,
+                        markdown ? "| %s | %.2f | %.0f (of %.0f) | %.1f %% | %.2f %% | %.2f %% | %.0f (of %.0f) |"
+                                 : "%-14s weber %.2f  DeviceState %5.0f/s (of %.0f)  %.1f %% fewer  rendered error %.2f %%  "
+                                   "reconstruction error %.2f %%  HandState %.0f/s (of %.0f)",
+                        link.name.c_str(), w, r.device_state_pps, full.device_state_pps,
+                        100.0 * (1.0 - r.device_state_pps / full.device_state_pps),
+                        100.0 * forceError(r, full, s), 100.0 * r.reconstruction_error,
+                        r.hand_state_pps, full.hand_state_pps);
+          std::cout << line << std::endl;
+        }
+      }
+    }
+    return failures ? 1 : 0;
+  } catch (const telehand::Error& e) {
+    std::cerr << "telehand-teleop-bench: " << e.what() << "\n";
+    return 2;
+  }
+}

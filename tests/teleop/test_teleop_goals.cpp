@@ -1,0 +1,102 @@
+// The teleoperation goals, asserted on the deterministic harness (simulated time, emulated
+// link, the real loop and server code): these are properties of the design, not timings.
+#include <gtest/gtest.h>
+
+#include <optional>
+
+#include "tests/teleop/teleop_harness.h"
+
+namespace telehand::teleop {
+namespace {
+
+using client::loop::RenderMode;
+
+const server::sim::HandModel& hand() {
+  static const server::sim::HandModel h =
+      server::sim::HandModel::load(std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf");
+  return h;
+}
+
+LinkProfile link(double rtt_ms, double jitter_ms, double loss_pct, double burst) {
+  LinkProfile p;
+  p.name = "test";
+  p.rtt_ms = rtt_ms;
+  p.jitter_ms = jitter_ms;
+  p.loss_pct = loss_pct;
+  p.loss_burst = burst;
+  p.reorder_pct = rtt_ms > 0 ? 0.5 : 0.0;
+  return p;
+}
+
+CellSpec cell(const LinkProfile& l, RenderMode mode) {
+  CellSpec s;
+  s.link = l;
+  s.render = mode;
+  s.seconds = 12.0;
+  s.steady_from_s = 3.0;
+  return s;
+}
+
+const CellResult& reference() {
+  static const CellResult r = runCell(cell(link(0, 0, 0, 1), RenderMode::kModel), &hand());
+  return r;
+}
+
+TEST(TeleopGoals, ReferenceRunAppliesModelUpdatesAndRecordsEverySample) {
+  const CellResult& r = reference();
+  EXPECT_GT(r.models_applied, 5u) << "the case must publish updates during the run";
+  EXPECT_EQ(r.samples_recorded, r.ticks);
+  EXPECT_TRUE(stable(r)) << r.oscillation;
+  EXPECT_TRUE(passive(r)) << r.po_min_j;
+}
+
+TEST(TeleopGoals, ModelMediatedStableAndPassiveAtOneSecondWithBurstyLoss) {
+  const CellSpec s = cell(link(1000, 250, 10, 8), RenderMode::kModel);
+  const CellResult r = runCell(s, &hand());
+  EXPECT_TRUE(stable(r)) << "force above 15 Hz: " << r.oscillation;
+  EXPECT_TRUE(passive(r)) << "lowest observer energy " << r.po_min_j << " J";
+  EXPECT_GT(r.models_applied, 3u);
+  EXPECT_LE(r.update_step_ratio, 1.0);
+  EXPECT_EQ(r.samples_recorded, r.ticks) << "the record travels reliably";
+}
+
+TEST(TeleopGoals, ModelMediatedForceErrorUnderTheJndAtSpainAustralia) {
+  const CellSpec s = cell(link(300, 20, 2, 4), RenderMode::kModel);
+  const CellResult r = runCell(s, &hand());
+  EXPECT_LT(forceError(r, reference(), s), 0.07);
+  EXPECT_TRUE(stable(r));
+  EXPECT_TRUE(passive(r));
+  EXPECT_LE(r.update_step_ratio, 1.0) << r.update_step_max_n << " N";
+}
+
+TEST(TeleopGoals, DirectIsUnstableOrFarOffAt300Ms) {
+  const CellSpec s = cell(link(300, 20, 2, 4), RenderMode::kDirect);
+  const CellResult r = runCell(s, &hand());
+  const double err = forceError(r, reference(), s);
+  EXPECT_TRUE(!stable(r) || err > 0.30) << "oscillation " << r.oscillation << ", error " << err;
+}
+
+TEST(TeleopGoals, DirectWithoutDelayTracksTheModel) {
+  // The baseline is a fair one: with no delay and no loss it renders what the model does.
+  const CellSpec s = cell(link(0, 0, 0, 1), RenderMode::kDirect);
+  const CellResult r = runCell(s, &hand());
+  EXPECT_TRUE(stable(r));
+  EXPECT_LT(forceError(r, reference(), s), 0.07);
+}
+
+TEST(TeleopGoals, DeadbandSendsAtLeastNinetyPercentFewerDeviceStates) {
+  CellSpec full = cell(link(300, 20, 2, 4), RenderMode::kModel);
+  CellSpec coded = full;
+  coded.deadband.weber = 0.05;
+  const CellResult a = runCell(full, &hand());
+  const CellResult b = runCell(coded, &hand());
+  EXPECT_LE(b.device_state_pps, 0.10 * a.device_state_pps)
+      << b.device_state_pps << " of " << a.device_state_pps << " per second";
+  EXPECT_LT(b.reconstruction_error, 0.07);
+  EXPECT_LT(forceError(b, a, coded), 0.07);
+  EXPECT_LT(b.hand_state_pps, a.hand_state_pps);
+  EXPECT_EQ(b.samples_recorded, b.ticks) << "the record still holds every sample";
+}
+
+}  // namespace
+}  // namespace telehand::teleop

@@ -1,0 +1,189 @@
+// Model updates on the client: the fade is step-bounded, energy-gated, and a version that
+// arrives mid-fade waits its turn (no force step, no energy injected).
+#include <gtest/gtest.h>
+
+#include <vector>
+
+#include "telehand/common/clock.h"
+#include "telehand/common/joint_model.h"
+
+namespace telehand {
+namespace {
+
+/// A flexion sweep of the grip (1 Hz, 20 deg around 40 deg).
+PerFinger<Vec3> sweep(const JointModel& m, int64_t t_ns) {
+  const double t = static_cast<double>(t_ns) * 1e-9;
+  const Vec3 a(degToRad(40.0 + 20.0 * std::sin(2 * kPi * t)), degToRad(3.0), degToRad(1.0));
+  return m.gripFromAngles(a, 0.008);
+}
+
+JointModelParams stiffer(uint32_t version, double factor) {
+  JointModelParams p = healthyIndexMcp();
+  p.version = version;
+  for (auto& axis : p.axes) {
+    for (auto& c : axis.coeffs) c *= factor;
+  }
+  return p;
+}
+
+double updateBound(const ProxyOutput& out) {
+  double f = 0.0;
+  for (int k = 0; k < 2; ++k) f = std::max(f, out.force_device_n[k].norm());
+  return std::max(JointProxy::kUpdateStepFraction * f, JointProxy::kUpdateStepFloorN);
+}
+
+TEST(ModelFade, PotentialEnergyIsZeroAtRestPositiveElsewhereAndIntegratesTheTorque) {
+  const JointModel m(healthyIndexMcp());
+  const Vec3 rest(m.restAngleRad(kFlexion), m.restAngleRad(kAbduction), m.restAngleRad(kAxial));
+  EXPECT_NEAR(m.potentialEnergyJ(rest), 0.0, 1e-12);
+  for (double deg : {-60.0, -20.0, 10.0, 45.0, 80.0, 100.0}) {
+    Vec3 a = rest;
+    a[kFlexion] = degToRad(deg);
+    EXPECT_GE(m.potentialEnergyJ(a), 0.0) << deg;
+    // dV/dα = holding force · lever · device scale (the torque the joint resists with).
+    const double h = 1e-5;
+    Vec3 ap = a, am = a;
+    ap[kFlexion] += h;
+    am[kFlexion] -= h;
+    const double dv = (m.potentialEnergyJ(ap) - m.potentialEnergyJ(am)) / (2 * h);
+    const double torque = m.holdingForceN(kFlexion, a[kFlexion]) * 0.01 * 0.25;
+    EXPECT_NEAR(dv, torque, 2e-3 * std::abs(torque) + 1e-7) << deg;
+  }
+}
+
+TEST(ModelFade, EveryTicksUpdateStepStaysUnderTheBoundEvenForAHugeChange) {
+  // A 1 ms nominal fade of a model three times as stiff would step the force at once; the
+  // bound stretches it instead.
+  const JointModelParams old_p = healthyIndexMcp();
+  const JointModelParams new_p = stiffer(2, 3.0);
+  const JointModel geom(old_p);
+  JointProxy proxy(old_p, kNsPerMs);
+  int fade_ticks = 0;
+  double worst = 0.0;
+  for (int i = 0; i < 3000; ++i) {
+    const int64_t t = i * kNsPerMs;
+    if (i == 100) proxy.setModel(new_p, t);
+    const ProxyOutput out = proxy.render(sweep(geom, t), t);
+    worst = std::max(worst, out.update_step_n / updateBound(out));
+    fade_ticks += out.blending;
+  }
+  EXPECT_LE(worst, 1.0);
+  EXPECT_GT(worst, 0.5) << "the bound, not the nominal pace, set this fade";
+  EXPECT_GT(fade_ticks, 5);
+  EXPECT_FALSE(proxy.blending());
+  EXPECT_EQ(proxy.version(), 2u);
+}
+
+TEST(ModelFade, AVersionArrivingMidFadeWaitsAndNothingSteps) {
+  const JointModelParams v1 = healthyIndexMcp();
+  const JointModelParams v2 = stiffer(2, 2.0);
+  const JointModelParams v3 = stiffer(3, 0.5);
+  const JointModel geom(v1);
+  constexpr int64_t kBlend = 200 * kNsPerMs;
+  JointProxy proxy(v1, kBlend);
+  JointProxy only_v3(v3, kBlend);
+  std::vector<PerFinger<Vec3>> f;
+  double worst = 0.0;
+  for (int i = 0; i < 1200; ++i) {
+    const int64_t t = i * kNsPerMs;
+    if (i == 100) proxy.setModel(v2, t);
+    if (i == 200) {
+      proxy.setModel(v3, t);  // mid-fade: queued
+      EXPECT_EQ(proxy.version(), 2u);
+    }
+    const ProxyOutput out = proxy.render(sweep(geom, t), t);
+    const ProxyOutput ref = only_v3.render(sweep(geom, t), t);
+    worst = std::max(worst, out.update_step_n / updateBound(out));
+    f.push_back(out.force_device_n);
+    if (i >= 520) {  // both fades done: v3 exactly
+      EXPECT_FALSE(out.blending) << i;
+      EXPECT_LT((out.force_device_n[0] - ref.force_device_n[0]).norm(), 1e-12) << i;
+    }
+  }
+  EXPECT_EQ(proxy.version(), 3u);
+  EXPECT_LE(worst, 1.0);
+  // Tick to tick, nothing beyond the sweep's own change plus the fades' share.
+  double step = 0.0;
+  for (std::size_t i = 1; i < f.size(); ++i) {
+    for (int k = 0; k < 2; ++k) step = std::max(step, (f[i][k] - f[i - 1][k]).norm());
+  }
+  EXPECT_LT(step, 0.1);
+}
+
+TEST(ModelFade, AStifferModelWaitsForEnergyToPayForIt) {
+  const JointModelParams soft = healthyIndexMcp();
+  const JointModelParams stiff = stiffer(2, 2.0);
+  const JointModel geom(soft);
+  const PerFinger<Vec3> held = geom.gripFromAngles(Vec3(degToRad(60.0), 0.0, 0.0), 0.008);
+  JointProxy proxy(soft, 200 * kNsPerMs);
+  JointProxy only_soft(soft);
+  proxy.render(held, 0);
+  only_soft.render(held, 0);
+  proxy.setModel(stiff, 0);
+  const double dv = JointModel(stiff).potentialEnergyJ(geom.anglesFromGrip(held)) -
+                    JointModel(soft).potentialEnergyJ(geom.anglesFromGrip(held));
+  ASSERT_GT(dv, 0.0);
+  // No budget: the joint held at 60 deg keeps the old stiffness (for up to kEnergyWaitNs).
+  for (int i = 1; i <= 1000; ++i) {
+    proxy.setEnergyBudget(0.0);
+    const ProxyOutput out = proxy.render(held, i * kNsPerMs);
+    EXPECT_TRUE(out.blending);
+    EXPECT_LE(out.blend_energy_j, 0.0);
+    EXPECT_LT((out.force_device_n[0] - only_soft.render(held, i * kNsPerMs).force_device_n[0]).norm(), 1e-12);
+  }
+  // Half the difference paid: half way, and the energy spent never exceeds what was given.
+  double spent = 0.0;
+  proxy.setEnergyBudget(0.5 * dv);
+  for (int i = 1001; i <= 1400; ++i) spent += proxy.render(held, i * kNsPerMs).blend_energy_j;
+  EXPECT_NEAR(spent, 0.5 * dv, 1e-9 + 1e-6 * dv);
+  EXPECT_TRUE(proxy.blending());
+  proxy.setEnergyBudget(dv);
+  for (int i = 1401; i <= 1700; ++i) proxy.render(held, i * kNsPerMs);
+  EXPECT_FALSE(proxy.blending());
+}
+
+TEST(ModelFade, AStarvedStifferModelFadesInAfterTheWaitUnderTheStepBound) {
+  const JointModelParams soft = healthyIndexMcp();
+  const JointModelParams stiff = stiffer(2, 2.0);
+  const JointModel geom(soft);
+  const PerFinger<Vec3> held = geom.gripFromAngles(Vec3(degToRad(60.0), 0.0, 0.0), 0.008);
+  JointProxy proxy(soft, 200 * kNsPerMs);
+  proxy.render(held, 0);
+  proxy.setModel(stiff, 0);
+  const int wait_ms = static_cast<int>(JointProxy::kEnergyWaitNs / kNsPerMs);
+  int i = 1;
+  for (; i <= wait_ms; ++i) {
+    proxy.setEnergyBudget(0.0);
+    EXPECT_LE(proxy.render(held, i * kNsPerMs).blend_energy_j, 0.0) << i;
+  }
+  EXPECT_TRUE(proxy.blending());
+  double prev = proxy.render(held, i * kNsPerMs).force_device_n[0].norm();
+  for (++i; i < wait_ms + 2000 && proxy.blending(); ++i) {
+    proxy.setEnergyBudget(0.0);
+    const ProxyOutput out = proxy.render(held, i * kNsPerMs);
+    const double f = out.force_device_n[0].norm();
+    EXPECT_LE(std::abs(f - prev), std::max(JointProxy::kUpdateStepFraction * f, JointProxy::kUpdateStepFloorN) + 1e-9);
+    prev = f;
+  }
+  EXPECT_FALSE(proxy.blending()) << "the stiffer model is rendered in the end";
+  EXPECT_EQ(proxy.version(), 2u);
+}
+
+TEST(ModelFade, ASofterModelReleasesEnergyAndFadesWithoutBudget) {
+  const JointModelParams stiff = stiffer(1, 2.0);
+  const JointModelParams soft = stiffer(2, 1.0);
+  const JointModel geom(stiff);
+  JointProxy proxy(stiff, 200 * kNsPerMs);
+  int i = 0;
+  proxy.setModel(soft, 0);
+  for (; i < 1000 && (i == 0 || proxy.blending()); ++i) {
+    proxy.setEnergyBudget(0.0);
+    const ProxyOutput out = proxy.render(sweep(geom, i * kNsPerMs), i * kNsPerMs);
+    EXPECT_LE(out.blend_energy_j, 1e-15);
+  }
+  EXPECT_FALSE(proxy.blending());
+  EXPECT_LE(i, 202);
+}
+
+}  // namespace
+}  // namespace telehand
