@@ -10,7 +10,7 @@ packages=(
   # DDS (C API, idlc, ddsperf)
   cyclonedds-dev cyclonedds-tools
   # maths, physics, USB, nearest neighbours
-  libeigen3-dev libbullet-dev libusb-1.0-0-dev libflann-dev
+  libeigen3-dev libbullet-dev libusb-1.0-0-dev libflann-dev liblz4-dev
   # hand model (URDF parser, check_urdf)
   liburdfdom-dev liburdfdom-tools
   # records, CLI, logs, config
@@ -19,6 +19,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   # the emulated MF-2 (USB tests) and the fuzz targets (clang's libFuzzer)
   umockdev libumockdev-dev clang libclang-rt-14-dev
+  # plots of fitted captures (telehand-records fit)
+  gnuplot-nox
   # network namespaces for system tests
   iproute2
 )

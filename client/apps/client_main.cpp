@@ -11,10 +11,14 @@
 #include <cstdio>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <unistd.h>
 
 #include "client/device/simulated_mf2.h"
+#include "client/device/sweep_operator.h"
 #include "client/device/usb_mf2.h"
+#include "telehand/common/config.h"
+#include "telehand/common/mf2_device.h"
 #include "client/link/client_link.h"
 #include "telehand/common/log.h"
 #include "telehand/common/wire.h"
@@ -62,6 +66,18 @@ int main(int argc, char** argv) {
                             "run the 1 kHz loop at this SCHED_FIFO priority (1-99; needs CAP_SYS_NICE)")
                  ->check(CLI::Range(1, 99));
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
+  uint64_t follow = 0;
+  std::string stiffness = "cubic", patient_name = "healthy", cases_dir = TELEHAND_DEPLOY_DIR "/cases";
+  double thimble_noise = 1.43, sweep_seconds = 10.0;
+  app.add_option("--follow", follow, "feel the live fit of this capture session (e.g. an expert's, elsewhere)");
+  app.add_option("--stiffness", stiffness, "with --follow: render the fitted cubics or the captured samples (k nearest neighbours)")
+      ->check(CLI::IsMember({"cubic", "knn"}))->capture_default_str();
+  app.add_option("--patient", patient_name, "capture mode, simulated MF-2: the real finger in the grip (a patient case)")->capture_default_str();
+  app.add_option("--cases", cases_dir, "patient cases directory (for --patient)")->capture_default_str();
+  app.add_option("--thimble-noise", thimble_noise, "capture mode, simulated MF-2: thimble error per axis, N RMS (paper: 1.43)")
+      ->check(CLI::Range(0.0, 10.0))->capture_default_str();
+  app.add_option("--sweep-seconds", sweep_seconds, "capture mode, simulated MF-2: seconds the clinician mobilizes each axis")
+      ->check(CLI::Range(1.0, 600.0))->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
@@ -91,9 +107,26 @@ int main(int argc, char** argv) {
 
     SteadyClock clock;
     const JointModelParams initial = healthyIndexMcp();
-    const mf2::Mf2Description mf2_device =
+    const mf2::Mf2Description description =
         device_file.empty() ? mf2::defaultMf2() : mf2::loadMf2Description(device_file);
-    client::device::Mf2ModelCalibration usb_calibration(mf2_device);
+    const telehand_msg_SessionMode mode = *parseMode(mode_name);
+    if (follow != 0 && mode == telehand_msg_MODE_CAPTURE) throw ConfigError("--follow needs a mode other than capture");
+    // Capture: a real (simulated) finger in the grip, moved by a clinician with the
+    // actuators off; the thimbles measure real forces (no 1:4 rendering scale).
+    JointModelParams geometry = initial;
+    client::device::SimulatedMf2Dynamics dyn;
+    std::optional<client::device::SweepOperator> clinician;
+    JointModelParams patient;
+    if (mode == telehand_msg_MODE_CAPTURE && device_kind != "usb") {
+      patient = loadPatientCaseByName(cases_dir, patient_name).model;
+      geometry.force_scale = 1.0;
+      dyn.operator_damping = 0.0;  // the clinician's damping is in the servo: the FSRs see it
+      dyn.mass_kg += 2.1e-5 / (initial.lever_arm_m * initial.lever_arm_m);  // the phalanx (FACTS.md)
+      client::device::SweepPlan plan = client::device::planSweep(patient);
+      plan.seconds_per_axis = sweep_seconds;
+      clinician.emplace(plan);
+    }
+    client::device::Mf2ModelCalibration usb_calibration(description);
     std::unique_ptr<client::device::Device> device_owner;
     client::device::UsbMf2* usb = nullptr;
     if (device_kind == "usb") {
@@ -108,26 +141,42 @@ int main(int argc, char** argv) {
                           usb->statusText());
       }
     } else {
-      device_owner = std::make_unique<client::device::SimulatedMf2>(
-          initial, cfg.op, clock, client::device::SimulatedMf2Dynamics{}, mf2_device);
+      auto sim = std::make_unique<client::device::SimulatedMf2>(geometry, cfg.op, clock, dyn, description);
+      if (clinician) {
+        sim->setPatient(patient);
+        sim->setOperator(&*clinician);
+        sim->setAxisForceNoise(thimble_noise);
+      }
+      device_owner = std::move(sim);
     }
     client::device::Device& device = *device_owner;
     client::loop::HapticLoop loop(device, clock, initial, cfg.safety, cfg.loop);
     client::link::ClientLink link(dds_opts, loop);
 
     client::link::OpenRequest req;
-    req.mode = *parseMode(mode_name);
+    req.mode = mode;
     req.case_name = case_name;
     req.user = user;
+    req.follow_session = follow;
+    req.stiffness = stiffness == "knn" ? telehand_msg_STIFFNESS_KNN : telehand_msg_STIFFNESS_CUBIC;
     const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(connect_timeout * 1000));
     const uint64_t session = link.open(req, timeout);
     if (!link.awaitModel(timeout)) {
       throw Error("session " + std::to_string(session) + " opened but no JointModel arrived");
     }
     loop.setActuatorsEnabled(req.mode != telehand_msg_MODE_CAPTURE);
-    std::cout << "session " << session << " open: " << mode_name << " on case '" << case_name
-              << "', device " << device.name() << ", " << cfg.op.frequency_hz << " Hz in "
-              << cfg.op.band_min_n << "-" << cfg.op.band_max_n << " N" << std::endl;
+    if (req.mode == telehand_msg_MODE_CAPTURE) {
+      link.sendFiles(mf2::descriptionFiles(description));
+      std::cout << "session " << session << " open: capture (actuators off) of patient '" << patient_name
+                << "' with device " << description.name << ", thimbles " << description.thimbles[kThumb].serial
+                << " and " << description.thimbles[kIndex].serial << std::endl;
+    } else {
+      std::cout << "session " << session << " open: " << mode_name << " on case '" << case_name
+                << "', device " << device.name() << ", " << cfg.op.frequency_hz << " Hz in "
+                << cfg.op.band_min_n << "-" << cfg.op.band_max_n << " N"
+                << (follow ? ", following capture session " + std::to_string(follow) + " (" + stiffness + ")" : "")
+                << std::endl;
+    }
 
     installStopSignals();
     link.start();
@@ -191,10 +240,18 @@ int main(int argc, char** argv) {
                 static_cast<unsigned long long>(h.clamped.load()),
                 static_cast<unsigned long long>(h.rate_limited.load()),
                 static_cast<unsigned long long>(h.samples_dropped.load()));
-    std::printf("  force: commanded up to %.2f N per finger; applied %.1f..%.1f N at reference scale "
-                "(band %.0f-%.0f N)\n",
-                h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max,
-                cfg.op.band_min_n, cfg.op.band_max_n);
+    if (req.mode == telehand_msg_MODE_CAPTURE) {
+      // The loop scales what the thimbles measure by the rendering scale; a capture has none.
+      const double scale = initial.force_scale;
+      std::printf("  force: commanded %.2f N (actuators off); the thimbles measured %.1f..%.1f N\n",
+                  h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min * scale,
+                  applied_max * scale);
+    } else {
+      std::printf("  force: commanded up to %.2f N per finger; applied %.1f..%.1f N at reference scale "
+                  "(band %.0f-%.0f N)\n",
+                  h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max,
+                  cfg.op.band_min_n, cfg.op.band_max_n);
+    }
     if (usb != nullptr) {
       const auto& u = usb->stats();
       const uint64_t rtts = u.rtt_count.load();

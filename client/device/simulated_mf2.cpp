@@ -61,7 +61,9 @@ void SimulatedMf2::integrate(double dt) noexcept {
   }
   operator_force_ = geometry_.fingertipForces(p, angles_, tau_seen);
   const Vec3 tau_render = geometry_.axisTorque(p, angles_, rendered_);
-  const Vec3 tau_patient = has_patient_ ? patient_.passiveTorqueNm(angles_, rates_) : Vec3::Zero();
+  const Vec3 tau_patient = custom_patient_ ? custom_patient_->passiveTorqueNm(angles_, rates_)
+                           : has_patient_  ? patient_.passiveTorqueNm(angles_, rates_)
+                                           : Vec3::Zero();
 
   const Vec3 acc = (tau_op + tau_render + tau_patient - b * rates_) / inertia;
   rates_ += acc * dt;  // semi-implicit Euler

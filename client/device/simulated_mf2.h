@@ -37,6 +37,14 @@ class Operator {
   virtual Vec3 torqueNm(double t_s, const Vec3& angles_rad, const Vec3& rates_rad_s) noexcept = 0;
 };
 
+/// A real finger's passive joint, for captures of joints the cubic model cannot express
+/// (e.g. coupled axes). Called from the device's 1 kHz step: no allocation.
+class PatientJoint {
+ public:
+  virtual ~PatientJoint() = default;
+  virtual Vec3 passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept = 0;
+};
+
 class SimulatedMf2 final : public Device {
  public:
   SimulatedMf2(const JointModelParams& geometry, const OperatorConfig& op, const Clock& clock,
@@ -46,6 +54,8 @@ class SimulatedMf2 final : public Device {
   /// A real finger in the grip (capture): its passive torques act on the phalanx besides
   /// whatever the device renders. Call before the first read.
   void setPatient(const JointModelParams& truth);
+  /// As above with any joint; not owned, must outlive the device.
+  void setPatient(const PatientJoint* joint) noexcept { custom_patient_ = joint; }
   /// Replace the built-in mobilization (flexion force band, other axes held) by a script.
   /// The operator must outlive the device.
   void setOperator(Operator* op) noexcept { script_ = op; }
@@ -80,6 +90,7 @@ class SimulatedMf2 final : public Device {
   PerFinger<mf2::FsrMonitor> fsr_;
   JointModel patient_{JointModelParams{}};
   bool has_patient_ = false;
+  const PatientJoint* custom_patient_ = nullptr;
   Operator* script_ = nullptr;
   double axis_noise_n_ = 0.0;
   mf2::ActuatorAngles q_act_ = mf2::ActuatorAngles::Zero();

@@ -22,6 +22,10 @@ struct SweepPlan {
   double stiffness_nm_per_rad = 4.0;     ///< the clinician's servo at the grip
   double damping_nms_per_rad = 0.006;
   bool repeat = true;                    ///< start again with flexion after the last axis
+  /// Instead of one axis at a time: flexion and abduction together, at frequency_hz and
+  /// 3.7 times it (incommensurate: the pair covers the plane), axial rotation held. For
+  /// joints whose axes are coupled.
+  bool combined = false;
 
   double durationS() const noexcept { return kAxes * seconds_per_axis; }
 };

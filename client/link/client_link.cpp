@@ -2,6 +2,7 @@
 
 #include <sys/prctl.h>
 
+#include <algorithm>
 #include <random>
 
 #include "telehand/common/clock.h"
@@ -30,7 +31,10 @@ ClientLink::ClientLink(const dds::Options& options, loop::HapticLoop& loop)
       model_reader_(participant_, topics_.joint_model, dds::qos::jointModel()),
       status_reader_(participant_, topics_.session_status, dds::qos::sessionStatus()),
       event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
-      client_id_(randomClientId()) {
+      client_id_(randomClientId()),
+      capture_topics_(participant_),
+      file_writer_(participant_, capture_topics_.session_file, dds::qos::sessionFile()),
+      knn_reader_(participant_, capture_topics_.knn_model, dds::qos::knnModel()) {
   chunk_.reserve(kChunkSamples);
 }
 
@@ -53,6 +57,8 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
   copyString(cmd.case_name, req.case_name);
   copyString(cmd.user, req.user);
   copyString(cmd.text, "");
+  cmd.follow_session = req.follow_session;
+  cmd.stiffness = req.stiffness;
   dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
 
   while (std::chrono::steady_clock::now() < deadline) {
@@ -156,6 +162,19 @@ void ClientLink::flushChunk(bool retry_only) {
 }
 
 void ClientLink::pollModels() {
+  knn_reader_.take([&](const telehand_msg_KnnModel& k, const dds_sample_info_t&) {
+    if (k.session_id != session_id_ || (knn_samples_ && k.version <= knn_samples_->version)) return;
+    KnnWire w;
+    w.version = k.version;
+    w.k = static_cast<int>(std::clamp<uint32_t>(k.k, 1, 64));
+    w.points.reserve(k.samples._length);
+    for (uint32_t i = 0; i < k.samples._length; ++i) {
+      const auto& p = k.samples._buffer[i];
+      w.points.push_back({Vec3(p.angles_rad[0], p.angles_rad[1], p.angles_rad[2]),
+                          Vec3(p.torque_nm[0], p.torque_nm[1], p.torque_nm[2])});
+    }
+    knn_samples_ = std::move(w);
+  });
   model_reader_.take([&](const telehand_msg_JointModel& m, const dds_sample_info_t&) {
     if (m.session_id != session_id_ || m.version <= model_version_) return;
     std::string why;
@@ -167,10 +186,43 @@ void ClientLink::pollModels() {
       return;
     }
     model_version_ = m.version;
-    pending_model_ = *params;  // the newest wins; it is never sent again (keep-last 1)
     stats_.models_received.fetch_add(1);
+    if (m.kind == telehand_msg_STIFFNESS_KNN) {
+      waiting_knn_ = *params;  // until its samples are here
+    } else {
+      waiting_knn_.reset();
+      pending_model_ = *params;  // the newest wins; it is never sent again (keep-last 1)
+    }
   });
+  if (waiting_knn_ && knn_samples_ && knn_samples_->version == waiting_knn_->version) {
+    try {
+      KnnOptions o;
+      o.k = knn_samples_->k;
+      auto model = std::make_shared<const KnnTorqueModel>(std::move(knn_samples_->points), o);
+      knn_samples_->points.clear();
+      waiting_knn_->knn = model.get();
+      knn_alive_.push_back(std::move(model));
+      while (knn_alive_.size() > kKnnKeep) knn_alive_.pop_front();
+      pending_model_ = *waiting_knn_;
+    } catch (const Error& e) {
+      stats_.models_rejected.fetch_add(1);
+      std::lock_guard lock(messages_mu_);
+      messages_.push_back("rejected k-nearest-neighbour model v" + std::to_string(waiting_knn_->version) + ": " + e.what());
+    }
+    waiting_knn_.reset();
+  }
   if (pending_model_ && loop_.models().tryPush(*pending_model_)) pending_model_.reset();
+}
+
+void ClientLink::sendFiles(const std::vector<mf2::NamedFile>& files) {
+  for (const auto& f : files) {
+    telehand_msg_SessionFile w{};
+    w.session_id = session_id_;
+    w.source_time_ns = wallNs();
+    copyString(w.name, f.name);
+    w.content = const_cast<char*>(f.content.c_str());
+    dds::check(file_writer_.write(w), "write SessionFile");
+  }
 }
 
 void ClientLink::pollEvents() {

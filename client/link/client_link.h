@@ -15,6 +15,9 @@
 
 #include "client/loop/haptic_loop.h"
 #include "telehand/common/dds.h"
+#include "telehand/common/dds_capture.h"
+#include "telehand/common/knn_model.h"
+#include "telehand/common/mf2_device.h"
 
 namespace telehand::client::link {
 
@@ -33,6 +36,8 @@ struct OpenRequest {
   telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
   std::string case_name = "healthy";
   std::string user = "student";
+  uint64_t follow_session = 0;  ///< render this capture session's live fit
+  telehand_msg_StiffnessKind stiffness = telehand_msg_STIFFNESS_CUBIC;
 };
 
 struct CloseResult {
@@ -60,6 +65,8 @@ class ClientLink {
 
   /// Send a mark/feedback event into the session.
   void mark(const std::string& text);
+  /// Send files to keep with the session's record (a capture's device and calibration files).
+  void sendFiles(const std::vector<mf2::NamedFile>& files);
 
   const LinkStats& stats() const noexcept { return stats_; }
   uint64_t sessionId() const noexcept { return session_id_; }
@@ -100,6 +107,21 @@ class ClientLink {
   std::vector<std::string> messages_;
   uint32_t model_version_ = 0;
   std::optional<JointModelParams> pending_model_;  // taken but not yet in the loop's ring
+  // Data-driven models: a STIFFNESS_KNN JointModel waits for the KnnModel of its version.
+  dds::CaptureTopics capture_topics_;
+  dds::Writer<telehand_msg_SessionFile> file_writer_;
+  dds::Reader<telehand_msg_KnnModel> knn_reader_;
+  struct KnnWire {
+    uint32_t version = 0;
+    int k = 8;
+    std::vector<KnnPoint> points;
+  };
+  std::optional<KnnWire> knn_samples_;
+  std::optional<JointModelParams> waiting_knn_;
+  /// Every model the loop may still render: the ring's 8, the proxy's current and previous,
+  /// and the one pending. Older ones are freed here, never on the loop's thread.
+  std::deque<std::shared_ptr<const KnnTorqueModel>> knn_alive_;
+  static constexpr std::size_t kKnnKeep = 12;
 };
 
 }  // namespace telehand::client::link

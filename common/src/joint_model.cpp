@@ -1,5 +1,7 @@
 #include "telehand/common/joint_model.h"
 
+#include "telehand/common/knn_model.h"
+
 #include <algorithm>
 #include <cstring>
 
@@ -63,6 +65,22 @@ double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
 
 Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept {
   Vec3 tau;
+  if (p_.knn) {
+    // The samples inside the ranges; beyond them the nearest samples' torque plus the wall.
+    Vec3 in;
+    Vec3 excess_deg;
+    for (int i = 0; i < kAxes; ++i) {
+      const CubicCurve& c = p_.axes[static_cast<std::size_t>(i)];
+      in[i] = std::clamp(angles_rad[i], degToRad(c.min_deg), degToRad(c.max_deg));
+      excess_deg[i] = radToDeg(angles_rad[i] - in[i]);
+    }
+    const Vec3 knn = p_.knn->torqueNm(in);
+    for (int i = 0; i < kAxes; ++i) {
+      tau[i] = knn[i] - kWallNPerDeg * excess_deg[i] * p_.lever_arm_m -
+               p_.damping_nms_per_rad * rates_rad_s[i];
+    }
+    return tau;
+  }
   for (int i = 0; i < kAxes; ++i) {
     const double spasm = 1.0 + p_.speed_gain_s_per_rad * std::abs(rates_rad_s[i]);
     tau[i] = -holdingForceN(i, angles_rad[i]) * p_.lever_arm_m * spasm -

@@ -291,6 +291,19 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
   return d;
 }
 
+std::vector<NamedFile> descriptionFiles(const Mf2Description& d) {
+  std::vector<NamedFile> files;
+  if (d.path.empty()) {
+    files.push_back({"device/built-in.toml", "# built-in MF-2 description (mf2::defaultMf2): " + d.source + "\n"});
+    return files;
+  }
+  files.push_back({"device/" + std::filesystem::path(d.path).filename().string(), readText(d.path, "device file")});
+  for (const auto& t : d.thimble_files) {
+    files.push_back({"thimble/" + std::filesystem::path(t).filename().string(), readText(t, "thimble calibration file")});
+  }
+  return files;
+}
+
 Mf2Description loadMf2Description(const std::string& path) {
   const std::string text = readText(path, "device file");
   return parseMf2Description(text, path, std::filesystem::path(path).parent_path().string());

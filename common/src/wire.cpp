@@ -7,7 +7,7 @@ namespace telehand {
 void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointModel& out) {
   out.session_id = session_id;
   out.version = p.version;
-  out.kind = telehand_msg_STIFFNESS_CUBIC;
+  out.kind = p.knn ? telehand_msg_STIFFNESS_KNN : telehand_msg_STIFFNESS_CUBIC;
   for (int i = 0; i < kAxes; ++i) {
     const auto& a = p.axes[static_cast<std::size_t>(i)];
     for (int c = 0; c < 4; ++c) out.axes[i].coeffs[c] = a.coeffs[static_cast<std::size_t>(c)];

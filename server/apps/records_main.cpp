@@ -4,6 +4,7 @@
 #include <iomanip>
 #include <iostream>
 
+#include "server/apps/records_fit.h"
 #include "server/session/sqlite_store.h"
 #include "telehand/common/error.h"
 
@@ -35,9 +36,39 @@ int main(int argc, char** argv) {
   show->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("-o,--output", out_path, "CSV file to write (default: stdout)");
+  telehand::records::FitRequest fit_req;
+  fit_req.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
+  auto* fit = app.add_subcommand("fit", "fit a capture session: a patient-case file (a cubic per axis) and a plot per axis");
+  fit->add_option("session", fit_req.session, "capture session id (see 'list')")->required();
+  fit->add_option("-o,--output", fit_req.output, "case file to write (default: NAME.toml)");
+  fit->add_option("--name", fit_req.name, "case name (default: capture-SESSION)");
+  fit->add_option("--plots", fit_req.plots_dir, "directory for the plots (default: next to the case file)");
+  fit->add_option("--plot-format", fit_req.plot_format, "png or svg")->check(CLI::IsMember({"svg", "png"}))->capture_default_str();
+  fit->add_option("--cases", fit_req.cases_dir, "patient cases (the session's case gives the joint frame)")->capture_default_str();
+  fit->add_flag("-q,--quiet", fit_req.quiet, "no progress lines");
+  telehand::records::SynthRequest synth_req;
+  synth_req.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
+  auto* synth = app.add_subcommand("synth", "store a synthetic capture: a mobilization of a known joint through the simulated MF-2, with thimble noise");
+  synth->add_option("--case", synth_req.case_name, "ground-truth joint (a patient case)")->capture_default_str();
+  synth->add_option("--cases", synth_req.cases_dir, "patient cases directory")->capture_default_str();
+  synth->add_option("--device", synth_req.device_file, "MF-2 device file (default: built in)")->check(CLI::ExistingFile);
+  synth->add_option("--noise", synth_req.noise_n, "thimble error per axis, N RMS (paper: 1.43)")->check(CLI::Range(0.0, 10.0))->capture_default_str();
+  synth->add_option("--seconds-per-axis", synth_req.seconds_per_axis, "sweep time per axis")->check(CLI::Range(2.0, 600.0))->capture_default_str();
+  synth->add_option("--frequency", synth_req.frequency_hz, "sweep frequency, Hz")->check(CLI::Range(0.05, 6.0))->capture_default_str();
+  synth->add_option("--max-force", synth_req.max_force_n, "force the clinician stops at, N")->check(CLI::Range(1.0, 20.0))->capture_default_str();
+  synth->add_option("--seed", synth_req.seed, "noise seed")->capture_default_str();
+  synth->add_flag("-q,--quiet", synth_req.quiet, "no progress lines");
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
+    if (*synth) {
+      synth_req.db = db;
+      return telehand::records::runSynth(synth_req);
+    }
+    if (*fit) {
+      fit_req.db = db;
+      return telehand::records::runFit(fit_req);
+    }
     SqliteStore store(db, SqliteStore::Mode::kReadOnly);
     if (*list) {
       const auto sessions = store.listSessions();

@@ -47,6 +47,13 @@ std::optional<CapturePoint> capturePoint(const JointModel& geometry,
   return c;
 }
 
+JointModelParams captureGeometry(const JointModelParams& joint) {
+  JointModelParams g = joint;
+  g.force_scale = 1.0;
+  g.knn = nullptr;
+  return g;
+}
+
 CaptureFitter::CaptureFitter(const JointModelParams& geometry, const FitOptions& options)
     : geometry_(geometry), options_(options) {}
 
@@ -170,8 +177,7 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
     o << "\n[" << kAxisNames[i] << "]";
     if (a.ok) {
       std::snprintf(buf, sizeof buf,
-                    "   # RMS residual %.3f N over %zu samples; neutral zone (|F| < threshold) "
-                    "%.1f..%.1f deg",
+                    "   # RMS residual %.3f N over %zu samples; lax zone (|F| < 1 N) %.1f..%.1f deg",
                     a.rms_n, a.samples, a.neutral_min_deg, a.neutral_max_deg);
       o << buf;
     } else {
@@ -184,6 +190,7 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
                   c.min_deg, c.max_deg, model.neutral_zone_deg[i]);
     o << buf;
   }
+  o << "\n";
   return o.str();
 }
 

@@ -90,6 +90,10 @@ class CaptureFitter {
   CaptureCounts counts_;
 };
 
+/// Geometry a capture is fitted with: the joint's frame and lever arm at reference scale
+/// (the thimbles measure real forces; 1:4 is a rendering scale).
+JointModelParams captureGeometry(const JointModelParams& joint);
+
 /// A patient-case TOML (deploy/cases format, loadable by sessions) of a fitted model.
 std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model,
                             const std::string& name, const std::string& description,

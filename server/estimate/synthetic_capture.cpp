@@ -1,8 +1,5 @@
 #include "server/estimate/synthetic_capture.h"
 
-#include <filesystem>
-#include <fstream>
-#include <sstream>
 
 #include "client/device/simulated_mf2.h"
 #include "client/loop/haptic_loop.h"
@@ -15,12 +12,6 @@ namespace {
 constexpr double kPhalanxInertiaKgM2 = 2.1e-5;
 }  // namespace
 
-JointModelParams captureGeometry(const JointModelParams& joint) {
-  JointModelParams g = joint;
-  g.force_scale = 1.0;  // the thimbles measure real forces; 1:4 is a rendering scale
-  return g;
-}
-
 SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
                                    const std::function<void(double)>& progress) {
   SyntheticCapture out;
@@ -29,6 +20,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
   out.plan.seconds_per_axis = o.seconds_per_axis;
   out.plan.frequency_hz = o.frequency_hz;
   out.plan.repeat = false;
+  out.plan.combined = o.combined_sweep;
   client::device::SweepOperator clinician(out.plan);
 
   ManualClock clock(kNsPerS);
@@ -42,6 +34,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
   dyn.mass_kg += kPhalanxInertiaKgM2 / (o.truth.lever_arm_m * o.truth.lever_arm_m);
   client::device::SimulatedMf2 dev(out.geometry, op, clock, dyn, o.device);
   dev.setPatient(o.truth);
+  if (o.patient) dev.setPatient(o.patient);
   dev.setOperator(&clinician);
   dev.setAxisForceNoise(o.noise_n);
 
@@ -63,21 +56,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
 
 std::vector<session::SessionFile> deviceFiles(const mf2::Mf2Description& d) {
   std::vector<session::SessionFile> files;
-  auto read = [](const std::string& path) {
-    std::ifstream in(path);
-    if (!in) throw ConfigError("cannot read '" + path + "' to store it with the session");
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    return ss.str();
-  };
-  if (d.path.empty()) {
-    files.push_back({"device.toml", "# built-in MF-2 description (mf2::defaultMf2): " + d.source + "\n"});
-    return files;
-  }
-  files.push_back({"device/" + std::filesystem::path(d.path).filename().string(), read(d.path)});
-  for (const auto& t : d.thimble_files) {
-    files.push_back({"thimble/" + std::filesystem::path(t).filename().string(), read(t)});
-  }
+  for (auto& f : mf2::descriptionFiles(d)) files.push_back({std::move(f.name), std::move(f.content)});
   return files;
 }
 

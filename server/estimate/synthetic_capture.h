@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "client/device/sweep_operator.h"
+#include "server/estimate/capture_fit.h"
 #include "server/session/store.h"
 #include "telehand.h"
 #include "telehand/common/joint_model.h"
@@ -28,6 +29,10 @@ struct SyntheticCaptureOptions {
   double range_fraction = 0.9;
   uint64_t seed = 1;
   mf2::Mf2Description device = mf2::defaultMf2();
+  /// A joint the cubics cannot express (coupled axes): moves the finger instead of `truth`,
+  /// which still plans the sweep. Not owned.
+  const client::device::PatientJoint* patient = nullptr;
+  bool combined_sweep = false;  ///< flexion and abduction together (SweepPlan::combined)
 };
 
 struct SyntheticCapture {
@@ -39,9 +44,6 @@ struct SyntheticCapture {
 /// Runs the capture (deterministic for a seed). `progress(fraction)` now and then.
 SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
                                    const std::function<void(double)>& progress = {});
-
-/// Geometry a capture is fitted with: the truth's frame and lever arm at reference scale.
-JointModelParams captureGeometry(const JointModelParams& joint);
 
 /// Store as a capture session with its device and thimble calibration files; returns its id.
 uint64_t storeCapture(session::SessionStore& store, const SyntheticCapture& capture,

@@ -10,7 +10,7 @@ namespace {
 // The server takes the live stream in batches; a deep reader history keeps a slow tick
 // (a large SQLite commit) from overwriting samples that HandState and the rate need.
 constexpr int32_t kDeviceReaderDepth = 256;
-enum Attach : dds_attach_t { kWake = 1, kCommands, kDevice, kChunks };
+enum Attach : dds_attach_t { kWake = 1, kCommands, kDevice, kChunks, kFiles };
 }  // namespace
 
 ServerLink::ServerLink(const dds::Options& options)
@@ -28,7 +28,11 @@ ServerLink::ServerLink(const dds::Options& options)
       wake_(participant_),
       echo_stop_(participant_),
       waitset_(participant_),
-      echo_waitset_(participant_) {
+      echo_waitset_(participant_),
+      capture_topics_(participant_),
+      file_reader_(participant_, capture_topics_.session_file, dds::qos::sessionFile()),
+      knn_writer_(participant_, capture_topics_.knn_model, dds::qos::knnModel()) {
+  waitset_.attach(file_reader_.handle(), kFiles);
   waitset_.attach(wake_.handle(), kWake);
   waitset_.attach(command_reader_.handle(), kCommands);
   waitset_.attach(device_reader_.handle(), kDevice);
@@ -53,6 +57,9 @@ void ServerLink::publish(const telehand_msg_JointModel& m) {
 void ServerLink::publish(const telehand_msg_HandState& h) {
   if (hand_writer_.write(h) < 0) counters_.publish_errors.fetch_add(1);
 }
+void ServerLink::publish(const telehand_msg_KnnModel& k) {
+  if (knn_writer_.write(k) < 0) counters_.publish_errors.fetch_add(1);
+}
 void ServerLink::publish(const telehand_msg_SessionEvent& e) {
   if (event_writer_.write(e) < 0) counters_.publish_errors.fetch_add(1);
 }
@@ -69,6 +76,9 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
         [&](const telehand_msg_SessionCommand& c, const dds_sample_info_t&) {
           manager.onCommand(c, now);
         });
+    file_reader_.take([&](const telehand_msg_SessionFile& f, const dds_sample_info_t&) {
+      manager.onFile(f, now);
+    });
     counters_.chunks += chunk_reader_.take(
         [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t&) { manager.onChunk(c, now); },
         1024);

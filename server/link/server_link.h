@@ -7,6 +7,7 @@
 
 #include "server/session/session_manager.h"
 #include "telehand/common/dds.h"
+#include "telehand/common/dds_capture.h"
 
 namespace telehand::server::link {
 
@@ -27,6 +28,7 @@ class ServerLink final : public session::Outbox {
   void publish(const telehand_msg_JointModel& m) override;
   void publish(const telehand_msg_HandState& h) override;
   void publish(const telehand_msg_SessionEvent& e) override;
+  void publish(const telehand_msg_KnnModel& k) override;
 
   /// Serve until `stop` becomes true; ticks the manager at least every `tick`.
   void serve(session::SessionManager& manager, const std::atomic<bool>& stop,
@@ -57,6 +59,9 @@ class ServerLink final : public session::Outbox {
   std::atomic<bool> echo_running_{true};
   std::thread echo_thread_;
   LinkCounters counters_;
+  dds::CaptureTopics capture_topics_;
+  dds::Reader<telehand_msg_SessionFile> file_reader_;
+  dds::Writer<telehand_msg_KnnModel> knn_writer_;
 };
 
 }  // namespace telehand::server::link

@@ -3,6 +3,9 @@
 #include <spdlog/spdlog.h>
 
 #include <cmath>
+#include <deque>
+
+#include "telehand/common/knn_model.h"
 
 #include "telehand/common/clock.h"
 #include "telehand/common/error.h"
@@ -45,6 +48,12 @@ struct SessionManager::Session {
   // HandState
   uint64_t hand_seq = 0;
   int64_t next_hand_ns = 0;
+  // capture: live refit, and the sessions that feel it
+  std::unique_ptr<estimate::LiveRefit> refit;
+  std::vector<uint64_t> followers;
+  uint64_t follows = 0;                // the capture session this one renders
+  bool wants_knn = false;
+  std::deque<std::shared_ptr<const KnnTorqueModel>> knn_alive;  // rendered by model and sim
   // closing
   bool closing = false;
   uint64_t expected = 0;
@@ -121,9 +130,30 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
 }
 
 void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
-  const std::string case_name = cmd.case_name;
+  std::string case_name = cmd.case_name;
   PatientCase patient;
-  if (config_.cases_dir.empty()) {
+  Session* capture = nullptr;
+  if (cmd.follow_session != 0) {
+    // A follower renders the live fit of a running capture session.
+    auto it = sessions_.find(cmd.follow_session);
+    if (it == sessions_.end() || it->second.mode != telehand_msg_MODE_CAPTURE || it->second.closing) {
+      ++stats_.bad_commands;
+      event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+            "cannot follow session " + std::to_string(cmd.follow_session) +
+                ": no capture session of that id is running",
+            now_ns);
+      return;
+    }
+    if (cmd.mode == telehand_msg_MODE_CAPTURE) {
+      ++stats_.bad_commands;
+      event(0, cmd.client_id, telehand_msg_EVENT_ERROR, "a capture session cannot follow another", now_ns);
+      return;
+    }
+    capture = &it->second;
+    case_name = "capture-" + std::to_string(cmd.follow_session);
+    patient.name = case_name;
+    patient.model = capture->params;
+  } else if (config_.cases_dir.empty()) {
     if (case_name != "healthy") {
       ++stats_.bad_commands;
       event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
@@ -162,7 +192,17 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   s.patient = patient;
   s.params = patient.at(0.0);
   s.params.version = 1;
+  s.params.knn = nullptr;
   s.model = JointModel(s.params);
+  if (capture) {
+    s.follows = cmd.follow_session;
+    s.wants_knn = cmd.stiffness == telehand_msg_STIFFNESS_KNN;
+    capture->followers.push_back(info.id);
+  }
+  if (cmd.mode == telehand_msg_MODE_CAPTURE) {
+    s.refit = std::make_unique<estimate::LiveRefit>(estimate::captureGeometry(s.params), s.params,
+                                                    refit_options_);
+  }
   if (hand_) s.sim = std::make_unique<sim::HandSim>(*hand_, s.params);
   if (cmd.mode == telehand_msg_MODE_EXPLORATION) s.exploration.begin("baseline");
   s.next_recovery_check_ns = now_ns + kNsPerS;
@@ -172,12 +212,13 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
 
   s.request_seq = cmd.request_seq;
   publishStatus(s, telehand_msg_SESSION_ACTIVE, now_ns);
-  telehand_msg_JointModel m{};
-  toWire(s.params, s.info.id, m);
-  m.source_time_ns = wallNs();
-  out_.publish(m);
+  publishModel(s);
   event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
-        "opened: " + info.mode + " on case '" + case_name + "' for " + info.user, now_ns);
+        "opened: " + info.mode + " on case '" + case_name + "' for " + info.user +
+            (capture ? std::string(", following capture session ") + std::to_string(cmd.follow_session) +
+                           (s.wants_knn ? " (k-nearest-neighbour model)" : " (cubic model)")
+                     : ""),
+        now_ns);
 }
 
 void SessionManager::publishStatus(const Session& s, telehand_msg_SessionState state,
@@ -295,7 +336,103 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns) 
   }
   Session& s = it->second;
   s.last_data_ns = now_ns;
+  if (s.refit) {
+    for (std::size_t i = 0; i < samples.size(); ++i) s.refit->add(samples[i], valid[i] != 0, now_ns);
+  }
   store(s, std::move(samples), std::move(valid));
+}
+
+void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns) {
+  auto it = sessions_.find(f.session_id);
+  if (it == sessions_.end()) {
+    unknownSession(f.session_id, "SessionFile", now_ns);
+    return;
+  }
+  const std::string name = f.name;
+  const std::string content = f.content ? f.content : "";
+  try {
+    store_.appendFile(f.session_id, {name, content});
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    event(f.session_id, it->second.client_id, telehand_msg_EVENT_ERROR,
+          "file '" + name + "' not stored: " + e.what(), now_ns);
+    return;
+  }
+  event(f.session_id, 0, telehand_msg_EVENT_INFO,
+        "stored " + name + " (" + std::to_string(content.size()) + " bytes) with the record", now_ns);
+}
+
+void SessionManager::publishModel(const Session& s) {
+  telehand_msg_JointModel m{};
+  toWire(s.params, s.info.id, m);
+  m.source_time_ns = wallNs();
+  out_.publish(m);
+}
+
+void SessionManager::refit(Session& s, int64_t now_ns) {
+  auto u = s.refit->poll(now_ns);
+  if (!u) return;
+  const uint32_t version = s.params.version + 1;
+  s.params = u->params;
+  s.params.version = version;
+  s.model = JointModel(s.params);
+  if (s.sim) s.sim->setMcpModel(s.params);
+  publishModel(s);
+  ++stats_.live_models;
+  stats_.last_refit_latency_ns = now_ns - u->newest_arrival_ns;
+  stats_.max_refit_latency_ns = std::max(stats_.max_refit_latency_ns, stats_.last_refit_latency_ns);
+  std::string fitted;
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    const auto& a = u->fit.axes[i];
+    if (!a.ok) continue;
+    char b[96];
+    std::snprintf(b, sizeof b, "%s%s %.0f..%.0f deg RMS %.2f N", fitted.empty() ? "" : ", ",
+                  kAxisNames[i].data(), a.curve.min_deg, a.curve.max_deg, a.rms_n);
+    fitted += b;
+  }
+  char text[256];
+  std::snprintf(text, sizeof text, "live fit v%u from %zu samples (change %.1f N): %s", version,
+                s.refit->samples(), u->max_change_n, fitted.c_str());
+  event(s.info.id, 0, telehand_msg_EVENT_INFO, text, now_ns);
+
+  std::shared_ptr<const KnnTorqueModel> knn;
+  for (uint64_t id : s.followers) {
+    auto it = sessions_.find(id);
+    if (it == sessions_.end()) continue;
+    Session& f = it->second;
+    JointModelParams p = u->params;
+    p.version = f.params.version + 1;
+    p.case_name = f.params.case_name;
+    if (f.wants_knn && !u->knn_points.empty()) {
+      if (!knn) knn = std::make_shared<const KnnTorqueModel>(u->knn_points, refit_options_.knn);
+      p.knn = knn.get();
+      f.knn_alive.push_back(knn);
+      while (f.knn_alive.size() > 3) f.knn_alive.pop_front();  // current, previous, spare
+      std::vector<telehand_msg_KnnSample> wire(knn->size());
+      for (std::size_t i = 0; i < wire.size(); ++i) {
+        for (int a = 0; a < 3; ++a) {
+          wire[i].angles_rad[a] = static_cast<float>(knn->samples()[i].angles_rad[a]);
+          wire[i].torque_nm[a] = static_cast<float>(knn->samples()[i].torque_nm[a]);
+        }
+      }
+      telehand_msg_KnnModel k{};
+      k.session_id = f.info.id;
+      k.version = p.version;
+      k.source_time_ns = wallNs();
+      k.k = static_cast<uint32_t>(refit_options_.knn.k);
+      k.samples._buffer = wire.data();
+      k.samples._length = static_cast<uint32_t>(wire.size());
+      k.samples._maximum = static_cast<uint32_t>(wire.size());
+      k.samples._release = false;
+      out_.publish(k);  // before its JointModel: a client waits for both
+    } else {
+      p.knn = nullptr;
+    }
+    f.params = p;
+    f.model = JointModel(f.params);
+    if (f.sim) f.sim->setMcpModel(f.params);
+    publishModel(f);
+  }
 }
 
 void SessionManager::store(Session& s, std::vector<telehand_msg_DeviceState>&& samples,
@@ -407,6 +544,7 @@ void SessionManager::tick(int64_t now_ns) {
       if (s.next_hand_ns < now_ns) s.next_hand_ns = now_ns + hand_period;
     }
     if (!s.pending.empty()) store(s, {}, {});
+    if (s.refit && !s.closing) refit(s, now_ns);
     if (s.patient.recovers && now_ns >= s.next_recovery_check_ns) {
       s.next_recovery_check_ns = now_ns + kNsPerS;
       recover(s, now_ns);
@@ -477,6 +615,15 @@ void SessionManager::endExploration(Session& s, int64_t now_ns) {
 
 void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state) {
   endExploration(s, now_ns);
+  if (s.follows) {
+    auto it = sessions_.find(s.follows);
+    if (it != sessions_.end()) std::erase(it->second.followers, s.info.id);
+  }
+  for (uint64_t id : s.followers) {
+    auto it = sessions_.find(id);
+    if (it != sessions_.end()) it->second.follows = 0;  // keeps the last model it got
+  }
+  s.followers.clear();
   try {
     store_.closeSession(s.info.id, wallNs(), s.expected, state);
   } catch (const StoreError& e) {

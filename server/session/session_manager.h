@@ -9,6 +9,7 @@
 
 #include <memory>
 
+#include "server/estimate/live_refit.h"
 #include "server/session/exploration.h"
 #include "server/sim/hand_model.h"
 #include "server/session/store.h"
@@ -26,6 +27,8 @@ class Outbox {
   virtual void publish(const telehand_msg_JointModel& m) = 0;
   virtual void publish(const telehand_msg_HandState& h) = 0;
   virtual void publish(const telehand_msg_SessionEvent& e) = 0;
+  /// The samples behind a data-driven JointModel of the same session and version.
+  virtual void publish(const telehand_msg_KnnModel& k) { (void)k; }
 };
 
 struct ManagerStats {
@@ -35,6 +38,9 @@ struct ManagerStats {
   uint64_t unknown_session_samples = 0;
   uint64_t bad_commands = 0;
   uint64_t store_errors = 0;
+  uint64_t live_models = 0;            ///< JointModels published by live refits (captures)
+  int64_t last_refit_latency_ns = 0;   ///< newest sample's arrival -> its model published
+  int64_t max_refit_latency_ns = 0;
 };
 
 class SessionManager {
@@ -48,8 +54,10 @@ class SessionManager {
   void onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   /// Live stream: feeds HandState and link health.
   void onDeviceState(const telehand_msg_DeviceState& s, int64_t now_ns);
-  /// Record stream: every sample is stored once.
+  /// Record stream: every sample is stored once (and feeds a capture's live fit).
   void onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns);
+  /// A capture's device or calibration file: kept with the record.
+  void onFile(const telehand_msg_SessionFile& f, int64_t now_ns);
   /// Publish due HandStates, finish closing sessions, retry unstored samples.
   void tick(int64_t now_ns);
   /// Close every open session (server shutdown): nothing received is left unstored.
@@ -64,6 +72,8 @@ class SessionManager {
   static constexpr double kRecoveryStepDeg = 0.5;
   /// Simulation steps one live sample may trigger (itself plus lost predecessors).
   static constexpr uint64_t kMaxCatchUpSteps = 3;
+  /// How capture sessions are refitted live (rate limit, JND); for sessions opened later.
+  void setRefitOptions(const estimate::LiveRefitOptions& o) { refit_options_ = o; }
 
  private:
   struct Session;
@@ -71,6 +81,8 @@ class SessionManager {
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   void finish(Session& s, int64_t now_ns, const std::string& state);
   void recover(Session& s, int64_t now_ns);
+  void refit(Session& s, int64_t now_ns);
+  void publishModel(const Session& s);
   void endExploration(Session& s, int64_t now_ns);
   void publishStatus(const Session& s, telehand_msg_SessionState state, int64_t now_ns);
   void publishHand(Session& s, int64_t now_ns);
@@ -89,6 +101,7 @@ class SessionManager {
   std::map<uint64_t, int64_t> unknown_reported_ns_;
   uint64_t event_seq_ = 0;
   ManagerStats stats_;
+  estimate::LiveRefitOptions refit_options_;
 };
 
 }  // namespace telehand::server::session

@@ -12,6 +12,7 @@
 #include "client/loop/haptic_loop.h"
 #include "telehand/common/clock.h"
 #include "alloc_guard.h"
+#include "telehand/common/knn_model.h"
 
 namespace telehand::client {
 namespace {
@@ -179,6 +180,56 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
   // Force comes back after the fault.
   const auto& last = samples.back().fingers[0].command_n;
   EXPECT_GT(Vec3(last[0], last[1], last[2]).norm(), 0.1);
+}
+
+TEST(HapticLoopAlloc, KnnModelAndCaptureModeAllocateNothing) {
+  // A data-driven model arrives (FLANN queries every tick), crossfades in, and the loop then
+  // switches to capture mode: no allocation in any step.
+  ManualClock clock(kNsPerS);
+  const JointModelParams model = healthyIndexMcp();
+  const JointModel cubic(model);
+  std::vector<KnnPoint> pts;
+  for (double a = -40; a <= 85; a += 2.5) {
+    for (double b = -18; b <= 18; b += 2) {
+      for (double g = -9; g <= 14; g += 2) {
+        const Vec3 ang(degToRad(a), degToRad(b), degToRad(g));
+        pts.push_back({ang, cubic.passiveTorqueNm(ang, Vec3::Zero())});
+      }
+    }
+  }
+  const KnnTorqueModel knn(pts);
+  SimulatedMf2 sim(model, OperatorConfig{}, clock);
+  TestDevice dev(sim);
+  HapticLoop hl(dev, clock, model, SafetyLimits{});
+  JointModelParams data_driven = model;
+  data_driven.version = 2;
+  data_driven.knn = &knn;
+  std::size_t allocations = 0;
+  telehand_msg_DeviceState s;
+  double max_force = 0.0;
+  for (int i = 0; i < 4000; ++i) {
+    clock.advance(kNsPerMs);
+    if (i == 500) {
+      ASSERT_TRUE(hl.models().tryPush(data_driven));
+    }
+    if (i == 3000) hl.setActuatorsEnabled(false);
+    {
+      AllocationGuard guard;
+      hl.step();
+      allocations += guard.allocations() + guard.deallocations();
+    }
+    while (hl.samples().tryPop(s)) {
+      const Vec3 f(s.fingers[0].command_n[0], s.fingers[0].command_n[1], s.fingers[0].command_n[2]);
+      if (i > 1000 && i < 3000) max_force = std::max(max_force, f.norm());
+      if (i > 3000) {
+        EXPECT_TRUE(f.isZero()) << "capture mode: zero output whatever the model says";
+        EXPECT_TRUE(s.flags & telehand_msg_kFlagCapture);
+      }
+    }
+  }
+  EXPECT_EQ(allocations, 0u);
+  EXPECT_EQ(hl.health().model_version.load(), 2u);
+  EXPECT_GT(max_force, 0.5) << "the data-driven model rendered a force";
 }
 
 }  // namespace

@@ -21,6 +21,8 @@
 
 namespace telehand {
 
+class KnnTorqueModel;
+
 enum Axis : int { kFlexion = 0, kAbduction = 1, kAxial = 2 };
 constexpr int kAxes = 3;
 constexpr std::array<std::string_view, kAxes> kAxisNames = {"flexion", "abduction", "axial"};
@@ -66,6 +68,10 @@ struct JointModelParams {
   Vec3 joint_origin_m = Vec3::Zero();
   Quat joint_orientation = Quat::Identity();
   std::array<char, 64> case_name{};
+  /// Data-driven stiffness (STIFFNESS_KNN): when set, the passive torque inside the ranges
+  /// comes from these samples instead of the cubics; the end-of-range walls and the damping
+  /// stay. Not owned: whoever publishes the model keeps it alive while it can be rendered.
+  const KnnTorqueModel* knn = nullptr;
 
   bool operator==(const JointModelParams&) const = default;
 };

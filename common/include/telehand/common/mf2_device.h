@@ -21,6 +21,7 @@
 #include <array>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "telehand/common/math.h"
 #include "telehand/common/thimble.h"
@@ -159,6 +160,15 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
                                    const std::string& base_dir);
 ThimbleCalibration loadThimbleCalibration(const std::string& path);
 ThimbleCalibration parseThimbleCalibration(const std::string& text, const std::string& origin);
+
+/// The files a description was loaded from (device file, then the thimble calibrations),
+/// named "device/<file>" and "thimble/<file>", as a capture session keeps them; a built-in
+/// description gives one note instead. ConfigError when a file cannot be read.
+struct NamedFile {
+  std::string name;
+  std::string content;
+};
+std::vector<NamedFile> descriptionFiles(const Mf2Description& d);
 
 /// One thimble's pose, device frame.
 struct ThimblePose {

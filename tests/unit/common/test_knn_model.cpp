@@ -1,0 +1,118 @@
+// The data-driven joint model: FLANN k-nearest-neighbour regression over captured samples.
+#include "telehand/common/knn_model.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "telehand/common/error.h"
+#include "telehand/common/joint_model.h"
+
+namespace telehand {
+namespace {
+
+TEST(KnnTorqueModel, NearestSamplesAndInverseDistanceWeights) {
+  std::vector<KnnPoint> pts;
+  for (int i = -10; i <= 10; ++i) {
+    pts.push_back({Vec3(degToRad(3.0 * i), 0, 0), Vec3(0.01 * i, 0, 0)});
+  }
+  KnnOptions one;
+  one.k = 1;
+  const KnnTorqueModel m1(pts, one);
+  EXPECT_NEAR(m1.torqueNm(Vec3(degToRad(6.2), 0, 0))[0], 0.02, 1e-12) << "the sample at 6 deg";
+  // Beyond the samples: the nearest one, no extrapolation.
+  EXPECT_NEAR(m1.torqueNm(Vec3(degToRad(80.0), 0, 0))[0], 0.10, 1e-12);
+  KnnOptions two;
+  two.k = 2;
+  const KnnTorqueModel m2(pts, two);
+  // Midway between two samples: equal weights.
+  EXPECT_NEAR(m2.torqueNm(Vec3(degToRad(4.5), 0, 0))[0], 0.015, 1e-12);
+  // A quarter of the way (distances 0.25 and 0.75 cells): weights 1/0.75 and 1/1.25.
+  const double w0 = 1.0 / 0.75, w1 = 1.0 / 1.25;
+  EXPECT_NEAR(m2.torqueNm(Vec3(degToRad(3.75), 0, 0))[0], (w0 * 0.01 + w1 * 0.02) / (w0 + w1), 1e-12);
+  EXPECT_EQ(m2.size(), 21u);
+}
+
+TEST(KnnTorqueModel, CloseToBruteForceNeighbours) {
+  // FLANN's kd-tree search (one tree, unlimited checks) bounds its pruning loosely: it
+  // returns the exact neighbours for almost every query, and near neighbours otherwise.
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-0.6, 0.6);
+  std::vector<KnnPoint> pts;
+  for (int i = 0; i < 3000; ++i) {
+    const Vec3 a(u(rng), 0.4 * u(rng), 0.3 * u(rng));
+    pts.push_back({a, Vec3(std::sin(a[0]), a[1] * a[0], a[2])});
+  }
+  KnnOptions o;
+  o.k = 6;
+  const KnnTorqueModel m(pts, o);
+  const Vec3 inv = o.cell_deg.unaryExpr([](double d) { return 1.0 / degToRad(d); });
+  int exact = 0;
+  double worst = 0.0;
+  constexpr int kQueries = 400;
+  for (int q = 0; q < kQueries; ++q) {
+    const Vec3 a(u(rng), 0.4 * u(rng), 0.3 * u(rng));
+    std::vector<std::pair<double, std::size_t>> d;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      d.push_back({(pts[i].angles_rad - a).cwiseProduct(inv).norm(), i});
+    }
+    std::partial_sort(d.begin(), d.begin() + 6, d.end());
+    Vec3 sum = Vec3::Zero();
+    double ws = 0.0;
+    for (int j = 0; j < 6; ++j) {
+      const double w = 1.0 / (d[j].first + 0.5);
+      sum += w * pts[d[j].second].torque_nm;
+      ws += w;
+    }
+    const double diff = (m.torqueNm(a) - sum / ws).norm();
+    exact += diff < 1e-9;
+    worst = std::max(worst, diff);
+  }
+  EXPECT_GE(exact, kQueries * 9 / 10);
+  EXPECT_LT(worst, 0.05) << "torques here span about ±0.6";
+  std::printf("exact neighbours for %d of %d queries; worst torque difference %.4f\n", exact, kQueries, worst);
+}
+
+TEST(KnnTorqueModel, BadSamplesAreRefused) {
+  EXPECT_THROW(KnnTorqueModel({}), Error);
+  std::vector<KnnPoint> nan{{Vec3(std::nan(""), 0, 0), Vec3::Zero()}};
+  EXPECT_THROW(KnnTorqueModel{nan}, Error);
+}
+
+TEST(KnnTorqueModel, VoxelAverageMeansPerCell) {
+  std::vector<KnnPoint> pts;
+  for (int i = 0; i < 10; ++i) pts.push_back({Vec3(degToRad(0.5 + 0.1 * i), 0.001, 0.001), Vec3(i, 0, 0)});
+  pts.push_back({Vec3(degToRad(10.5), 0.001, 0.001), Vec3(100, 0, 0)});  // alone in its cell
+  const auto v = voxelAverage(pts, Vec3(3.0, 1.0, 1.0), 3);
+  ASSERT_EQ(v.size(), 1u);
+  EXPECT_NEAR(v[0].torque_nm[0], 4.5, 1e-12);
+  EXPECT_NEAR(radToDeg(v[0].angles_rad[0]), 0.95, 1e-9);
+}
+
+TEST(KnnTorqueModel, JointModelRendersItWithWallsAndDamping) {
+  // The samples hold a linear spring on every axis; the joint model adds its end walls.
+  std::vector<KnnPoint> pts;
+  for (double a = -40; a <= 80; a += 2) {
+    for (double b = -15; b <= 15; b += 1) {
+      pts.push_back({Vec3(degToRad(a), degToRad(b), 0), Vec3(-0.001 * a, -0.002 * b, 0)});
+    }
+  }
+  KnnOptions o;
+  o.k = 1;
+  const KnnTorqueModel knn(pts, o);
+  JointModelParams p = healthyIndexMcp();
+  p.knn = &knn;
+  p.damping_nms_per_rad = 0.0;
+  const JointModel m(p);
+  const Vec3 t = m.passiveTorqueNm(Vec3(degToRad(20), degToRad(5), 0), Vec3::Zero());
+  EXPECT_NEAR(t[0], -0.02, 1e-12);
+  EXPECT_NEAR(t[1], -0.01, 1e-12);
+  // 5 deg past the 90 deg flexion limit: the last samples (80 deg) plus 5 N/deg... at 1 cm.
+  const Vec3 w = m.passiveTorqueNm(Vec3(degToRad(95), 0, 0), Vec3::Zero());
+  EXPECT_NEAR(w[0], -0.08 - kWallNPerDeg * 5.0 * p.lever_arm_m, 1e-9);
+  p.damping_nms_per_rad = 0.01;
+  EXPECT_NEAR(JointModel(p).passiveTorqueNm(Vec3(degToRad(20), 0, 0), Vec3(2.0, 0, 0))[0], -0.02 - 0.02, 1e-12);
+}
+
+}  // namespace
+}  // namespace telehand
