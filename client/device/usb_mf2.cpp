@@ -122,7 +122,7 @@ std::vector<UsbMf2Info> listUsbMf2(uint16_t vendor_id, uint16_t product_id) {
     }
     found.push_back(std::move(info));
   }
-  if (n > 0) libusb_free_device_list(list, 1);
+  if (list != nullptr) libusb_free_device_list(list, 1);  // allocated even when empty
   libusb_exit(ctx);
   return found;
 }
@@ -334,7 +334,7 @@ void UsbMf2::tryOpen() {
     handle_ = h;
     where_ = where + (serial.empty() ? "" : ", serial " + serial);
   }
-  if (n > 0) libusb_free_device_list(list, 1);
+  if (list != nullptr) libusb_free_device_list(list, 1);  // allocated even when empty
 
   if (handle_ == nullptr) {
     const DeviceStatus s = status() == DeviceStatus::kDisconnected ? DeviceStatus::kDisconnected
