@@ -585,28 +585,26 @@ void UsbMf2::afterEvents() {
     if (!any_in_busy && !out_busy_) closeDevice();
     return;
   }
-  if (clear_halt_in_ && !any_in_busy) {
-    const int rc = libusb_clear_halt(handle_, proto::kEndpointIn);
+  // A halted endpoint is cleared once nothing is in flight on it; false: the device is gone.
+  auto clearHalt = [&](unsigned char endpoint, const char* what, const char* otherwise) {
+    const int rc = libusb_clear_halt(handle_, endpoint);
     if (rc == LIBUSB_ERROR_NO_DEVICE) {
       markDisconnected("unplugged");
-      return;
+      return false;
     }
+    note(rc == 0 ? "MF-2 at " + where_ + ": " + what + " endpoint halt cleared; resuming"
+                 : "MF-2 at " + where_ + ": clearing the " + what + " endpoint halt failed (" +
+                       usbError(rc) + ")" + otherwise);
+    return true;
+  };
+  if (clear_halt_in_ && !any_in_busy) {
+    if (!clearHalt(proto::kEndpointIn, "state", "; resuming anyway")) return;
     clear_halt_in_ = false;
-    note(rc == 0 ? "MF-2 at " + where_ + ": state endpoint halt cleared; resuming"
-                 : "MF-2 at " + where_ + ": clearing the state endpoint halt failed (" +
-                       usbError(rc) + "); resuming anyway");
     for (int i = 0; i < cfg_.in_flight; ++i) submitIn(i);
   }
   if (clear_halt_out_ && !out_busy_) {
-    const int rc = libusb_clear_halt(handle_, proto::kEndpointOut);
-    if (rc == LIBUSB_ERROR_NO_DEVICE) {
-      markDisconnected("unplugged");
-      return;
-    }
+    if (!clearHalt(proto::kEndpointOut, "command", "")) return;
     clear_halt_out_ = false;
-    note(rc == 0 ? "MF-2 at " + where_ + ": command endpoint halt cleared; resuming"
-                 : "MF-2 at " + where_ + ": clearing the command endpoint halt failed (" +
-                       usbError(rc) + ")");
     command_pending_ = true;
   }
   if (command_pending_ && !out_busy_) sendCommand();

@@ -8,6 +8,7 @@
 #include <set>
 
 #include "process.h"
+#include "process_test.h"
 #include "server/session/sqlite_store.h"
 
 namespace telehand::test {
@@ -16,38 +17,10 @@ namespace {
 using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 
-class SessionTest : public ::testing::Test {
+class SessionTest : public ProcessTest {
  protected:
-  void SetUp() override {
-    char tmpl[] = "/tmp/telehand-it-XXXXXX";
-    dir_ = mkdtemp(tmpl);
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    partition_ = std::string("it-") + std::to_string(getpid()) + "-" + info->name();
-  }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
-
-  std::vector<std::string> dds() const {
-    return {"--dds-config", TELEHAND_LOOPBACK_XML, "--partition", partition_};
-  }
-  std::vector<std::string> cmd(std::string bin, std::vector<std::string> args) const {
-    std::vector<std::string> v{std::move(bin)};
-    v.insert(v.end(), args.begin(), args.end());
-    for (auto& a : dds()) v.push_back(a);
-    return v;
-  }
-  std::string path(const std::string& name) const { return (fs::path(dir_) / name).string(); }
-
-  std::string dir_;
-  std::string partition_;
+  SessionTest() : ProcessTest("it", TELEHAND_LOOPBACK_XML) {}
 };
-
-uint64_t matchNumber(const std::string& text, const std::string& pattern) {
-  std::smatch m;
-  if (!std::regex_search(text, m, std::regex(pattern))) return 0;
-  return std::stoull(m[1]);
-}
 
 TEST_F(SessionTest, ServerClientWatcherRecordEverySample) {
   const std::string db = path("records.db");

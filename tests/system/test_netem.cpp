@@ -12,6 +12,7 @@
 #include <regex>
 
 #include "../integration/process.h"
+#include "../integration/process_test.h"
 #include "server/session/sqlite_store.h"
 
 namespace telehand::test {
@@ -57,12 +58,6 @@ void removeStaleNamespaces() {
     const pid_t pid = static_cast<pid_t>(std::stol(m[1]));
     if (kill(pid, 0) != 0 && errno == ESRCH) run({kIp, "netns", "del", n});
   }
-}
-
-uint64_t matchNumber(const std::string& text, const std::string& pattern) {
-  std::smatch m;
-  if (!std::regex_search(text, m, std::regex(pattern))) return 0;
-  return std::stoull(m[1]);
 }
 
 class NetemTest : public ::testing::Test {

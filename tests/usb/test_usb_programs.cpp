@@ -12,6 +12,7 @@
 
 #include "mf2_emulator.h"
 #include "process.h"
+#include "process_test.h"
 #include "server/session/sqlite_store.h"
 
 namespace telehand::test::usb {
@@ -20,36 +21,14 @@ namespace {
 using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 
-class UsbProgramsTest : public ::testing::Test {
+class UsbProgramsTest : public ProcessTest {
  protected:
+  UsbProgramsTest() : ProcessTest("usb", TELEHAND_LOOPBACK_XML) {}
   void SetUp() override {
     prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
-    char tmpl[] = "/tmp/telehand-usb-XXXXXX";
-    dir_ = mkdtemp(tmpl);
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    partition_ = std::string("usb-") + std::to_string(getpid()) + "-" + info->name();
+    ProcessTest::SetUp();
   }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
-  std::vector<std::string> cmd(std::string bin, std::vector<std::string> args) const {
-    std::vector<std::string> v{std::move(bin)};
-    v.insert(v.end(), args.begin(), args.end());
-    for (const char* a : {"--dds-config", TELEHAND_LOOPBACK_XML, "--partition"}) v.emplace_back(a);
-    v.push_back(partition_);
-    return v;
-  }
-  std::string path(const std::string& name) const { return (fs::path(dir_) / name).string(); }
-
-  std::string dir_;
-  std::string partition_;
 };
-
-uint64_t matchNumber(const std::string& text, const std::string& pattern) {
-  std::smatch m;
-  if (!std::regex_search(text, m, std::regex(pattern))) return 0;
-  return std::stoull(m[1]);
-}
 
 TEST_F(UsbProgramsTest, ProbeListsAndStreamsTheDevice) {
   Mf2Emulator emu;

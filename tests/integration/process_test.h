@@ -1,0 +1,54 @@
+#pragma once
+// A test of programs run as processes: a scratch directory (kept when the test fails, for
+// its logs) and a DDS partition of its own, so tests never see each other's sessions.
+#include <gtest/gtest.h>
+#include <stdlib.h>
+#include <unistd.h>
+
+#include <cstdint>
+#include <filesystem>
+#include <regex>
+#include <string>
+#include <vector>
+
+namespace telehand::test {
+
+/// The first number `pattern`'s group 1 matches in `text` (0 if none).
+inline uint64_t matchNumber(const std::string& text, const std::string& pattern) {
+  std::smatch m;
+  if (!std::regex_search(text, m, std::regex(pattern))) return 0;
+  return std::stoull(m[1]);
+}
+
+class ProcessTest : public ::testing::Test {
+ protected:
+  /// `prefix` names the directory and partition; `dds_config` is passed to every program.
+  ProcessTest(std::string prefix, std::string dds_config)
+      : prefix_(std::move(prefix)), dds_config_(std::move(dds_config)) {}
+  void SetUp() override {
+    std::string tmpl = "/tmp/telehand-" + prefix_ + "-XXXXXX";
+    dir_ = mkdtemp(tmpl.data());
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    partition_ = prefix_ + "-" + std::to_string(getpid()) + "-" + info->name();
+  }
+  void TearDown() override {
+    if (!HasFailure()) std::filesystem::remove_all(dir_);
+  }
+  std::vector<std::string> dds() const {
+    return {"--dds-config", dds_config_, "--partition", partition_};
+  }
+  /// `bin args... --dds-config X --partition P`
+  std::vector<std::string> cmd(std::string bin, std::vector<std::string> args) const {
+    std::vector<std::string> v{std::move(bin)};
+    v.insert(v.end(), args.begin(), args.end());
+    for (auto& a : dds()) v.push_back(a);
+    return v;
+  }
+  std::string path(const std::string& name) const { return (std::filesystem::path(dir_) / name).string(); }
+
+  std::string prefix_, dds_config_;
+  std::string dir_;
+  std::string partition_;
+};
+
+}  // namespace telehand::test
