@@ -20,7 +20,7 @@ namespace telehand::server::sim {
 
 struct HandSimConfig {
   double dt_s = 1e-3;
-  int solver_iterations = 30;
+  int solver_iterations = 20;
   bool fix_metacarpals = true;           ///< the therapist stabilises the hand on the table
   std::string mcp_joint = "index_mcp_flexion";  ///< the joint the shared model drives
   /// Passive tone of every other joint toward neutral (an assumption: a few N·cm/rad,
