@@ -75,9 +75,10 @@ StepStatus HapticLoop::step() noexcept {
     bump(health_.direct_forces);
   }
   PerFinger<Vec3> request = direct ? direct_force_.force_n : rendered.force_device_n;
-  if (!actuators_.load(std::memory_order_relaxed)) request = {Vec3::Zero(), Vec3::Zero()};
+  const bool actuators = actuators_.load(std::memory_order_relaxed);
+  if (!actuators) request = {Vec3::Zero(), Vec3::Zero()};
   const PassivityOutput guarded = passivity_.control(request);
-  gate_.setCapture(!actuators_.load(std::memory_order_relaxed));
+  gate_.setCapture(!actuators);
   const SafetyOutput safe = gate_.apply(guarded.force_n, now, last_sample_time_ns_);
   last_command_ = safe.force_n;
   if (guarded.damping_ns_per_m > 0.0) bump(health_.passivity_activations);
@@ -88,8 +89,7 @@ StepStatus HapticLoop::step() noexcept {
   if (rendered.update_step_n > 0.0) {
     double force = 0.0;
     for (int k = 0; k < 2; ++k) force = std::max(force, rendered.force_device_n[k].norm());
-    const double ratio = rendered.update_step_n /
-                         std::max(JointProxy::kUpdateStepFraction * force, JointProxy::kUpdateStepFloorN);
+    const double ratio = rendered.update_step_n / JointProxy::updateStepBoundN(force);
     if (rendered.update_step_n > health_.update_step_max_n.load(std::memory_order_relaxed)) {
       health_.update_step_max_n.store(rendered.update_step_n, std::memory_order_relaxed);
     }
@@ -114,7 +114,7 @@ StepStatus HapticLoop::step() noexcept {
   s.source_time_ns = sample_.time_ns + wall_offset_ns_;  // wire timestamps are wall clock
   s.model_version = proxy_.version();
   s.flags = safe.flags | (rendered.blending ? telehand_msg_kFlagModelBlending : 0u) |
-            (actuators_.load(std::memory_order_relaxed) ? 0u : telehand_msg_kFlagCapture) |
+            (actuators ? 0u : telehand_msg_kFlagCapture) |
             (guarded.damping_ns_per_m > 0.0 ? telehand_msg_kFlagPassivityControl : 0u) |
             (direct ? telehand_msg_kFlagDirectForce : 0u) |
             (static_cast<uint32_t>(sample_.fingers[kThumb].fsr_fault_mask & 0xFu) |

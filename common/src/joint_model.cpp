@@ -318,7 +318,7 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   double dw = std::min(dt_ns / static_cast<double>(blend_ns_), 1.0 - weight_);
   // No tick's force changes by more than the bound because of the update (0.9: margin for
   // the force itself moving within the tick).
-  const double bound = 0.9 * std::max(kUpdateStepFraction * now_force, kUpdateStepFloorN);
+  const double bound = 0.9 * updateStepBoundN(now_force);
   if (gap * dw > bound) dw = bound / gap;
   // A stiffer model stores more energy at these angles: that difference must be paid for.
   const double v_previous = previous_.potentialEnergyJ(angles);

@@ -609,8 +609,7 @@ void HandSim::readContacts() {
     } else {
       g.normal = f[k] / normal_n;
       g.normal_n = normal_n;
-      const Pose bone = eig(g.bone == touched[k] ? g.bone->getCenterOfMassTransform()
-                                                 : touched[k]->getCenterOfMassTransform());
+      const Pose bone = eig(touched[k]->getCenterOfMassTransform());
       const Vec3 skin = eig(im.spheres[k]->getCenterOfMassPosition()) - g.normal * config_.sphere_radius_m;
       if (g.bone != touched[k]) {
         if (g.rows) im.world.removeConstraint(g.rows.get());

@@ -29,7 +29,7 @@ JointModelParams stiffer(uint32_t version, double factor) {
 double updateBound(const ProxyOutput& out) {
   double f = 0.0;
   for (int k = 0; k < 2; ++k) f = std::max(f, out.force_device_n[k].norm());
-  return std::max(JointProxy::kUpdateStepFraction * f, JointProxy::kUpdateStepFloorN);
+  return JointProxy::updateStepBoundN(f);
 }
 
 TEST(ModelFade, PotentialEnergyIsZeroAtRestPositiveElsewhereAndIntegratesTheTorque) {
@@ -162,7 +162,7 @@ TEST(ModelFade, AStarvedStifferModelFadesInAfterTheWaitUnderTheStepBound) {
     proxy.setEnergyBudget(0.0);
     const ProxyOutput out = proxy.render(held, i * kNsPerMs);
     const double f = out.force_device_n[0].norm();
-    EXPECT_LE(std::abs(f - prev), std::max(JointProxy::kUpdateStepFraction * f, JointProxy::kUpdateStepFloorN) + 1e-9);
+    EXPECT_LE(std::abs(f - prev), JointProxy::updateStepBoundN(f) + 1e-9);
     prev = f;
   }
   EXPECT_FALSE(proxy.blending()) << "the stiffer model is rendered in the end";

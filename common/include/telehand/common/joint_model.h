@@ -13,6 +13,7 @@
 /// Torques. Per-axis torques are the generalized forces conjugate to (alpha, beta, gamma):
 /// tau_i = e_i · tau, with e_alpha = y_J, e_gamma = Ry(alpha) x, e_beta = Ry(alpha) Rx(gamma) z,
 /// and tau = sum over fingers of (p_i − c) × F_i (FACTS.md "Rendering").
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <string_view>
@@ -181,6 +182,10 @@ class JointProxy {
   /// of a model update (the force JND is 7-10 %, FACTS.md "Rendering and perception").
   static constexpr double kUpdateStepFraction = 0.05;
   static constexpr double kUpdateStepFloorN = 0.1;
+  /// The largest force step (N) an update may cause on a tick rendering `force_n`.
+  static constexpr double updateStepBoundN(double force_n) noexcept {
+    return std::max(kUpdateStepFraction * force_n, kUpdateStepFloorN);
+  }
   /// How long a stiffer model waits for the energy budget before it fades in regardless.
   static constexpr int64_t kEnergyWaitNs = 2'000'000'000;
 
