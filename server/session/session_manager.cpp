@@ -271,6 +271,19 @@ void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_
   publishStatus(s, telehand_msg_SESSION_CLOSING, now_ns);
 }
 
+void SessionManager::stepHand(Session& s) {
+  s.sim->step();
+  const auto f = s.sim->contactForcesDevice();
+  const Vec3 angles = s.sim->mcpAngles();
+  // The force at the reach is what holds the joint there: the pads' torque about it as a
+  // force at the lever arm, as the paper's curves give it (the squeeze cancels out).
+  const double holding_n =
+      s.model.axisTorque(s.sim->contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}).norm() /
+      s.model.params().lever_arm_m;
+  s.exploration.observe(angles, holding_n);
+  if (f[0].norm() + f[1].norm() > 1.0) s.treatment_s += 1e-3;
+}
+
 void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t now_ns) {
   auto it = sessions_.find(d.session_id);
   if (it == sessions_.end()) {
@@ -317,29 +330,13 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     // stream withholds samples on purpose: those steps run on the last state received.
     const uint64_t gap = s.have_live ? d.seq - s.last.seq : 1;
     const uint64_t steps = std::min<uint64_t>(gap, coded ? kMaxHeldSteps : kMaxCatchUpSteps);
-    if (coded && s.have_live) {
+    const bool hold = coded && s.have_live;
+    if (hold) {
       s.sim->setFingerTargets(thimblePositions(s.last), true);
-      for (uint64_t i = 1; i < steps; ++i) {
-        s.sim->step();
-        const auto f = s.sim->contactForcesDevice();
-        const double force = f[0].norm() + f[1].norm();
-        s.exploration.observe(s.sim->mcpAngles(), force);
-        if (force > 1.0) s.treatment_s += 1e-3;
-      }
+      for (uint64_t i = 1; i < steps; ++i) stepHand(s);
     }
     s.sim->setFingerTargets(thimblePositions(d), true);
-    for (uint64_t i = (coded && s.have_live) ? steps - 1 : 0; i < steps; ++i) {
-      s.sim->step();
-      const auto f = s.sim->contactForcesDevice();
-      const Vec3 angles = s.sim->mcpAngles();
-      // The force at the reach is what holds the joint there: the pads' torque about it as a
-      // force at the lever arm, as the paper's curves give it (the squeeze cancels out).
-      const double holding_n =
-          s.model.axisTorque(s.sim->contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}).norm() /
-          s.model.params().lever_arm_m;
-      s.exploration.observe(angles, holding_n);
-      if (f[0].norm() + f[1].norm() > 1.0) s.treatment_s += 1e-3;
-    }
+    for (uint64_t i = 0; i < (hold ? 1 : steps); ++i) stepHand(s);
   } else if (!s.sim && s.exploration.active()) {
     s.exploration.observe(s.model.anglesFromGrip(thimblePositions(d)), 0.0);
   }

@@ -87,6 +87,8 @@ class SessionManager {
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   void finish(Session& s, int64_t now_ns, const std::string& state);
   void recover(Session& s, int64_t now_ns);
+  /// One 1 ms step of the session's hand, observed for exploration and treatment time.
+  void stepHand(Session& s);
   void refit(Session& s, int64_t now_ns);
   void publishModel(const Session& s);
   void endExploration(Session& s, int64_t now_ns);
