@@ -8,9 +8,22 @@
 /// E ≥ 0. When E falls below zero the controller adds the damping that dissipates the
 /// deficit over the next tick, α = −E / (Σ|v|² dt), bounded by `max_damping`, and the
 /// dissipated energy is counted when the next tick observes it. Allocation-free, noexcept.
+///
+/// The controller's velocity is not the one-tick difference of the positions: with encoder
+/// positions that difference is mostly quantization at low speed (one count moves an MF-2
+/// thimble by a few µm, i.e. several mm/s), and a damper acting on it turns the noise into
+/// force steps (20 N·s/m × 5 mm/s = 0.1 N, flipping sign every tick) and, held over the next
+/// tick against the next noisy increment, does negative work in the observer's account, which
+/// keeps the controller on. It uses an adaptive-window estimate (AdaptiveVelocity): quiet when
+/// the motion is slow, one tick when it is fast, and damps only the part of it above the
+/// estimate's resolution (nothing for a still thimble whose count flickers). And its damping
+/// moves toward α no faster than changes the added force by `max_force_rate` at the current
+/// speed, so that switching on and off does not step the force either. The observer is
+/// unchanged and exact: whatever the controller does is counted, and it acts while E < 0.
 #include <cstdint>
 
 #include "telehand/common/math.h"
+#include "telehand/common/velocity.h"
 
 namespace telehand::client::loop {
 
@@ -19,6 +32,16 @@ struct PassivityConfig {
   /// Damping bound, N·s/m per finger: at 1 kHz with ~50 g at the grip, well inside the
   /// discrete stability limit (m / T = 50 N·s/m).
   double max_damping_ns_per_m = 20.0;
+  /// Band around the velocity window's line that every sample must lie in, m. A thimble
+  /// position is off by at most 3.8 µm (the MF-2's encoder quantization through its kinematics,
+  /// device model); the line goes through two such samples, so a sample of a straight motion
+  /// can lie up to twice that from it.
+  double position_uncertainty_m = 8e-6;
+  /// Longest window of the velocity estimate, ticks (1 = the one-tick difference).
+  int velocity_window = 20;
+  /// Fastest change of the added force through the damping coefficient, N/s per finger: a
+  /// quarter of the safety gate's 200 N/s, so that the controller never needs the gate.
+  double max_force_rate_n_per_s = 50.0;
 };
 
 struct PassivityOutput {
@@ -28,20 +51,24 @@ struct PassivityOutput {
 
 class PassivityGuard {
  public:
-  explicit PassivityGuard(const PassivityConfig& config = {}) : config_(config) {}
+  explicit PassivityGuard(const PassivityConfig& config = {});
 
   /// Count the energy of the last tick: thimble positions now and the force that was commanded
   /// (after the safety gate) over the tick that just ended. Call once per tick, first.
   void observe(const PerFinger<Vec3>& p_device_finger, const PerFinger<Vec3>& last_force_n,
                int64_t now_ns) noexcept;
 
-  /// The controller: `request` plus the damping the energy deficit calls for.
-  PassivityOutput control(const PerFinger<Vec3>& request) const noexcept;
+  /// The controller: `request` plus the damping the energy deficit calls for. Call once per
+  /// tick, after observe (the damping moves from its last value).
+  PassivityOutput control(const PerFinger<Vec3>& request) noexcept;
 
   /// Energy the rendering side has absorbed from the operator so far, J (device scale).
   double energyJ() const noexcept { return energy_j_; }
-  /// Thimble velocities from the last two observations, m/s.
-  const PerFinger<Vec3>& velocity() const noexcept { return v_; }
+  /// Thimble velocities as the controller damps them (adaptive window, less its
+  /// resolution), m/s.
+  const PerFinger<Vec3>& velocity() const noexcept { return vc_; }
+  /// One-tick differences of the thimble positions, m/s (what the observer integrates).
+  const PerFinger<Vec3>& rawVelocity() const noexcept { return v_; }
   const PassivityConfig& config() const noexcept { return config_; }
   void setControl(bool on) noexcept { config_.control = on; }
 
@@ -52,6 +79,9 @@ class PassivityGuard {
   double dt_s_ = 1e-3;
   PerFinger<Vec3> last_p_{Vec3::Zero(), Vec3::Zero()};
   PerFinger<Vec3> v_{Vec3::Zero(), Vec3::Zero()};
+  PerFinger<AdaptiveVelocity> vel_;
+  PerFinger<Vec3> vc_{Vec3::Zero(), Vec3::Zero()};
+  double alpha_ = 0.0;  // damping applied on the last tick
   double energy_j_ = 0.0;
 };
 

@@ -123,8 +123,10 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
   EXPECT_EQ(allocations, 0u) << "HapticLoop::step() allocated";
   EXPECT_EQ(deallocations, 0u) << "HapticLoop::step() freed memory";
 
-  // The run really went through the model update and the watchdog.
+  // The run really went through the model update, the watchdog and the passivity
+  // controller (it damps the start-up deficit, through its windowed velocity).
   const loop::LoopHealth& h = hl.health();
+  EXPECT_GT(h.passivity_activations.load(), 0u);
   EXPECT_EQ(h.ticks.load(), static_cast<uint64_t>(kTicks));
   EXPECT_EQ(h.models_applied.load(), 1u);
   EXPECT_EQ(h.model_version.load(), 2u);
