@@ -30,7 +30,11 @@ class BenchOutbox final : public server::session::Outbox {
  public:
   void publish(const telehand_msg_SessionStatus& s) override { status.push_back(s); }
   void publish(const telehand_msg_JointModel& m) override { models.push_back(m); }
-  void publish(const telehand_msg_HandState&) override { ++hand_states; }
+  void publish(const telehand_msg_HandState& h) override {
+    ++hand_states;
+    Vec3 a(h.mcp_angles_rad[0], h.mcp_angles_rad[1], h.mcp_angles_rad[2]);
+    hand_angles.emplace_back(h.device_seq, a);
+  }
   void publish(const telehand_msg_SessionEvent&) override {}
   void publish(const telehand_msg_DirectForce& f) override { forces.push_back(f); }
 
@@ -38,6 +42,7 @@ class BenchOutbox final : public server::session::Outbox {
   std::vector<telehand_msg_JointModel> models;
   std::vector<telehand_msg_DirectForce> forces;
   uint64_t hand_states = 0;
+  std::vector<std::pair<uint64_t, Vec3>> hand_angles;  ///< the authoritative MCP angles per device seq
 };
 
 /// A directory holding the one patient case the cell uses, its recovery time shortened.
@@ -118,6 +123,7 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   ServerConfig cfg;
   cfg.cases_dir = cases.path();
   cfg.hand_deadband_weber = spec.deadband.weber;
+  cfg.drift_correction = spec.drift_correction;
   server::session::SqliteStore store(":memory:");
   BenchOutbox out;
   server::session::SessionManager manager(store, out, cfg, hand);
@@ -171,6 +177,8 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   const uint64_t ticks = static_cast<uint64_t>(spec.seconds * 1000.0);
   const uint64_t steady_tick = static_cast<uint64_t>(spec.steady_from_s * 1000.0);
   r.force.reserve(ticks);
+  std::vector<Vec3> proxy_angles;  // what the client rendered, per seq
+  proxy_angles.reserve(ticks);
 
   auto sendChunk = [&](Chunk c, int64_t now) {
     ++up_packets;
@@ -215,6 +223,7 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
         for (int i = 0; i < 3; ++i) f[static_cast<std::size_t>(3 * k + i)] = static_cast<float>(s.fingers[k].command_n[i]);
       }
       r.force.push_back(f);
+      proxy_angles.emplace_back(s.mcp_angles_rad[0], s.mcp_angles_rad[1], s.mcp_angles_rad[2]);
       const bool steady = s.seq >= steady_tick;
       for (std::size_t i = 0; i < 6; ++i) {
         const double h = hp[i](f[i]);
@@ -341,6 +350,24 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   r.down_pps = static_cast<double>(down_packets) / secs;
   r.hand_state_pps = static_cast<double>(out.hand_states) / secs;
   r.reconstruction_error = recon_ref2 > 0.0 ? std::sqrt(recon_err2 / recon_ref2) : 0.0;
+  // Drift: the server's hand against the client's proxy for the same device sample, per axis:
+  // its mean (what persists, and what the server corrects) and its RMS (the mean plus the
+  // hand's lag behind the moving thimbles).
+  Vec3 sum = Vec3::Zero(), sum2 = Vec3::Zero();
+  uint64_t drift_n = 0;
+  for (const auto& [seq, a] : out.hand_angles) {
+    if (seq < steady_tick || seq >= proxy_angles.size()) continue;
+    const Vec3 d = (a - proxy_angles[seq]) * (180.0 / kPi);
+    sum += d;
+    sum2 += d.cwiseProduct(d);
+    ++drift_n;
+  }
+  if (drift_n > 0) {
+    const double n = static_cast<double>(drift_n);
+    r.drift_mean_deg = (sum / n).cwiseAbs().maxCoeff();
+    r.drift_rms_deg = (sum2 / n).cwiseSqrt().maxCoeff();
+  }
+  r.drift_corrections = manager.stats().drift_corrections;
   return r;
 }
 

@@ -31,6 +31,7 @@ struct CellSpec {
   double recovery_treatment_s = 20.0;
   OperatorConfig op;
   uint64_t seed = 1;
+  bool drift_correction = true;      ///< the server folds drift into the model
 };
 
 struct CellResult {
@@ -51,6 +52,12 @@ struct CellResult {
   uint64_t overruns = 0;             ///< ticks whose step() used more CPU time than the period
   double step_max_us = 0.0;          ///< largest step() CPU time
   uint64_t samples_recorded = 0;     ///< the server's record at the end
+  /// Drift over the steady window: the server's MCP angles (HandState) against the angles the
+  /// client's proxy rendered for the same device sample, degrees, the largest axis: its mean
+  /// (persistent drift) and RMS (with the hand's lag behind the moving thimbles).
+  double drift_mean_deg = 0.0;
+  double drift_rms_deg = 0.0;
+  uint64_t drift_corrections = 0;    ///< models the server published to correct drift
   uint64_t ticks = 0;
 };
 
