@@ -337,6 +337,7 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   if (dv > 0.0 && dw * dv > energy_budget_j_ && !waited_out) dw = std::max(energy_budget_j_, 0.0) / dv;
   dw = std::max(dw, 0.0);
   weight_ += dw;
+  if (dv > 0.0) out.unpaid_energy_j = std::max(dw * dv - std::max(energy_budget_j_, 0.0), 0.0);
   energy_budget_j_ -= dw * dv;
   out.update_step_n = dw * gap;
   out.blend_energy_j = dw * dv;

@@ -41,7 +41,8 @@ void printRow(const CellSpec& spec, const CellResult& r, double err, bool markdo
   // In direct mode the client's proxy renders nothing: its fades are not felt.
   char step[64] = "n/a";
   if (spec.render == RenderMode::kModel) {
-    std::snprintf(step, sizeof step, "%.3f N (%.2f)", r.update_step_max_n, r.update_step_ratio);
+    std::snprintf(step, sizeof step, "%.3f N (%.2f), %.1f µJ", r.update_step_max_n, r.update_step_ratio,
+                  r.fade_unpaid_j * 1e6);
   }
   char line[512];
   std::snprintf(line, sizeof line,
@@ -72,6 +73,7 @@ int main(int argc, char** argv) {
   uint64_t seed = 1;
   bool markdown = false, no_hand = false, no_pc = false, drift = false;
   std::string case_name = "regain";
+  std::string clinician = "force";
   app.add_option("--rtt", rtts, "round trips, ms")->capture_default_str();
   app.add_option("--loss", losses, "mean losses, % (bursty, 4 packets per burst)")->capture_default_str();
   app.add_option("--modes", modes, "model, direct")->check(CLI::IsMember({"model", "direct"}))->capture_default_str();
@@ -79,6 +81,11 @@ int main(int argc, char** argv) {
   app.add_option("--deadband", deadbands, "also run model-mediated cells with these Weber fractions")->check(CLI::Range(0.0, 0.5));
   app.add_option("--seconds", seconds, "simulated session length")->capture_default_str()->check(CLI::Range(2.0, 3600.0));
   app.add_option("--steady-from", steady, "metrics from this time on (after the ramp), s")->capture_default_str();
+  app.add_option("--clinician", clinician,
+                 "force: pushes the paper's 12-16 N band; servo: moves the joint along a set path "
+                 "through that band, so the force shows what is rendered")
+      ->check(CLI::IsMember({"force", "servo"}))
+      ->capture_default_str();
   app.add_option("--case", case_name, "patient case (tests/teleop/cases, deploy/cases)")->capture_default_str();
   app.add_option("--recovery-s", treatment, "treatment time over which a recovering case regains its range")->capture_default_str();
   app.add_option("--seed", seed, "operator and link seed")->capture_default_str();
@@ -102,6 +109,7 @@ int main(int argc, char** argv) {
       s.recovery_treatment_s = treatment;
       s.seed = seed;
       s.passivity_control = !no_pc;
+      s.clinician = clinician == "servo" ? Clinician::kServo : Clinician::kForceBand;
       return s;
     };
     const CellSpec ref_spec = spec(matrixLink(0, 0), RenderMode::kModel);
@@ -111,7 +119,7 @@ int main(int argc, char** argv) {
               << " samples recorded\n\n";
     if (markdown) {
       std::cout << "| mode | link | RTT ms | loss % | stable (force above 15 Hz) | passive (lowest PO energy, PC ticks) | "
-                   "RMS force error | largest update step (/ bound) | drift mean / RMS (corrections) | DeviceState /s | up /s | down /s | overruns (worst step CPU) |\n"
+                   "RMS force error | largest update step (/ bound), unpaid fade energy | drift mean / RMS (corrections) | DeviceState /s | up /s | down /s | overruns (worst step CPU) |\n"
                    "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     } else {
       std::cout << "mode            link               RTT ms      loss  stable   osc     passive  PO min  PC ticks  "

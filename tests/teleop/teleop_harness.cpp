@@ -6,6 +6,7 @@
 #include <cmath>
 #include <deque>
 #include <filesystem>
+#include <optional>
 #include <fstream>
 #include <sstream>
 #include <variant>
@@ -112,6 +113,37 @@ struct Chunk {
   std::vector<telehand_msg_DeviceState> samples;
 };
 
+/// The servo clinician (Clinician::kServo): flexion follows mid ± amp at the operator's
+/// frequency, where the initial joint holds 12 and 16 N; the other axes are held at zero.
+class ServoClinician final : public client::device::Operator {
+ public:
+  ServoClinician(const JointModel& joint, const OperatorConfig& op) : op_(op) {
+    double lo = joint.restAngleRad(kFlexion), hi = lo;
+    // Past the range end too: a short joint is mobilized on its end-of-range wall.
+    const double max = degToRad(joint.params().axes[kFlexion].max_deg + 30.0);
+    for (double a = lo; a <= max; a += degToRad(0.05)) {
+      const double f = joint.holdingForceN(kFlexion, a);
+      if (f < op.band_min_n) lo = a;
+      if (f < op.band_max_n) hi = a;
+    }
+    mid_ = 0.5 * (lo + hi);
+    amp_ = 0.5 * (hi - lo);
+  }
+  Vec3 torqueNm(double t_s, const Vec3& angles, const Vec3& rates) noexcept override {
+    // A finger about as stiff as a pinching hand (2 kN/m at the 1 cm grip, device scale),
+    // critically damped on the grip's 50 g.
+    constexpr double kStiffness = 0.2, kDamping = 0.002;
+    const double x = std::clamp(t_s / op_.ramp_s, 0.0, 1.0);
+    const double smooth = x * x * (3.0 - 2.0 * x);
+    const Vec3 target(smooth * (mid_ + amp_ * std::sin(2.0 * kPi * op_.frequency_hz * t_s)), 0.0, 0.0);
+    return kStiffness * (target - angles) - kDamping * rates;
+  }
+
+ private:
+  OperatorConfig op_;
+  double mid_ = 0.0, amp_ = 0.0;
+};
+
 }  // namespace
 
 CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
@@ -148,6 +180,11 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   OperatorConfig op = spec.op;
   op.seed = spec.seed;
   client::device::SimulatedMf2 device(*initial, op, clock);
+  std::optional<ServoClinician> servo;
+  if (spec.clinician == Clinician::kServo) {
+    servo.emplace(JointModel(*initial), op);
+    device.setOperator(&*servo);
+  }
   client::loop::TeleopOptions teleop;
   teleop.render = spec.render;
   teleop.passivity.control = spec.passivity_control;
@@ -344,6 +381,7 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   r.update_step_max_n = h.update_step_max_n.load();
   r.update_step_ratio = h.update_step_max_ratio.load();
   r.models_applied = h.models_applied.load();
+  r.fade_unpaid_j = h.fade_unpaid_energy_j.load();
   r.oscillation = all2 > 0.0 ? std::sqrt(hp2 / all2) : 0.0;
   r.device_state_pps = static_cast<double>(live_packets) / secs;
   r.up_pps = static_cast<double>(up_packets) / secs;

@@ -98,5 +98,33 @@ TEST(TeleopGoals, DeadbandSendsAtLeastNinetyPercentFewerDeviceStates) {
   EXPECT_EQ(b.samples_recorded, b.ticks) << "the record still holds every sample";
 }
 
+TEST(TeleopGoals, ModelMediatedForceErrorUnderTheJndWithAServoClinician) {
+  // The clinician moves the joint along a set path: the force is whatever the proxy renders
+  // there, so a stale or wrong model would show in full.
+  CellSpec ref_spec = cell(link(0, 0, 0, 1), RenderMode::kModel);
+  ref_spec.clinician = Clinician::kServo;
+  CellSpec s = cell(link(300, 20, 2, 4), RenderMode::kModel);
+  s.clinician = Clinician::kServo;
+  const CellResult ref = runCell(ref_spec, &hand());
+  const CellResult r = runCell(s, &hand());
+  EXPECT_GT(r.models_applied, 5u);
+  EXPECT_LT(forceError(r, ref, s), 0.07);
+  EXPECT_TRUE(stable(r));
+  EXPECT_TRUE(passive(r));
+}
+
+TEST(TeleopGoals, TheServerKeepsTheProxyWhereItsHandIs) {
+  CellSpec off = cell(link(0, 0, 0, 1), RenderMode::kModel);
+  off.drift_correction = false;
+  const CellResult& on = reference();
+  const CellResult r_off = runCell(off, &hand());
+  EXPECT_EQ(r_off.drift_corrections, 0u);
+  EXPECT_GE(on.drift_corrections, 1u);
+  EXPECT_LT(on.drift_mean_deg, r_off.drift_mean_deg);
+  EXPECT_LT(on.drift_mean_deg, 0.5) << "persistent drift within the correction threshold";
+  EXPECT_LE(on.update_step_ratio, 1.0) << "corrections fade in under the step bound";
+  EXPECT_EQ(on.fade_unpaid_j, 0.0) << "and are paid for by dissipated energy";
+}
+
 }  // namespace
 }  // namespace telehand::teleop

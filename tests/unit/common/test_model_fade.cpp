@@ -134,7 +134,11 @@ TEST(ModelFade, AStifferModelWaitsForEnergyToPayForIt) {
   // Half the difference paid: half way, and the energy spent never exceeds what was given.
   double spent = 0.0;
   proxy.setEnergyBudget(0.5 * dv);
-  for (int i = 1001; i <= 1400; ++i) spent += proxy.render(held, i * kNsPerMs).blend_energy_j;
+  for (int i = 1001; i <= 1400; ++i) {
+    const ProxyOutput out = proxy.render(held, i * kNsPerMs);
+    spent += out.blend_energy_j;
+    EXPECT_EQ(out.unpaid_energy_j, 0.0);
+  }
   EXPECT_NEAR(spent, 0.5 * dv, 1e-9 + 1e-6 * dv);
   EXPECT_TRUE(proxy.blending());
   proxy.setEnergyBudget(dv);
@@ -154,18 +158,26 @@ TEST(ModelFade, AStarvedStifferModelFadesInAfterTheWaitUnderTheStepBound) {
   int i = 1;
   for (; i <= wait_ms; ++i) {
     proxy.setEnergyBudget(0.0);
-    EXPECT_LE(proxy.render(held, i * kNsPerMs).blend_energy_j, 0.0) << i;
+    const ProxyOutput out = proxy.render(held, i * kNsPerMs);
+    EXPECT_LE(out.blend_energy_j, 0.0) << i;
+    EXPECT_EQ(out.unpaid_energy_j, 0.0) << i;
   }
   EXPECT_TRUE(proxy.blending());
   double prev = proxy.render(held, i * kNsPerMs).force_device_n[0].norm();
+  double added = 0.0, unpaid = 0.0;
   for (++i; i < wait_ms + 2000 && proxy.blending(); ++i) {
     proxy.setEnergyBudget(0.0);
     const ProxyOutput out = proxy.render(held, i * kNsPerMs);
     const double f = out.force_device_n[0].norm();
     EXPECT_LE(std::abs(f - prev), JointProxy::updateStepBoundN(f) + 1e-9);
     prev = f;
+    added += out.blend_energy_j;
+    unpaid += out.unpaid_energy_j;
   }
   EXPECT_FALSE(proxy.blending()) << "the stiffer model is rendered in the end";
+  // Nothing paid for it: all it added is reported as unpaid (the loop's health counts it).
+  EXPECT_GT(unpaid, 0.0);
+  EXPECT_NEAR(unpaid, added, 1e-12);
   EXPECT_EQ(proxy.version(), 2u);
 }
 

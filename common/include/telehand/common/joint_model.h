@@ -160,6 +160,9 @@ struct ProxyOutput {
   double update_step_n = 0.0;
   /// Energy the blend added to the rendered joint this tick (device J; negative: released).
   double blend_energy_j = 0.0;
+  /// The part of blend_energy_j the energy budget did not pay for: only a fade that waited
+  /// out kEnergyWaitNs adds any (device J).
+  double unpaid_energy_j = 0.0;
   /// Energy the rendered joint stores at these angles (device J), see potentialEnergyJ.
   double potential_j = 0.0;
 };
