@@ -325,20 +325,27 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     ++s.direct_sent;
   }
   if (s.sim && (!s.have_live || d.seq > s.last.seq)) {
-    // The simulation runs on device time: one 1 ms step per sample, and a few more for
-    // samples lost on the way. An overloaded server must not try to catch up on every
-    // lost millisecond (each catch-up would fall further behind): past kMaxCatchUpSteps
-    // the hand skips time and the gap shows in HandState.device_lost. A deadband-coded
-    // stream withholds samples on purpose: those steps run on the last state received.
+    // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
+    // on the way, with the thimbles moving in a straight line across the gap (jumping the
+    // pads to the new sample would kick the finger and leave the hand lagging the
+    // thimbles). An overloaded server must not try to catch up on every lost millisecond
+    // (each catch-up would fall further behind): past kMaxCatchUpSteps the hand skips time
+    // and the gap shows in HandState.device_lost. A deadband-coded stream withholds samples
+    // on purpose: those steps run on the last state received.
     const uint64_t gap = s.have_live ? d.seq - s.last.seq : 1;
     const uint64_t steps = std::min<uint64_t>(gap, coded ? kMaxHeldSteps : kMaxCatchUpSteps);
-    const bool hold = coded && s.have_live;
-    if (hold) {
-      s.sim->setFingerTargets(thimblePositions(s.last), true);
-      for (uint64_t i = 1; i < steps; ++i) stepHand(s);
+    if (s.have_live && steps > 1) {
+      const bool hold = coded;
+      const PerFinger<Vec3> from = thimblePositions(s.last), to = thimblePositions(d);
+      for (uint64_t i = 1; i < steps; ++i) {
+        const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
+        s.sim->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
+                                true);
+        stepHand(s);
+      }
     }
     s.sim->setFingerTargets(thimblePositions(d), true);
-    for (uint64_t i = 0; i < (hold ? 1 : steps); ++i) stepHand(s);
+    stepHand(s);
     correctDrift(s, d, static_cast<double>(steps) * 1e-3, now_ns);
   } else if (!s.sim && s.exploration.active()) {
     s.exploration.observe(s.model.anglesFromGrip(thimblePositions(d)), 0.0);

@@ -474,6 +474,45 @@ TEST_F(SessionManagerTest, MarkForAnUnknownSessionIsAnError) {
   EXPECT_EQ(manager_->stats().bad_commands, 1u);
 }
 
+TEST_F(SessionManagerTest, LostSamplesAreSteppedAlongTheWayOnDeviceTime) {
+  // A 3 Hz mobilization sent whole, then with 9 of every 10 samples lost: the server steps
+  // its hand through the gaps with the thimbles moving in a straight line, so the hand follows
+  // the thimbles as closely as when nothing is lost.
+  auto lag = [&](int keep_every) {
+    EXPECT_NE(open("healthy"), 0u);
+    const std::size_t first_hand = out_.hands.size();
+    const uint64_t first_seq = seq_;
+    std::vector<double> thimbles_deg;
+    for (int i = 0; i < 3000; ++i) {
+      const double t = i * 1e-3;
+      const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), 0.0, 0.0);
+      thimbles_deg.push_back(radToDeg(a[kFlexion]));
+      if (i % keep_every == 0) {
+        sample(a);
+      } else {
+        ++seq_;  // lost on the way
+        now_ns_ += 1'000'000;
+        if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
+      }
+    }
+    double worst = 0.0;
+    int compared = 0;
+    for (std::size_t h = first_hand; h < out_.hands.size(); ++h) {
+      const auto& hs = out_.hands[h];
+      const std::size_t i = hs.device_seq - first_seq;
+      if (i < 1000 || i >= thimbles_deg.size()) continue;  // past the first second
+      worst = std::max(worst, std::abs(radToDeg(hs.mcp_angles_rad[kFlexion]) - thimbles_deg[i]));
+      ++compared;
+    }
+    EXPECT_GT(compared, 150);
+    close();
+    return worst;
+  };
+  const double whole = lag(1);
+  const double lossy = lag(10);
+  EXPECT_LT(lossy, whole + 0.1) << "whole stream " << whole << " deg";
+}
+
 // --- Drift between the hand and the client's proxy ---------------------------------------------
 
 /// A client proxy that renders every sample with the models the server publishes. With
