@@ -86,6 +86,11 @@ StepStatus HapticLoop::step() noexcept {
   if (energy < health_.passivity_min_energy_j.load(std::memory_order_relaxed)) {
     health_.passivity_min_energy_j.store(energy, std::memory_order_relaxed);
   }
+  if (rendered.unpaid_energy_j > 0.0) {
+    health_.fade_unpaid_energy_j.store(
+        health_.fade_unpaid_energy_j.load(std::memory_order_relaxed) + rendered.unpaid_energy_j,
+        std::memory_order_relaxed);
+  }
   if (rendered.update_step_n > 0.0) {
     double force = 0.0;
     for (int k = 0; k < 2; ++k) force = std::max(force, rendered.force_device_n[k].norm());

@@ -43,6 +43,9 @@ struct LoopHealth {
   std::atomic<double> update_step_max_n{0.0};     ///< largest force step from a model update
   std::atomic<double> update_step_max_ratio{0.0}; ///< ... over max(5 % of the force, 0.1 N)
   std::atomic<uint64_t> direct_forces{0};         ///< server forces taken (direct mode)
+  /// Energy model fades added that the passivity observer had not seen dissipated (device J):
+  /// nonzero only when a stiffer model waited out JointProxy::kEnergyWaitNs.
+  std::atomic<double> fade_unpaid_energy_j{0.0};
 };
 
 /// A force the server computed for the device sample `device_seq` (direct mode).

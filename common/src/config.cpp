@@ -38,6 +38,11 @@ class TableReader {
         out = *v;
         return;
       }
+    } else if constexpr (std::is_same_v<T, bool>) {
+      if (n->is_boolean()) {
+        out = *n->value<bool>();
+        return;
+      }
     } else if constexpr (std::is_floating_point_v<T>) {
       if (auto v = n->value<double>()) {
         out = *v;
@@ -55,6 +60,7 @@ class TableReader {
       }
     }
     std::string want = std::is_same_v<T, std::string> ? "a string"
+                       : std::is_same_v<T, bool>        ? "true or false"
                        : std::is_floating_point_v<T>   ? "a number"
                                                        : "a non-negative integer";
     fail(origin_, "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." + key +
@@ -190,6 +196,7 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
   sv.read("cases_dir", c.cases_dir);
   sv.read("hand_model", c.hand_model);
   sv.read("hand_deadband_weber", c.hand_deadband_weber);
+  sv.read("drift_correction", c.drift_correction);
   sv.rejectUnknown();
   requireRange(origin, "server.hand_deadband_weber", c.hand_deadband_weber, 0.0, 0.5);
   if (c.db_path.empty()) fail(origin, "'server.db' must not be empty");

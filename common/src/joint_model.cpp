@@ -275,18 +275,21 @@ ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p
 }
 
 ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcept {
-  const Vec3 angles = current_.anglesFromGrip(p);
+  // Rates from the thimbles alone: a new drift correction moves the rendered angles, not the
+  // finger.
+  const Vec3 grip_angles = current_.anglesFromGrip(p);
   if (have_last_ && now_ns > last_ns_) {
     // First-order low-pass (5 ms) on the finite difference: encoder noise would otherwise
     // dominate the damping term.
     const double dt = static_cast<double>(now_ns - last_ns_) * 1e-9;
     constexpr double kTau = 0.005;
-    const Vec3 raw = (angles - last_angles_) / dt;
+    const Vec3 raw = (grip_angles - last_angles_) / dt;
     rates_ += (dt / (kTau + dt)) * (raw - rates_);
   }
   have_last_ = true;
   last_ns_ = now_ns;
-  last_angles_ = angles;
+  last_angles_ = grip_angles;
+  const Vec3 angles = grip_angles + current_.params().grip_offset_rad;
 
   if (!blending_ && have_pending_) {
     have_pending_ = false;
@@ -305,7 +308,10 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   out.potential_j = v_current;
   if (!blending_) return out;
 
-  const ProxyOutput old = renderWith(previous_, p, angles, rates_);
+  // The previous version renders with its own drift correction: a correction fades in like
+  // any other model change.
+  const Vec3 old_angles = previous_.proxyAngles(p);
+  const ProxyOutput old = renderWith(previous_, p, old_angles, rates_);
   double gap = 0.0, now_force = 0.0;
   for (int k = 0; k < 2; ++k) {
     gap = std::max(gap, (out.force_device_n[k] - old.force_device_n[k]).norm());
@@ -321,7 +327,7 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   const double bound = 0.9 * updateStepBoundN(now_force);
   if (gap * dw > bound) dw = bound / gap;
   // A stiffer model stores more energy at these angles: that difference must be paid for.
-  const double v_previous = previous_.potentialEnergyJ(angles);
+  const double v_previous = previous_.potentialEnergyJ(old_angles);
   const double dv = v_current - v_previous;
   // A joint held where nothing dissipates would keep the old model for ever (a follower
   // feeling a capture would never get the fit): after kEnergyWaitNs the fade goes on at its
@@ -331,6 +337,7 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   if (dv > 0.0 && dw * dv > energy_budget_j_ && !waited_out) dw = std::max(energy_budget_j_, 0.0) / dv;
   dw = std::max(dw, 0.0);
   weight_ += dw;
+  if (dv > 0.0) out.unpaid_energy_j = std::max(dw * dv - std::max(energy_budget_j_, 0.0), 0.0);
   energy_budget_j_ -= dw * dv;
   out.update_step_n = dw * gap;
   out.blend_energy_j = dw * dv;

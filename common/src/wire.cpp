@@ -25,6 +25,7 @@ void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointMo
   out.joint_orientation_q[2] = p.joint_orientation.y();
   out.joint_orientation_q[3] = p.joint_orientation.z();
   copyString(out.case_name, std::string_view(p.case_name.data()));
+  for (int i = 0; i < 3; ++i) out.grip_offset_rad[i] = p.grip_offset_rad[i];
 }
 
 std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::string* why) {
@@ -75,6 +76,13 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
     return bad("joint frame is not finite or not a unit quaternion");
   }
   p.joint_orientation.normalize();
+  for (int i = 0; i < kAxes; ++i) {
+    p.grip_offset_rad[i] = m.grip_offset_rad[i];
+    if (!(std::abs(m.grip_offset_rad[i]) <= degToRad(JointModelParams::kMaxGripOffsetDeg))) {
+      return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) +
+                 " grip_offset_rad is not finite or beyond ±30 deg");
+    }
+  }
   std::memcpy(p.case_name.data(), m.case_name, std::min(sizeof(m.case_name), p.case_name.size()));
   p.case_name.back() = '\0';
   return p;

@@ -62,6 +62,7 @@ struct SessionManager::Session {
   bool deadband_coded = false;          // the client withholds samples inside its deadband
   int64_t opened_ns = 0;
   std::unique_ptr<JointProxy> direct;   // direct mode: the server renders the force
+  DriftCorrector drift;                 // hand against proxy (sessions with a hand)
   uint64_t direct_sent = 0;
   // closing
   bool closing = false;
@@ -212,7 +213,8 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     s.refit = std::make_unique<estimate::LiveRefit>(estimate::captureGeometry(s.params), s.params,
                                                     refit_options_);
   }
-  if (hand_) s.sim = std::make_unique<sim::HandSim>(*hand_, s.params);
+  if (hand_) s.sim = std::make_unique<sim::HandSim>(*hand_, s.params, hand_config_);
+  s.drift = DriftCorrector(drift_options_);
   if (cmd.mode == telehand_msg_MODE_EXPLORATION) s.exploration.begin("baseline");
   if (cmd.direct_force) s.direct = std::make_unique<JointProxy>(s.params);
   s.hand_deadband = HandStateDeadband(DeadbandConfig{config_.hand_deadband_weber});
@@ -323,20 +325,28 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     ++s.direct_sent;
   }
   if (s.sim && (!s.have_live || d.seq > s.last.seq)) {
-    // The simulation runs on device time: one 1 ms step per sample, and a few more for
-    // samples lost on the way. An overloaded server must not try to catch up on every
-    // lost millisecond (each catch-up would fall further behind): past kMaxCatchUpSteps
-    // the hand skips time and the gap shows in HandState.device_lost. A deadband-coded
-    // stream withholds samples on purpose: those steps run on the last state received.
+    // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
+    // on the way, with the thimbles moving in a straight line across the gap (jumping the
+    // pads to the new sample would kick the finger and leave the hand lagging the
+    // thimbles). An overloaded server must not try to catch up on every lost millisecond
+    // (each catch-up would fall further behind): past kMaxCatchUpSteps the hand skips time
+    // and the gap shows in HandState.device_lost. A deadband-coded stream withholds samples
+    // on purpose: those steps run on the last state received.
     const uint64_t gap = s.have_live ? d.seq - s.last.seq : 1;
     const uint64_t steps = std::min<uint64_t>(gap, coded ? kMaxHeldSteps : kMaxCatchUpSteps);
-    const bool hold = coded && s.have_live;
-    if (hold) {
-      s.sim->setFingerTargets(thimblePositions(s.last), true);
-      for (uint64_t i = 1; i < steps; ++i) stepHand(s);
+    if (s.have_live && steps > 1) {
+      const bool hold = coded;
+      const PerFinger<Vec3> from = thimblePositions(s.last), to = thimblePositions(d);
+      for (uint64_t i = 1; i < steps; ++i) {
+        const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
+        s.sim->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
+                                true);
+        stepHand(s);
+      }
     }
     s.sim->setFingerTargets(thimblePositions(d), true);
-    for (uint64_t i = 0; i < (hold ? 1 : steps); ++i) stepHand(s);
+    stepHand(s);
+    correctDrift(s, d, static_cast<double>(steps) * 1e-3, now_ns);
   } else if (!s.sim && s.exploration.active()) {
     s.exploration.observe(s.model.anglesFromGrip(thimblePositions(d)), 0.0);
   }
@@ -406,15 +416,55 @@ void SessionManager::publishModel(const Session& s) {
   out_.publish(m);
 }
 
+void SessionManager::adoptModel(Session& s, JointModelParams next) {
+  next.version = s.params.version + 1;
+  next.grip_offset_rad = s.drift.offset();
+  s.params = next;
+  s.model = JointModel(s.params);
+  if (s.sim) s.sim->setMcpModel(s.params);
+  if (s.direct) s.direct->setModel(s.params, s.last.source_time_ns);
+  publishModel(s);
+}
+
+void SessionManager::correctDrift(Session& s, const telehand_msg_DeviceState& d, double dt_s,
+                                  int64_t now_ns) {
+  // A capture renders nothing (the actuators are off): there is no proxy to correct.
+  if (!config_.drift_correction || s.mode == telehand_msg_MODE_CAPTURE) return;
+  const auto grip = s.sim->contactForcesDevice();
+  const double min_grip = s.drift.options().min_grip_n;
+  const bool held = grip[0].norm() >= min_grip && grip[1].norm() >= min_grip;
+  Vec3 proxy = s.model.proxyAngles(thimblePositions(d));
+  // Past a range end the proxy renders the end-of-range wall while the hand rests on its
+  // hard limit: that gap is the wall's give, which the student must feel, not drift.
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    const auto& axis = s.params.axes[i];
+    proxy[static_cast<int>(i)] = std::clamp(proxy[static_cast<int>(i)], degToRad(axis.min_deg),
+                                            degToRad(axis.max_deg));
+  }
+  const Vec3 before = s.drift.offset();
+  if (!s.drift.observe(s.sim->mcpAngles(), proxy, held, dt_s, now_ns)) return;
+  ++stats_.drift_corrections;
+  adoptModel(s, s.params);
+  const Vec3 change_deg = (s.drift.offset() - before) * (180.0 / kPi);
+  spdlog::debug("session {}: drift correction v{}: {:.2f} {:.2f} {:.2f} deg", s.info.id,
+                s.params.version, change_deg[0], change_deg[1], change_deg[2]);
+  // A slip anyone would notice goes in the record and to the supervisors.
+  if (change_deg.cwiseAbs().maxCoeff() >= kDriftEventDeg) {
+    const Vec3 total = s.drift.offset() * (180.0 / kPi);
+    char text[200];
+    std::snprintf(text, sizeof text,
+                  "grip slipped: the hand is %+.1f/%+.1f/%+.1f deg (flexion/abduction/axial) from "
+                  "the thimbles; the proxy follows it (model v%u)",
+                  total[0], total[1], total[2], s.params.version);
+    event(s.info.id, 0, telehand_msg_EVENT_INFO, text, now_ns);
+  }
+}
+
 void SessionManager::refit(Session& s, int64_t now_ns) {
   auto u = s.refit->poll(now_ns);
   if (!u) return;
   const uint32_t version = s.params.version + 1;
-  s.params = u->params;
-  s.params.version = version;
-  s.model = JointModel(s.params);
-  if (s.sim) s.sim->setMcpModel(s.params);
-  publishModel(s);
+  adoptModel(s, u->params);
   ++stats_.live_models;
   stats_.last_refit_latency_ns = now_ns - u->newest_arrival_ns;
   stats_.max_refit_latency_ns = std::max(stats_.max_refit_latency_ns, stats_.last_refit_latency_ns);
@@ -438,7 +488,7 @@ void SessionManager::refit(Session& s, int64_t now_ns) {
     if (it == sessions_.end()) continue;
     Session& f = it->second;
     JointModelParams p = u->params;
-    p.version = f.params.version + 1;
+    p.version = f.params.version + 1;  // adoptModel's, for the KnnModel that goes first
     p.case_name = f.params.case_name;
     if (f.wants_knn && !u->knn_points.empty()) {
       if (!knn) knn = std::make_shared<const KnnTorqueModel>(u->knn_points, refit_options_.knn);
@@ -465,10 +515,7 @@ void SessionManager::refit(Session& s, int64_t now_ns) {
     } else {
       p.knn = nullptr;
     }
-    f.params = p;
-    f.model = JointModel(f.params);
-    if (f.sim) f.sim->setMcpModel(f.params);
-    publishModel(f);
+    adoptModel(f, p);
   }
 }
 
@@ -620,15 +667,7 @@ void SessionManager::recover(Session& s, int64_t now_ns) {
                       next.axes[i].max_deg - s.params.axes[i].max_deg});
   }
   if (grown < kRecoveryStepDeg) return;  // not a change anyone would feel
-  next.version = s.params.version + 1;
-  s.params = next;
-  s.model = JointModel(s.params);
-  if (s.sim) s.sim->setMcpModel(s.params);
-  if (s.direct) s.direct->setModel(s.params, s.last.source_time_ns);
-  telehand_msg_JointModel m{};
-  toWire(s.params, s.info.id, m);
-  m.source_time_ns = wallNs();
-  out_.publish(m);
+  adoptModel(s, next);
   char text[160];
   std::snprintf(text, sizeof text, "recovery: after %.0f s of treatment, flexion range %.1f..%.1f deg (model v%u)",
                 s.treatment_s, s.params.axes[kFlexion].min_deg, s.params.axes[kFlexion].max_deg,

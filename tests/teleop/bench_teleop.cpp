@@ -41,18 +41,20 @@ void printRow(const CellSpec& spec, const CellResult& r, double err, bool markdo
   // In direct mode the client's proxy renders nothing: its fades are not felt.
   char step[64] = "n/a";
   if (spec.render == RenderMode::kModel) {
-    std::snprintf(step, sizeof step, "%.3f N (%.2f)", r.update_step_max_n, r.update_step_ratio);
+    std::snprintf(step, sizeof step, "%.3f N (%.2f), %.1f µJ", r.update_step_max_n, r.update_step_ratio,
+                  r.fade_unpaid_j * 1e6);
   }
   char line[512];
   std::snprintf(line, sizeof line,
                 markdown ? "| %s | %s | %.0f ±%.0f | %.0f | %s (%.1f %%) | %s (%.1f mJ, %llu) | %.1f %% | "
-                           "%s | %.0f | %.0f | %.0f | %llu (%.0f µs) |"
+                           "%s | %.2f° / %.2f° (%llu) | %.0f | %.0f | %.0f | %llu (%.0f µs) |"
                          : "%-15s %-18s %5.0f ±%-4.0f %4.0f  %-8s %5.1f%%  %-3s %7.1f mJ %6llu  %6.1f%%  "
-                           "%-15s  %6.0f %6.0f %6.0f  %llu (%.0f us)",
+                           "%-15s  %5.2f/%5.2f deg (%llu)  %6.0f %6.0f %6.0f  %llu (%.0f us)",
                 modeName(spec.render), spec.link.name.c_str(), spec.link.rtt_ms, spec.link.jitter_ms,
                 spec.link.loss_pct, stable(r) ? "stable" : "UNSTABLE", r.oscillation * 100.0,
                 passive(r) ? "yes" : "NO", r.po_min_j * 1e3, static_cast<unsigned long long>(r.pc_ticks),
-                err * 100.0, step, r.device_state_pps, r.up_pps, r.down_pps,
+                err * 100.0, step, r.drift_mean_deg, r.drift_rms_deg,
+                static_cast<unsigned long long>(r.drift_corrections), r.device_state_pps, r.up_pps, r.down_pps,
                 static_cast<unsigned long long>(r.overruns), r.step_max_us);
   std::cout << line << std::endl;
 }
@@ -69,8 +71,9 @@ int main(int argc, char** argv) {
   std::vector<double> deadbands;
   double seconds = 20.0, steady = 4.0, treatment = 20.0;
   uint64_t seed = 1;
-  bool markdown = false, no_hand = false, no_pc = false;
+  bool markdown = false, no_hand = false, no_pc = false, drift = false;
   std::string case_name = "regain";
+  std::string clinician = "force";
   app.add_option("--rtt", rtts, "round trips, ms")->capture_default_str();
   app.add_option("--loss", losses, "mean losses, % (bursty, 4 packets per burst)")->capture_default_str();
   app.add_option("--modes", modes, "model, direct")->check(CLI::IsMember({"model", "direct"}))->capture_default_str();
@@ -78,12 +81,18 @@ int main(int argc, char** argv) {
   app.add_option("--deadband", deadbands, "also run model-mediated cells with these Weber fractions")->check(CLI::Range(0.0, 0.5));
   app.add_option("--seconds", seconds, "simulated session length")->capture_default_str()->check(CLI::Range(2.0, 3600.0));
   app.add_option("--steady-from", steady, "metrics from this time on (after the ramp), s")->capture_default_str();
+  app.add_option("--clinician", clinician,
+                 "force: pushes the paper's 12-16 N band; servo: moves the joint along a set path "
+                 "through that band, so the force shows what is rendered")
+      ->check(CLI::IsMember({"force", "servo"}))
+      ->capture_default_str();
   app.add_option("--case", case_name, "patient case (tests/teleop/cases, deploy/cases)")->capture_default_str();
   app.add_option("--recovery-s", treatment, "treatment time over which a recovering case regains its range")->capture_default_str();
   app.add_option("--seed", seed, "operator and link seed")->capture_default_str();
   app.add_flag("--markdown", markdown, "print Markdown tables");
   app.add_flag("--no-hand", no_hand, "no Bullet hand on the server (no treatment, no recovery updates)");
   app.add_flag("--no-passivity-control", no_pc, "observe passivity but never add damping");
+  app.add_flag("--drift", drift, "also compare drift (hand against proxy) with the server's correction off and on");
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
@@ -100,6 +109,7 @@ int main(int argc, char** argv) {
       s.recovery_treatment_s = treatment;
       s.seed = seed;
       s.passivity_control = !no_pc;
+      s.clinician = clinician == "servo" ? Clinician::kServo : Clinician::kForceBand;
       return s;
     };
     const CellSpec ref_spec = spec(matrixLink(0, 0), RenderMode::kModel);
@@ -109,11 +119,11 @@ int main(int argc, char** argv) {
               << " samples recorded\n\n";
     if (markdown) {
       std::cout << "| mode | link | RTT ms | loss % | stable (force above 15 Hz) | passive (lowest PO energy, PC ticks) | "
-                   "RMS force error | largest update step (/ bound) | DeviceState /s | up /s | down /s | overruns (worst step CPU) |\n"
-                   "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+                   "RMS force error | largest update step (/ bound), unpaid fade energy | drift mean / RMS (corrections) | DeviceState /s | up /s | down /s | overruns (worst step CPU) |\n"
+                   "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     } else {
       std::cout << "mode            link               RTT ms      loss  stable   osc     passive  PO min  PC ticks  "
-                   "error   update step     DS/s   up/s down/s  overruns\n";
+                   "error   update step      drift mean/RMS (corr)  DS/s   up/s down/s  overruns\n";
     }
     int failures = 0;
     auto run = [&](const CellSpec& s) {
@@ -156,6 +166,33 @@ int main(int argc, char** argv) {
                         100.0 * (1.0 - r.device_state_pps / full.device_state_pps),
                         100.0 * forceError(r, full, s), 100.0 * r.reconstruction_error,
                         r.hand_state_pps, full.hand_state_pps);
+          std::cout << line << std::endl;
+        }
+      }
+    }
+    if (drift) {
+      std::cout << "\ndrift (model-mediated): the server's hand against the client's proxy, same "
+                   "device sample, largest axis; force error against the zero-delay run with the "
+                   "correction on\n";
+      if (markdown) {
+        std::cout << "| link | correction | drift mean | drift RMS | corrections | largest update step (/ bound) | RMS force error |\n"
+                     "|---|---|---|---|---|---|---|\n";
+      }
+      std::vector<LinkProfile> links = {matrixLink(0, 0), matrixLink(300, 2), matrixLink(1000, 10)};
+      for (const auto& path : profiles) links.push_back(loadLinkProfile(path));
+      for (const auto& link : links) {
+        for (bool on : {false, true}) {
+          CellSpec s = spec(link, RenderMode::kModel);
+          s.drift_correction = on;
+          const CellResult r = runCell(s, hand ? &*hand : nullptr);
+          char line[400];
+          std::snprintf(line, sizeof line,
+                        markdown ? "| %s | %s | %.2f° | %.2f° | %llu | %.3f N (%.2f) | %.1f %% |"
+                                 : "%-18s correction %-3s  drift mean %.2f deg  RMS %.2f deg  %llu corrections  "
+                                   "update step %.3f N (%.2f)  force error %.1f %%",
+                        link.name.c_str(), on ? "on" : "off", r.drift_mean_deg, r.drift_rms_deg,
+                        static_cast<unsigned long long>(r.drift_corrections), r.update_step_max_n,
+                        r.update_step_ratio, 100.0 * forceError(r, ref, s));
           std::cout << line << std::endl;
         }
       }

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <deque>
 #include <filesystem>
+#include <optional>
 #include <fstream>
 #include <sstream>
 #include <variant>
@@ -30,7 +31,11 @@ class BenchOutbox final : public server::session::Outbox {
  public:
   void publish(const telehand_msg_SessionStatus& s) override { status.push_back(s); }
   void publish(const telehand_msg_JointModel& m) override { models.push_back(m); }
-  void publish(const telehand_msg_HandState&) override { ++hand_states; }
+  void publish(const telehand_msg_HandState& h) override {
+    ++hand_states;
+    Vec3 a(h.mcp_angles_rad[0], h.mcp_angles_rad[1], h.mcp_angles_rad[2]);
+    hand_angles.emplace_back(h.device_seq, a);
+  }
   void publish(const telehand_msg_SessionEvent&) override {}
   void publish(const telehand_msg_DirectForce& f) override { forces.push_back(f); }
 
@@ -38,6 +43,7 @@ class BenchOutbox final : public server::session::Outbox {
   std::vector<telehand_msg_JointModel> models;
   std::vector<telehand_msg_DirectForce> forces;
   uint64_t hand_states = 0;
+  std::vector<std::pair<uint64_t, Vec3>> hand_angles;  ///< the authoritative MCP angles per device seq
 };
 
 /// A directory holding the one patient case the cell uses, its recovery time shortened.
@@ -107,6 +113,37 @@ struct Chunk {
   std::vector<telehand_msg_DeviceState> samples;
 };
 
+/// The servo clinician (Clinician::kServo): flexion follows mid ± amp at the operator's
+/// frequency, where the initial joint holds 12 and 16 N; the other axes are held at zero.
+class ServoClinician final : public client::device::Operator {
+ public:
+  ServoClinician(const JointModel& joint, const OperatorConfig& op) : op_(op) {
+    double lo = joint.restAngleRad(kFlexion), hi = lo;
+    // Past the range end too: a short joint is mobilized on its end-of-range wall.
+    const double max = degToRad(joint.params().axes[kFlexion].max_deg + 30.0);
+    for (double a = lo; a <= max; a += degToRad(0.05)) {
+      const double f = joint.holdingForceN(kFlexion, a);
+      if (f < op.band_min_n) lo = a;
+      if (f < op.band_max_n) hi = a;
+    }
+    mid_ = 0.5 * (lo + hi);
+    amp_ = 0.5 * (hi - lo);
+  }
+  Vec3 torqueNm(double t_s, const Vec3& angles, const Vec3& rates) noexcept override {
+    // A finger about as stiff as a pinching hand (2 kN/m at the 1 cm grip, device scale),
+    // critically damped on the grip's 50 g.
+    constexpr double kStiffness = 0.2, kDamping = 0.002;
+    const double x = std::clamp(t_s / op_.ramp_s, 0.0, 1.0);
+    const double smooth = x * x * (3.0 - 2.0 * x);
+    const Vec3 target(smooth * (mid_ + amp_ * std::sin(2.0 * kPi * op_.frequency_hz * t_s)), 0.0, 0.0);
+    return kStiffness * (target - angles) - kDamping * rates;
+  }
+
+ private:
+  OperatorConfig op_;
+  double mid_ = 0.0, amp_ = 0.0;
+};
+
 }  // namespace
 
 CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
@@ -118,6 +155,7 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   ServerConfig cfg;
   cfg.cases_dir = cases.path();
   cfg.hand_deadband_weber = spec.deadband.weber;
+  cfg.drift_correction = spec.drift_correction;
   server::session::SqliteStore store(":memory:");
   BenchOutbox out;
   server::session::SessionManager manager(store, out, cfg, hand);
@@ -142,6 +180,11 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   OperatorConfig op = spec.op;
   op.seed = spec.seed;
   client::device::SimulatedMf2 device(*initial, op, clock);
+  std::optional<ServoClinician> servo;
+  if (spec.clinician == Clinician::kServo) {
+    servo.emplace(JointModel(*initial), op);
+    device.setOperator(&*servo);
+  }
   client::loop::TeleopOptions teleop;
   teleop.render = spec.render;
   teleop.passivity.control = spec.passivity_control;
@@ -171,6 +214,8 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   const uint64_t ticks = static_cast<uint64_t>(spec.seconds * 1000.0);
   const uint64_t steady_tick = static_cast<uint64_t>(spec.steady_from_s * 1000.0);
   r.force.reserve(ticks);
+  std::vector<Vec3> proxy_angles;  // what the client rendered, per seq
+  proxy_angles.reserve(ticks);
 
   auto sendChunk = [&](Chunk c, int64_t now) {
     ++up_packets;
@@ -215,6 +260,7 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
         for (int i = 0; i < 3; ++i) f[static_cast<std::size_t>(3 * k + i)] = static_cast<float>(s.fingers[k].command_n[i]);
       }
       r.force.push_back(f);
+      proxy_angles.emplace_back(s.mcp_angles_rad[0], s.mcp_angles_rad[1], s.mcp_angles_rad[2]);
       const bool steady = s.seq >= steady_tick;
       for (std::size_t i = 0; i < 6; ++i) {
         const double h = hp[i](f[i]);
@@ -335,12 +381,31 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   r.update_step_max_n = h.update_step_max_n.load();
   r.update_step_ratio = h.update_step_max_ratio.load();
   r.models_applied = h.models_applied.load();
+  r.fade_unpaid_j = h.fade_unpaid_energy_j.load();
   r.oscillation = all2 > 0.0 ? std::sqrt(hp2 / all2) : 0.0;
   r.device_state_pps = static_cast<double>(live_packets) / secs;
   r.up_pps = static_cast<double>(up_packets) / secs;
   r.down_pps = static_cast<double>(down_packets) / secs;
   r.hand_state_pps = static_cast<double>(out.hand_states) / secs;
   r.reconstruction_error = recon_ref2 > 0.0 ? std::sqrt(recon_err2 / recon_ref2) : 0.0;
+  // Drift: the server's hand against the client's proxy for the same device sample, per axis:
+  // its mean (what persists, and what the server corrects) and its RMS (the mean plus the
+  // hand's lag behind the moving thimbles).
+  Vec3 sum = Vec3::Zero(), sum2 = Vec3::Zero();
+  uint64_t drift_n = 0;
+  for (const auto& [seq, a] : out.hand_angles) {
+    if (seq < steady_tick || seq >= proxy_angles.size()) continue;
+    const Vec3 d = (a - proxy_angles[seq]) * (180.0 / kPi);
+    sum += d;
+    sum2 += d.cwiseProduct(d);
+    ++drift_n;
+  }
+  if (drift_n > 0) {
+    const double n = static_cast<double>(drift_n);
+    r.drift_mean_deg = (sum / n).cwiseAbs().maxCoeff();
+    r.drift_rms_deg = (sum2 / n).cwiseSqrt().maxCoeff();
+  }
+  r.drift_corrections = manager.stats().drift_corrections;
   return r;
 }
 

@@ -18,6 +18,13 @@
 
 namespace telehand::teleop {
 
+/// Who holds the device. The force-band clinician pushes a set force (the paper's
+/// mobilization, 12-16 N): the force then hardly depends on what is rendered, the angle does.
+/// The servo clinician moves the phalanx along a set flexion path through that band (a stiff
+/// position servo at the grip): the force is then the rendered joint's at those angles, and
+/// every difference in what is rendered shows in the force error.
+enum class Clinician { kForceBand, kServo };
+
 struct CellSpec {
   LinkProfile link;                  ///< both directions
   client::loop::RenderMode render = client::loop::RenderMode::kModel;
@@ -31,6 +38,8 @@ struct CellSpec {
   double recovery_treatment_s = 20.0;
   OperatorConfig op;
   uint64_t seed = 1;
+  bool drift_correction = true;      ///< the server folds drift into the model
+  Clinician clinician = Clinician::kForceBand;
 };
 
 struct CellResult {
@@ -43,6 +52,7 @@ struct CellResult {
   double update_step_max_n = 0.0;    ///< largest force step from a model update
   double update_step_ratio = 0.0;    ///< ... over max(5 % of the force, 0.1 N)
   uint64_t models_applied = 0;
+  double fade_unpaid_j = 0.0;        ///< energy fades added beyond what was seen dissipated
   double device_state_pps = 0.0;     ///< live DeviceState packets/s, client -> server
   double up_pps = 0.0;               ///< all packets/s client -> server (live + record chunks)
   double down_pps = 0.0;             ///< packets/s server -> client (models, direct forces)
@@ -51,6 +61,12 @@ struct CellResult {
   uint64_t overruns = 0;             ///< ticks whose step() used more CPU time than the period
   double step_max_us = 0.0;          ///< largest step() CPU time
   uint64_t samples_recorded = 0;     ///< the server's record at the end
+  /// Drift over the steady window: the server's MCP angles (HandState) against the angles the
+  /// client's proxy rendered for the same device sample, degrees, the largest axis: its mean
+  /// (persistent drift) and RMS (with the hand's lag behind the moving thimbles).
+  double drift_mean_deg = 0.0;
+  double drift_rms_deg = 0.0;
+  uint64_t drift_corrections = 0;    ///< models the server published to correct drift
   uint64_t ticks = 0;
 };
 

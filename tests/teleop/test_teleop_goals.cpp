@@ -98,5 +98,40 @@ TEST(TeleopGoals, DeadbandSendsAtLeastNinetyPercentFewerDeviceStates) {
   EXPECT_EQ(b.samples_recorded, b.ticks) << "the record still holds every sample";
 }
 
+TEST(TeleopGoals, ModelMediatedForceErrorUnderTheJndWithAServoClinician) {
+  // The clinician moves the joint along a set path: the force is whatever the proxy renders
+  // there, so a stale or wrong model would show in full.
+  CellSpec ref_spec = cell(link(0, 0, 0, 1), RenderMode::kModel);
+  ref_spec.clinician = Clinician::kServo;
+  CellSpec s = cell(link(300, 20, 2, 4), RenderMode::kModel);
+  s.clinician = Clinician::kServo;
+  const CellResult ref = runCell(ref_spec, &hand());
+  const CellResult r = runCell(s, &hand());
+  EXPECT_GT(r.models_applied, 5u);
+  EXPECT_LT(forceError(r, ref, s), 0.07);
+  EXPECT_TRUE(stable(r));
+  EXPECT_TRUE(passive(r));
+}
+
+TEST(TeleopGoals, TheServerKeepsTheProxyWhereItsHandIs) {
+  // On the healthy joint the mobilization stays inside the range, so the drift measured here
+  // (hand minus proxy, unclamped) is the drift the server corrects. On the regain case the
+  // grip presses on the end-of-range wall, whose give the server rightly leaves alone but this
+  // measure counts: there the persistent drift sits at the threshold (0.56° uncorrected at
+  // 0 ms), and whether a correction fires turns on details of the first second.
+  CellSpec on_spec = cell(link(0, 0, 0, 1), RenderMode::kModel);
+  on_spec.case_name = "healthy";
+  CellSpec off = on_spec;
+  off.drift_correction = false;
+  const CellResult on = runCell(on_spec, &hand());
+  const CellResult r_off = runCell(off, &hand());
+  EXPECT_EQ(r_off.drift_corrections, 0u);
+  EXPECT_GE(on.drift_corrections, 1u);
+  EXPECT_LT(on.drift_mean_deg, r_off.drift_mean_deg);
+  EXPECT_LT(on.drift_mean_deg, 0.5) << "persistent drift within the correction threshold";
+  EXPECT_LE(on.update_step_ratio, 1.0) << "corrections fade in under the step bound";
+  EXPECT_EQ(on.fade_unpaid_j, 0.0) << "and are paid for by dissipated energy";
+}
+
 }  // namespace
 }  // namespace telehand::teleop

@@ -189,6 +189,8 @@ TEST(ServerConfig, ValidFileParses) {
   EXPECT_DOUBLE_EQ(c.hand_state_hz, 60.0);
   EXPECT_DOUBLE_EQ(c.close_grace_s, 2.5);
   EXPECT_EQ(parseServerConfig("", "server.toml").db_path, ServerConfig{}.db_path);
+  EXPECT_TRUE(parseServerConfig("", "server.toml").drift_correction);
+  EXPECT_FALSE(parseServerConfig("[server]\ndrift_correction = false\n", "server.toml").drift_correction);
 }
 
 TEST(ServerConfig, ErrorsNameOriginAndKey) {
@@ -201,6 +203,8 @@ TEST(ServerConfig, ErrorsNameOriginAndKey) {
   EXPECT_THAT(serverError("[server]\nhandstate_hz = 60.0\n"),
               AllOf(HasSubstr("line 2"), HasSubstr("server.handstate_hz")));
   EXPECT_THAT(serverError("[operator]\nseed = 1\n"), HasSubstr("operator"));
+  EXPECT_THAT(serverError("[server]\ndrift_correction = 0\n"),
+              AllOf(HasSubstr("line 2"), HasSubstr("server.drift_correction"), HasSubstr("true or false")));
   EXPECT_THAT(serverError("[server\n"), AllOf(HasSubstr("server.toml"), HasSubstr("line 1")));
 }
 

@@ -134,7 +134,11 @@ TEST(ModelFade, AStifferModelWaitsForEnergyToPayForIt) {
   // Half the difference paid: half way, and the energy spent never exceeds what was given.
   double spent = 0.0;
   proxy.setEnergyBudget(0.5 * dv);
-  for (int i = 1001; i <= 1400; ++i) spent += proxy.render(held, i * kNsPerMs).blend_energy_j;
+  for (int i = 1001; i <= 1400; ++i) {
+    const ProxyOutput out = proxy.render(held, i * kNsPerMs);
+    spent += out.blend_energy_j;
+    EXPECT_EQ(out.unpaid_energy_j, 0.0);
+  }
   EXPECT_NEAR(spent, 0.5 * dv, 1e-9 + 1e-6 * dv);
   EXPECT_TRUE(proxy.blending());
   proxy.setEnergyBudget(dv);
@@ -154,18 +158,26 @@ TEST(ModelFade, AStarvedStifferModelFadesInAfterTheWaitUnderTheStepBound) {
   int i = 1;
   for (; i <= wait_ms; ++i) {
     proxy.setEnergyBudget(0.0);
-    EXPECT_LE(proxy.render(held, i * kNsPerMs).blend_energy_j, 0.0) << i;
+    const ProxyOutput out = proxy.render(held, i * kNsPerMs);
+    EXPECT_LE(out.blend_energy_j, 0.0) << i;
+    EXPECT_EQ(out.unpaid_energy_j, 0.0) << i;
   }
   EXPECT_TRUE(proxy.blending());
   double prev = proxy.render(held, i * kNsPerMs).force_device_n[0].norm();
+  double added = 0.0, unpaid = 0.0;
   for (++i; i < wait_ms + 2000 && proxy.blending(); ++i) {
     proxy.setEnergyBudget(0.0);
     const ProxyOutput out = proxy.render(held, i * kNsPerMs);
     const double f = out.force_device_n[0].norm();
     EXPECT_LE(std::abs(f - prev), JointProxy::updateStepBoundN(f) + 1e-9);
     prev = f;
+    added += out.blend_energy_j;
+    unpaid += out.unpaid_energy_j;
   }
   EXPECT_FALSE(proxy.blending()) << "the stiffer model is rendered in the end";
+  // Nothing paid for it: all it added is reported as unpaid (the loop's health counts it).
+  EXPECT_GT(unpaid, 0.0);
+  EXPECT_NEAR(unpaid, added, 1e-12);
   EXPECT_EQ(proxy.version(), 2u);
 }
 
@@ -183,6 +195,89 @@ TEST(ModelFade, ASofterModelReleasesEnergyAndFadesWithoutBudget) {
   }
   EXPECT_FALSE(proxy.blending());
   EXPECT_LE(i, 202);
+}
+
+JointModelParams corrected(uint32_t version, const Vec3& offset_deg) {
+  JointModelParams p = healthyIndexMcp();
+  p.version = version;
+  p.grip_offset_rad = offset_deg * (kPi / 180.0);
+  return p;
+}
+
+TEST(ModelFade, TheProxyRendersAtTheThimblesAnglesPlusTheServersGripOffset) {
+  const JointModelParams p = corrected(2, Vec3(-4.0, 1.0, 2.5));
+  const JointModel m(p);
+  const JointModel plain(healthyIndexMcp());
+  const Vec3 a(degToRad(30.0), degToRad(2.0), degToRad(-3.0));
+  const PerFinger<Vec3> grip = plain.gripFromAngles(a, 0.008);
+  EXPECT_LT((m.proxyAngles(grip) - (a + p.grip_offset_rad)).norm(), 1e-9);
+  JointProxy proxy(p);
+  const ProxyOutput out = proxy.render(grip, 0);
+  EXPECT_LT((out.angles_rad - (a + p.grip_offset_rad)).norm(), 1e-9);
+  // The force is the joint's at the corrected angles: 26 deg of flexion, not 30.
+  const Vec3 torque = m.passiveTorqueNm(a + p.grip_offset_rad, Vec3::Zero());
+  EXPECT_LT((out.torque_ref_nm - torque).norm(), 1e-12);
+}
+
+TEST(ModelFade, ADriftCorrectionFadesInUnderTheStepBoundWithoutARateSpike) {
+  // The server moves the rendered joint 4 deg toward where its hand is while the student
+  // mobilizes: the correction is a model version like any other.
+  const JointModelParams v1 = healthyIndexMcp();
+  const JointModelParams v2 = corrected(2, Vec3(-4.0, 0.0, 1.5));
+  const JointModel geom(v1);
+  JointProxy proxy(v1, 200 * kNsPerMs);
+  JointProxy only_v2(v2, 200 * kNsPerMs);
+  std::vector<double> f;
+  double worst = 0.0;
+  for (int i = 0; i < 1500; ++i) {
+    const int64_t t = i * kNsPerMs;
+    if (i == 300) proxy.setModel(v2, t);
+    const ProxyOutput out = proxy.render(sweep(geom, t), t);
+    const ProxyOutput ref = only_v2.render(sweep(geom, t), t);
+    worst = std::max(worst, out.update_step_n / updateBound(out));
+    f.push_back(out.force_device_n[1].norm());
+    if (i >= 1000) {
+      ASSERT_FALSE(out.blending) << i;
+      EXPECT_LT((out.force_device_n[1] - ref.force_device_n[1]).norm(), 1e-12) << i;
+      EXPECT_LT((out.angles_rad - ref.angles_rad).norm(), 1e-12) << i;
+    }
+  }
+  EXPECT_LE(worst, 1.0);
+  EXPECT_GT(worst, 0.0);
+  // Around the switch the force moves no faster than the sweep alone makes it move (the
+  // rates come from the thimbles: a new offset adds no spurious speed to the damping term).
+  double sweep_step = 0.0, fade_step = 0.0;
+  for (std::size_t i = 1; i < f.size(); ++i) {
+    const double d = std::abs(f[i] - f[i - 1]);
+    if (i >= 300 && i < 520) {
+      fade_step = std::max(fade_step, d);
+    } else {
+      sweep_step = std::max(sweep_step, d);
+    }
+  }
+  EXPECT_LT(fade_step, sweep_step + 0.1);
+}
+
+TEST(ModelFade, ADriftCorrectionIntoTheJointWaitsForEnergyLikeAStifferModel) {
+  // Held at 60 deg of flexion: a correction of +3 deg renders the joint further in, where it
+  // stores more energy. With no budget the old rendering stays (for up to kEnergyWaitNs).
+  const JointModelParams v1 = healthyIndexMcp();
+  const JointModelParams v2 = corrected(2, Vec3(3.0, 0.0, 0.0));
+  const JointModel geom(v1);
+  const PerFinger<Vec3> held = geom.gripFromAngles(Vec3(degToRad(60.0), 0.0, 0.0), 0.008);
+  JointProxy proxy(v1, 200 * kNsPerMs);
+  const ProxyOutput before = proxy.render(held, 0);
+  proxy.setModel(v2, 0);
+  for (int i = 1; i <= 500; ++i) {
+    proxy.setEnergyBudget(0.0);
+    const ProxyOutput out = proxy.render(held, i * kNsPerMs);
+    EXPECT_LE(out.blend_energy_j, 0.0);
+    EXPECT_LT((out.force_device_n[1] - before.force_device_n[1]).norm(), 1e-12);
+  }
+  proxy.setEnergyBudget(1.0);
+  for (int i = 501; i <= 1000; ++i) proxy.render(held, i * kNsPerMs);
+  EXPECT_FALSE(proxy.blending());
+  EXPECT_NEAR(radToDeg(proxy.render(held, 1001 * kNsPerMs).angles_rad[kFlexion]), 63.0, 1e-6);
 }
 
 }  // namespace

@@ -588,6 +588,28 @@ TEST(PatientCaseWire, NeutralZonesAndSpeedGainSurviveTheRoundTrip) {
   EXPECT_EQ(w.neutral_zone_deg[2], 4.0);
 }
 
+TEST(PatientCaseWire, TheGripOffsetSurvivesTheWireAndBadOnesAreNamed) {
+  JointModelParams p = load("lax").model;
+  p.grip_offset_rad = Vec3(degToRad(-4.5), degToRad(0.25), degToRad(12.0));
+  telehand_msg_JointModel w{};
+  toWire(p, 3, w);
+  std::string why;
+  const auto back = fromWire(w, &why);
+  ASSERT_TRUE(back.has_value()) << why;
+  EXPECT_EQ(back->grip_offset_rad, p.grip_offset_rad);
+  for (int axis = 0; axis < kAxes; ++axis) {
+    for (double bad : {degToRad(31.0), -degToRad(31.0), std::nan(""),
+                       std::numeric_limits<double>::infinity()}) {
+      telehand_msg_JointModel b = w;
+      b.grip_offset_rad[axis] = bad;
+      why.clear();
+      EXPECT_FALSE(fromWire(b, &why).has_value()) << axis << " " << bad;
+      EXPECT_THAT(why, AllOf(HasSubstr(std::string(kAxisNames[static_cast<std::size_t>(axis)])),
+                             HasSubstr("grip_offset_rad")));
+    }
+  }
+}
+
 TEST(PatientCaseWire, FromWireRejectsBadNeutralZonesAndSpeedGains) {
   telehand_msg_JointModel good{};
   toWire(load("lax").model, 1, good);

@@ -474,5 +474,149 @@ TEST_F(SessionManagerTest, MarkForAnUnknownSessionIsAnError) {
   EXPECT_EQ(manager_->stats().bad_commands, 1u);
 }
 
+TEST_F(SessionManagerTest, LostSamplesAreSteppedAlongTheWayOnDeviceTime) {
+  // A 3 Hz mobilization sent whole, then with 9 of every 10 samples lost: the server steps
+  // its hand through the gaps with the thimbles moving in a straight line, so the hand follows
+  // the thimbles as closely as when nothing is lost.
+  auto lag = [&](int keep_every) {
+    EXPECT_NE(open("healthy"), 0u);
+    const std::size_t first_hand = out_.hands.size();
+    const uint64_t first_seq = seq_;
+    std::vector<double> thimbles_deg;
+    for (int i = 0; i < 3000; ++i) {
+      const double t = i * 1e-3;
+      const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), 0.0, 0.0);
+      thimbles_deg.push_back(radToDeg(a[kFlexion]));
+      if (i % keep_every == 0) {
+        sample(a);
+      } else {
+        ++seq_;  // lost on the way
+        now_ns_ += 1'000'000;
+        if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
+      }
+    }
+    double worst = 0.0;
+    int compared = 0;
+    for (std::size_t h = first_hand; h < out_.hands.size(); ++h) {
+      const auto& hs = out_.hands[h];
+      const std::size_t i = hs.device_seq - first_seq;
+      if (i < 1000 || i >= thimbles_deg.size()) continue;  // past the first second
+      worst = std::max(worst, std::abs(radToDeg(hs.mcp_angles_rad[kFlexion]) - thimbles_deg[i]));
+      ++compared;
+    }
+    EXPECT_GT(compared, 150);
+    close();
+    return worst;
+  };
+  const double whole = lag(1);
+  const double lossy = lag(10);
+  EXPECT_LT(lossy, whole + 0.1) << "whole stream " << whole << " deg";
+}
+
+// --- Drift between the hand and the client's proxy ---------------------------------------------
+
+/// A client proxy that renders every sample with the models the server publishes. With
+/// lightGrip() the student's pads slip: the squeeze does not rise with the load, so 12 deg of
+/// supination turns the finger only part of the way (HandSim's friction limit).
+class DriftTest : public SessionManagerTest {
+ protected:
+  void lightGrip() {
+    sim::HandSimConfig light;
+    light.max_pinch_n = light.pinch_preload_n;
+    manager_->setHandConfig(light);
+  }
+
+  /// Moves to `target` and holds it, rendering every sample on a client proxy that adopts
+  /// each model the server publishes; returns the largest update step / bound seen.
+  double renderTo(const Vec3& target, int hold_ms) {
+    double worst = 0.0;
+    auto each = [&](const Vec3& a) {
+      sample(a);
+      while (seen_ < out_.models.size()) {
+        const auto p = fromWire(out_.models[seen_++], nullptr);
+        EXPECT_TRUE(p.has_value());
+        if (p) client_->setModel(*p, now_ns_);
+      }
+      const ProxyOutput out = client_->render(grip_model_->gripFromAngles(a, 0.008), now_ns_);
+      double f = 0.0;
+      for (int k = 0; k < 2; ++k) f = std::max(f, out.force_device_n[k].norm());
+      worst = std::max(worst, out.update_step_n / JointProxy::updateStepBoundN(f));
+      last_rendered_ = out.angles_rad;
+    };
+    const Vec3 from = angles_;
+    const double span_deg = radToDeg((target - from).cwiseAbs().maxCoeff());
+    const int steps = std::max(1, static_cast<int>(std::ceil(span_deg / 30.0 * 1000.0)));
+    for (int i = 1; i <= steps; ++i) each(from + (target - from) * (static_cast<double>(i) / steps));
+    for (int i = 0; i < hold_ms; ++i) each(target);
+    return worst;
+  }
+
+  uint64_t openWithClient(const std::string& case_name) {
+    const uint64_t id = open(case_name);
+    seen_ = out_.models.size();
+    client_ = std::make_unique<JointProxy>(*fromWire(out_.models.back(), nullptr));
+    return id;
+  }
+
+  Vec3 latestOffsetDeg() const {
+    const auto p = fromWire(out_.models.back(), nullptr);
+    return p ? Vec3(p->grip_offset_rad * (180.0 / kPi)) : Vec3::Zero();
+  }
+
+  std::unique_ptr<JointProxy> client_;
+  std::size_t seen_ = 0;
+  Vec3 last_rendered_ = Vec3::Zero();
+};
+
+TEST_F(DriftTest, ASlipIsCorrectedAndTheClientFollowsWithoutAStep) {
+  lightGrip();
+  ASSERT_NE(openWithClient("healthy"), 0u);
+  const Vec3 pinch(degToRad(20.0), 0.0, 0.0);
+  double worst = renderTo(pinch, 500);
+  EXPECT_EQ(manager_->stats().drift_corrections, 0u) << "no slip yet, nothing to correct";
+  const Vec3 supinated(degToRad(20.0), 0.0, degToRad(12.0));
+  worst = std::max(worst, renderTo(supinated, 3000));
+
+  // The hand stopped short of the thimbles in axial rotation.
+  ASSERT_FALSE(out_.hands.empty());
+  const auto& h = out_.hands.back();
+  const Vec3 hand(h.mcp_angles_rad[0], h.mcp_angles_rad[1], h.mcp_angles_rad[2]);
+  const double slip_deg = radToDeg(supinated[kAxial] - hand[kAxial]);
+  ASSERT_GT(slip_deg, 2.0) << "the pads must have slipped for this test to mean anything";
+
+  // The server folded the slip into the model, the client rendered it, and nothing stepped.
+  EXPECT_GE(manager_->stats().drift_corrections, 1u);
+  EXPECT_NEAR(latestOffsetDeg()[kAxial], -slip_deg, 0.5);
+  EXPECT_LT(radToDeg((last_rendered_ - hand).cwiseAbs().maxCoeff()), 0.5)
+      << "the proxy renders where the authoritative hand is";
+  EXPECT_LE(worst, 1.0);
+  EXPECT_LE(manager_->stats().drift_corrections, 10u);
+  bool told = false;
+  for (const auto* e : out_.eventsOf(telehand_msg_EVENT_INFO)) {
+    told = told || std::string(e->text).find("grip slipped") != std::string::npos;
+  }
+  EXPECT_TRUE(told) << "a slip this large is reported to the record and the supervisors";
+}
+
+TEST_F(DriftTest, PushingIntoTheEndOfRangeWallIsNotDrift) {
+  // The thimbles press 1.5 deg past the end of flexion: the proxy renders the wall, the hand
+  // rests on its hard limit. The gap is the wall's give, which must stay felt.
+  ASSERT_NE(openWithClient("healthy"), 0u);
+  const double max_deg = healthyIndexMcp().axes[kFlexion].max_deg;
+  renderTo(Vec3(degToRad(max_deg + 1.5), 0.0, 0.0), 2000);
+  EXPECT_LT(std::abs(latestOffsetDeg()[kFlexion]), 0.25);
+  EXPECT_GT(radToDeg(last_rendered_[kFlexion]), max_deg + 1.0);
+}
+
+TEST_F(DriftTest, OffByConfigurationNothingIsCorrected) {
+  config_.drift_correction = false;
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  lightGrip();
+  ASSERT_NE(openWithClient("healthy"), 0u);
+  renderTo(Vec3(degToRad(20.0), 0.0, degToRad(12.0)), 2000);
+  EXPECT_EQ(manager_->stats().drift_corrections, 0u);
+  EXPECT_EQ(latestOffsetDeg(), Vec3::Zero());
+}
+
 }  // namespace
 }  // namespace telehand::server::session

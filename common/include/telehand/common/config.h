@@ -41,6 +41,9 @@ struct ServerConfig {
   std::string cases_dir;         ///< patient cases (*.toml); empty = the built-in healthy case only
   std::string hand_model;        ///< URDF of the hand; empty = HandState from the shared joint model
   double hand_deadband_weber = 0.0;  ///< HandState deadband (Weber fraction); 0 = every state
+  /// Fold persistent drift between the server's hand and the client's proxy into the model
+  /// (server/session/drift.h). Off only to measure what it does.
+  bool drift_correction = true;
 };
 
 /// Load from TOML text; `origin` names the source in error messages.

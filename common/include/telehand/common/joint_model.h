@@ -73,6 +73,12 @@ struct JointModelParams {
   /// comes from these samples instead of the cubics; the end-of-range walls and the damping
   /// stay. Not owned: whoever publishes the model keeps it alive while it can be rendered.
   const KnnTorqueModel* knn = nullptr;
+  /// The server's drift correction (server/session/drift.h), per axis: added to the angles
+  /// the thimbles imply (anglesFromGrip) to give the angles the proxy renders, so that it
+  /// renders the joint where the authoritative hand holds it. Zero without a server hand.
+  Vec3 grip_offset_rad = Vec3::Zero();
+  /// Largest correction a model may carry (wire validation; the server clamps well inside).
+  static constexpr double kMaxGripOffsetDeg = 30.0;
 
   bool operator==(const JointModelParams&) const = default;
 };
@@ -100,6 +106,11 @@ class JointModel {
 
   /// MCP angles from the two thimble positions (device frame).
   Vec3 anglesFromGrip(const PerFinger<Vec3>& p_device_finger) const noexcept;
+  /// The angles the proxy renders for these thimble positions: anglesFromGrip plus the
+  /// server's drift correction (grip_offset_rad). The server compares its hand with these.
+  Vec3 proxyAngles(const PerFinger<Vec3>& p_device_finger) const noexcept {
+    return anglesFromGrip(p_device_finger) + p_.grip_offset_rad;
+  }
 
   /// Thimble positions that pinch the phalanx at the lever arm with the given half width.
   PerFinger<Vec3> gripFromAngles(const Vec3& angles_rad, double half_width_m) const noexcept;
@@ -149,6 +160,9 @@ struct ProxyOutput {
   double update_step_n = 0.0;
   /// Energy the blend added to the rendered joint this tick (device J; negative: released).
   double blend_energy_j = 0.0;
+  /// The part of blend_energy_j the energy budget did not pay for: only a fade that waited
+  /// out kEnergyWaitNs adds any (device J).
+  double unpaid_energy_j = 0.0;
   /// Energy the rendered joint stores at these angles (device J), see potentialEnergyJ.
   double potential_j = 0.0;
 };
