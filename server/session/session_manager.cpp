@@ -103,6 +103,13 @@ void SessionManager::event(uint64_t session_id, uint64_t client_id, telehand_msg
 }
 
 void SessionManager::unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns) {
+  if (unknown_reported_ns_.size() >= kMaxUnknownIds && !unknown_reported_ns_.count(session_id)) {
+    // A flood of made-up ids must not grow memory: forget ids not reported for 5 s, and past
+    // the cap leave new ones unreported (they are still counted in the stats).
+    std::erase_if(unknown_reported_ns_,
+                  [&](const auto& kv) { return now_ns - kv.second >= 5 * kNsPerS; });
+    if (unknown_reported_ns_.size() >= kMaxUnknownIds) return;
+  }
   auto [it, fresh] = unknown_reported_ns_.try_emplace(session_id, now_ns);
   if (!fresh && now_ns - it->second < 5 * kNsPerS) return;
   it->second = now_ns;

@@ -87,6 +87,8 @@ class SessionManager {
   /// Steps one deadband-coded sample may trigger: the withheld samples it stands for, held
   /// at the last value received (zero-order hold). Beyond this the hand skips time.
   static constexpr uint64_t kMaxHeldSteps = 200;
+  /// Unknown session ids remembered for rate-limited error events.
+  static constexpr std::size_t kMaxUnknownIds = 1024;
   /// A drift correction this large (any axis, degrees) is reported as a SessionEvent.
   static constexpr double kDriftEventDeg = 1.0;
 

@@ -466,6 +466,23 @@ TEST_F(SessionManagerTest, CloseEndsTheBaselineWhenThereIsNoReassessment) {
   EXPECT_THAT(scores[0]->text, ::testing::StartsWith("baseline: flexion "));
 }
 
+TEST_F(SessionManagerTest, AFloodOfUnknownSessionIdsIsCountedButReportedOnlyUpToTheCap) {
+  telehand_msg_DeviceState d{};
+  const std::size_t before = out_.events.size();
+  for (uint64_t id = 0; id < 5000; ++id) {
+    d.session_id = 1'000'000 + id;
+    manager_->onDeviceState(d, now_ns_);
+  }
+  EXPECT_EQ(manager_->stats().unknown_session_samples, 5000u);
+  EXPECT_EQ(out_.events.size() - before, SessionManager::kMaxUnknownIds);
+  // Once the old ids are forgotten, a new one is reported again.
+  now_ns_ += 6'000'000'000;
+  d.session_id = 42;
+  manager_->onDeviceState(d, now_ns_);
+  ASSERT_EQ(out_.events.size() - before, SessionManager::kMaxUnknownIds + 1);
+  EXPECT_THAT(out_.events.back().text, HasSubstr("unknown session 42"));
+}
+
 TEST_F(SessionManagerTest, MarkForAnUnknownSessionIsAnError) {
   session_ = 999;
   mark("reassessment");
