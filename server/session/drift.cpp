@@ -14,7 +14,7 @@ bool DriftCorrector::observe(const Vec3& hand_rad, const Vec3& proxy_rad, bool h
   const double worst_deg = radToDeg(drift_rad_.cwiseAbs().maxCoeff());
   max_drift_deg_ = std::max(max_drift_deg_, worst_deg);
   if (worst_deg < o_.threshold_deg) return false;
-  if (corrected_ && static_cast<double>(now_ns - last_correction_ns_) * 1e-9 < o_.min_interval_s) {
+  if (corrections_ > 0 && static_cast<double>(now_ns - last_correction_ns_) * 1e-9 < o_.min_interval_s) {
     return false;
   }
   const double limit = degToRad(o_.max_offset_deg);
@@ -25,7 +25,6 @@ bool DriftCorrector::observe(const Vec3& hand_rad, const Vec3& proxy_rad, bool h
   drift_rad_ -= next - offset_rad_;
   offset_rad_ = next;
   last_correction_ns_ = now_ns;
-  corrected_ = true;
   ++corrections_;
   return true;
 }

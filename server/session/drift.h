@@ -61,7 +61,6 @@ class DriftCorrector {
   Vec3 offset_rad_ = Vec3::Zero();
   Vec3 drift_rad_ = Vec3::Zero();
   int64_t last_correction_ns_ = 0;
-  bool corrected_ = false;
   double max_drift_deg_ = 0.0;
   uint64_t corrections_ = 0;
 };

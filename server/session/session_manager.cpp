@@ -452,12 +452,12 @@ void SessionManager::correctDrift(Session& s, const telehand_msg_DeviceState& d,
   if (!s.drift.observe(s.sim->mcpAngles(), proxy, held, dt_s, now_ns)) return;
   ++stats_.drift_corrections;
   adoptModel(s, s.params);
-  const Vec3 change_deg = (s.drift.offset() - before) * (180.0 / kPi);
+  const Vec3 change_deg = radToDeg(1.0) * (s.drift.offset() - before);
   spdlog::debug("session {}: drift correction v{}: {:.2f} {:.2f} {:.2f} deg", s.info.id,
                 s.params.version, change_deg[0], change_deg[1], change_deg[2]);
   // A slip anyone would notice goes in the record and to the supervisors.
   if (change_deg.cwiseAbs().maxCoeff() >= kDriftEventDeg) {
-    const Vec3 total = s.drift.offset() * (180.0 / kPi);
+    const Vec3 total = radToDeg(1.0) * s.drift.offset();
     char text[200];
     std::snprintf(text, sizeof text,
                   "grip slipped: the hand is %+.1f/%+.1f/%+.1f deg (flexion/abduction/axial) from "
@@ -470,7 +470,6 @@ void SessionManager::correctDrift(Session& s, const telehand_msg_DeviceState& d,
 void SessionManager::refit(Session& s, int64_t now_ns) {
   auto u = s.refit->poll(now_ns);
   if (!u) return;
-  const uint32_t version = s.params.version + 1;
   adoptModel(s, u->params);
   ++stats_.live_models;
   stats_.last_refit_latency_ns = now_ns - u->newest_arrival_ns;
@@ -485,7 +484,7 @@ void SessionManager::refit(Session& s, int64_t now_ns) {
     fitted += b;
   }
   char text[256];
-  std::snprintf(text, sizeof text, "live fit v%u from %zu samples (change %.1f N): %s", version,
+  std::snprintf(text, sizeof text, "live fit v%u from %zu samples (change %.1f N): %s", s.params.version,
                 s.refit->samples(), u->max_change_n, fitted.c_str());
   event(s.info.id, 0, telehand_msg_EVENT_INFO, text, now_ns);
 

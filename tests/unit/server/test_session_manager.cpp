@@ -133,7 +133,10 @@ class SessionManagerTest : public ::testing::Test {
     now_ns_ += 1'000'000;
     if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
     angles_ = angles;
+    afterSample(angles);
   }
+  /// What a client does with each sample it sent (nothing by default).
+  virtual void afterSample(const Vec3& angles) { (void)angles; }
 
   /// Move the grip from where it is to `target` at `speed_deg_s` along a straight line.
   void moveTo(const Vec3& target, double speed_deg_s = 30.0) {
@@ -543,29 +546,26 @@ class DriftTest : public SessionManagerTest {
     manager_->setHandConfig(light);
   }
 
-  /// Moves to `target` and holds it, rendering every sample on a client proxy that adopts
-  /// each model the server publishes; returns the largest update step / bound seen.
+  /// Renders every sample on a client proxy that adopts each model the server publishes.
+  void afterSample(const Vec3& a) override {
+    if (!client_) return;
+    while (seen_ < out_.models.size()) {
+      const auto p = fromWire(out_.models[seen_++], nullptr);
+      EXPECT_TRUE(p.has_value());
+      if (p) client_->setModel(*p, now_ns_);
+    }
+    const ProxyOutput out = client_->render(grip_model_->gripFromAngles(a, 0.008), now_ns_);
+    double f = 0.0;
+    for (int k = 0; k < 2; ++k) f = std::max(f, out.force_device_n[k].norm());
+    worst_step_ = std::max(worst_step_, out.update_step_n / JointProxy::updateStepBoundN(f));
+    last_rendered_ = out.angles_rad;
+  }
+
+  /// Moves to `target` and holds it; returns the largest update step / bound seen so far.
   double renderTo(const Vec3& target, int hold_ms) {
-    double worst = 0.0;
-    auto each = [&](const Vec3& a) {
-      sample(a);
-      while (seen_ < out_.models.size()) {
-        const auto p = fromWire(out_.models[seen_++], nullptr);
-        EXPECT_TRUE(p.has_value());
-        if (p) client_->setModel(*p, now_ns_);
-      }
-      const ProxyOutput out = client_->render(grip_model_->gripFromAngles(a, 0.008), now_ns_);
-      double f = 0.0;
-      for (int k = 0; k < 2; ++k) f = std::max(f, out.force_device_n[k].norm());
-      worst = std::max(worst, out.update_step_n / JointProxy::updateStepBoundN(f));
-      last_rendered_ = out.angles_rad;
-    };
-    const Vec3 from = angles_;
-    const double span_deg = radToDeg((target - from).cwiseAbs().maxCoeff());
-    const int steps = std::max(1, static_cast<int>(std::ceil(span_deg / 30.0 * 1000.0)));
-    for (int i = 1; i <= steps; ++i) each(from + (target - from) * (static_cast<double>(i) / steps));
-    for (int i = 0; i < hold_ms; ++i) each(target);
-    return worst;
+    moveTo(target);
+    hold(hold_ms);
+    return worst_step_;
   }
 
   uint64_t openWithClient(const std::string& case_name) {
@@ -577,12 +577,13 @@ class DriftTest : public SessionManagerTest {
 
   Vec3 latestOffsetDeg() const {
     const auto p = fromWire(out_.models.back(), nullptr);
-    return p ? Vec3(p->grip_offset_rad * (180.0 / kPi)) : Vec3::Zero();
+    return p ? Vec3(radToDeg(1.0) * p->grip_offset_rad) : Vec3::Zero();
   }
 
   std::unique_ptr<JointProxy> client_;
   std::size_t seen_ = 0;
   Vec3 last_rendered_ = Vec3::Zero();
+  double worst_step_ = 0.0;
 };
 
 TEST_F(DriftTest, ASlipIsCorrectedAndTheClientFollowsWithoutAStep) {
