@@ -37,7 +37,6 @@ std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
   if (fitter_.size() < options_.min_samples || fitter_.size() == fitted_size_) return std::nullopt;
   last_refit_ns_ = now_ns;
   fitted_size_ = fitter_.size();
-  ++refits_;
   Update u;
   u.fit = fitter_.fit();
   bool any_axis = false;
@@ -61,7 +60,6 @@ std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
   bool felt = false;
   u.max_change_n = maxForceChange(u.params, published_, options_.jnd_fraction, options_.jnd_floor_n, &felt);
   if (!felt) {
-    ++suppressed_;
     return std::nullopt;
   }
   // The samples for data-driven followers: the passive (restoring) torque is minus what the

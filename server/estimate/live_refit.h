@@ -51,9 +51,6 @@ class LiveRefit {
   /// A new model to publish, or nullopt (too early, too little data, or not a felt change).
   std::optional<Update> poll(int64_t now_ns);
 
-  const JointModelParams& published() const noexcept { return published_; }
-  uint64_t refits() const noexcept { return refits_; }
-  uint64_t suppressed() const noexcept { return suppressed_; }  ///< refits nobody would feel
   std::size_t samples() const noexcept { return fitter_.size(); }
 
   /// Largest |F_a - F_b| over `a`'s ranges (each axis), and whether it is a felt change.
@@ -68,8 +65,6 @@ class LiveRefit {
   int64_t last_refit_ns_ = INT64_MIN / 2;
   int64_t newest_arrival_ns_ = 0;
   std::size_t fitted_size_ = 0;
-  uint64_t refits_ = 0;
-  uint64_t suppressed_ = 0;
 };
 
 }  // namespace telehand::server::estimate

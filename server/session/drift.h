@@ -51,8 +51,6 @@ class DriftCorrector {
   const Vec3& offset() const noexcept { return offset_rad_; }
   /// Filtered drift still to correct (hand minus proxy), rad.
   const Vec3& drift() const noexcept { return drift_rad_; }
-  /// Largest filtered drift seen on any axis before a correction, degrees.
-  double maxDriftDeg() const noexcept { return max_drift_deg_; }
   uint64_t corrections() const noexcept { return corrections_; }
   const DriftOptions& options() const noexcept { return o_; }
 
@@ -61,7 +59,6 @@ class DriftCorrector {
   Vec3 offset_rad_ = Vec3::Zero();
   Vec3 drift_rad_ = Vec3::Zero();
   int64_t last_correction_ns_ = 0;
-  double max_drift_deg_ = 0.0;
   uint64_t corrections_ = 0;
 };
 

@@ -47,7 +47,7 @@ struct SessionManager::Session {
   uint64_t nonfinite = 0;
   int64_t nonfinite_reported_ns = INT64_MIN / 2;
   // HandState
-  uint64_t hand_seq = 0;
+  uint64_t hand_seq = 0;               // HandStates published so far
   int64_t next_hand_ns = 0;
   // capture: live refit, and the sessions that feel it
   std::unique_ptr<estimate::LiveRefit> refit;
@@ -56,7 +56,6 @@ struct SessionManager::Session {
   bool wants_knn = false;
   std::deque<std::shared_ptr<const KnnTorqueModel>> knn_alive;  // rendered by model and sim
   HandStateDeadband hand_deadband;
-  uint64_t hand_published = 0;
   uint64_t hand_withheld = 0;
   // teleoperation
   bool deadband_coded = false;          // the client withholds samples inside its deadband
@@ -221,7 +220,6 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
                                                     refit_options_);
   }
   if (hand_) s.sim = std::make_unique<sim::HandSim>(*hand_, s.params, hand_config_);
-  s.drift = DriftCorrector(drift_options_);
   if (cmd.mode == telehand_msg_MODE_EXPLORATION) s.exploration.begin("baseline");
   if (cmd.direct_force) s.direct = std::make_unique<JointProxy>(s.params);
   s.hand_deadband = HandStateDeadband(DeadbandConfig{config_.hand_deadband_weber});
@@ -283,13 +281,15 @@ void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_
 void SessionManager::stepHand(Session& s) {
   s.sim->step();
   const auto f = s.sim->contactForcesDevice();
-  const Vec3 angles = s.sim->mcpAngles();
-  // The force at the reach is what holds the joint there: the pads' torque about it as a
-  // force at the lever arm, as the paper's curves give it (the squeeze cancels out).
-  const double holding_n =
-      s.model.axisTorque(s.sim->contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}).norm() /
-      s.model.params().lever_arm_m;
-  s.exploration.observe(angles, holding_n);
+  if (s.exploration.active()) {
+    const Vec3 angles = s.sim->mcpAngles();
+    // The force at the reach is what holds the joint there: the pads' torque about it as a
+    // force at the lever arm, as the paper's curves give it (the squeeze cancels out).
+    const double holding_n =
+        s.model.axisTorque(s.sim->contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}).norm() /
+        s.model.params().lever_arm_m;
+    s.exploration.observe(angles, holding_n);
+  }
   if (f[0].norm() + f[1].norm() > 1.0) s.treatment_s += 1e-3;
 }
 
@@ -315,12 +315,13 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     return;
   }
   ++stats_.live_samples;
+  const PerFinger<Vec3> grip = thimblePositions(d);
   const bool coded = (d.flags & telehand_msg_kFlagDeadband) != 0;
   s.deadband_coded = coded;
   if (s.direct && (!s.have_live || d.seq > s.last.seq)) {
     // The baseline design: the server renders the force with the same proxy the client
     // would run, on device time, and sends it back.
-    const ProxyOutput out = s.direct->render(thimblePositions(d), d.source_time_ns);
+    const ProxyOutput out = s.direct->render(grip, d.source_time_ns);
     telehand_msg_DirectForce f{};
     f.session_id = s.info.id;
     f.device_seq = d.seq;
@@ -343,7 +344,7 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
     const uint64_t steps = std::min<uint64_t>(gap, coded ? kMaxHeldSteps : kMaxCatchUpSteps);
     if (s.have_live && steps > 1) {
       const bool hold = coded;
-      const PerFinger<Vec3> from = thimblePositions(s.last), to = thimblePositions(d);
+      const PerFinger<Vec3> from = thimblePositions(s.last), &to = grip;
       for (uint64_t i = 1; i < steps; ++i) {
         const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
         s.sim->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
@@ -351,11 +352,11 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& d, int64_t no
         stepHand(s);
       }
     }
-    s.sim->setFingerTargets(thimblePositions(d), true);
+    s.sim->setFingerTargets(grip, true);
     stepHand(s);
-    correctDrift(s, d, static_cast<double>(steps) * 1e-3, now_ns);
+    correctDrift(s, grip, static_cast<double>(steps) * 1e-3, now_ns);
   } else if (!s.sim && s.exploration.active()) {
-    s.exploration.observe(s.model.anglesFromGrip(thimblePositions(d)), 0.0);
+    s.exploration.observe(s.model.anglesFromGrip(grip), 0.0);
   }
   if (!coded && s.have_live && d.seq > s.last.seq + 1) s.live_lost += d.seq - s.last.seq - 1;
   if (!s.have_live || d.seq > s.last.seq) s.last = d;
@@ -433,14 +434,14 @@ void SessionManager::adoptModel(Session& s, JointModelParams next) {
   publishModel(s);
 }
 
-void SessionManager::correctDrift(Session& s, const telehand_msg_DeviceState& d, double dt_s,
+void SessionManager::correctDrift(Session& s, const PerFinger<Vec3>& grip, double dt_s,
                                   int64_t now_ns) {
   // A capture renders nothing (the actuators are off): there is no proxy to correct.
   if (!config_.drift_correction || s.mode == telehand_msg_MODE_CAPTURE) return;
-  const auto grip = s.sim->contactForcesDevice();
+  const auto pads = s.sim->contactForcesDevice();
   const double min_grip = s.drift.options().min_grip_n;
-  const bool held = grip[0].norm() >= min_grip && grip[1].norm() >= min_grip;
-  Vec3 proxy = s.model.proxyAngles(thimblePositions(d));
+  const bool held = pads[0].norm() >= min_grip && pads[1].norm() >= min_grip;
+  Vec3 proxy = s.model.proxyAngles(grip);
   // Past a range end the proxy renders the end-of-range wall while the hand rests on its
   // hard limit: that gap is the wall's give, which the student must feel, not drift.
   for (std::size_t i = 0; i < kAxes; ++i) {
@@ -546,7 +547,6 @@ void SessionManager::store(Session& s, std::vector<telehand_msg_DeviceState>&& s
 void SessionManager::publishHand(Session& s, int64_t now_ns) {
   telehand_msg_HandState h{};
   h.session_id = s.info.id;
-  h.seq = s.hand_seq++;
   h.source_time_ns = wallNs();
   h.source = telehand_msg_HAND_SOURCE_SHARED_JOINT_MODEL;
   h.device_rate_hz = s.rate_hz;
@@ -616,10 +616,9 @@ void SessionManager::publishHand(Session& s, int64_t now_ns) {
   }
   if (!s.hand_deadband.admit(h, now_ns)) {
     ++s.hand_withheld;
-    --s.hand_seq;  // viewers see consecutive numbers for what they get
     return;
   }
-  ++s.hand_published;
+  h.seq = s.hand_seq++;  // viewers see consecutive numbers for what they get
   out_.publish(h);
 }
 
@@ -721,7 +720,7 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
                   "published (%llu withheld by the deadband)%s",
                   static_cast<double>(s.live_count) / secs,
                   s.deadband_coded ? "deadband-coded" : "every sample",
-                  static_cast<double>(s.hand_published) / secs,
+                  static_cast<double>(s.hand_seq) / secs,
                   static_cast<unsigned long long>(s.hand_withheld),
                   s.direct ? (", DirectForce " +
                               std::to_string(static_cast<long long>(

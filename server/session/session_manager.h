@@ -79,11 +79,8 @@ class SessionManager {
   /// Simulation steps one live sample may trigger (itself plus lost predecessors): 50 ms of
   /// device time, about 0.8 ms of CPU at 15.7 µs per pinched step (README, Performance).
   static constexpr uint64_t kMaxCatchUpSteps = 50;
-  /// How capture sessions are refitted live (rate limit, JND); for sessions opened later.
-  void setRefitOptions(const estimate::LiveRefitOptions& o) { refit_options_ = o; }
-  /// How the hand of sessions opened later is simulated, and how their drift is corrected.
+  /// How the hand of sessions opened later is simulated.
   void setHandConfig(const sim::HandSimConfig& c) { hand_config_ = c; }
-  void setDriftOptions(const DriftOptions& o) { drift_options_ = o; }
   /// Steps one deadband-coded sample may trigger: the withheld samples it stands for, held
   /// at the last value received (zero-order hold). Beyond this the hand skips time.
   static constexpr uint64_t kMaxHeldSteps = 200;
@@ -106,7 +103,7 @@ class SessionManager {
   /// renderer, published.
   void adoptModel(Session& s, JointModelParams next);
   /// After a live sample stepped the hand: fold persistent drift into the model.
-  void correctDrift(Session& s, const telehand_msg_DeviceState& d, double dt_s, int64_t now_ns);
+  void correctDrift(Session& s, const PerFinger<Vec3>& grip, double dt_s, int64_t now_ns);
   void publishModel(const Session& s);
   void endExploration(Session& s, int64_t now_ns);
   void publishStatus(const Session& s, telehand_msg_SessionState state, int64_t now_ns);
@@ -128,7 +125,6 @@ class SessionManager {
   ManagerStats stats_;
   estimate::LiveRefitOptions refit_options_;
   sim::HandSimConfig hand_config_;
-  DriftOptions drift_options_;
 };
 
 }  // namespace telehand::server::session
