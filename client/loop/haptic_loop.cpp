@@ -40,7 +40,7 @@ StepStatus HapticLoop::step() noexcept {
   const int64_t now = clock_.nowNs();
   JointModelParams next;
   while (models_->tryPop(next)) {
-    proxy_.setModel(next, now);
+    proxy_.setModel(next);
     bump(health_.models_applied);
     health_.model_version.store(next.version, std::memory_order_relaxed);
   }

@@ -239,29 +239,21 @@ double JointModel::potentialEnergyJ(const Vec3& angles_rad) const noexcept {
 JointProxy::JointProxy(const JointModelParams& initial, int64_t blend_ns)
     : current_(initial), previous_(initial), pending_(initial), blend_ns_(blend_ns) {}
 
-void JointProxy::startFade(const JointModelParams& next) noexcept {
+void JointProxy::startFade(int64_t now_ns) noexcept {
   previous_ = current_;
-  current_ = JointModel(next);
+  current_ = pending_;
+  have_pending_ = false;
   weight_ = blend_ns_ > 0 ? 0.0 : 1.0;
   blending_ = blend_ns_ > 0;
-  have_last_fade_ = false;
+  fade_ns_ = now_ns;
+  fade_start_ns_ = now_ns;
 }
 
-void JointProxy::setModel(const JointModelParams& next, int64_t now_ns) noexcept {
-  if (blending_) {
-    // Switching targets mid-fade would step the force: the newest version waits its turn.
-    if (next == current_.params()) {
-      have_pending_ = false;
-    } else {
-      pending_ = JointModel(next);
-      have_pending_ = true;
-    }
-    return;
-  }
-  if (next == current_.params()) return;  // same joint (e.g. the first publication): no fade
-  startFade(next);
-  fade_ns_ = now_ns;
-  have_last_fade_ = true;
+void JointProxy::setModel(const JointModelParams& next) noexcept {
+  // Switching targets mid-fade would step the force: the newest version waits for the fade
+  // to end. One equal to the model being faded to (or rendered) is no change.
+  have_pending_ = !(next == current_.params());
+  if (have_pending_) pending_ = JointModel(next);
 }
 
 ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p,
@@ -275,6 +267,7 @@ ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p
 }
 
 ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcept {
+  if (!blending_ && have_pending_) startFade(now_ns);
   // Rates from the thimbles alone: a new drift correction moves the rendered angles, not the
   // finger.
   const Vec3 grip_angles = current_.anglesFromGrip(p);
@@ -291,17 +284,6 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   last_angles_ = grip_angles;
   const Vec3 angles = grip_angles + current_.params().grip_offset_rad;
 
-  if (!blending_ && have_pending_) {
-    have_pending_ = false;
-    if (!(pending_.params() == current_.params())) {
-      startFade(pending_.params());
-    }
-  }
-  if (!have_last_fade_) {  // a fade that starts on this tick
-    fade_ns_ = now_ns;
-    fade_start_ns_ = now_ns;
-    have_last_fade_ = true;
-  }
 
   ProxyOutput out = renderWith(current_, p, angles, rates_);
   const double v_current = current_.potentialEnergyJ(angles);

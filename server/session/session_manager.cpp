@@ -430,7 +430,7 @@ void SessionManager::adoptModel(Session& s, JointModelParams next) {
   s.params = next;
   s.model = JointModel(s.params);
   if (s.sim) s.sim->setMcpModel(s.params);
-  if (s.direct) s.direct->setModel(s.params, s.last.source_time_ns);
+  if (s.direct) s.direct->setModel(s.params);
   publishModel(s);
 }
 

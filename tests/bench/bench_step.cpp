@@ -78,7 +78,7 @@ void BM_JointProxyRenderBlending(benchmark::State& state) {
   const JointModel m(model);
   const PerFinger<Vec3> grip = m.gripFromAngles(Vec3(degToRad(60.0), 0.0, 0.0), 0.008);
   JointProxy proxy(model, INT64_MAX / 4);  // a blend that never ends
-  proxy.setModel(other, 0);
+  proxy.setModel(other);
   int64_t now = 0;
   for (auto _ : state) {
     now += kNsPerMs;

@@ -62,7 +62,7 @@ TEST(ModelFade, EveryTicksUpdateStepStaysUnderTheBoundEvenForAHugeChange) {
   double worst = 0.0;
   for (int i = 0; i < 3000; ++i) {
     const int64_t t = i * kNsPerMs;
-    if (i == 100) proxy.setModel(new_p, t);
+    if (i == 100) proxy.setModel(new_p);
     const ProxyOutput out = proxy.render(sweep(geom, t), t);
     worst = std::max(worst, out.update_step_n / updateBound(out));
     fade_ticks += out.blending;
@@ -86,9 +86,9 @@ TEST(ModelFade, AVersionArrivingMidFadeWaitsAndNothingSteps) {
   double worst = 0.0;
   for (int i = 0; i < 1200; ++i) {
     const int64_t t = i * kNsPerMs;
-    if (i == 100) proxy.setModel(v2, t);
+    if (i == 100) proxy.setModel(v2);
     if (i == 200) {
-      proxy.setModel(v3, t);  // mid-fade: queued
+      proxy.setModel(v3);  // mid-fade: queued
       EXPECT_EQ(proxy.version(), 2u);
     }
     const ProxyOutput out = proxy.render(sweep(geom, t), t);
@@ -119,7 +119,7 @@ TEST(ModelFade, AStifferModelWaitsForEnergyToPayForIt) {
   JointProxy only_soft(soft);
   proxy.render(held, 0);
   only_soft.render(held, 0);
-  proxy.setModel(stiff, 0);
+  proxy.setModel(stiff);
   const double dv = JointModel(stiff).potentialEnergyJ(geom.anglesFromGrip(held)) -
                     JointModel(soft).potentialEnergyJ(geom.anglesFromGrip(held));
   ASSERT_GT(dv, 0.0);
@@ -153,7 +153,7 @@ TEST(ModelFade, AStarvedStifferModelFadesInAfterTheWaitUnderTheStepBound) {
   const PerFinger<Vec3> held = geom.gripFromAngles(Vec3(degToRad(60.0), 0.0, 0.0), 0.008);
   JointProxy proxy(soft, 200 * kNsPerMs);
   proxy.render(held, 0);
-  proxy.setModel(stiff, 0);
+  proxy.setModel(stiff);
   const int wait_ms = static_cast<int>(JointProxy::kEnergyWaitNs / kNsPerMs);
   int i = 1;
   for (; i <= wait_ms; ++i) {
@@ -187,7 +187,7 @@ TEST(ModelFade, ASofterModelReleasesEnergyAndFadesWithoutBudget) {
   const JointModel geom(stiff);
   JointProxy proxy(stiff, 200 * kNsPerMs);
   int i = 0;
-  proxy.setModel(soft, 0);
+  proxy.setModel(soft);
   for (; i < 1000 && (i == 0 || proxy.blending()); ++i) {
     proxy.setEnergyBudget(0.0);
     const ProxyOutput out = proxy.render(sweep(geom, i * kNsPerMs), i * kNsPerMs);
@@ -231,7 +231,7 @@ TEST(ModelFade, ADriftCorrectionFadesInUnderTheStepBoundWithoutARateSpike) {
   double worst = 0.0;
   for (int i = 0; i < 1500; ++i) {
     const int64_t t = i * kNsPerMs;
-    if (i == 300) proxy.setModel(v2, t);
+    if (i == 300) proxy.setModel(v2);
     const ProxyOutput out = proxy.render(sweep(geom, t), t);
     const ProxyOutput ref = only_v2.render(sweep(geom, t), t);
     worst = std::max(worst, out.update_step_n / updateBound(out));
@@ -267,7 +267,7 @@ TEST(ModelFade, ADriftCorrectionIntoTheJointWaitsForEnergyLikeAStifferModel) {
   const PerFinger<Vec3> held = geom.gripFromAngles(Vec3(degToRad(60.0), 0.0, 0.0), 0.008);
   JointProxy proxy(v1, 200 * kNsPerMs);
   const ProxyOutput before = proxy.render(held, 0);
-  proxy.setModel(v2, 0);
+  proxy.setModel(v2);
   for (int i = 1; i <= 500; ++i) {
     proxy.setEnergyBudget(0.0);
     const ProxyOutput out = proxy.render(held, i * kNsPerMs);
@@ -278,6 +278,52 @@ TEST(ModelFade, ADriftCorrectionIntoTheJointWaitsForEnergyLikeAStifferModel) {
   for (int i = 501; i <= 1000; ++i) proxy.render(held, i * kNsPerMs);
   EXPECT_FALSE(proxy.blending());
   EXPECT_NEAR(radToDeg(proxy.render(held, 1001 * kNsPerMs).angles_rad[kFlexion]), 63.0, 1e-6);
+}
+
+TEST(ModelFade, TheEnergyWaitCountsFromTheFadesOwnStartOnAnyClock) {
+  // A loop whose clock reads an hour: the 2 s wait must run from when this fade began, not
+  // from the clock's zero.
+  const JointModelParams soft = healthyIndexMcp();
+  const JointModelParams stiff = stiffer(2, 2.0);
+  const JointModel geom(soft);
+  const PerFinger<Vec3> held = geom.gripFromAngles(Vec3(degToRad(60.0), 0.0, 0.0), 0.008);
+  const int64_t t0 = 3600 * kNsPerS;
+  JointProxy proxy(soft, 200 * kNsPerMs);
+  proxy.render(held, t0);
+  proxy.setModel(stiff);
+  for (int i = 1; i <= 1000; ++i) {
+    proxy.setEnergyBudget(0.0);
+    const ProxyOutput out = proxy.render(held, t0 + i * kNsPerMs);
+    EXPECT_LE(out.blend_energy_j, 0.0) << i;
+    EXPECT_EQ(out.unpaid_energy_j, 0.0) << i;
+  }
+  EXPECT_TRUE(proxy.blending());
+}
+
+TEST(ModelFade, TheNewestVersionWinsEvenWhenItArrivesJustAfterAFade) {
+  // v3 waits during v2's fade; v4 arrives in the moment after v2's fade ended and before v3
+  // began: v4 is what is rendered in the end, not v3 after it.
+  const JointModelParams v1 = healthyIndexMcp();
+  const JointModelParams v2 = stiffer(2, 1.5);
+  const JointModelParams v3 = stiffer(3, 0.5);
+  const JointModelParams v4 = stiffer(4, 1.2);
+  const JointModel geom(v1);
+  JointProxy proxy(v1, 10 * kNsPerMs);
+  int64_t t = 0;
+  proxy.render(sweep(geom, t), t);
+  proxy.setModel(v2);
+  auto tick = [&] {
+    t += kNsPerMs;
+    proxy.render(sweep(geom, t), t);
+  };
+  tick();
+  ASSERT_TRUE(proxy.blending());
+  proxy.setModel(v3);  // mid-fade: waits
+  while (proxy.blending()) tick();
+  proxy.setModel(v4);
+  for (int i = 0; i < 2000; ++i) tick();
+  EXPECT_FALSE(proxy.blending());
+  EXPECT_EQ(proxy.version(), 4u);
 }
 
 }  // namespace

@@ -552,7 +552,7 @@ class DriftTest : public SessionManagerTest {
     while (seen_ < out_.models.size()) {
       const auto p = fromWire(out_.models[seen_++], nullptr);
       EXPECT_TRUE(p.has_value());
-      if (p) client_->setModel(*p, now_ns_);
+      if (p) client_->setModel(*p);
     }
     const ProxyOutput out = client_->render(grip_model_->gripFromAngles(a, 0.008), now_ns_);
     double f = 0.0;

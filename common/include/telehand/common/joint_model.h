@@ -179,8 +179,9 @@ class JointProxy {
  public:
   explicit JointProxy(const JointModelParams& initial, int64_t blend_ns = 200'000'000);
 
-  /// Adopt a new model version; the fade starts at the next render after `now_ns`.
-  void setModel(const JointModelParams& next, int64_t now_ns) noexcept;
+  /// Adopt a new model version: its fade starts at the next render that is not already
+  /// fading (the newest version received wins; one equal to the present model is no change).
+  void setModel(const JointModelParams& next) noexcept;
   uint32_t version() const noexcept { return current_.params().version; }
   const JointModel& model() const noexcept { return current_; }
   bool blending() const noexcept { return blending_; }
@@ -206,7 +207,7 @@ class JointProxy {
  private:
   ProxyOutput renderWith(const JointModel& m, const PerFinger<Vec3>& p, const Vec3& angles,
                          const Vec3& rates) const noexcept;
-  void startFade(const JointModelParams& next) noexcept;
+  void startFade(int64_t now_ns) noexcept;
 
   JointModel current_;
   JointModel previous_;
@@ -217,7 +218,6 @@ class JointProxy {
   bool blending_ = false;
   int64_t fade_ns_ = 0;  // time the weight was last advanced to
   int64_t fade_start_ns_ = 0;
-  bool have_last_fade_ = true;
   double energy_budget_j_ = 1e300;
   bool have_last_ = false;
   int64_t last_ns_ = 0;
