@@ -145,7 +145,6 @@ bool SimulatedMf2::read(DeviceSample& out) noexcept {
 }
 
 bool SimulatedMf2::write(const ForceCommand& cmd) noexcept {
-  command_ = cmd;
   // Through the actuators: torques J^T F, scaled down together if one exceeds its limit
   // (the direction is kept), and the fingertip forces those torques actually make.
   if (!have_q_) {

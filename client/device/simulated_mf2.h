@@ -108,7 +108,6 @@ class SimulatedMf2 final : public Device {
   uint64_t seq_ = 0;
   Vec3 angles_ = Vec3::Zero();
   Vec3 rates_ = Vec3::Zero();
-  ForceCommand command_;
   PerFinger<Vec3> operator_force_{Vec3::Zero(), Vec3::Zero()};
 };
 

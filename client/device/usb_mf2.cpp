@@ -483,7 +483,8 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
               "MF-2 at " + where_ + ": emergency stop " +
                   ((s.status & proto::kStatusEstopButton) ? "button pressed" : "latched (clear it to resume)"),
               true);
-  } else {
+  } else if (status_.load(std::memory_order_relaxed) != DeviceStatus::kOk) {
+    // Only on the change: the text costs an allocation and a lock, once per packet otherwise.
     setStatus(DeviceStatus::kOk, "MF-2 streaming from " + where_, true);
   }
   sendCommand();

@@ -74,11 +74,10 @@ StepStatus HapticLoop::step() noexcept {
     if (df.device_seq >= direct_force_.device_seq) direct_force_ = df;  // reordered: keep newest
     bump(health_.direct_forces);
   }
-  PerFinger<Vec3> request = direct ? direct_force_.force_n : rendered.force_device_n;
-  const bool actuators = actuators_.load(std::memory_order_relaxed);
-  if (!actuators) request = {Vec3::Zero(), Vec3::Zero()};
+  const PerFinger<Vec3>& request = direct ? direct_force_.force_n : rendered.force_device_n;
   const PassivityOutput guarded = passivity_.control(request);
-  gate_.setCapture(!actuators);
+  // Capture (actuators off): the gate zeroes every output and flags it.
+  gate_.setCapture(!actuators_.load(std::memory_order_relaxed));
   const SafetyOutput safe = gate_.apply(guarded.force_n, now, last_sample_time_ns_);
   last_command_ = safe.force_n;
   if (guarded.damping_ns_per_m > 0.0) bump(health_.passivity_activations);
@@ -118,8 +117,8 @@ StepStatus HapticLoop::step() noexcept {
   s.seq = next_seq_.load(std::memory_order_relaxed);
   s.source_time_ns = sample_.time_ns + wall_offset_ns_;  // wire timestamps are wall clock
   s.model_version = proxy_.version();
+  static_assert(kSafetyCapture == telehand_msg_kFlagCapture, "safety flags are the wire's");
   s.flags = safe.flags | (rendered.blending ? telehand_msg_kFlagModelBlending : 0u) |
-            (actuators ? 0u : telehand_msg_kFlagCapture) |
             (guarded.damping_ns_per_m > 0.0 ? telehand_msg_kFlagPassivityControl : 0u) |
             (direct ? telehand_msg_kFlagDirectForce : 0u) |
             (static_cast<uint32_t>(sample_.fingers[kThumb].fsr_fault_mask & 0xFu) |

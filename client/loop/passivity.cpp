@@ -29,10 +29,7 @@ void PassivityGuard::observe(const PerFinger<Vec3>& p, const PerFinger<Vec3>& la
       const Vec3 d = p[k] - last_p_[k];
       // The device pushed the finger with last_force over d: that work left the environment.
       if (allFinite(last_force_n[k])) energy_j_ -= last_force_n[k].dot(d);
-      v_[k] = d / dt_s_;
     }
-  } else if (!have_last_) {
-    v_ = {Vec3::Zero(), Vec3::Zero()};
   }
   for (int k = 0; k < 2; ++k) {
     vel_[k].update(p[k], now_ns);

@@ -67,10 +67,7 @@ class PassivityGuard {
   /// Thimble velocities as the controller damps them (adaptive window, less its
   /// resolution), m/s.
   const PerFinger<Vec3>& velocity() const noexcept { return vc_; }
-  /// One-tick differences of the thimble positions, m/s (what the observer integrates).
-  const PerFinger<Vec3>& rawVelocity() const noexcept { return v_; }
   const PassivityConfig& config() const noexcept { return config_; }
-  void setControl(bool on) noexcept { config_.control = on; }
 
  private:
   PassivityConfig config_;
@@ -78,7 +75,6 @@ class PassivityGuard {
   int64_t last_ns_ = 0;
   double dt_s_ = 1e-3;
   PerFinger<Vec3> last_p_{Vec3::Zero(), Vec3::Zero()};
-  PerFinger<Vec3> v_{Vec3::Zero(), Vec3::Zero()};
   PerFinger<AdaptiveVelocity> vel_;
   PerFinger<Vec3> vc_{Vec3::Zero(), Vec3::Zero()};
   double alpha_ = 0.0;  // damping applied on the last tick
