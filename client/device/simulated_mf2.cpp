@@ -18,6 +18,8 @@ SimulatedMf2::SimulatedMf2(const JointModelParams& geometry, const OperatorConfi
       op_(op),
       clock_(clock),
       dyn_(dyn),
+      pad_sin_(std::sin(degToRad(dyn.pad_angle_deg))),
+      pad_cos_(std::cos(degToRad(dyn.pad_angle_deg))),
       rng_(op.seed),
       start_ns_(clock.nowNs()),
       sim_ns_(start_ns_) {}
@@ -83,13 +85,12 @@ void SimulatedMf2::advanceTo(int64_t t_ns) noexcept {
   }
 }
 
-void SimulatedMf2::fsrFor(int finger, const Vec3& force_device, FingerSample& out) noexcept {
-  const Quat q = geometry_.thimbleOrientation(finger, angles_);
-  const Vec3 local = q.conjugate() * force_device;
+void SimulatedMf2::fsrFor(int finger, const Quat& thimble, const Vec3& force_device,
+                          FingerSample& out) noexcept {
+  const Vec3 local = thimble.conjugate() * force_device;
   const double normal = std::max(local.z(), 0.0);  // FSRs only sense pressure
-  const double pad = degToRad(dyn_.pad_angle_deg);
-  const std::array<double, 4> truth = {normal * std::sin(pad), std::max(local.y(), 0.0),
-                                       std::max(-local.y(), 0.0), normal * std::cos(pad)};
+  const std::array<double, 4> truth = {normal * pad_sin_, std::max(local.y(), 0.0),
+                                       std::max(-local.y(), 0.0), normal * pad_cos_};
   // Raw 12-bit ADC counts through the thimble's calibration (noise in newtons first).
   std::array<uint16_t, mf2::kFsrPerThimble> counts{};
   const auto& cal = fsr_[finger].calibration();
@@ -103,14 +104,19 @@ void SimulatedMf2::fsrFor(int finger, const Vec3& force_device, FingerSample& ou
   out.fsr_fault_mask = r.faultMask();
 }
 
-bool SimulatedMf2::updatePose(PerFinger<mf2::ThimblePose>& measured) noexcept {
+PerFinger<Quat> SimulatedMf2::thimbleOrientations() const noexcept {
+  return {geometry_.thimbleOrientation(kThumb, angles_), geometry_.thimbleOrientation(kIndex, angles_)};
+}
+
+bool SimulatedMf2::updatePose(const PerFinger<Quat>& thimbles,
+                              PerFinger<mf2::ThimblePose>& measured) noexcept {
   // The thimbles where the phalanx holds them -> joint angles -> encoder counts, and back
   // through the forward kinematics as a driver would.
   const PerFinger<Vec3> p = geometry_.gripFromAngles(angles_, dyn_.half_width_m);
   PerFinger<mf2::ThimblePose> truth;
   for (int k = 0; k < 2; ++k) {
     truth[k].position_m = p[k];
-    truth[k].orientation = geometry_.thimbleOrientation(k, angles_);
+    truth[k].orientation = thimbles[k];
   }
   mf2::JointAngles q;
   if (!kin_.inverse(truth, 0.0, q)) return false;
@@ -123,15 +129,16 @@ bool SimulatedMf2::updatePose(PerFinger<mf2::ThimblePose>& measured) noexcept {
 
 bool SimulatedMf2::read(DeviceSample& out) noexcept {
   advanceTo(clock_.nowNs());
+  const PerFinger<Quat> thimbles = thimbleOrientations();
   PerFinger<mf2::ThimblePose> pose;
-  if (!updatePose(pose)) return false;  // out of the linkage's reach
+  if (!updatePose(thimbles, pose)) return false;  // out of the linkage's reach
   out.seq = seq_;
   out.time_ns = sim_ns_;
   // A pad can only push: where the shared split would pull on a pad, the clinician squeezes
   // (equal and opposite forces along the line between the pads: no net force, no moment).
   // A flexion push then goes through the pad that faces it; side forces stay shared.
-  const Vec3 n_thumb = geometry_.thimbleOrientation(kThumb, angles_) * Vec3::UnitZ();
-  const Vec3 n_index = geometry_.thimbleOrientation(kIndex, angles_) * Vec3::UnitZ();
+  const Vec3 n_thumb = thimbles[kThumb] * Vec3::UnitZ();
+  const Vec3 n_index = thimbles[kIndex] * Vec3::UnitZ();
   const double squeeze = std::max({0.0, -operator_force_[kThumb].dot(n_thumb),
                                    -operator_force_[kIndex].dot(n_index)});
   const PerFinger<Vec3> pressed{operator_force_[kThumb] + squeeze * n_thumb,
@@ -139,7 +146,7 @@ bool SimulatedMf2::read(DeviceSample& out) noexcept {
   for (int k = 0; k < 2; ++k) {
     out.fingers[k].position_m = pose[k].position_m;
     out.fingers[k].orientation = pose[k].orientation;
-    fsrFor(k, pressed[k], out.fingers[k]);
+    fsrFor(k, thimbles[k], pressed[k], out.fingers[k]);
   }
   return true;
 }
@@ -149,7 +156,7 @@ bool SimulatedMf2::write(const ForceCommand& cmd) noexcept {
   // (the direction is kept), and the fingertip forces those torques actually make.
   if (!have_q_) {
     PerFinger<mf2::ThimblePose> pose;
-    if (!updatePose(pose)) return false;
+    if (!updatePose(thimbleOrientations(), pose)) return false;
   }
   mf2::ActuatorTorques tau;
   if (!kin_.actuatorTorques(q_act_, cmd.force_n, tau)) {

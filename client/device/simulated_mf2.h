@@ -82,8 +82,9 @@ class SimulatedMf2 final : public Device {
  private:
   void advanceTo(int64_t t_ns) noexcept;
   void integrate(double dt) noexcept;
-  void fsrFor(int finger, const Vec3& force_device, FingerSample& out) noexcept;
-  bool updatePose(PerFinger<mf2::ThimblePose>& measured) noexcept;
+  void fsrFor(int finger, const Quat& thimble, const Vec3& force_device, FingerSample& out) noexcept;
+  PerFinger<Quat> thimbleOrientations() const noexcept;
+  bool updatePose(const PerFinger<Quat>& thimbles, PerFinger<mf2::ThimblePose>& measured) noexcept;
 
   JointModel geometry_;  // joint frame and lever arm; the stiffness comes from what is rendered
   mf2::Mf2Kinematics kin_;
@@ -100,6 +101,7 @@ class SimulatedMf2 final : public Device {
   OperatorConfig op_;
   const Clock& clock_;
   SimulatedMf2Dynamics dyn_;
+  double pad_sin_, pad_cos_;  // of dyn_.pad_angle_deg: how the normal load splits
   std::mt19937_64 rng_;
   std::normal_distribution<double> noise_{0.0, 1.0};
 
