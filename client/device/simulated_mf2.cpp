@@ -30,8 +30,7 @@ void SimulatedMf2::setPatient(const JointModelParams& truth) {
 }
 
 double SimulatedMf2::targetForceN(double t_s) const noexcept {
-  const double ramp = op_.ramp_s > 0.0 ? std::clamp(t_s / op_.ramp_s, 0.0, 1.0) : 1.0;
-  const double smooth = ramp * ramp * (3.0 - 2.0 * ramp);
+  const double smooth = smoothRamp(t_s, op_.ramp_s);
   const double mid = 0.5 * (op_.band_min_n + op_.band_max_n);
   const double amp = 0.5 * (op_.band_max_n - op_.band_min_n);
   return smooth * (mid + amp * std::sin(2.0 * kPi * op_.frequency_hz * t_s));

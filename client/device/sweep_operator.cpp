@@ -32,29 +32,24 @@ Vec3 SweepOperator::target(double t_s) const noexcept {
   if (t_s < 0.0) return a;
   const double total = plan_.durationS();
   double t = plan_.repeat ? std::fmod(t_s, total) : std::min(t_s, total);
+  // One axis swept at `freq` between its limits, eased in and out of its hold angle by `w`
+  // (no step in the planned angle).
+  auto sweep = [&](int axis, double freq, double w) {
+    const auto ax = static_cast<std::size_t>(axis);
+    const double centre = 0.5 * (plan_.lo_deg[ax] + plan_.hi_deg[ax]);
+    const double amp = 0.5 * (plan_.hi_deg[ax] - plan_.lo_deg[ax]);
+    const double deg = centre + amp * std::sin(2.0 * kPi * freq * t);
+    a[axis] = degToRad(plan_.hold_deg[ax] + w * (deg - plan_.hold_deg[ax]));
+  };
   if (plan_.combined) {
-    const double ramp = plan_.ramp_s > 0.0 ? std::clamp(std::min(t, total - t) / plan_.ramp_s, 0.0, 1.0) : 1.0;
-    const double w = ramp * ramp * (3.0 - 2.0 * ramp);
-    const double freq[2] = {plan_.frequency_hz, 3.7 * plan_.frequency_hz};
-    for (int axis : {kFlexion, kAbduction}) {
-      const auto ax = static_cast<std::size_t>(axis);
-      const double centre = 0.5 * (plan_.lo_deg[ax] + plan_.hi_deg[ax]);
-      const double amp = 0.5 * (plan_.hi_deg[ax] - plan_.lo_deg[ax]);
-      const double sweep = centre + amp * std::sin(2.0 * kPi * freq[axis == kFlexion ? 0 : 1] * t);
-      a[axis] = degToRad(plan_.hold_deg[ax] + w * (sweep - plan_.hold_deg[ax]));
-    }
+    const double w = smoothRamp(std::min(t, total - t), plan_.ramp_s);
+    sweep(kFlexion, plan_.frequency_hz, w);
+    sweep(kAbduction, 3.7 * plan_.frequency_hz, w);
     return a;
   }
   const int axis = std::min(static_cast<int>(t / plan_.seconds_per_axis), kAxes - 1);
   t -= axis * plan_.seconds_per_axis;
-  const auto ax = static_cast<std::size_t>(axis);
-  // Smooth in and out of each sweep: no step in the planned angle.
-  const double ramp = plan_.ramp_s > 0.0 ? std::clamp(std::min(t, plan_.seconds_per_axis - t) / plan_.ramp_s, 0.0, 1.0) : 1.0;
-  const double w = ramp * ramp * (3.0 - 2.0 * ramp);
-  const double centre = 0.5 * (plan_.lo_deg[ax] + plan_.hi_deg[ax]);
-  const double amp = 0.5 * (plan_.hi_deg[ax] - plan_.lo_deg[ax]);
-  const double sweep = centre + amp * std::sin(2.0 * kPi * plan_.frequency_hz * t);
-  a[axis] = degToRad(plan_.hold_deg[ax] + w * (sweep - plan_.hold_deg[ax]));
+  sweep(axis, plan_.frequency_hz, smoothRamp(std::min(t, plan_.seconds_per_axis - t), plan_.ramp_s));
   return a;
 }
 

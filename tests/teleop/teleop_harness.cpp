@@ -133,8 +133,7 @@ class ServoClinician final : public client::device::Operator {
     // A finger about as stiff as a pinching hand (2 kN/m at the 1 cm grip, device scale),
     // critically damped on the grip's 50 g.
     constexpr double kStiffness = 0.2, kDamping = 0.002;
-    const double x = std::clamp(t_s / op_.ramp_s, 0.0, 1.0);
-    const double smooth = x * x * (3.0 - 2.0 * x);
+    const double smooth = smoothRamp(t_s, op_.ramp_s);
     const Vec3 target(smooth * (mid_ + amp_ * std::sin(2.0 * kPi * op_.frequency_hz * t_s)), 0.0, 0.0);
     return kStiffness * (target - angles) - kDamping * rates;
   }

@@ -16,6 +16,14 @@ constexpr double kPi = std::numbers::pi;
 constexpr double degToRad(double deg) { return deg * kPi / 180.0; }
 constexpr double radToDeg(double rad) { return rad * 180.0 / kPi; }
 
+/// 0 at x <= 0 rising to 1 at x >= width with no step in value or slope at either end
+/// (smoothstep); 1 when width is not positive.
+constexpr double smoothRamp(double x, double width) {
+  if (!(width > 0.0)) return 1.0;
+  const double u = x <= 0.0 ? 0.0 : x >= width ? 1.0 : x / width;
+  return u * u * (3.0 - 2.0 * u);
+}
+
 inline bool allFinite(const Vec3& v) noexcept {
   return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
 }
