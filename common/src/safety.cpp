@@ -5,18 +5,12 @@ namespace telehand {
 SafetyOutput SafetyGate::apply(const PerFinger<Vec3>& requested, int64_t now_ns,
                                int64_t sample_time_ns) noexcept {
   SafetyOutput out;
-  if (capture_) {
-    out.flags = kSafetyCapture;
-    last_ = out.force_n;  // zero
-    last_ns_ = now_ns;
-    have_last_ = true;
-    return out;
-  }
   const bool stale = now_ns - sample_time_ns > limits_.watchdog_ns;
   const bool finite = allFinite(requested[0]) && allFinite(requested[1]);
-  if (stale || !finite) {
-    out.flags |= stale ? kSafetyWatchdog : 0u;
-    out.flags |= finite ? 0u : kSafetyNonFinite;
+  if (capture_ || stale || !finite) {
+    // Capture (actuators off) or a fault: zero at once, without rate limiting.
+    out.flags = capture_ ? kSafetyCapture
+                         : (stale ? kSafetyWatchdog : 0u) | (finite ? 0u : kSafetyNonFinite);
     last_ = out.force_n;  // zero
     last_ns_ = now_ns;
     have_last_ = true;

@@ -47,8 +47,6 @@ class GilbertElliott {
   GilbertElliott(double loss_fraction, double mean_burst_packets);
   /// Advance one packet: true when this packet is lost.
   bool lose(std::mt19937_64& rng) noexcept;
-  double pGoodToBad() const noexcept { return p_; }
-  double pBadToGood() const noexcept { return r_; }
 
  private:
   double p_ = 0.0;
@@ -73,7 +71,6 @@ class LinkDirection {
   /// Calls must come in non-decreasing send time.
   std::optional<int64_t> schedule(int64_t send_ns);
   const LinkDirectionStats& stats() const noexcept { return stats_; }
-  const LinkProfile& profile() const noexcept { return profile_; }
 
  private:
   double jitterNs(int64_t send_ns);

@@ -42,7 +42,6 @@ class SafetyGate {
   /// Capture mode: every output is zero whatever is requested (the clinician moves a real
   /// finger with the actuators off); leaving it ramps up from zero through the rate limit.
   void setCapture(bool on) noexcept { capture_ = on; }
-  bool capture() const noexcept { return capture_; }
   const SafetyLimits& limits() const noexcept { return limits_; }
 
  private:
