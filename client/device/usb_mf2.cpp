@@ -308,6 +308,10 @@ void UsbMf2::tryOpen() {
       problem = "MF-2 at " + where + ": " + permissionHint(cfg_.vendor_id, cfg_.product_id);
       continue;
     }
+    if (rc == LIBUSB_ERROR_NO_DEVICE) {  // still listed, already gone: not there
+      --matches;
+      continue;
+    }
     if (rc != 0) {
       problem = "MF-2 at " + where + ": cannot open (" + usbError(rc) + ")";
       continue;
@@ -325,6 +329,11 @@ void UsbMf2::tryOpen() {
       continue;
     }
     rc = libusb_claim_interface(h, proto::kInterfaceNumber);
+    if (rc == LIBUSB_ERROR_NO_DEVICE) {  // unplugged while we opened it
+      --matches;
+      libusb_close(h);
+      continue;
+    }
     if (rc != 0) {
       problem = "MF-2 at " + where + ": cannot claim its interface (" + usbError(rc) + ")" +
                 (rc == LIBUSB_ERROR_BUSY ? ": another program (another telehand-client?) uses it" : "");
