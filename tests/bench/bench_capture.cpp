@@ -15,11 +15,12 @@
 #include <filesystem>
 #include <vector>
 
-#include "server/estimate/synthetic_capture.h"
-#include "server/session/session_manager.h"
-#include "server/session/sqlite_store.h"
-#include "telehand/common/clock.h"
-#include "telehand/common/knn_model.h"
+#include "telehand/protocol/wire.h"
+#include "telehand/server/estimate/synthetic_capture.h"
+#include "telehand/server/session/session_manager.h"
+#include "telehand/server/store/sqlite_store.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/knn_model.h"
 
 #include <spdlog/spdlog.h>
 
@@ -132,7 +133,7 @@ int main(int argc, char** argv) {
   const fs::path dir = fs::temp_directory_path() / ("telehand-bench-capture-" + std::to_string(getpid()));
   fs::create_directories(dir);
   {
-    server::session::SqliteStore store((dir / "r.db").string());
+    server::store::SqliteStore store((dir / "r.db").string());
     Recorder out;
     server::session::SessionManager mgr(store, out, ServerConfig{});
     telehand_msg_SessionCommand open{};
@@ -166,8 +167,8 @@ int main(int argc, char** argv) {
         sleepUntil(std::min(next_chunk, now() + 2 * kNsPerMs));
       }
       next_chunk += 100 * kNsPerMs;
-      chunk.assign(cap.samples.begin() + static_cast<std::ptrdiff_t>(i),
-                   cap.samples.begin() + static_cast<std::ptrdiff_t>(std::min(i + 100, cap.samples.size())));
+      chunk.clear();
+    for (std::size_t j = i; j < std::min(i + 100, cap.samples.size()); ++j) chunk.push_back(toWire(cap.samples[j]));
       for (auto& s : chunk) s.session_id = 1;
       telehand_msg_RecordChunk c{};
       c.session_id = 1;

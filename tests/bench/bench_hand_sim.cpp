@@ -15,8 +15,8 @@
 #include <memory>
 #include <vector>
 
-#include "server/sim/hand_sim.h"
-#include "telehand/common/joint_model.h"
+#include "telehand/server/sim/hand_sim.h"
+#include "telehand/core/joint_model.h"
 
 namespace telehand::server::sim {
 namespace {

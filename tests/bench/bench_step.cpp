@@ -5,11 +5,11 @@
 #include <cmath>
 #include <vector>
 
-#include "client/device/simulated_mf2.h"
-#include "client/loop/haptic_loop.h"
-#include "telehand/common/clock.h"
-#include "telehand/common/joint_model.h"
-#include "telehand/common/safety.h"
+#include "telehand/devices/simulated_mf2.h"
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/joint_model.h"
+#include "telehand/core/safety.h"
 
 namespace telehand {
 namespace {
@@ -19,9 +19,9 @@ namespace {
 void BM_HapticLoopStep(benchmark::State& state) {
   const JointModelParams model = healthyIndexMcp();
   ManualClock clock(kNsPerS);
-  client::device::SimulatedMf2 dev(model, OperatorConfig{}, clock);
+  devices::SimulatedMf2 dev(model, OperatorConfig{}, clock);
   client::loop::HapticLoop loop(dev, clock, model, SafetyLimits{});
-  telehand_msg_DeviceState s;
+  Sample s;
   // Past the operator's ramp, into the 12-16 N oscillation.
   for (int i = 0; i < 2000; ++i) {
     clock.advance(kNsPerMs);

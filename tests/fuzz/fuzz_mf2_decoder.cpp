@@ -9,9 +9,9 @@
 #include <cstring>
 #include <vector>
 
-#include "client/device/mf2_protocol.h"
+#include "telehand/devices/mf2_protocol.h"
 
-namespace proto = telehand::client::device::proto;
+namespace proto = telehand::devices::proto;
 
 namespace {
 

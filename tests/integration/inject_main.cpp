@@ -1,14 +1,14 @@
 // telehand-test-inject: a misbehaving client for integration tests. Sends what a correct
 // client never would (commands for sessions nobody opened, samples with NaN) and reports
 // what the server answered.
-#include "telehand/common/cli.h"
+#include "telehand/core/cli.h"
 #include <cmath>
 #include <iostream>
 #include <thread>
 
-#include "telehand/common/clock.h"
-#include "telehand/common/dds.h"
-#include "telehand/common/wire.h"
+#include "telehand/core/clock.h"
+#include "telehand/protocol/dds.h"
+#include "telehand/protocol/wire.h"
 
 namespace {
 

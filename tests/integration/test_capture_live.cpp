@@ -8,9 +8,9 @@
 #include <regex>
 
 #include "process.h"
-#include "telehand/common/clock.h"
-#include "server/session/sqlite_store.h"
-#include "telehand/common/config.h"
+#include "telehand/core/clock.h"
+#include "telehand/server/store/sqlite_store.h"
+#include "telehand/config/config.h"
 
 namespace telehand::test {
 namespace {
@@ -72,7 +72,7 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   const uint64_t follow_session = waitForSession(follower, 0ms);
   ASSERT_GT(follow_session, 0u) << follower.output();
 
-  server::session::SqliteStore store(db, server::session::SqliteStore::Mode::kReadOnly);
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
   // The capture is kept with its device and calibration files.
   const auto files = store.files(capture);
   ASSERT_EQ(files.size(), 3u);
@@ -81,8 +81,8 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
 
   // The follower's record: the model version it rendered, its angles and rendered torque.
   const JointModel truth(loadPatientCase(TELEHAND_DEPLOY_DIR "/cases/healthy.toml").model);
-  std::vector<telehand_msg_DeviceState> s;
-  store.forEachSample(follow_session, [&](const telehand_msg_DeviceState& d, bool) { s.push_back(d); });
+  std::vector<Sample> s;
+  store.forEachSample(follow_session, [&](const Sample& d, bool) { s.push_back(d); });
   ASSERT_GT(s.size(), 8000u);
   uint32_t first_version = s.front().model_version, last_version = 0;
   Window early, late;

@@ -6,7 +6,7 @@
 #include <filesystem>
 
 #include "process.h"
-#include "telehand/common/config.h"
+#include "telehand/config/config.h"
 
 namespace telehand::test {
 namespace {

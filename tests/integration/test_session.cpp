@@ -9,7 +9,7 @@
 
 #include "process.h"
 #include "process_test.h"
-#include "server/session/sqlite_store.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::test {
 namespace {
@@ -52,14 +52,14 @@ TEST_F(SessionTest, ServerClientWatcherRecordEverySample) {
   EXPECT_GT(matchNumber(seen, R"(hand_states=(\d+))"), 50u) << seen;
 
   // The record holds every sequence number the client sent, once.
-  server::session::SqliteStore store(db, server::session::SqliteStore::Mode::kReadOnly);
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
   const auto info = store.session(session);
   ASSERT_TRUE(info.has_value());
   EXPECT_EQ(info->state, "closed");
   EXPECT_EQ(info->samples, sent);
   uint64_t expect_seq = 0;
   uint64_t gaps = 0;
-  store.forEachSample(session, [&](const telehand_msg_DeviceState& s, bool valid) {
+  store.forEachSample(session, [&](const Sample& s, bool valid) {
     gaps += s.seq != expect_seq;
     expect_seq = s.seq + 1;
     EXPECT_TRUE(valid);
@@ -127,7 +127,7 @@ TEST_F(SessionTest, BadInputIsReportedAndOtherSessionsKeepRecording) {
   const uint64_t session = matchNumber(client.output(), R"(session (\d+) open)");
   const uint64_t sent = matchNumber(client.output(), R"((\d+) samples sent)");
   const uint64_t nan_session = matchNumber(nan_out, R"(session=(\d+))");
-  server::session::SqliteStore store(db, server::session::SqliteStore::Mode::kReadOnly);
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
   EXPECT_EQ(store.session(session)->samples, sent);
   const auto bad = store.session(nan_session);
   ASSERT_TRUE(bad.has_value());

@@ -13,7 +13,7 @@
 
 #include "../integration/process.h"
 #include "../integration/process_test.h"
-#include "server/session/sqlite_store.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::test {
 namespace {
@@ -146,16 +146,16 @@ TEST_F(NetemTest, SpainAustraliaSessionRecordsEverySampleAcrossTheDelayLine) {
   EXPECT_NE(link_out.find("delay mean 1"), std::string::npos) << link_out;  // 130-170 ms
 
   // The record is complete: every sequence number once, the live ones flagged.
-  server::session::SqliteStore store(db, server::session::SqliteStore::Mode::kReadOnly);
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
   const auto info = store.session(session);
   ASSERT_TRUE(info.has_value());
   EXPECT_EQ(info->state, "closed");
   EXPECT_EQ(info->samples, sent);
   uint64_t expect = 0, gaps = 0, flagged_live = 0;
-  store.forEachSample(session, [&](const telehand_msg_DeviceState& s, bool valid) {
+  store.forEachSample(session, [&](const Sample& s, bool valid) {
     gaps += s.seq != expect;
     expect = s.seq + 1;
-    flagged_live += (s.flags & telehand_msg_kFlagSentLive) != 0;
+    flagged_live += (s.flags & sample_flags::kSentLive) != 0;
     EXPECT_TRUE(valid);
   });
   EXPECT_EQ(gaps, 0u);

@@ -11,9 +11,9 @@
 #include <optional>
 #include <sstream>
 
-#include "telehand/common/cli.h"
-#include "telehand/common/error.h"
-#include "tests/teleop/teleop_harness.h"
+#include "telehand/core/cli.h"
+#include "telehand/core/error.h"
+#include "telehand/netem/teleop_harness.h"
 
 namespace {
 

@@ -4,7 +4,7 @@
 
 #include <optional>
 
-#include "tests/teleop/teleop_harness.h"
+#include "telehand/netem/teleop_harness.h"
 
 namespace telehand::teleop {
 namespace {

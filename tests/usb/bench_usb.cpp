@@ -11,9 +11,9 @@
 #include <thread>
 #include <vector>
 
-#include "client/device/usb_mf2.h"
+#include "telehand/client/usb/usb_mf2.h"
 #include "mf2_emulator.h"
-#include "telehand/common/cli.h"
+#include "telehand/core/cli.h"
 
 int main(int argc, char** argv) {
   using namespace telehand;
@@ -44,10 +44,10 @@ int main(int argc, char** argv) {
     test::usb::Mf2Emulator emu(opt);
     emu.withFirmware([](test::usb::Mf2Firmware& fw) { fw.keepHistory(false); return 0; });
     SteadyClock clock;
-    client::device::Mf2ModelCalibration cal(mf2::defaultMf2());
-    client::device::UsbMf2Config cfg;
+    devices::Mf2ModelCalibration cal(mf2::defaultMf2());
+    client::usb::UsbMf2Config cfg;
     cfg.in_flight = in_flight;
-    client::device::UsbMf2 dev(cfg, cal, clock);
+    client::usb::UsbMf2 dev(cfg, cal, clock);
     dev.start();
     if (!dev.waitReady(5s)) {
       std::fprintf(stderr, "no stream: %s\n", dev.statusText().c_str());
@@ -60,7 +60,7 @@ int main(int argc, char** argv) {
     }
     const uint64_t in0 = dev.stats().packets_in.load(), out0 = dev.stats().commands_out.load();
     const auto t0 = std::chrono::steady_clock::now();
-    client::device::ForceCommand f;
+    devices::ForceCommand f;
     f.force_n[kThumb] = Vec3(0.5, 0.0, 0.0);
     while (std::chrono::steady_clock::now() - t0 < std::chrono::duration<double>(seconds)) {
       dev.write(f);  // the loop's side at about 2 kHz

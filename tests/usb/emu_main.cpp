@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "mf2_emulator.h"
-#include "telehand/common/cli.h"
+#include "telehand/core/cli.h"
 
 extern char** environ;
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "telehand/common/joint_model.h"
+#include "telehand/core/joint_model.h"
 
 namespace telehand::test::usb {
 
@@ -11,7 +11,7 @@ namespace {
 constexpr double kDt = 1e-3;
 }
 
-FirmwareParams firmwareFor(const mf2::Mf2Description& d, const client::device::Mf2Motors& motors,
+FirmwareParams firmwareFor(const mf2::Mf2Description& d, const devices::Mf2Motors& motors,
                            double flexion_rad) {
   FirmwareParams p;
   for (int i = 0; i < proto::kActuators; ++i) {

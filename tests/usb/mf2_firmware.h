@@ -10,12 +10,12 @@
 #include <span>
 #include <vector>
 
-#include "client/device/mf2_calibration.h"
-#include "client/device/mf2_protocol.h"
+#include "telehand/devices/mf2_calibration.h"
+#include "telehand/devices/mf2_protocol.h"
 
 namespace telehand::test::usb {
 
-namespace proto = client::device::proto;
+namespace proto = devices::proto;
 
 struct FirmwareParams {
   std::array<double, proto::kActuators> counts_per_rad{};
@@ -37,7 +37,7 @@ struct FirmwareParams {
 /// Firmware parameters for the hardware a device file and motor constants describe, with
 /// the thimbles resting on the grip of the default index MCP joint at `flexion_rad`.
 FirmwareParams firmwareFor(const mf2::Mf2Description& device,
-                           const client::device::Mf2Motors& motors = {},
+                           const devices::Mf2Motors& motors = {},
                            double flexion_rad = 20.0 * 3.14159265358979 / 180.0);
 
 class Mf2Firmware {

@@ -5,12 +5,12 @@
 #include <string>
 #include <vector>
 
-#include "client/device/mf2_calibration.h"
-#include "client/device/mf2_protocol.h"
+#include "telehand/devices/mf2_calibration.h"
+#include "telehand/devices/mf2_protocol.h"
 #include "mf2_firmware.h"
-#include "telehand/common/joint_model.h"
+#include "telehand/core/joint_model.h"
 
-namespace telehand::client::device::proto {
+namespace telehand::devices::proto {
 namespace {
 
 std::vector<uint8_t> fromHex(const std::string& h) {
@@ -222,15 +222,15 @@ TEST(SequenceTracker, ResynchronizesAfterTheDeviceRestartsItsCounter) {
 }
 
 }  // namespace
-}  // namespace telehand::client::device::proto
+}  // namespace telehand::devices::proto
 
 namespace telehand::test::usb {
 namespace {
 
-using client::device::CurrentsMa;
-using client::device::FingerSample;
-using client::device::Mf2ModelCalibration;
-using client::device::Mf2Motors;
+using devices::CurrentsMa;
+using devices::FingerSample;
+using devices::Mf2ModelCalibration;
+using devices::Mf2Motors;
 
 std::vector<uint8_t> command(uint32_t seq, std::array<int16_t, proto::kActuators> ma, uint8_t flags,
                              uint16_t watchdog_ms = 10) {

@@ -8,15 +8,15 @@
 #include <thread>
 
 #include "alloc_guard.h"
-#include "client/device/usb_mf2.h"
-#include "client/loop/haptic_loop.h"
+#include "telehand/client/usb/usb_mf2.h"
+#include "telehand/client/loop/haptic_loop.h"
 #include "mf2_emulator.h"
 
 namespace telehand::test::usb {
 namespace {
 
 using namespace std::chrono_literals;
-using client::device::DeviceStatus;
+using devices::DeviceStatus;
 
 TEST(UsbMf2Alloc, StepAllocatesNothingWhileStreamingUnpluggedAndBack) {
   prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
@@ -24,15 +24,15 @@ TEST(UsbMf2Alloc, StepAllocatesNothingWhileStreamingUnpluggedAndBack) {
   opt.pace_ns = 1'000'000;
   Mf2Emulator emu(opt);
   SteadyClock clock;
-  client::device::Mf2ModelCalibration cal(mf2::defaultMf2());
-  client::device::UsbMf2 dev({}, cal, clock);
+  devices::Mf2ModelCalibration cal(mf2::defaultMf2());
+  client::usb::UsbMf2 dev({}, cal, clock);
   dev.start();
   ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
   client::loop::HapticLoop loop(dev, clock, healthyIndexMcp(), SafetyLimits{});
 
   std::size_t allocations = 0, deallocations = 0;
   int fresh = 0, down = 0;
-  telehand_msg_DeviceState rec;
+  Sample rec;
   for (int i = 0; i < 3000; ++i) {
     if (i == 1000) emu.unplug();
     if (i == 1500) emu.replug();

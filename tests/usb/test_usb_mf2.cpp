@@ -7,21 +7,21 @@
 #include <chrono>
 #include <thread>
 
-#include "client/device/usb_mf2.h"
-#include "client/loop/haptic_loop.h"
+#include "telehand/client/usb/usb_mf2.h"
+#include "telehand/client/loop/haptic_loop.h"
 #include "mf2_emulator.h"
 
 namespace telehand::test::usb {
 namespace {
 
 using namespace std::chrono_literals;
-using client::device::DeviceSample;
-using client::device::DeviceStatus;
-using client::device::ForceCommand;
-using client::device::CurrentsMa;
-using client::device::Mf2ModelCalibration;
-using client::device::UsbMf2;
-using client::device::UsbMf2Config;
+using devices::DeviceSample;
+using devices::DeviceStatus;
+using devices::ForceCommand;
+using devices::CurrentsMa;
+using devices::Mf2ModelCalibration;
+using client::usb::UsbMf2;
+using client::usb::UsbMf2Config;
 
 /// Polls `pred` until it holds or `timeout` passes.
 template <typename Pred>
@@ -79,15 +79,15 @@ class UsbMf2Test : public ::testing::Test {
 };
 
 TEST_F(UsbMf2Test, ListsAndOpensByVendorAndProductId) {
-  const auto found = client::device::listUsbMf2();
+  const auto found = client::usb::listUsbMf2();
   ASSERT_EQ(found.size(), 1u) << "the testbed's bus holds exactly the emulated MF-2";
   EXPECT_EQ(found[0].vendor_id, proto::kDefaultVendorId);
   EXPECT_EQ(found[0].product_id, proto::kDefaultProductId);
   EXPECT_EQ(found[0].serial, "MF2-EMU-0001");
   EXPECT_EQ(found[0].bcd_device, 0x0100);
   EXPECT_EQ(found[0].problem, "");
-  EXPECT_TRUE(client::device::listUsbMf2(0x1209, 0xbeef).empty());
-  EXPECT_NE(client::device::formatUsbMf2List(found, 0x1209, 0x4d32)
+  EXPECT_TRUE(client::usb::listUsbMf2(0x1209, 0xbeef).empty());
+  EXPECT_NE(client::usb::formatUsbMf2List(found, 0x1209, 0x4d32)
                 .find("MF-2 1209:4d32 at bus 001 address 001, firmware 1.00, serial MF2-EMU-0001: ready"),
             std::string::npos);
 
@@ -163,7 +163,7 @@ TEST_F(UsbMf2Test, Streams5000CyclesWithContentCheckedBothWays) {
       }
       prev_seq = s.seq;
       ASSERT_LT(s.seq, states.size());
-      PerFinger<client::device::FingerSample> expect;
+      PerFinger<devices::FingerSample> expect;
       ASSERT_TRUE(check.toFingers(states[s.seq], expect));
       for (int k = 0; k < 2; ++k) {
         ASSERT_EQ(s.fingers[k].position_m, expect[k].position_m) << i;
@@ -323,15 +323,15 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
   ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
   const JointModelParams model = healthyIndexMcp();
   client::loop::HapticLoop loop(dev, clock_, model, SafetyLimits{});
-  telehand_msg_DeviceState rec{};
-  auto forceOf = [](const telehand_msg_DeviceState& s) {
+  Sample rec{};
+  auto forceOf = [](const Sample& s) {
     return Vec3(s.fingers[0].command_n[0], s.fingers[0].command_n[1], s.fingers[0].command_n[2]).norm() +
            Vec3(s.fingers[1].command_n[0], s.fingers[1].command_n[1], s.fingers[1].command_n[2]).norm();
   };
   // One tick per millisecond from this thread; returns the status seen before the tick.
   int64_t last_step_ns = clock_.nowNs();
   double step_dt_s = 0.0;  // time since the previous step, as the safety gate sees it
-  auto tick = [&](telehand_msg_DeviceState& out) {
+  auto tick = [&](Sample& out) {
     const DeviceStatus before = dev.status();
     const int64_t now = clock_.nowNs();
     step_dt_s = static_cast<double>(now - last_step_ns) * 1e-9;
@@ -366,7 +366,7 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
       }
       seen_down = true;
       ASSERT_EQ(forceOf(rec), 0.0) << "the first tick after the driver knew, and every one after";
-      ASSERT_TRUE(rec.flags & telehand_msg_kFlagWatchdog);
+      ASSERT_TRUE(rec.flags & sample_flags::kWatchdog);
       ++ticks_after;
     }
   }

@@ -13,7 +13,7 @@
 #include "mf2_emulator.h"
 #include "process.h"
 #include "process_test.h"
-#include "server/session/sqlite_store.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::test::usb {
 namespace {
@@ -112,7 +112,7 @@ TEST_F(UsbProgramsTest, SessionWithTheUsbDeviceIsRecorded) {
   EXPECT_GT(c.commands_received, 2000u);
   EXPECT_EQ(c.unhandled_ioctls, 0u);
 
-  server::session::SqliteStore store(db, server::session::SqliteStore::Mode::kReadOnly);
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
   const auto info = store.session(session);
   ASSERT_TRUE(info.has_value());
   EXPECT_EQ(info->state, "closed");
@@ -120,7 +120,7 @@ TEST_F(UsbProgramsTest, SessionWithTheUsbDeviceIsRecorded) {
   uint64_t expect_seq = 0, gaps = 0, pressed = 0, forced = 0;
   double force_max = 0.0;
   double z_min = 1e9, z_max = -1e9;
-  store.forEachSample(session, [&](const telehand_msg_DeviceState& s, bool valid) {
+  store.forEachSample(session, [&](const Sample& s, bool valid) {
     gaps += s.seq != expect_seq;
     expect_seq = s.seq + 1;
     EXPECT_TRUE(valid);

@@ -8,18 +8,18 @@
 #include <string>
 #include <vector>
 
-#include "client/device/simulated_mf2.h"
-#include "client/loop/haptic_loop.h"
-#include "telehand/common/clock.h"
+#include "telehand/devices/simulated_mf2.h"
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/core/clock.h"
 #include "alloc_guard.h"
-#include "telehand/common/knn_model.h"
+#include "telehand/core/knn_model.h"
 
 namespace telehand::client {
 namespace {
 
-using device::DeviceSample;
-using device::ForceCommand;
-using device::SimulatedMf2;
+using devices::DeviceSample;
+using devices::ForceCommand;
+using devices::SimulatedMf2;
 using loop::HapticLoop;
 using loop::StepStatus;
 using test::AllocationGuard;
@@ -27,9 +27,9 @@ using test::escape;
 
 /// Forwards to a device, but can fail reads (a stalled USB link) or allocate in read() (the
 /// bug the guard must catch).
-class TestDevice final : public device::Device {
+class TestDevice final : public devices::Device {
  public:
-  explicit TestDevice(device::Device& inner) : inner_(inner) {}
+  explicit TestDevice(devices::Device& inner) : inner_(inner) {}
   bool read(DeviceSample& out) noexcept override {
     if (allocate_in_read) {
       auto* s = new (std::nothrow) std::string(100, 'x');
@@ -40,14 +40,14 @@ class TestDevice final : public device::Device {
     return inner_.read(out);
   }
   bool write(const ForceCommand& cmd) noexcept override { return inner_.write(cmd); }
-  device::DeviceStatus status() const noexcept override { return inner_.status(); }
+  devices::DeviceStatus status() const noexcept override { return inner_.status(); }
   std::string_view name() const noexcept override { return "test"; }
 
   bool fail_reads = false;
   bool allocate_in_read = false;
 
  private:
-  device::Device& inner_;
+  devices::Device& inner_;
 };
 
 TEST(AllocationGuard, CountsAllocationsOnlyWhileArmed) {
@@ -97,7 +97,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
   stiffer.version = 2;
   stiffer.axes[kFlexion].coeffs = {3e-5, 0.002, 0.08, 1.0};
 
-  std::vector<telehand_msg_DeviceState> samples;
+  std::vector<Sample> samples;
   samples.reserve(kTicks);
   std::vector<StepStatus> statuses;
   statuses.reserve(kTicks);
@@ -116,7 +116,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
       deallocations += guard.deallocations();
     }
     statuses.push_back(st);
-    telehand_msg_DeviceState s;
+    Sample s;
     while (hl.samples().tryPop(s)) samples.push_back(s);
   }
 
@@ -139,7 +139,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
   EXPECT_EQ(hl.nextSeq(), static_cast<uint64_t>(kTicks));
   int watchdog_samples = 0;
   for (int i = 0; i < kTicks; ++i) {
-    const telehand_msg_DeviceState& s = samples[i];
+    const Sample& s = samples[i];
     ASSERT_EQ(s.seq, static_cast<uint64_t>(i));
     EXPECT_EQ(s.session_id, 77u);
     EXPECT_EQ(s.model_version, i < kModelAt ? 1u : 2u) << i;
@@ -147,7 +147,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
       const Vec3 cmd(f.command_n[0], f.command_n[1], f.command_n[2]);
       ASSERT_TRUE(allFinite(cmd)) << i;
       ASSERT_LE(cmd.norm(), 4.0 + 1e-9) << i;
-      if (s.flags & telehand_msg_kFlagWatchdog) {
+      if (s.flags & sample_flags::kWatchdog) {
         ASSERT_TRUE(cmd.isZero()) << i;
       }
     }
@@ -163,7 +163,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
         EXPECT_EQ(dt, kNsPerMs) << i;
       }
     }
-    if (s.flags & telehand_msg_kFlagWatchdog) {
+    if (s.flags & sample_flags::kWatchdog) {
       ++watchdog_samples;
       EXPECT_TRUE(in_fault) << i;
       EXPECT_EQ(statuses[i], StepStatus::kSafetyFault) << i;
@@ -173,7 +173,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
       EXPECT_EQ(statuses[i], StepStatus::kOk) << i;
     }
     if (i > kModelAt && i < kModelAt + 150) {
-      EXPECT_TRUE(s.flags & telehand_msg_kFlagModelBlending) << i;
+      EXPECT_TRUE(s.flags & sample_flags::kModelBlending) << i;
     }
   }
   // Stale after 5 ms without a sample: 50 failed reads leave about 45 watchdog ticks.
@@ -207,7 +207,7 @@ TEST(HapticLoopAlloc, KnnModelAndCaptureModeAllocateNothing) {
   data_driven.version = 2;
   data_driven.knn = &knn;
   std::size_t allocations = 0;
-  telehand_msg_DeviceState s;
+  Sample s;
   double max_force = 0.0;
   for (int i = 0; i < 4000; ++i) {
     clock.advance(kNsPerMs);
@@ -225,7 +225,7 @@ TEST(HapticLoopAlloc, KnnModelAndCaptureModeAllocateNothing) {
       if (i > 1000 && i < 3000) max_force = std::max(max_force, f.norm());
       if (i > 3000) {
         EXPECT_TRUE(f.isZero()) << "capture mode: zero output whatever the model says";
-        EXPECT_TRUE(s.flags & telehand_msg_kFlagCapture);
+        EXPECT_TRUE(s.flags & sample_flags::kCapture);
       }
     }
   }
@@ -246,7 +246,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingWithPassivityControlDirectForcesAndQue
   v2.axes[kFlexion].coeffs = {3e-5, 0.002, 0.08, 1.0};
   v3.version = 3;
   std::size_t allocations = 0;
-  telehand_msg_DeviceState s;
+  Sample s;
   for (int i = 0; i < 4000; ++i) {
     clock.advance(kNsPerMs);
     if (i == 500) {

@@ -4,8 +4,8 @@
 
 #include <cmath>
 
-#include "client/loop/passivity.h"
-#include "telehand/common/clock.h"
+#include "telehand/client/loop/passivity.h"
+#include "telehand/core/clock.h"
 
 namespace telehand::client::loop {
 namespace {

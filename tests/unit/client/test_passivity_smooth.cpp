@@ -7,10 +7,10 @@
 #include <cmath>
 #include <random>
 
-#include "client/device/simulated_mf2.h"
-#include "client/loop/haptic_loop.h"
-#include "client/loop/passivity.h"
-#include "telehand/common/clock.h"
+#include "telehand/devices/simulated_mf2.h"
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/client/loop/passivity.h"
+#include "telehand/core/clock.h"
 
 namespace telehand::client {
 namespace {
@@ -122,17 +122,17 @@ struct MobilizationRun {
 MobilizationRun mobilize(int64_t head_start_ns, double seconds) {
   const JointModelParams model = healthyIndexMcp();
   ManualClock clock(kNsPerS);
-  device::SimulatedMf2 dev(model, OperatorConfig{}, clock);
+  devices::SimulatedMf2 dev(model, OperatorConfig{}, clock);
   clock.advance(head_start_ns);
   loop::HapticLoop hl(dev, clock, model, SafetyLimits{});
   MobilizationRun r;
-  telehand_msg_DeviceState s;
+  Sample s;
   const int ticks = static_cast<int>(seconds * 1000.0);
   for (int i = 0; i < ticks; ++i) {
     clock.advance(kNsPerMs);
     hl.step();
     while (hl.samples().tryPop(s)) {
-      if (s.flags & telehand_msg_kFlagSafetyRateLimited) {
+      if (s.flags & sample_flags::kSafetyRateLimited) {
         ++r.rate_limited;
         r.last_rate_limited_s = static_cast<double>(s.seq) * 1e-3;
       }

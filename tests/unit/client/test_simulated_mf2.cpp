@@ -1,5 +1,5 @@
 // The simulated MF-2 and its virtual operator, alone and inside the haptic loop.
-#include "client/device/simulated_mf2.h"
+#include "telehand/devices/simulated_mf2.h"
 
 #include <gtest/gtest.h>
 
@@ -8,16 +8,16 @@
 #include <cstring>
 #include <vector>
 
-#include "client/loop/haptic_loop.h"
-#include "telehand/common/clock.h"
-#include "telehand/common/thimble.h"
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/thimble.h"
 
 namespace telehand::client {
 namespace {
 
-using device::DeviceSample;
-using device::ForceCommand;
-using device::SimulatedMf2;
+using devices::DeviceSample;
+using devices::ForceCommand;
+using devices::SimulatedMf2;
 
 /// Net force the operator exerts, device frame, estimated from the FSRs (paper eqs. 1-2).
 Vec3 fsrForce(const DeviceSample& s) {
@@ -28,7 +28,7 @@ Vec3 fsrForce(const DeviceSample& s) {
   return f;
 }
 
-Vec3 fsrForce(const telehand_msg_DeviceState& s) {
+Vec3 fsrForce(const Sample& s) {
   Vec3 f = Vec3::Zero();
   for (const auto& finger : s.fingers) {
     FsrReadings fsr;
@@ -259,7 +259,7 @@ TEST(SimulatedMf2, MobilizationInTheHapticLoop) {
   std::vector<Point> pts;
   pts.reserve(10'000);
   uint64_t expected_seq = 0;
-  telehand_msg_DeviceState s;
+  Sample s;
   for (int i = 0; i < 10'000; ++i) {
     clock.advance(kNsPerMs);
     ASSERT_EQ(hl.step(), loop::StepStatus::kOk) << i;

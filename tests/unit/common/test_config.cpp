@@ -1,5 +1,5 @@
 // TOML configuration: good files load, bad ones give a ConfigError naming origin, line, key.
-#include "telehand/common/config.h"
+#include "telehand/config/config.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -9,7 +9,7 @@
 #include <fstream>
 #include <string>
 
-#include "telehand/common/error.h"
+#include "telehand/core/error.h"
 
 namespace telehand {
 namespace {

@@ -1,6 +1,6 @@
 // The reduced index MCP model: paper eqs. 3-5, kinematics, torque mapping and the proxy's
 // cross-fade (FACTS.md "The paper", "Rendering").
-#include "telehand/common/joint_model.h"
+#include "telehand/core/joint_model.h"
 
 #include <gtest/gtest.h>
 
@@ -8,7 +8,7 @@
 #include <cmath>
 #include <vector>
 
-#include "telehand/common/clock.h"
+#include "telehand/core/clock.h"
 
 namespace telehand {
 namespace {

@@ -1,12 +1,12 @@
 // The data-driven joint model: FLANN k-nearest-neighbour regression over captured samples.
-#include "telehand/common/knn_model.h"
+#include "telehand/core/knn_model.h"
 
 #include <gtest/gtest.h>
 
 #include <random>
 
-#include "telehand/common/error.h"
-#include "telehand/common/joint_model.h"
+#include "telehand/core/error.h"
+#include "telehand/core/joint_model.h"
 
 namespace telehand {
 namespace {

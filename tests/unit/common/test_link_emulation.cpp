@@ -3,9 +3,9 @@
 
 #include <filesystem>
 
-#include "telehand/common/clock.h"
-#include "telehand/common/error.h"
-#include "telehand/common/link_emulation.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/error.h"
+#include "telehand/netem/link_emulation.h"
 
 namespace telehand {
 namespace {

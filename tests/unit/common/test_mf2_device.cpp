@@ -1,6 +1,6 @@
 // The MF-2 device model: encoders, forward/inverse kinematics, Jacobian (finite differences
 // and virtual work), FSR calibration and fault flags, device and thimble files.
-#include "telehand/common/mf2_device.h"
+#include "telehand/devices/mf2_device.h"
 
 #include <gtest/gtest.h>
 
@@ -8,8 +8,8 @@
 #include <fstream>
 #include <random>
 
-#include "telehand/common/error.h"
-#include "telehand/common/joint_model.h"
+#include "telehand/core/error.h"
+#include "telehand/core/joint_model.h"
 
 namespace telehand::mf2 {
 namespace {

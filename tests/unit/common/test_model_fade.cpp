@@ -4,8 +4,8 @@
 
 #include <vector>
 
-#include "telehand/common/clock.h"
-#include "telehand/common/joint_model.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/joint_model.h"
 
 namespace telehand {
 namespace {

@@ -13,10 +13,10 @@
 #include <string>
 #include <vector>
 
-#include "telehand/common/config.h"
-#include "telehand/common/error.h"
-#include "telehand/common/joint_model.h"
-#include "telehand/common/wire.h"
+#include "telehand/config/config.h"
+#include "telehand/core/error.h"
+#include "telehand/core/joint_model.h"
+#include "telehand/protocol/wire.h"
 
 namespace telehand {
 namespace {

@@ -1,7 +1,7 @@
 // QoS profiles against DESIGN.md's "Data over DDS" table.
 #include <gtest/gtest.h>
 
-#include "telehand/common/dds.h"
+#include "telehand/protocol/dds.h"
 
 namespace telehand::dds {
 namespace {

@@ -1,6 +1,6 @@
 // The one gate every force passes (DESIGN.md "House style"): finite check, per-finger clamp
 // to 4 N, rate limit, watchdog; a fault commands zero at once.
-#include "telehand/common/safety.h"
+#include "telehand/core/safety.h"
 
 #include <gtest/gtest.h>
 

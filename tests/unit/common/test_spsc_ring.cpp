@@ -1,5 +1,5 @@
 // The fixed-size SPSC ring that carries every sample and model across the RT boundary.
-#include "telehand/common/spsc_ring.h"
+#include "telehand/core/rt/spsc_ring.h"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 // Paper eqs. 1-2 (FACTS.md "The paper"): F_tangential = F2 - F3, F_normal = sqrt(F4^2 + F1^2).
-#include "telehand/common/thimble.h"
+#include "telehand/core/thimble.h"
 
 #include <gtest/gtest.h>
 

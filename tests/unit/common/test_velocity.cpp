@@ -1,6 +1,6 @@
 // Velocity from quantized positions by adaptive windowing: quiet at low speed, no lag when
 // the motion is fast or turns.
-#include "telehand/common/velocity.h"
+#include "telehand/core/velocity.h"
 
 #include <gtest/gtest.h>
 

@@ -1,6 +1,6 @@
 // Capture and fitting end to end: synthetic captures of known joints through the simulated
 // MF-2 and the client's loop in capture mode, fitted per axis (paper section IV.B).
-#include "server/estimate/capture_fit.h"
+#include "telehand/server/estimate/capture_fit.h"
 
 #include <gtest/gtest.h>
 
@@ -8,11 +8,11 @@
 #include <filesystem>
 #include <random>
 
-#include "server/estimate/synthetic_capture.h"
-#include "server/session/sqlite_store.h"
-#include "telehand/common/config.h"
-#include "telehand/common/fit.h"
-#include "telehand/common/knn_model.h"
+#include "telehand/server/estimate/synthetic_capture.h"
+#include "telehand/server/store/sqlite_store.h"
+#include "telehand/config/config.h"
+#include "telehand/core/fit.h"
+#include "telehand/core/knn_model.h"
 
 namespace telehand::server::estimate {
 namespace {
@@ -167,8 +167,8 @@ TEST(CaptureFit, RandomPhysiologicalJoints) {
 
 TEST(CaptureFit, FaultySensorsAndRenderedSamplesAreLeftOut) {
   const JointModel geometry(captureGeometry(healthyIndexMcp()));
-  telehand_msg_DeviceState s{};
-  s.flags = telehand_msg_kFlagCapture;
+  Sample s{};
+  s.flags = sample_flags::kCapture;
   const auto p = geometry.gripFromAngles(Vec3::Zero(), 0.008);
   for (int k = 0; k < 2; ++k) {
     for (int i = 0; i < 3; ++i) s.fingers[k].position_m[i] = p[k][i];
@@ -177,10 +177,10 @@ TEST(CaptureFit, FaultySensorsAndRenderedSamplesAreLeftOut) {
   CaptureCounts counts;
   EXPECT_TRUE(capturePoint(geometry, s, true, counts).has_value());
   EXPECT_FALSE(capturePoint(geometry, s, false, counts).has_value());
-  telehand_msg_DeviceState sat = s;
-  sat.flags |= 1u << (telehand_msg_kFlagFsrFaultShift + 4 + 3);  // index pad sensor
+  Sample sat = s;
+  sat.flags |= 1u << (sample_flags::kFsrFaultShift + 4 + 3);  // index pad sensor
   EXPECT_FALSE(capturePoint(geometry, sat, true, counts).has_value());
-  telehand_msg_DeviceState rendered = s;
+  Sample rendered = s;
   rendered.flags = 0;
   EXPECT_FALSE(capturePoint(geometry, rendered, true, counts).has_value());
   EXPECT_EQ(counts.used, 1u);
@@ -201,10 +201,10 @@ TEST(CaptureFit, StoredCaptureFitsTheSameAndWritesALoadableCase) {
   for (const auto& s : cap.samples) direct.add(s, true);
   uint64_t id = 0;
   {
-    session::SqliteStore store((dir / "r.db").string());
+    store::SqliteStore store((dir / "r.db").string());
     id = storeCapture(store, cap, "healthy", "expert", deviceFiles(o.device));
   }
-  session::SqliteStore store((dir / "r.db").string(), session::SqliteStore::Mode::kReadOnly);
+  store::SqliteStore store((dir / "r.db").string(), store::SqliteStore::Mode::kReadOnly);
   const auto info = store.session(id);
   ASSERT_TRUE(info.has_value());
   EXPECT_EQ(info->mode, "capture");
@@ -214,7 +214,7 @@ TEST(CaptureFit, StoredCaptureFitsTheSameAndWritesALoadableCase) {
   EXPECT_EQ(files[0].name, "device/mf2.toml");
   EXPECT_NE(files[1].content.find("serial = \"T02\""), std::string::npos);
   CaptureFitter stored(cap.geometry);
-  store.forEachSample(id, [&](const telehand_msg_DeviceState& s, bool valid) { stored.add(s, valid); });
+  store.forEachSample(id, [&](const Sample& s, bool valid) { stored.add(s, valid); });
   const CaptureFit a = direct.fit(), b = stored.fit();
   for (std::size_t i = 0; i < kAxes; ++i) EXPECT_EQ(a.axes[i].curve, b.axes[i].curve);
 
@@ -240,7 +240,7 @@ namespace {
 /// Abduction stiffer in flexion (the MCP collateral ligaments tighten as it flexes): the
 /// abduction torque of the paper's joint scaled by 0.4 at 40 deg extension up to 1.6 at
 /// 90 deg flexion. Separable cubics cannot express it.
-class CoupledJoint final : public client::device::PatientJoint {
+class CoupledJoint final : public devices::PatientJoint {
  public:
   explicit CoupledJoint(const JointModelParams& base) : base_(base) {}
   static double factor(double flexion_rad) {

@@ -5,13 +5,15 @@
 
 #include <filesystem>
 
-#include "server/estimate/synthetic_capture.h"
-#include "server/session/session_manager.h"
-#include "server/session/sqlite_store.h"
-#include "telehand/common/config.h"
-#include "telehand/common/wire.h"
+#include "telehand/server/estimate/synthetic_capture.h"
+#include "telehand/server/session/session_manager.h"
+#include "telehand/server/store/sqlite_store.h"
+#include "telehand/config/config.h"
+#include "telehand/protocol/wire.h"
 
 namespace telehand::server::session {
+using store::SqliteStore;
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -88,8 +90,8 @@ TEST(CaptureSession, LiveFitReachesFollowersOnlyWhenFeltAndAtABoundedRate) {
   std::vector<telehand_msg_DeviceState> chunk;
   uint64_t chunk_seq = 0;
   for (std::size_t i = 0; i < cap.samples.size(); i += 100) {
-    chunk.assign(cap.samples.begin() + static_cast<std::ptrdiff_t>(i),
-                 cap.samples.begin() + static_cast<std::ptrdiff_t>(std::min(i + 100, cap.samples.size())));
+    chunk.clear();
+    for (std::size_t j = i; j < std::min(i + 100, cap.samples.size()); ++j) chunk.push_back(toWire(cap.samples[j]));
     for (auto& s : chunk) s.session_id = 1;
     telehand_msg_RecordChunk c{};
     c.session_id = 1;

@@ -7,8 +7,8 @@
 #include <utility>
 #include <memory>
 
-#include "server/sim/hand_sim.h"
-#include "telehand/common/error.h"
+#include "telehand/server/sim/hand_sim.h"
+#include "telehand/core/error.h"
 
 namespace telehand::server::sim {
 namespace {

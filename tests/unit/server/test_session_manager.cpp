@@ -13,13 +13,15 @@
 #include <string>
 #include <vector>
 
-#include "server/session/session_manager.h"
-#include "server/session/sqlite_store.h"
-#include "server/sim/hand_model.h"
-#include "telehand/common/clock.h"
-#include "telehand/common/wire.h"
+#include "telehand/server/session/session_manager.h"
+#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/sim/hand_model.h"
+#include "telehand/core/clock.h"
+#include "telehand/protocol/wire.h"
 
 namespace telehand::server::session {
+using store::SqliteStore;
+
 namespace {
 
 namespace fs = std::filesystem;

@@ -1,5 +1,5 @@
 // The SQLite session store: sessions, samples (duplicates ignored), events, CSV columns.
-#include "server/session/sqlite_store.h"
+#include "telehand/server/store/sqlite_store.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -14,9 +14,9 @@
 #include <string>
 #include <vector>
 
-#include "telehand/common/error.h"
+#include "telehand/core/error.h"
 
-namespace telehand::server::session {
+namespace telehand::server::store {
 namespace {
 
 namespace fs = std::filesystem;
@@ -44,8 +44,8 @@ class SqliteStoreTest : public ::testing::Test {
   fs::path dir_;
 };
 
-telehand_msg_DeviceState sample(uint64_t session, uint64_t seq) {
-  telehand_msg_DeviceState s{};
+Sample sample(uint64_t session, uint64_t seq) {
+  Sample s{};
   s.session_id = session;
   s.seq = seq;
   s.source_time_ns = 1'000'000'000 + static_cast<int64_t>(seq) * 1'000'000;
@@ -68,8 +68,8 @@ telehand_msg_DeviceState sample(uint64_t session, uint64_t seq) {
   return s;
 }
 
-std::vector<telehand_msg_DeviceState> samples(uint64_t session, uint64_t from, uint64_t to) {
-  std::vector<telehand_msg_DeviceState> v;
+std::vector<Sample> samples(uint64_t session, uint64_t from, uint64_t to) {
+  std::vector<Sample> v;
   for (uint64_t i = from; i < to; ++i) v.push_back(sample(session, i));
   return v;
 }
@@ -85,7 +85,7 @@ SessionInfo info(const std::string& user) {
 
 std::vector<uint64_t> seqsOf(SqliteStore& store, uint64_t id) {
   std::vector<uint64_t> out;
-  store.forEachSample(id, [&](const telehand_msg_DeviceState& s, bool) { out.push_back(s.seq); });
+  store.forEachSample(id, [&](const Sample& s, bool) { out.push_back(s.seq); });
   return out;
 }
 
@@ -156,7 +156,7 @@ TEST_F(SqliteStoreTest, DuplicateKeepsTheFirstCopy) {
   auto changed = s;
   changed.fingers[0].fsr_n[0] = 99.0f;
   store.appendSamples(id, {&changed, 1}, {});
-  store.forEachSample(id, [&](const telehand_msg_DeviceState& got, bool) {
+  store.forEachSample(id, [&](const Sample& got, bool) {
     EXPECT_EQ(got.fingers[0].fsr_n[0], s.fingers[0].fsr_n[0]);
   });
 }
@@ -164,12 +164,12 @@ TEST_F(SqliteStoreTest, DuplicateKeepsTheFirstCopy) {
 TEST_F(SqliteStoreTest, SamplesComeBackWholeInSequenceOrder) {
   SqliteStore store(dbPath());
   const uint64_t id = store.createSession(info("alice"));
-  std::vector<telehand_msg_DeviceState> shuffled = {sample(id, 20), sample(id, 3), sample(id, 11),
+  std::vector<Sample> shuffled = {sample(id, 20), sample(id, 3), sample(id, 11),
                                                     sample(id, 0), sample(id, 7)};
   store.appendSamples(id, shuffled, {});
   EXPECT_EQ(seqsOf(store, id), (std::vector<uint64_t>{0, 3, 7, 11, 20}));
-  store.forEachSample(id, [&](const telehand_msg_DeviceState& got, bool valid) {
-    const telehand_msg_DeviceState want = sample(id, got.seq);
+  store.forEachSample(id, [&](const Sample& got, bool valid) {
+    const Sample want = sample(id, got.seq);
     EXPECT_TRUE(valid);
     EXPECT_EQ(got.source_time_ns, want.source_time_ns);
     EXPECT_EQ(got.flags, want.flags);
@@ -200,7 +200,7 @@ TEST_F(SqliteStoreTest, InvalidSamplesAreKeptAndCounted) {
   EXPECT_EQ(store.appendSamples(id, batch, valid), 4u);
   EXPECT_EQ(store.session(id)->rejected, 1u);
   std::vector<bool> flags;
-  store.forEachSample(id, [&](const telehand_msg_DeviceState& s, bool ok) {
+  store.forEachSample(id, [&](const Sample& s, bool ok) {
     flags.push_back(ok);
     if (s.seq == 2) {
       EXPECT_TRUE(std::isnan(s.mcp_angles_rad[0]));
@@ -337,7 +337,7 @@ TEST(SampleCsv, HeaderNamesEveryColumnOnce) {
 }
 
 TEST(SampleCsv, RowHasOneFieldPerColumnInOrder) {
-  const telehand_msg_DeviceState s = sample(1, 1234);
+  const Sample s = sample(1, 1234);
   const auto& cols = sampleColumns();
   const auto fields = split(sampleCsvRow(s, true));
   ASSERT_EQ(fields.size(), cols.size());
@@ -353,7 +353,7 @@ TEST(SampleCsv, RowHasOneFieldPerColumnInOrder) {
   EXPECT_NEAR(std::stod(field("beta_rad")), s.mcp_angles_rad[1], 1e-8);
   EXPECT_EQ(split(sampleCsvRow(s, false)).back(), "0");
   // Non-finite values keep the column count.
-  telehand_msg_DeviceState bad = s;
+  Sample bad = s;
   bad.mcp_angles_rad[0] = std::nan("");
   EXPECT_EQ(split(sampleCsvRow(bad, false)).size(), cols.size());
 }

@@ -1,0 +1,137 @@
+#pragma once
+/// The client's link thread: drains the loop's sample ring into DeviceState (live,
+/// best-effort) and RecordChunk (the record, reliable), and brings JointModel updates from
+/// the server back into the loop's model ring. Opens and closes the session.
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/protocol/dds.h"
+#include "telehand/protocol/dds_capture.h"
+#include "telehand/core/knn_model.h"
+#include "telehand/devices/mf2_device.h"
+#include "telehand/protocol/deadband.h"
+
+namespace telehand::client::link {
+
+struct LinkStats {
+  std::atomic<uint64_t> samples_sent{0};       ///< DeviceState writes attempted
+  std::atomic<uint64_t> live_write_errors{0};
+  std::atomic<uint64_t> samples_chunked{0};    ///< samples handed to the reliable record path
+  std::atomic<uint64_t> chunks_sent{0};
+  std::atomic<uint64_t> chunk_retries{0};
+  std::atomic<uint64_t> models_received{0};
+  std::atomic<uint64_t> models_rejected{0};
+  std::atomic<uint64_t> last_seq{0};
+  std::atomic<uint64_t> live_sent{0};          ///< DeviceState packets that went out (deadband)
+  std::atomic<uint64_t> direct_forces{0};      ///< DirectForce packets received (direct mode)
+};
+
+struct OpenRequest {
+  telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
+  std::string case_name = "healthy";
+  std::string user = "student";
+  uint64_t follow_session = 0;  ///< render this capture session's live fit
+  telehand_msg_StiffnessKind stiffness = telehand_msg_STIFFNESS_CUBIC;
+  bool direct_force = false;   ///< baseline: the server computes the force
+};
+
+struct CloseResult {
+  bool confirmed = false;      ///< the server reported the session closed
+  uint64_t samples_recorded = 0;
+  uint64_t samples_missing = 0;
+  std::string record;          ///< where the server keeps it
+};
+
+class ClientLink {
+ public:
+  ClientLink(const dds::Options& options, loop::HapticLoop& loop);
+  ~ClientLink();
+
+  /// Ask the server for a session; throws Error naming the domain and partition when no
+  /// server answers within `timeout`. Returns the session id.
+  uint64_t open(const OpenRequest& req, std::chrono::milliseconds timeout);
+  /// Wait for the session's first JointModel and hand it to the loop; false on timeout.
+  bool awaitModel(std::chrono::milliseconds timeout);
+
+  /// Deadband coding of the live DeviceState stream (set before start).
+  void setDeadband(const DeadbandConfig& c) { deadband_ = DeviceStateDeadband(c); }
+
+  void start();
+  /// Drain every remaining sample and chunk (the loop must be stopped first).
+  void stop();
+  CloseResult close(std::chrono::milliseconds timeout);
+
+  /// Send a mark/feedback event into the session.
+  void mark(const std::string& text);
+  /// Send files to keep with the session's record (a capture's device and calibration files).
+  void sendFiles(const std::vector<mf2::NamedFile>& files);
+
+  const LinkStats& stats() const noexcept { return stats_; }
+  uint64_t sessionId() const noexcept { return session_id_; }
+  uint64_t clientId() const noexcept { return client_id_; }
+  /// Events for this session or client (errors from the server), formatted; drained on read.
+  std::vector<std::string> takeMessages();
+
+ private:
+  void run();
+  /// A command from this client for its session, with the next request number.
+  telehand_msg_SessionCommand command(telehand_msg_CommandKind kind);
+  void pump(bool final_flush);
+  void flushChunk(bool force);
+  void pollModels();
+  void pollEvents();
+  void pollDirectForces();
+
+  loop::HapticLoop& loop_;
+  dds::Participant participant_;
+  dds::Topics topics_;
+  dds::Writer<telehand_msg_DeviceState> device_writer_;
+  dds::Writer<telehand_msg_RecordChunk> chunk_writer_;
+  dds::Writer<telehand_msg_SessionCommand> command_writer_;
+  dds::Reader<telehand_msg_JointModel> model_reader_;
+  dds::Reader<telehand_msg_SessionStatus> status_reader_;
+  dds::Reader<telehand_msg_SessionEvent> event_reader_;
+  dds::Reader<telehand_msg_DirectForce> direct_reader_;
+  DeviceStateDeadband deadband_;
+
+  uint64_t client_id_;
+  uint32_t request_seq_ = 0;
+  uint64_t session_id_ = 0;
+  uint64_t chunk_seq_ = 0;
+  std::vector<telehand_msg_DeviceState> chunk_;
+  std::deque<std::vector<telehand_msg_DeviceState>> unsent_;  // chunks the server has not taken
+  std::chrono::steady_clock::time_point chunk_started_;
+  std::atomic<bool> running_{false};
+  std::thread thread_;
+  LinkStats stats_;
+  std::mutex messages_mu_;
+  std::vector<std::string> messages_;
+  uint32_t model_version_ = 0;
+  std::optional<JointModelParams> pending_model_;  // taken but not yet in the loop's ring
+  // Data-driven models: a STIFFNESS_KNN JointModel waits for the KnnModel of its version.
+  dds::CaptureTopics capture_topics_;
+  dds::Writer<telehand_msg_SessionFile> file_writer_;
+  dds::Reader<telehand_msg_KnnModel> knn_reader_;
+  struct KnnWire {
+    uint32_t version = 0;
+    int k = 8;
+    std::vector<KnnPoint> points;
+  };
+  std::optional<KnnWire> knn_samples_;
+  std::optional<JointModelParams> waiting_knn_;
+  /// Every model the loop may still render: the ring's 8, the proxy's current and previous,
+  /// and the one pending. Older ones are freed here, never on the loop's thread.
+  std::deque<std::shared_ptr<const KnnTorqueModel>> knn_alive_;
+  static constexpr std::size_t kKnnKeep = 12;
+};
+
+}  // namespace telehand::client::link

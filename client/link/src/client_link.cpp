@@ -1,0 +1,307 @@
+#include "telehand/client/link/client_link.h"
+
+#include <sys/prctl.h>
+
+#include <algorithm>
+#include <random>
+
+#include "telehand/core/clock.h"
+#include "telehand/protocol/wire.h"
+
+namespace telehand::client::link {
+
+namespace {
+constexpr std::size_t kChunkSamples = 100;   // the record travels 10 chunks per second
+constexpr auto kChunkMaxAge = std::chrono::milliseconds(100);
+
+uint64_t randomClientId() {
+  std::random_device rd;
+  const uint64_t id = (static_cast<uint64_t>(rd()) << 32) ^ rd();
+  return id == 0 ? 1 : id;
+}
+}  // namespace
+
+ClientLink::ClientLink(const dds::Options& options, loop::HapticLoop& loop)
+    : loop_(loop),
+      participant_(options),
+      topics_(participant_),
+      device_writer_(participant_, topics_.device_state, dds::qos::deviceState()),
+      // A full reliable history (a long, lossy link) must not hold up the live stream that
+      // shares this thread: the chunk is kept and retried instead of blocking.
+      chunk_writer_(participant_, topics_.record_chunk,
+                    dds::qos::recordChunk().reliable(std::chrono::milliseconds(1))),
+      command_writer_(participant_, topics_.session_command, dds::qos::sessionCommand()),
+      model_reader_(participant_, topics_.joint_model, dds::qos::jointModel()),
+      status_reader_(participant_, topics_.session_status, dds::qos::sessionStatus()),
+      event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
+      direct_reader_(participant_, topics_.direct_force, dds::qos::directForce(64)),
+      client_id_(randomClientId()),
+      capture_topics_(participant_),
+      file_writer_(participant_, capture_topics_.session_file, dds::qos::sessionFile()),
+      knn_reader_(participant_, capture_topics_.knn_model, dds::qos::knnModel()) {
+  chunk_.reserve(kChunkSamples);
+}
+
+ClientLink::~ClientLink() { stop(); }
+
+uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (command_writer_.matchedReaders() == 0 || status_reader_.matchedWriters() == 0) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      const auto& o = participant_.options();
+      throw Error("no telehand server found within " + std::to_string(timeout.count()) +
+                  " ms on DDS domain " + std::to_string(o.domain) + ", partition '" +
+                  o.partition + "' (is telehand-server running with the same --domain, " +
+                  "--partition and --dds-config?)");
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_OPEN);
+  cmd.mode = req.mode;
+  cmd.direct_force = req.direct_force;
+  copyString(cmd.case_name, req.case_name);
+  copyString(cmd.user, req.user);
+  copyString(cmd.text, "");
+  cmd.follow_session = req.follow_session;
+  cmd.stiffness = req.stiffness;
+  dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
+
+  while (std::chrono::steady_clock::now() < deadline) {
+    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
+      if (st.client_id == client_id_ && st.request_seq == cmd.request_seq) {
+        session_id_ = st.session_id;
+      }
+    });
+    pollEvents();
+    if (session_id_ != 0) {
+      loop_.setSession(session_id_);
+      return session_id_;
+    }
+    std::lock_guard lock(messages_mu_);
+    if (!messages_.empty()) throw Error("server refused the session: " + messages_.back());
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  throw Error("the server did not answer the session request within " +
+              std::to_string(timeout.count()) + " ms");
+}
+
+bool ClientLink::awaitModel(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    pollModels();
+    if (model_version_ != 0) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  return false;
+}
+
+void ClientLink::start() {
+  if (running_.exchange(true)) return;
+  chunk_started_ = std::chrono::steady_clock::now();
+  thread_ = std::thread([this] { run(); });
+}
+
+void ClientLink::stop() {
+  if (running_.exchange(false) && thread_.joinable()) thread_.join();
+  pump(true);
+}
+
+void ClientLink::run() {
+  pthread_setname_np(pthread_self(), "telehand-link");
+  prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);  // its 0.5 ms naps are the samples' latency
+  while (running_.load(std::memory_order_acquire)) {
+    pump(false);
+    pollDirectForces();
+    pollModels();
+    pollEvents();
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+}
+
+void ClientLink::pump(bool final_flush) {
+  Sample s;
+  telehand_msg_DeviceState w;
+  while (loop_.samples().tryPop(s)) {
+    // Deadband: the live stream carries only what a remote side would notice; the record
+    // (chunks below) carries every sample, marked with whether it also went out live.
+    if (deadband_.config().enabled()) s.flags |= sample_flags::kDeadband;
+    const bool live = deadband_.admit(s, s.source_time_ns);
+    if (live) s.flags |= sample_flags::kSentLive;
+    toWire(s, w);
+    if (live) {
+      if (device_writer_.write(w) < 0) stats_.live_write_errors.fetch_add(1);
+      stats_.live_sent.fetch_add(1, std::memory_order_relaxed);
+    }
+    stats_.samples_sent.fetch_add(1, std::memory_order_relaxed);
+    stats_.last_seq.store(s.seq, std::memory_order_relaxed);
+    if (chunk_.empty()) chunk_started_ = std::chrono::steady_clock::now();
+    chunk_.push_back(w);
+    if (chunk_.size() == kChunkSamples) flushChunk(false);
+  }
+  if (!chunk_.empty() &&
+      (final_flush || std::chrono::steady_clock::now() - chunk_started_ > kChunkMaxAge)) {
+    flushChunk(false);
+  }
+  if (final_flush) {
+    // Retry what the server has not accepted yet, for a bounded time.
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    while (!unsent_.empty() && std::chrono::steady_clock::now() < deadline) flushChunk(true);
+  } else if (!unsent_.empty()) {
+    flushChunk(true);
+  }
+}
+
+void ClientLink::flushChunk(bool retry_only) {
+  if (!retry_only && !chunk_.empty()) {
+    unsent_.push_back(std::move(chunk_));
+    chunk_ = {};
+    chunk_.reserve(kChunkSamples);
+  }
+  while (!unsent_.empty()) {
+    auto& samples = unsent_.front();
+    telehand_msg_RecordChunk c{};
+    c.session_id = session_id_;
+    c.chunk_seq = chunk_seq_;
+    c.samples._buffer = samples.data();
+    c.samples._length = static_cast<uint32_t>(samples.size());
+    c.samples._maximum = static_cast<uint32_t>(samples.size());
+    c.samples._release = false;
+    if (chunk_writer_.write(c) < 0) {  // writer blocked past max_blocking: keep it, retry
+      stats_.chunk_retries.fetch_add(1, std::memory_order_relaxed);
+      return;
+    }
+    ++chunk_seq_;
+    stats_.samples_chunked.fetch_add(samples.size(), std::memory_order_relaxed);
+    stats_.chunks_sent.fetch_add(1, std::memory_order_relaxed);
+    unsent_.pop_front();
+  }
+}
+
+void ClientLink::pollModels() {
+  knn_reader_.take([&](const telehand_msg_KnnModel& k, const dds_sample_info_t&) {
+    if (k.session_id != session_id_ || (knn_samples_ && k.version <= knn_samples_->version)) return;
+    KnnWire w;
+    w.version = k.version;
+    w.k = static_cast<int>(std::clamp<uint32_t>(k.k, 1, 64));
+    w.points.reserve(k.samples._length);
+    for (uint32_t i = 0; i < k.samples._length; ++i) {
+      const auto& p = k.samples._buffer[i];
+      w.points.push_back({Vec3(p.angles_rad[0], p.angles_rad[1], p.angles_rad[2]),
+                          Vec3(p.torque_nm[0], p.torque_nm[1], p.torque_nm[2])});
+    }
+    knn_samples_ = std::move(w);
+  });
+  model_reader_.take([&](const telehand_msg_JointModel& m, const dds_sample_info_t&) {
+    if (m.session_id != session_id_ || m.version <= model_version_) return;
+    std::string why;
+    auto params = fromWire(m, &why);
+    if (!params) {
+      stats_.models_rejected.fetch_add(1);
+      std::lock_guard lock(messages_mu_);
+      messages_.push_back("rejected JointModel v" + std::to_string(m.version) + ": " + why);
+      return;
+    }
+    model_version_ = m.version;
+    stats_.models_received.fetch_add(1);
+    if (m.kind == telehand_msg_STIFFNESS_KNN) {
+      waiting_knn_ = *params;  // until its samples are here
+    } else {
+      waiting_knn_.reset();
+      pending_model_ = *params;  // the newest wins; it is never sent again (keep-last 1)
+    }
+  });
+  if (waiting_knn_ && knn_samples_ && knn_samples_->version == waiting_knn_->version) {
+    try {
+      KnnOptions o;
+      o.k = knn_samples_->k;
+      auto model = std::make_shared<const KnnTorqueModel>(std::move(knn_samples_->points), o);
+      knn_samples_->points.clear();
+      waiting_knn_->knn = model.get();
+      knn_alive_.push_back(std::move(model));
+      while (knn_alive_.size() > kKnnKeep) knn_alive_.pop_front();
+      pending_model_ = *waiting_knn_;
+    } catch (const Error& e) {
+      stats_.models_rejected.fetch_add(1);
+      std::lock_guard lock(messages_mu_);
+      messages_.push_back("rejected k-nearest-neighbour model v" + std::to_string(waiting_knn_->version) + ": " + e.what());
+    }
+    waiting_knn_.reset();
+  }
+  if (pending_model_ && loop_.models().tryPush(*pending_model_)) pending_model_.reset();
+}
+
+void ClientLink::sendFiles(const std::vector<mf2::NamedFile>& files) {
+  for (const auto& f : files) {
+    telehand_msg_SessionFile w{};
+    w.session_id = session_id_;
+    w.source_time_ns = wallNs();
+    copyString(w.name, f.name);
+    w.content = const_cast<char*>(f.content.c_str());
+    dds::check(file_writer_.write(w), "write SessionFile");
+  }
+}
+
+void ClientLink::pollDirectForces() {
+  direct_reader_.take([&](const telehand_msg_DirectForce& f, const dds_sample_info_t&) {
+    if (f.session_id != session_id_) return;
+    loop::DirectForceSample d;
+    d.device_seq = f.device_seq;
+    for (int k = 0; k < 2; ++k) d.force_n[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
+    stats_.direct_forces.fetch_add(1, std::memory_order_relaxed);
+    loop_.directForces().tryPush(d);  // full: the loop holds the last one it took
+  });
+}
+
+void ClientLink::pollEvents() {
+  event_reader_.take([&](const telehand_msg_SessionEvent& e, const dds_sample_info_t&) {
+    const bool mine = (session_id_ != 0 && e.session_id == session_id_) || e.client_id == client_id_;
+    if (!mine || e.kind != telehand_msg_EVENT_ERROR) return;
+    std::lock_guard lock(messages_mu_);
+    messages_.emplace_back(e.text);
+  });
+}
+
+std::vector<std::string> ClientLink::takeMessages() {
+  std::lock_guard lock(messages_mu_);
+  return std::exchange(messages_, {});
+}
+
+telehand_msg_SessionCommand ClientLink::command(telehand_msg_CommandKind kind) {
+  telehand_msg_SessionCommand cmd{};
+  cmd.client_id = client_id_;
+  cmd.request_seq = ++request_seq_;
+  cmd.source_time_ns = wallNs();
+  cmd.kind = kind;
+  cmd.session_id = session_id_;
+  return cmd;
+}
+
+void ClientLink::mark(const std::string& text) {
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_MARK);
+  copyString(cmd.text, text);
+  command_writer_.write(cmd);
+}
+
+CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
+  CloseResult r;
+  const uint64_t sent = stats_.samples_sent.load();
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_CLOSE);
+  cmd.samples_sent = sent;
+  cmd.last_seq = sent == 0 ? 0 : stats_.last_seq.load();
+  if (command_writer_.write(cmd) < 0) return r;
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!r.confirmed && std::chrono::steady_clock::now() < deadline) {
+    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
+      if (st.session_id == session_id_ && st.state == telehand_msg_SESSION_CLOSED) {
+        r.confirmed = true;
+        r.samples_recorded = st.samples_recorded;
+        r.samples_missing = st.samples_missing;
+        r.record = st.record;
+      }
+    });
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return r;
+}
+
+}  // namespace telehand::client::link

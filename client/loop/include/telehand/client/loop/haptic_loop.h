@@ -1,0 +1,139 @@
+#pragma once
+/// The 1 kHz haptic loop: read sample -> thimble forces (paper eqs. 1-2) -> local joint model
+/// -> safety gate -> write command. `step()` allocates nothing, locks nothing, logs nothing
+/// and throws nothing; other threads see what it does through LoopHealth and the SPSC rings.
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <thread>
+
+#include "telehand/devices/device.h"
+#include "telehand/client/loop/passivity.h"
+#include "telehand/core/sample.h"
+#include "telehand/core/clock.h"
+#include "telehand/config/config.h"
+#include "telehand/core/joint_model.h"
+#include "telehand/core/safety.h"
+#include "telehand/core/rt/spsc_ring.h"
+
+namespace telehand::client::loop {
+
+/// Counters the RT thread writes (relaxed) and any thread reads.
+struct LoopHealth {
+  std::atomic<uint64_t> ticks{0};
+  std::atomic<uint64_t> overruns{0};          ///< ticks that finished after the next deadline
+  std::atomic<uint64_t> device_read_failures{0};
+  std::atomic<uint64_t> device_write_failures{0};
+  std::atomic<uint64_t> watchdog_trips{0};
+  std::atomic<uint64_t> nonfinite{0};
+  std::atomic<uint64_t> clamped{0};
+  std::atomic<uint64_t> rate_limited{0};
+  std::atomic<uint64_t> samples_dropped{0};   ///< sample ring full: the link thread fell behind
+  std::atomic<uint64_t> models_applied{0};
+  std::atomic<uint32_t> model_version{0};
+  std::atomic<double> force_max_n{0.0};       ///< largest commanded per-finger force
+  std::atomic<double> last_force_n{0.0};      ///< thumb + index commanded force magnitude
+  std::atomic<double> applied_ref_n{0.0};     ///< student's applied force, reference scale
+  std::atomic<int64_t> max_lateness_ns{0};    ///< worst wake-up after a deadline
+  std::atomic<uint64_t> device_not_ok{0};     ///< ticks the device was not streaming (zero force)
+  // Teleoperation.
+  std::atomic<double> passivity_energy_j{0.0};    ///< observer energy now (device J)
+  std::atomic<double> passivity_min_energy_j{0.0};///< lowest observer energy seen
+  std::atomic<uint64_t> passivity_activations{0}; ///< ticks the controller added damping
+  std::atomic<double> update_step_max_n{0.0};     ///< largest force step from a model update
+  std::atomic<double> update_step_max_ratio{0.0}; ///< ... over max(5 % of the force, 0.1 N)
+  std::atomic<uint64_t> direct_forces{0};         ///< server forces taken (direct mode)
+  /// Energy model fades added that the passivity observer had not seen dissipated (device J):
+  /// nonzero only when a stiffer model waited out JointProxy::kEnergyWaitNs.
+  std::atomic<double> fade_unpaid_energy_j{0.0};
+};
+
+/// A force the server computed for the device sample `device_seq` (direct mode).
+struct DirectForceSample {
+  uint64_t device_seq = 0;
+  PerFinger<Vec3> force_n{Vec3::Zero(), Vec3::Zero()};
+};
+
+/// How the loop renders: from the local joint model (model-mediated, the product), or the
+/// force the server sends back (direct, the baseline design it is compared with).
+enum class RenderMode { kModel, kDirect };
+
+struct TeleopOptions {
+  RenderMode render = RenderMode::kModel;
+  PassivityConfig passivity;
+  int64_t blend_ns = 200'000'000;  ///< nominal model fade
+};
+
+enum class StepStatus { kOk, kNoSample, kSafetyFault };
+
+class HapticLoop {
+ public:
+  using SampleRing = SpscRing<Sample, 16384>;  // 16 s of samples at 1 kHz
+  using ModelRing = SpscRing<JointModelParams, 8>;
+  using ForceRing = SpscRing<DirectForceSample, 256>;
+
+  HapticLoop(devices::Device& device, const Clock& clock, const JointModelParams& initial_model,
+             const SafetyLimits& limits, const LoopConfig& config = {},
+             const TeleopOptions& teleop = {});
+  ~HapticLoop();
+  HapticLoop(const HapticLoop&) = delete;
+  HapticLoop& operator=(const HapticLoop&) = delete;
+
+  /// One tick. Real-time safe.
+  StepStatus step() noexcept;
+
+  /// Run step() on a thread at the configured rate, sleeping to absolute deadlines
+  /// (CLOCK_MONOTONIC: use with a SteadyClock). stop() joins and commands zero force.
+  void start();
+  void stop();
+  bool running() const noexcept { return running_.load(std::memory_order_acquire); }
+  /// 0, or the errno of the failed SCHED_FIFO request (e.g. EPERM), once the thread runs.
+  int realtimeError() const noexcept { return rt_error_.load(std::memory_order_acquire); }
+
+  /// Tag outgoing samples with this session (set before start or between ticks).
+  void setSession(uint64_t session_id) noexcept {
+    session_id_.store(session_id, std::memory_order_release);
+  }
+  /// Zero actuator output whatever the model says (capture mode).
+  void setActuatorsEnabled(bool on) noexcept { actuators_.store(on, std::memory_order_release); }
+
+  SampleRing& samples() noexcept { return *samples_; }   ///< RT produces, link consumes
+  ModelRing& models() noexcept { return *models_; }      ///< link produces, RT consumes
+  ForceRing& directForces() noexcept { return *forces_; }  ///< link produces, RT consumes
+  /// Set before start or between ticks.
+  void setRenderMode(RenderMode m) noexcept { direct_.store(m == RenderMode::kDirect, std::memory_order_release); }
+  RenderMode renderMode() const noexcept {
+    return direct_.load(std::memory_order_acquire) ? RenderMode::kDirect : RenderMode::kModel;
+  }
+  const LoopHealth& health() const noexcept { return health_; }
+  uint64_t nextSeq() const noexcept { return next_seq_.load(std::memory_order_acquire); }
+
+ private:
+  void run();
+
+  devices::Device& device_;
+  const Clock& clock_;
+  LoopConfig config_;
+  JointProxy proxy_;
+  SafetyGate gate_;
+  std::unique_ptr<SampleRing> samples_;
+  std::unique_ptr<ModelRing> models_;
+  std::unique_ptr<ForceRing> forces_;
+  PassivityGuard passivity_;
+  LoopHealth health_;
+  std::atomic<bool> direct_{false};
+  PerFinger<Vec3> last_command_{Vec3::Zero(), Vec3::Zero()};
+  DirectForceSample direct_force_{};
+  double stored_energy_j_ = 0.0;  // the rendered joint's potential energy last tick
+  std::atomic<uint64_t> session_id_{0};
+  std::atomic<bool> actuators_{true};
+  std::atomic<uint64_t> next_seq_{0};
+  std::atomic<bool> running_{false};
+  std::atomic<int> rt_error_{0};
+  std::thread thread_;
+  devices::DeviceSample sample_{};
+  int64_t wall_offset_ns_ = 0;  // wall clock minus the loop clock, fixed at construction
+  int64_t last_sample_time_ns_ = INT64_MIN / 2;
+};
+
+}  // namespace telehand::client::loop

@@ -1,0 +1,193 @@
+#include "telehand/client/loop/haptic_loop.h"
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/prctl.h>
+#include <time.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "telehand/core/error.h"
+#include "telehand/devices/record.h"
+
+namespace telehand::client::loop {
+
+namespace {
+void bump(std::atomic<uint64_t>& c) noexcept { c.fetch_add(1, std::memory_order_relaxed); }
+}  // namespace
+
+HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
+                       const JointModelParams& initial_model, const SafetyLimits& limits,
+                       const LoopConfig& config, const TeleopOptions& teleop)
+    : device_(device),
+      clock_(clock),
+      config_(config),
+      proxy_(initial_model, teleop.blend_ns),
+      gate_(limits),
+      samples_(std::make_unique<SampleRing>()),
+      models_(std::make_unique<ModelRing>()),
+      forces_(std::make_unique<ForceRing>()),
+      passivity_(teleop.passivity),
+      direct_(teleop.render == RenderMode::kDirect) {
+  health_.model_version.store(initial_model.version, std::memory_order_relaxed);
+  wall_offset_ns_ = wallNs() - clock_.nowNs();
+}
+
+HapticLoop::~HapticLoop() { stop(); }
+
+StepStatus HapticLoop::step() noexcept {
+  const int64_t now = clock_.nowNs();
+  JointModelParams next;
+  while (models_->tryPop(next)) {
+    proxy_.setModel(next);
+    bump(health_.models_applied);
+    health_.model_version.store(next.version, std::memory_order_relaxed);
+  }
+
+  StepStatus status = StepStatus::kOk;
+  if (device_.read(sample_)) {
+    last_sample_time_ns_ = sample_.time_ns;
+  } else {
+    bump(health_.device_read_failures);
+    status = StepStatus::kNoSample;
+  }
+  // A device that reports itself unplugged, faulted or not streaming is stale now: the gate
+  // zeroes the force on this tick instead of after the watchdog period.
+  if (device_.status() != devices::DeviceStatus::kOk) {
+    bump(health_.device_not_ok);
+    last_sample_time_ns_ = std::min(last_sample_time_ns_, now - gate_.limits().watchdog_ns - 1);
+  }
+
+  PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};
+  // The energy the last tick's force exchanged with the operator.
+  passivity_.observe(p, last_command_, sample_.time_ns);
+  const double energy = passivity_.energyJ();
+  // A model fade may only add what the rendered joint has dissipated so far: the observed
+  // energy minus what the joint stores now.
+  proxy_.setEnergyBudget(energy - stored_energy_j_);
+  const ProxyOutput rendered = proxy_.render(p, now);
+  stored_energy_j_ = rendered.potential_j;
+  const bool direct = direct_.load(std::memory_order_relaxed);
+  DirectForceSample df;
+  while (forces_->tryPop(df)) {
+    if (df.device_seq >= direct_force_.device_seq) direct_force_ = df;  // reordered: keep newest
+    bump(health_.direct_forces);
+  }
+  const PerFinger<Vec3>& request = direct ? direct_force_.force_n : rendered.force_device_n;
+  const PassivityOutput guarded = passivity_.control(request);
+  // Capture (actuators off): the gate zeroes every output and flags it.
+  gate_.setCapture(!actuators_.load(std::memory_order_relaxed));
+  const SafetyOutput safe = gate_.apply(guarded.force_n, now, last_sample_time_ns_);
+  last_command_ = safe.force_n;
+  if (guarded.damping_ns_per_m > 0.0) bump(health_.passivity_activations);
+  health_.passivity_energy_j.store(energy, std::memory_order_relaxed);
+  if (energy < health_.passivity_min_energy_j.load(std::memory_order_relaxed)) {
+    health_.passivity_min_energy_j.store(energy, std::memory_order_relaxed);
+  }
+  if (rendered.unpaid_energy_j > 0.0) {
+    health_.fade_unpaid_energy_j.store(
+        health_.fade_unpaid_energy_j.load(std::memory_order_relaxed) + rendered.unpaid_energy_j,
+        std::memory_order_relaxed);
+  }
+  if (rendered.update_step_n > 0.0) {
+    double force = 0.0;
+    for (int k = 0; k < 2; ++k) force = std::max(force, rendered.force_device_n[k].norm());
+    const double ratio = rendered.update_step_n / JointProxy::updateStepBoundN(force);
+    if (rendered.update_step_n > health_.update_step_max_n.load(std::memory_order_relaxed)) {
+      health_.update_step_max_n.store(rendered.update_step_n, std::memory_order_relaxed);
+    }
+    if (ratio > health_.update_step_max_ratio.load(std::memory_order_relaxed)) {
+      health_.update_step_max_ratio.store(ratio, std::memory_order_relaxed);
+    }
+  }
+  if (safe.flags & kSafetyWatchdog) bump(health_.watchdog_trips);
+  if (safe.flags & kSafetyNonFinite) bump(health_.nonfinite);
+  if (safe.flags & kSafetyClamped) bump(health_.clamped);
+  if (safe.flags & kSafetyRateLimited) bump(health_.rate_limited);
+  if (safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) status = StepStatus::kSafetyFault;
+
+  devices::ForceCommand cmd;
+  cmd.force_n = safe.force_n;
+  if (!device_.write(cmd)) bump(health_.device_write_failures);
+
+  // The record of this tick.
+  Sample s;
+  s.session_id = session_id_.load(std::memory_order_relaxed);
+  s.seq = next_seq_.load(std::memory_order_relaxed);
+  s.source_time_ns = sample_.time_ns + wall_offset_ns_;  // wire timestamps are wall clock
+  s.model_version = proxy_.version();
+  static_assert(kSafetyCapture == sample_flags::kCapture, "safety flags are the record's");
+  s.flags = safe.flags | (rendered.blending ? sample_flags::kModelBlending : 0u) |
+            (guarded.damping_ns_per_m > 0.0 ? sample_flags::kPassivityControl : 0u) |
+            (direct ? sample_flags::kDirectForce : 0u);
+  s.passivity_energy_j = static_cast<float>(energy);
+  s.passivity_damping = static_cast<float>(guarded.damping_ns_per_m);
+  const Vec3 applied = devices::recordTick(sample_, safe.force_n, rendered, s);
+  const double force_max = std::max(safe.force_n[0].norm(), safe.force_n[1].norm());
+  if (samples_->tryPush(s)) {
+    next_seq_.store(s.seq + 1, std::memory_order_release);
+  } else {
+    bump(health_.samples_dropped);
+  }
+
+  const double scale = proxy_.model().params().force_scale;
+  health_.applied_ref_n.store(applied.norm() / scale, std::memory_order_relaxed);
+  health_.last_force_n.store((safe.force_n[0] + safe.force_n[1]).norm(),
+                             std::memory_order_relaxed);
+  if (force_max > health_.force_max_n.load(std::memory_order_relaxed)) {
+    health_.force_max_n.store(force_max, std::memory_order_relaxed);
+  }
+  bump(health_.ticks);
+  return status;
+}
+
+void HapticLoop::start() {
+  if (running_.exchange(true)) return;
+  thread_ = std::thread([this] { run(); });
+}
+
+void HapticLoop::stop() {
+  if (!running_.exchange(false)) return;
+  if (thread_.joinable()) thread_.join();
+  device_.write(devices::ForceCommand{});
+}
+
+void HapticLoop::run() {
+  // FACTS.md: default timer slack wakes a 1 kHz sleep ~84 us late; 1 ns brings it to ~35 us.
+  prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+  pthread_setname_np(pthread_self(), "telehand-rt");
+  if (config_.rt_priority > 0) {
+    sched_param sp{};
+    sp.sched_priority = config_.rt_priority;
+    // Best effort: without CAP_SYS_NICE the loop runs at normal priority and says so.
+    rt_error_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp),
+                    std::memory_order_release);
+  }
+  const int64_t period = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  int64_t deadline = ts.tv_sec * kNsPerS + ts.tv_nsec;
+  while (running_.load(std::memory_order_acquire)) {
+    step();
+    deadline += period;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    const int64_t now = ts.tv_sec * kNsPerS + ts.tv_nsec;
+    if (now > deadline) {
+      bump(health_.overruns);
+      if (now - deadline > 100 * period) deadline = now;  // after a long stall, resynchronize
+      continue;
+    }
+    ts.tv_sec = deadline / kNsPerS;
+    ts.tv_nsec = deadline % kNsPerS;
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    }
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    const int64_t late = ts.tv_sec * kNsPerS + ts.tv_nsec - deadline;
+    if (late > health_.max_lateness_ns.load(std::memory_order_relaxed)) {
+      health_.max_lateness_ns.store(late, std::memory_order_relaxed);
+    }
+  }
+}
+
+}  // namespace telehand::client::loop

@@ -1,0 +1,323 @@
+#include "telehand/config/config.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <cstring>
+#include <sstream>
+#include <toml++/toml.h>
+#include <utility>
+
+#include "telehand/core/error.h"
+
+namespace telehand {
+namespace {
+
+[[noreturn]] void fail(const std::string& origin, const std::string& what) {
+  throw ConfigError(origin + ": " + what);
+}
+
+/// Reads keys of one table, rejecting keys it was not asked about.
+class TableReader {
+ public:
+  TableReader(const toml::table& root, const std::string& name, const std::string& origin)
+      : origin_(origin), name_(name) {
+    if (const toml::node* n = root.get(name)) {
+      table_ = n->as_table();
+      if (!table_) fail(origin, "'" + name + "' must be a table");
+    }
+  }
+  template <typename T>
+  void read(const std::string& key, T& out) {
+    known_.push_back(key);
+    if (!table_) return;
+    const toml::node* n = table_->get(key);
+    if (!n) return;
+    if constexpr (std::is_same_v<T, std::string>) {
+      if (auto v = n->value<std::string>()) {
+        out = *v;
+        return;
+      }
+    } else if constexpr (std::is_same_v<T, bool>) {
+      if (n->is_boolean()) {
+        out = *n->value<bool>();
+        return;
+      }
+    } else if constexpr (std::is_floating_point_v<T>) {
+      if (auto v = n->value<double>()) {
+        out = *v;
+        return;
+      }
+    } else {
+      // toml++ would convert a boolean: only a TOML integer counts, and it must fit T.
+      if (auto v = n->value<int64_t>(); v && n->is_integer() && *v >= 0) {
+        if (!std::in_range<T>(*v)) {
+          fail(origin_, "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." +
+                            key + "' = " + std::to_string(*v) + " is too large");
+        }
+        out = static_cast<T>(*v);
+        return;
+      }
+    }
+    std::string want = std::is_same_v<T, std::string> ? "a string"
+                       : std::is_same_v<T, bool>        ? "true or false"
+                       : std::is_floating_point_v<T>   ? "a number"
+                                                       : "a non-negative integer";
+    fail(origin_, "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." + key +
+                      "' must be " + want + " (found " + std::string(toml::impl::node_type_friendly_names[static_cast<int>(n->type())]) + ")");
+  }
+  /// A TOML array of exactly N numbers.
+  template <std::size_t N>
+  void readArray(const std::string& key, std::array<double, N>& out) {
+    known_.push_back(key);
+    if (!table_) return;
+    const toml::node* n = table_->get(key);
+    if (!n) return;
+    const toml::array* arr = n->as_array();
+    const std::string where = "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." + key + "'";
+    if (!arr || arr->size() != N) fail(origin_, where + " must be an array of " + std::to_string(N) + " numbers");
+    for (std::size_t i = 0; i < N; ++i) {
+      auto v = (*arr)[i].value<double>();
+      if (!v || !std::isfinite(*v)) fail(origin_, where + ": element " + std::to_string(i) + " is not a finite number");
+      out[i] = *v;
+    }
+  }
+  bool present() const { return table_ != nullptr; }
+  void rejectUnknown() const {
+    if (!table_) return;
+    for (const auto& [k, v] : *table_) {
+      if (std::find(known_.begin(), known_.end(), std::string(k.str())) == known_.end()) {
+        fail(origin_, "line " + std::to_string(v.source().begin.line) + ": unknown key '" +
+                          name_ + "." + std::string(k.str()) + "'");
+      }
+    }
+  }
+
+ private:
+  std::string origin_;
+  std::string name_;
+  const toml::table* table_ = nullptr;
+  std::vector<std::string> known_;
+};
+
+toml::table parse(const std::string& text, const std::string& origin) {
+  try {
+    return toml::parse(text, origin);
+  } catch (const toml::parse_error& e) {
+    fail(origin, "line " + std::to_string(e.source().begin.line) + ", column " +
+                     std::to_string(e.source().begin.column) + ": " +
+                     std::string(e.description()));
+  }
+}
+
+void rejectUnknownTables(const toml::table& root, std::initializer_list<const char*> known,
+                         const std::string& origin) {
+  for (const auto& [k, v] : root) {
+    bool ok = false;
+    for (const char* n : known) ok = ok || k.str() == n;
+    if (!ok) {
+      fail(origin, "line " + std::to_string(v.source().begin.line) + ": unknown table '" +
+                       std::string(k.str()) + "'");
+    }
+  }
+}
+
+std::string readFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError("config file '" + path + "' cannot be read");
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void requireRange(const std::string& origin, const char* key, double v, double lo, double hi) {
+  if (!(v >= lo && v <= hi)) {
+    fail(origin, std::string("'") + key + "' = " + std::to_string(v) + " is outside [" +
+                     std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  }
+}
+
+}  // namespace
+
+void validate(const OperatorConfig& c, const std::string& origin) {
+  requireRange(origin, "operator.frequency_hz", c.frequency_hz, 0.1, 10.0);
+  requireRange(origin, "operator.band_min_n", c.band_min_n, 0.0, 40.0);
+  requireRange(origin, "operator.band_max_n", c.band_max_n, c.band_min_n, 40.0);
+  requireRange(origin, "operator.ramp_s", c.ramp_s, 0.0, 60.0);
+  requireRange(origin, "operator.sensor_noise_n", c.sensor_noise_n, 0.0, 5.0);
+}
+
+void validate(const SafetyLimits& c, const std::string& origin) {
+  requireRange(origin, "safety.max_force_n", c.max_force_n, 0.0, 4.0);
+  requireRange(origin, "safety.max_rate_n_per_s", c.max_rate_n_per_s, 1.0, 10000.0);
+  requireRange(origin, "safety.watchdog_ms", static_cast<double>(c.watchdog_ns) / 1e6, 1.0, 1000.0);
+}
+
+ClientConfig parseClientConfig(const std::string& text, const std::string& origin) {
+  const toml::table root = parse(text, origin);
+  rejectUnknownTables(root, {"operator", "safety", "loop"}, origin);
+  ClientConfig c;
+  TableReader op(root, "operator", origin);
+  op.read("frequency_hz", c.op.frequency_hz);
+  op.read("band_min_n", c.op.band_min_n);
+  op.read("band_max_n", c.op.band_max_n);
+  op.read("ramp_s", c.op.ramp_s);
+  op.read("sensor_noise_n", c.op.sensor_noise_n);
+  op.read("seed", c.op.seed);
+  op.rejectUnknown();
+  TableReader sf(root, "safety", origin);
+  sf.read("max_force_n", c.safety.max_force_n);
+  sf.read("max_rate_n_per_s", c.safety.max_rate_n_per_s);
+  double watchdog_ms = static_cast<double>(c.safety.watchdog_ns) / 1e6;
+  sf.read("watchdog_ms", watchdog_ms);
+  // Before the conversion: inf or 1e300 ms do not fit an int64 (undefined behaviour).
+  requireRange(origin, "safety.watchdog_ms", watchdog_ms, 1.0, 1000.0);
+  c.safety.watchdog_ns = static_cast<int64_t>(watchdog_ms * 1e6);
+  sf.rejectUnknown();
+  TableReader lp(root, "loop", origin);
+  lp.read("rate_hz", c.loop.rate_hz);
+  lp.read("rt_priority", c.loop.rt_priority);
+  lp.rejectUnknown();
+  validate(c.op, origin);
+  validate(c.safety, origin);
+  requireRange(origin, "loop.rate_hz", c.loop.rate_hz, 100.0, 4000.0);
+  requireRange(origin, "loop.rt_priority", c.loop.rt_priority, 0, 99);
+  return c;
+}
+
+ServerConfig parseServerConfig(const std::string& text, const std::string& origin) {
+  const toml::table root = parse(text, origin);
+  rejectUnknownTables(root, {"server"}, origin);
+  ServerConfig c;
+  TableReader sv(root, "server", origin);
+  sv.read("db", c.db_path);
+  sv.read("hand_state_hz", c.hand_state_hz);
+  sv.read("close_grace_s", c.close_grace_s);
+  sv.read("cases_dir", c.cases_dir);
+  sv.read("hand_model", c.hand_model);
+  sv.read("hand_deadband_weber", c.hand_deadband_weber);
+  sv.read("drift_correction", c.drift_correction);
+  sv.rejectUnknown();
+  requireRange(origin, "server.hand_deadband_weber", c.hand_deadband_weber, 0.0, 0.5);
+  if (c.db_path.empty()) fail(origin, "'server.db' must not be empty");
+  requireRange(origin, "server.hand_state_hz", c.hand_state_hz, 1.0, 1000.0);
+  requireRange(origin, "server.close_grace_s", c.close_grace_s, 0.0, 600.0);
+  return c;
+}
+
+ClientConfig loadClientConfig(const std::string& path) {
+  return parseClientConfig(readFile(path), path);
+}
+ServerConfig loadServerConfig(const std::string& path) {
+  return parseServerConfig(readFile(path), path);
+}
+
+PatientCase parsePatientCase(const std::string& text, const std::string& origin) {
+  const toml::table root = parse(text, origin);
+  rejectUnknownTables(root, {"case", "flexion", "abduction", "axial", "recovery"}, origin);
+  PatientCase pc;
+  JointModelParams& m = pc.model;
+  m = healthyIndexMcp();  // lever arm, scale, frame; everything a case sets is overwritten
+  TableReader cs(root, "case", origin);
+  if (!cs.present()) fail(origin, "missing table [case]");
+  cs.read("name", pc.name);
+  cs.read("description", pc.description);
+  cs.read("source", pc.source);
+  cs.read("damping_nms_per_rad", m.damping_nms_per_rad);
+  cs.read("speed_gain_s_per_rad", m.speed_gain_s_per_rad);
+  cs.rejectUnknown();
+  if (pc.name.empty()) fail(origin, "'case.name' must be set");
+  requireRange(origin, "case.damping_nms_per_rad", m.damping_nms_per_rad, 0.0, 0.5);
+  requireRange(origin, "case.speed_gain_s_per_rad", m.speed_gain_s_per_rad, 0.0, 20.0);
+  for (int i = 0; i < kAxes; ++i) {
+    const auto ax = static_cast<std::size_t>(i);
+    const std::string name(kAxisNames[ax]);
+    TableReader t(root, name, origin);
+    if (!t.present()) fail(origin, "missing table [" + name + "]");
+    CubicCurve& curve = m.axes[ax];
+    t.readArray("coeffs", curve.coeffs);
+    t.read("min_deg", curve.min_deg);
+    t.read("max_deg", curve.max_deg);
+    t.read("neutral_zone_deg", m.neutral_zone_deg[ax]);
+    t.rejectUnknown();
+    requireRange(origin, (name + ".min_deg").c_str(), curve.min_deg, -90.0, 90.0);
+    requireRange(origin, (name + ".max_deg").c_str(), curve.max_deg, 0.0, 120.0);
+    if (!(curve.min_deg < curve.max_deg)) fail(origin, "'" + name + "' range is empty");
+    requireRange(origin, (name + ".neutral_zone_deg").c_str(), m.neutral_zone_deg[ax], 0.0, 30.0);
+    // A joint must resist being moved: the holding force may not fall anywhere in range.
+    // The slope is a quadratic, so its least value is at a range end or at its vertex.
+    double steepest = curve.min_deg;
+    std::vector<double> candidates = {curve.min_deg, curve.max_deg};
+    if (curve.coeffs[0] != 0.0) candidates.push_back(-curve.coeffs[1] / (3.0 * curve.coeffs[0]));
+    for (double a : candidates) {
+      if (a >= curve.min_deg && a <= curve.max_deg && curve.slope(a) < curve.slope(steepest)) {
+        steepest = a;
+      }
+    }
+    if (!(curve.slope(steepest) > 0.0)) {
+      fail(origin, "'" + name + ".coeffs' fall at " + std::to_string(steepest) + " deg: a passive joint's force must rise with the angle");
+    }
+  }
+  TableReader rec(root, "recovery", origin);
+  if (rec.present()) {
+    pc.recovers = true;
+    rec.readArray("final_min_deg", pc.final_min_deg);
+    rec.readArray("final_max_deg", pc.final_max_deg);
+    rec.read("treatment_s", pc.recovery_treatment_s);
+    rec.rejectUnknown();
+    requireRange(origin, "recovery.treatment_s", pc.recovery_treatment_s, 1.0, 36000.0);
+    for (std::size_t i = 0; i < kAxes; ++i) {
+      if (pc.final_min_deg[i] > m.axes[i].min_deg || pc.final_max_deg[i] < m.axes[i].max_deg) {
+        fail(origin, "'recovery' ranges must contain the starting ranges (" + std::string(kAxisNames[i]) + ")");
+      }
+    }
+  }
+  std::memset(m.case_name.data(), 0, m.case_name.size());
+  std::memcpy(m.case_name.data(), pc.name.data(), std::min(pc.name.size(), m.case_name.size() - 1));
+  return pc;
+}
+
+PatientCase loadPatientCase(const std::string& path) { return parsePatientCase(readFile(path), path); }
+
+JointModelParams PatientCase::at(double treatment_s) const {
+  JointModelParams p = model;
+  if (!recovers) return p;
+  const double w = std::clamp(treatment_s / recovery_treatment_s, 0.0, 1.0);
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    p.axes[i].min_deg = model.axes[i].min_deg + w * (final_min_deg[i] - model.axes[i].min_deg);
+    p.axes[i].max_deg = model.axes[i].max_deg + w * (final_max_deg[i] - model.axes[i].max_deg);
+  }
+  return p;
+}
+
+std::vector<std::string> listPatientCases(const std::string& dir) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    if (e.path().extension() == ".toml") out.push_back(e.path().stem().string());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+PatientCase loadPatientCaseByName(const std::string& dir, const std::string& name) {
+  const bool well_formed =
+      !name.empty() && name.size() <= 63 &&
+      std::all_of(name.begin(), name.end(), [](char ch) {
+        return (ch >= 'a' && ch <= 'z') || (ch >= '0' && ch <= '9') || ch == '_' || ch == '-';
+      });
+  if (!well_formed) {
+    throw ConfigError("patient case name '" + name + "' is not of the form [a-z0-9_-]+");
+  }
+  const std::string path = (std::filesystem::path(dir) / (name + ".toml")).string();
+  if (!std::filesystem::exists(path)) {
+    std::string known;
+    for (const auto& n : listPatientCases(dir)) known += (known.empty() ? "" : ", ") + n;
+    throw ConfigError("unknown patient case '" + name + "' (known: " + (known.empty() ? "none" : known) + ")");
+  }
+  PatientCase pc = loadPatientCase(path);
+  if (pc.name != name) throw ConfigError(path + ": 'case.name' is '" + pc.name + "', the file name says '" + name + "'");
+  return pc;
+}
+
+}  // namespace telehand

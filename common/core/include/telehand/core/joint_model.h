@@ -1,0 +1,228 @@
+#pragma once
+/// The reduced model of the index MCP joint that both the client proxy and the server use,
+/// so that with zero delay both compute identical torques and forces.
+///
+/// Geometry. The joint frame J (origin and orientation given in the device frame) has x
+/// distal along the proximal phalanx at neutral, z dorsal, y = z × x. The phalanx frame is
+/// R_J · Ry(alpha) · Rx(gamma) · Rz(beta): alpha = flexion (+ toward the palm), gamma = axial
+/// rotation (+ = supination, an assumption; see healthyIndexMcp), beta = abduction. Axial
+/// rotation, the smallest range, is the middle Euler axis, as the Bullet joint needs
+/// (FACTS.md "Bullet"). The student pinches the phalanx at the lever arm: the thumb on the
+/// dorsal side (+z of the phalanx), the index on the palmar side.
+///
+/// Torques. Per-axis torques are the generalized forces conjugate to (alpha, beta, gamma):
+/// tau_i = e_i · tau, with e_alpha = y_J, e_gamma = Ry(alpha) x, e_beta = Ry(alpha) Rx(gamma) z,
+/// and tau = sum over fingers of (p_i − c) × F_i (FACTS.md "Rendering").
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <string_view>
+
+#include "telehand/core/math.h"
+
+namespace telehand {
+
+class KnnTorqueModel;
+
+enum Axis : int { kFlexion = 0, kAbduction = 1, kAxial = 2 };
+constexpr int kAxes = 3;
+constexpr std::array<std::string_view, kAxes> kAxisNames = {"flexion", "abduction", "axial"};
+
+/// F(a) = c3 a^3 + c2 a^2 + c1 a + c0: the force in newtons, applied at the lever arm in the
+/// +angle direction, that holds the joint at angle a (degrees). Valid in [min_deg, max_deg];
+/// outside, the curve continues along its end slope plus a stiff end-of-range wall.
+struct CubicCurve {
+  std::array<double, 4> coeffs{};  ///< c3, c2, c1, c0
+  double min_deg = 0.0;
+  double max_deg = 0.0;
+
+  double eval(double deg) const noexcept;
+  double slope(double deg) const noexcept;  ///< dF/da in N/deg
+
+  bool operator==(const CubicCurve&) const = default;
+};
+
+/// Stiffness of the end-of-range wall beyond [min_deg, max_deg], N/deg at reference scale:
+/// 1 N/deg at 1 cm is 1.4 N/mm after the 1:4 device scale, under the 2 N/mm that a 1 kHz
+/// loop renders stably (FACTS.md "Stable wall").
+constexpr double kWallNPerDeg = 1.0;
+
+/// The MCP Euler convention as free functions (joint frame, no joint model needed):
+/// R = Ry(angles[kFlexion]) · Rx(angles[kAxial]) · Rz(angles[kAbduction]).
+Mat3 eulerToRotation(const Vec3& angles_rad) noexcept;
+Vec3 eulerFromRotation(const Mat3& r) noexcept;
+/// Columns e_alpha, e_beta, e_gamma: the joint-frame axes that the angle rates turn about
+/// (omega = E · rates) and that the per-axis torques act about (tau_i = e_i · tau).
+Mat3 eulerAxisBasis(const Vec3& angles_rad) noexcept;
+
+/// Everything the server owns and publishes about one joint (JointModel on the wire).
+struct JointModelParams {
+  uint32_t version = 0;
+  std::array<CubicCurve, kAxes> axes{};
+  double lever_arm_m = 0.01;          ///< paper: forces measured about 1 cm from the centre
+  double force_scale = 0.25;          ///< device force / reference force, paper: 1:4
+  double damping_nms_per_rad = 0.0;   ///< viscous term, reference scale
+  /// Half width of a zero-force band around each axis' rest angle (a lax joint), degrees.
+  std::array<double, kAxes> neutral_zone_deg{};
+  /// Protective spasm: the passive force grows by this factor per rad/s of movement speed.
+  double speed_gain_s_per_rad = 0.0;
+  Vec3 joint_origin_m = Vec3::Zero();
+  Quat joint_orientation = Quat::Identity();
+  std::array<char, 64> case_name{};
+  /// Data-driven stiffness (STIFFNESS_KNN): when set, the passive torque inside the ranges
+  /// comes from these samples instead of the cubics; the end-of-range walls and the damping
+  /// stay. Not owned: whoever publishes the model keeps it alive while it can be rendered.
+  const KnnTorqueModel* knn = nullptr;
+  /// The server's drift correction (server/session/drift.h), per axis: added to the angles
+  /// the thimbles imply (anglesFromGrip) to give the angles the proxy renders, so that it
+  /// renders the joint where the authoritative hand holds it. Zero without a server hand.
+  Vec3 grip_offset_rad = Vec3::Zero();
+  /// Largest correction a model may carry (wire validation; the server clamps well inside).
+  static constexpr double kMaxGripOffsetDeg = 30.0;
+
+  bool operator==(const JointModelParams&) const = default;
+};
+
+/// The healthy index MCP of the paper: eqs. 3 (flexion), 4 (abduction), 5 (axial), with the
+/// range of motion of FACTS.md (flexion -45..90 deg, abduction ±20 deg) and, as a stated
+/// assumption since no reliable figures exist, axial rotation -10 (pronation) .. +15 deg
+/// (supination). Damping 0.002 N·m·s/rad: chosen so that viscous force stays under 5 % of
+/// the passive force during a 3 Hz mobilization at the 1 cm lever arm.
+JointModelParams healthyIndexMcp();
+
+/// Pure functions of an immutable parameter set. No allocation, no exceptions.
+class JointModel {
+ public:
+  explicit JointModel(const JointModelParams& params);
+  const JointModelParams& params() const noexcept { return p_; }
+
+  /// Reference-scale force (N at the lever arm) holding `axis` at `angle_rad`: the cubic,
+  /// with the neutral zone cut out around the rest angle. Speed-independent.
+  double holdingForceN(int axis, double angle_rad) const noexcept;
+
+  /// Passive (restoring) torque per axis at reference scale:
+  /// −F(angle)·lever·(1 + speed_gain·|rate|) − b·rate.
+  Vec3 passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept;
+
+  /// MCP angles from the two thimble positions (device frame).
+  Vec3 anglesFromGrip(const PerFinger<Vec3>& p_device_finger) const noexcept;
+  /// The angles the proxy renders for these thimble positions: anglesFromGrip plus the
+  /// server's drift correction (grip_offset_rad). The server compares its hand with these.
+  Vec3 proxyAngles(const PerFinger<Vec3>& p_device_finger) const noexcept {
+    return anglesFromGrip(p_device_finger) + p_.grip_offset_rad;
+  }
+
+  /// Thimble positions that pinch the phalanx at the lever arm with the given half width.
+  PerFinger<Vec3> gripFromAngles(const Vec3& angles_rad, double half_width_m) const noexcept;
+
+  /// Thimble orientation: z = pad normal (into the phalanx), x = the phalanx axis.
+  Quat thimbleOrientation(int finger, const Vec3& angles_rad) const noexcept;
+
+  /// Fingertip forces (device frame) that together exert `axis_torque` on the joint: the net
+  /// force shared equally, the axial component as an equal and opposite couple.
+  PerFinger<Vec3> fingertipForces(const PerFinger<Vec3>& p_device_finger, const Vec3& angles_rad,
+                                  const Vec3& axis_torque_nm) const noexcept;
+
+  /// Per-axis torque that fingertip forces exert on the joint.
+  Vec3 axisTorque(const PerFinger<Vec3>& p_device_finger, const Vec3& angles_rad,
+                  const PerFinger<Vec3>& force_n) const noexcept;
+
+  /// Orientation of the phalanx in the device frame for the given angles.
+  Mat3 phalanxRotation(const Vec3& angles_rad) const noexcept;
+  /// Inverse of phalanxRotation: angles from a phalanx orientation in the device frame.
+  Vec3 anglesFromRotation(const Mat3& r_device_phalanx) const noexcept;
+  /// Columns e_alpha, e_beta, e_gamma (device frame): the axes the per-axis torques act about.
+  Mat3 axisBasis(const Vec3& angles_rad) const noexcept;
+  /// The torque vector (device frame) whose generalized components are `axis_torque_nm`.
+  Vec3 torqueVector(const Vec3& angles_rad, const Vec3& axis_torque_nm) const noexcept;
+
+  /// Angle where the holding force is zero (the joint's rest angle on that axis), found by
+  /// bisection over the curve's valid range; the nearest range end if none is inside.
+  double restAngleRad(int axis) const noexcept;
+
+  /// Energy the passive joint stores at `angles_rad` (the work done against the holding
+  /// forces from the rest angles), at device scale in joules: zero at rest, never negative.
+  double potentialEnergyJ(const Vec3& angles_rad) const noexcept;
+
+ private:
+  JointModelParams p_;
+  std::array<double, kAxes> rest_deg_{};  // of the cubic alone, where the neutral zone centres
+};
+
+/// What the proxy renders on one tick.
+struct ProxyOutput {
+  Vec3 angles_rad = Vec3::Zero();
+  Vec3 torque_ref_nm = Vec3::Zero();          ///< passive torque, reference scale
+  PerFinger<Vec3> force_device_n{Vec3::Zero(), Vec3::Zero()};  ///< before the safety gate
+  bool blending = false;
+  /// This tick's force change due to the model update alone (blend weight change times the
+  /// gap between the two models' forces), device N, largest finger.
+  double update_step_n = 0.0;
+  /// Energy the blend added to the rendered joint this tick (device J; negative: released).
+  double blend_energy_j = 0.0;
+  /// The part of blend_energy_j the energy budget did not pay for: only a fade that waited
+  /// out kEnergyWaitNs adds any (device J).
+  double unpaid_energy_j = 0.0;
+  /// Energy the rendered joint stores at these angles (device J), see potentialEnergyJ.
+  double potential_j = 0.0;
+};
+
+/// The client's local stand-in for the joint: renders at 1 kHz from the latest model the
+/// server published, and fades to a new version so that an update causes no force step and
+/// injects no energy. The fade weight moves toward the new model by at most `dt / blend_ns`
+/// per tick, less when a tick's force change from the update would exceed
+/// max(kUpdateStepFraction · force, kUpdateStepFloorN), and only as far as the energy budget
+/// (setEnergyBudget) pays for what a stiffer model stores, for at most kEnergyWaitNs (then
+/// the passivity controller is the safety net). A version that arrives during a
+/// fade waits until the fade ends (the newest wins). Allocation-free.
+class JointProxy {
+ public:
+  explicit JointProxy(const JointModelParams& initial, int64_t blend_ns = 200'000'000);
+
+  /// Adopt a new model version: its fade starts at the next render that is not already
+  /// fading (the newest version received wins; one equal to the present model is no change).
+  void setModel(const JointModelParams& next) noexcept;
+  uint32_t version() const noexcept { return current_.params().version; }
+  const JointModel& model() const noexcept { return current_; }
+  bool blending() const noexcept { return blending_; }
+
+  /// Energy (device J) a fade may add to the joint on the next render; the loop passes what
+  /// its passivity observer has seen dissipated. Infinite by default (no gating).
+  void setEnergyBudget(double joules) noexcept { energy_budget_j_ = joules; }
+
+  /// One tick: thimble positions -> angles -> passive torque -> device fingertip forces.
+  ProxyOutput render(const PerFinger<Vec3>& p_device_finger, int64_t now_ns) noexcept;
+
+  /// No tick's force may change by more than this share of the force, or the floor, because
+  /// of a model update (the force JND is 7-10 %, FACTS.md "Rendering and perception").
+  static constexpr double kUpdateStepFraction = 0.05;
+  static constexpr double kUpdateStepFloorN = 0.1;
+  /// The largest force step (N) an update may cause on a tick rendering `force_n`.
+  static constexpr double updateStepBoundN(double force_n) noexcept {
+    return std::max(kUpdateStepFraction * force_n, kUpdateStepFloorN);
+  }
+  /// How long a stiffer model waits for the energy budget before it fades in regardless.
+  static constexpr int64_t kEnergyWaitNs = 2'000'000'000;
+
+ private:
+  ProxyOutput renderWith(const JointModel& m, const PerFinger<Vec3>& p, const Vec3& angles,
+                         const Vec3& rates) const noexcept;
+  void startFade(int64_t now_ns) noexcept;
+
+  JointModel current_;
+  JointModel previous_;
+  JointModel pending_;
+  bool have_pending_ = false;
+  int64_t blend_ns_;
+  double weight_ = 1.0;  // of current_ against previous_
+  bool blending_ = false;
+  int64_t fade_ns_ = 0;  // time the weight was last advanced to
+  int64_t fade_start_ns_ = 0;
+  double energy_budget_j_ = 1e300;
+  bool have_last_ = false;
+  int64_t last_ns_ = 0;
+  Vec3 last_angles_ = Vec3::Zero();
+  Vec3 rates_ = Vec3::Zero();
+};
+
+}  // namespace telehand

@@ -1,0 +1,60 @@
+#pragma once
+/// One tick of the haptic loop as it is recorded: what the device read, what the thimbles
+/// measured (paper eqs. 1-2), what the joint proxy rendered and what the safety gate let
+/// out. The loop produces it, the record stores it, the fitting reads it; the wire form
+/// (DeviceState in idl/telehand.idl) is made from it in common/protocol/wire.h only.
+/// Angles in radians, forces in newtons, torques in N·m, positions in metres.
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "telehand/core/math.h"
+
+namespace telehand {
+
+/// One thimble of the MF-2 as the device reports it and the loop renders it.
+struct SampleFinger {
+  double position_m[3] = {0, 0, 0};          ///< thimble centre, device frame
+  double orientation_q[4] = {1, 0, 0, 0};    ///< unit quaternion w, x, y, z
+  float fsr_n[4] = {0, 0, 0, 0};             ///< FlexiForce A201 readings 1 (end) .. 4 (pad)
+  float tangential_n = 0.0f;                 ///< paper eq. 1: F2 - F3
+  float normal_n = 0.0f;                     ///< paper eq. 2: sqrt(F4^2 + F1^2)
+  double command_n[3] = {0, 0, 0};           ///< force commanded after the safety gate
+};
+
+struct Sample {
+  uint64_t session_id = 0;
+  uint64_t seq = 0;                  ///< loop tick sequence number, 0-based, no gaps
+  int64_t source_time_ns = 0;        ///< when the sample was read from the device (wall clock)
+  uint32_t model_version = 0;        ///< JointModel version rendered
+  uint32_t flags = 0;                ///< SampleFlag bits
+  SampleFinger fingers[2];           ///< 0 = thumb, 1 = index
+  double mcp_angles_rad[3] = {0, 0, 0};  ///< proxy's alpha (flexion), beta (abduction), gamma (axial)
+  double mcp_torque_nm[3] = {0, 0, 0};   ///< proxy's passive torque per axis (reference scale)
+  float passivity_energy_j = 0.0f;   ///< passivity observer energy so far (device scale)
+  float passivity_damping = 0.0f;    ///< passivity controller damping this tick, N·s/m
+};
+
+/// Sample::flags. The values are the wire's (idl/telehand.idl kFlag*, checked in wire.cpp).
+namespace sample_flags {
+inline constexpr uint32_t kSafetyClamped = 1;
+inline constexpr uint32_t kSafetyRateLimited = 2;
+inline constexpr uint32_t kWatchdog = 4;
+inline constexpr uint32_t kNonFinite = 8;
+inline constexpr uint32_t kModelBlending = 16;
+inline constexpr uint32_t kCapture = 32;
+inline constexpr uint32_t kPassivityControl = 64;  ///< the passivity controller added damping
+inline constexpr uint32_t kSentLive = 128;         ///< also went out live (not withheld by the deadband)
+inline constexpr uint32_t kDirectForce = 256;      ///< rendered the server's force (direct mode)
+inline constexpr uint32_t kDeadband = 512;         ///< the live stream is deadband-coded
+/// Bits 16..23: an FSR flagged saturated or dead; bit 16 + 4 * finger + (sensor - 1).
+inline constexpr uint32_t kFsrFaultShift = 16;
+}  // namespace sample_flags
+
+/// Names the first field of a sample that is not finite, or nullopt when all are.
+std::optional<std::string> firstNonFinite(const Sample& s);
+
+/// Thimble positions of a sample.
+PerFinger<Vec3> thimblePositions(const Sample& s) noexcept;
+
+}  // namespace telehand

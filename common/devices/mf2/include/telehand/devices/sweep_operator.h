@@ -1,0 +1,51 @@
+#pragma once
+/// A clinician capturing a joint (paper section IV.B) as a simulated operator: the
+/// actuators are off and the clinician moves the phalanx through each axis in turn, out to
+/// the angle where it takes `max_force_n` (or a fraction of the range of motion) in each
+/// direction, holding the other axes still. The hand is a position servo (a stiff,
+/// damped spring toward the planned angle), so every torque it makes is what the thimbles
+/// measure.
+#include <array>
+
+#include "telehand/devices/simulated_mf2.h"
+#include "telehand/core/joint_model.h"
+
+namespace telehand::devices {
+
+struct SweepPlan {
+  std::array<double, kAxes> lo_deg{};    ///< sweep limits per axis
+  std::array<double, kAxes> hi_deg{};
+  std::array<double, kAxes> hold_deg{};  ///< where an axis is held while another moves
+  double seconds_per_axis = 20.0;
+  double frequency_hz = 0.5;             ///< slow: manipulation is < 40 N/s (paper III)
+  double ramp_s = 1.0;                   ///< into and out of each axis' sweep
+  double stiffness_nm_per_rad = 4.0;     ///< the clinician's servo at the grip
+  double damping_nms_per_rad = 0.006;
+  bool repeat = true;                    ///< start again with flexion after the last axis
+  /// Instead of one axis at a time: flexion and abduction together, at frequency_hz and
+  /// 3.7 times it (incommensurate: the pair covers the plane), axial rotation held. For
+  /// joints whose axes are coupled.
+  bool combined = false;
+
+  double durationS() const noexcept { return kAxes * seconds_per_axis; }
+};
+
+/// Sweep limits for a joint: in each direction, the angle where the holding force reaches
+/// `max_force_n`, or `range_fraction` of the range of motion, whichever comes first. Axes
+/// are held at their rest angle.
+SweepPlan planSweep(const JointModelParams& joint, double max_force_n = 15.0,
+                    double range_fraction = 0.9);
+
+class SweepOperator final : public Operator {
+ public:
+  explicit SweepOperator(const SweepPlan& plan) : plan_(plan) {}
+  Vec3 torqueNm(double t_s, const Vec3& angles_rad, const Vec3& rates_rad_s) noexcept override;
+  /// The planned angles at t.
+  Vec3 target(double t_s) const noexcept;
+  const SweepPlan& plan() const noexcept { return plan_; }
+
+ private:
+  SweepPlan plan_;
+};
+
+}  // namespace telehand::devices

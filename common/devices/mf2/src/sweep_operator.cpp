@@ -1,0 +1,60 @@
+#include "telehand/devices/sweep_operator.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace telehand::devices {
+
+SweepPlan planSweep(const JointModelParams& joint, double max_force_n, double range_fraction) {
+  SweepPlan plan;
+  const JointModel m(joint);
+  for (int i = 0; i < kAxes; ++i) {
+    const auto ax = static_cast<std::size_t>(i);
+    const CubicCurve& c = joint.axes[ax];
+    const double rest = radToDeg(m.restAngleRad(i));
+    plan.hold_deg[ax] = rest;
+    // Walk out from rest until the force or the range fraction is reached.
+    const double lo_lim = rest + range_fraction * (c.min_deg - rest);
+    const double hi_lim = rest + range_fraction * (c.max_deg - rest);
+    double lo = rest, hi = rest;
+    constexpr double kStep = 0.05;
+    while (lo - kStep >= lo_lim && std::abs(m.holdingForceN(i, degToRad(lo - kStep))) <= max_force_n) lo -= kStep;
+    while (hi + kStep <= hi_lim && std::abs(m.holdingForceN(i, degToRad(hi + kStep))) <= max_force_n) hi += kStep;
+    plan.lo_deg[ax] = lo;
+    plan.hi_deg[ax] = hi;
+  }
+  return plan;
+}
+
+Vec3 SweepOperator::target(double t_s) const noexcept {
+  Vec3 a;
+  for (int i = 0; i < kAxes; ++i) a[i] = degToRad(plan_.hold_deg[static_cast<std::size_t>(i)]);
+  if (t_s < 0.0) return a;
+  const double total = plan_.durationS();
+  double t = plan_.repeat ? std::fmod(t_s, total) : std::min(t_s, total);
+  // One axis swept at `freq` between its limits, eased in and out of its hold angle by `w`
+  // (no step in the planned angle).
+  auto sweep = [&](int axis, double freq, double w) {
+    const auto ax = static_cast<std::size_t>(axis);
+    const double centre = 0.5 * (plan_.lo_deg[ax] + plan_.hi_deg[ax]);
+    const double amp = 0.5 * (plan_.hi_deg[ax] - plan_.lo_deg[ax]);
+    const double deg = centre + amp * std::sin(2.0 * kPi * freq * t);
+    a[axis] = degToRad(plan_.hold_deg[ax] + w * (deg - plan_.hold_deg[ax]));
+  };
+  if (plan_.combined) {
+    const double w = smoothRamp(std::min(t, total - t), plan_.ramp_s);
+    sweep(kFlexion, plan_.frequency_hz, w);
+    sweep(kAbduction, 3.7 * plan_.frequency_hz, w);
+    return a;
+  }
+  const int axis = std::min(static_cast<int>(t / plan_.seconds_per_axis), kAxes - 1);
+  t -= axis * plan_.seconds_per_axis;
+  sweep(axis, plan_.frequency_hz, smoothRamp(std::min(t, plan_.seconds_per_axis - t), plan_.ramp_s));
+  return a;
+}
+
+Vec3 SweepOperator::torqueNm(double t_s, const Vec3& angles, const Vec3& rates) noexcept {
+  return plan_.stiffness_nm_per_rad * (target(t_s) - angles) - plan_.damping_nms_per_rad * rates;
+}
+
+}  // namespace telehand::devices

@@ -1,0 +1,262 @@
+#pragma once
+/// A thin RAII layer over the Cyclone DDS C API: participant, topic, writer, reader,
+/// waitset, guard condition, and QoS profiles named after their use (DESIGN.md "Data over
+/// DDS"). dds_write runs on the caller's thread: never call into this from the 1 kHz step.
+#include <dds/dds.h>
+
+#include <chrono>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "telehand.h"
+#include "telehand/core/error.h"
+
+namespace telehand::dds {
+
+/// Throws DdsError naming `what` if rc is a Cyclone error.
+dds_return_t check(dds_return_t rc, const char* what);
+
+/// Owns one dds_entity_t; deleting it deletes its children too.
+class Entity {
+ public:
+  Entity() = default;
+  explicit Entity(dds_entity_t h) : h_(h) {}
+  Entity(Entity&& o) noexcept : h_(std::exchange(o.h_, 0)) {}
+  Entity& operator=(Entity&& o) noexcept {
+    if (this != &o) {
+      reset();
+      h_ = std::exchange(o.h_, 0);
+    }
+    return *this;
+  }
+  Entity(const Entity&) = delete;
+  Entity& operator=(const Entity&) = delete;
+  ~Entity() { reset(); }
+  dds_entity_t handle() const noexcept { return h_; }
+  void reset() noexcept;
+
+ private:
+  dds_entity_t h_ = 0;
+};
+
+/// Owned dds_qos_t with chainable setters.
+class Qos {
+ public:
+  Qos() : q_(dds_create_qos()) {}
+  Qos(const Qos& o) : q_(dds_create_qos()) { dds_copy_qos(q_, o.q_); }
+  Qos& operator=(const Qos& o) {
+    if (this != &o) dds_copy_qos(q_, o.q_);
+    return *this;
+  }
+  ~Qos() { dds_delete_qos(q_); }
+  Qos& reliable(std::chrono::milliseconds max_blocking = std::chrono::milliseconds(100));
+  Qos& bestEffort();
+  Qos& keepLast(int32_t depth);
+  Qos& keepAll();
+  Qos& volatileDurability();
+  Qos& transientLocal();
+  Qos& deadline(std::chrono::milliseconds period);
+  Qos& partition(const std::string& name);
+  /// What a transient-local writer keeps for late joiners. Cyclone uses the durability
+  /// service history (default keep-last 1), not the writer's own history depth.
+  Qos& lateJoinerHistory(int32_t depth);
+  const dds_qos_t* get() const noexcept { return q_; }
+
+  dds_reliability_kind_t reliabilityKind() const;
+  dds_durability_kind_t durabilityKind() const;
+  std::pair<dds_history_kind_t, int32_t> history() const;
+
+ private:
+  dds_qos_t* q_;
+};
+
+/// QoS profiles, one per use, as DESIGN.md's table states them.
+namespace qos {
+Qos deviceState();                  ///< best-effort, keep-last 1, volatile, 100 ms deadline
+Qos deviceStateReader(int32_t depth);  ///< as deviceState but a deeper reader history
+Qos recordChunk();                  ///< reliable, keep-all: the session record's path
+Qos jointModel();                   ///< reliable, transient-local, keep-last 1 per session
+Qos handState();                    ///< best-effort, keep-last 1
+Qos handStateReader(int32_t depth); ///< as handState but a deeper reader history
+Qos sessionCommand();               ///< reliable, keep-all, volatile
+Qos sessionStatus();                ///< reliable, transient-local, keep-last 1 per session
+Qos sessionEvent(int32_t depth = 64);  ///< reliable, transient-local, keep-last N (late joiners too)
+Qos latencyProbe();                 ///< as deviceState (the probe measures that path)
+Qos directForce(int32_t depth = 1); ///< best-effort, keep-last `depth`, volatile (direct mode)
+}  // namespace qos
+
+/// Topic names.
+namespace topic {
+inline constexpr const char* kDeviceState = "telehand_DeviceState";
+inline constexpr const char* kRecordChunk = "telehand_RecordChunk";
+inline constexpr const char* kJointModel = "telehand_JointModel";
+inline constexpr const char* kHandState = "telehand_HandState";
+inline constexpr const char* kSessionCommand = "telehand_SessionCommand";
+inline constexpr const char* kSessionStatus = "telehand_SessionStatus";
+inline constexpr const char* kSessionEvent = "telehand_SessionEvent";
+inline constexpr const char* kLatencyPing = "telehand_LatencyPing";
+inline constexpr const char* kLatencyPong = "telehand_LatencyPong";
+inline constexpr const char* kDirectForce = "telehand_DirectForce";
+}  // namespace topic
+
+/// Which DDS world to join.
+struct Options {
+  uint32_t domain = 0;
+  std::string config;                 ///< Cyclone XML file path or inline XML; empty = default
+  std::string partition = "telehand";  ///< isolates sessions, sites and tests
+};
+
+/// A participant with one publisher and one subscriber in the configured partition.
+class Participant {
+ public:
+  explicit Participant(const Options& options);
+  dds_entity_t handle() const noexcept { return participant_.handle(); }
+  dds_entity_t publisher() const noexcept { return publisher_.handle(); }
+  dds_entity_t subscriber() const noexcept { return subscriber_.handle(); }
+  const Options& options() const noexcept { return options_; }
+
+ private:
+  Options options_;
+  Entity domain_;  // only when this participant created the domain from a config
+  Entity participant_;
+  Entity publisher_;
+  Entity subscriber_;
+};
+
+template <typename T>
+struct TopicTraits;
+#define TELEHAND_DDS_TOPIC_TYPE(T) \
+  template <>                      \
+  struct TopicTraits<T> {          \
+    static const dds_topic_descriptor_t* descriptor() { return &T##_desc; } \
+  }
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_DeviceState);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_RecordChunk);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_JointModel);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_HandState);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_SessionCommand);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_SessionStatus);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_SessionEvent);
+TELEHAND_DDS_TOPIC_TYPE(telehand_msg_DirectForce);
+#undef TELEHAND_DDS_TOPIC_TYPE
+
+template <typename T>
+class Topic {
+ public:
+  Topic(const Participant& p, const char* name)
+      : e_(check(dds_create_topic(p.handle(), TopicTraits<T>::descriptor(), name, nullptr, nullptr),
+                 name)) {}
+  dds_entity_t handle() const noexcept { return e_.handle(); }
+
+ private:
+  Entity e_;
+};
+
+/// Every telehand topic on one participant: the one place names meet types.
+struct Topics {
+  explicit Topics(const Participant& p);
+  Topic<telehand_msg_DeviceState> device_state;
+  Topic<telehand_msg_RecordChunk> record_chunk;
+  Topic<telehand_msg_JointModel> joint_model;
+  Topic<telehand_msg_HandState> hand_state;
+  Topic<telehand_msg_SessionCommand> session_command;
+  Topic<telehand_msg_SessionStatus> session_status;
+  Topic<telehand_msg_SessionEvent> session_event;
+  Topic<telehand_msg_DeviceState> latency_ping;
+  Topic<telehand_msg_DeviceState> latency_pong;
+  Topic<telehand_msg_DirectForce> direct_force;
+};
+
+template <typename T>
+class Writer {
+ public:
+  Writer(const Participant& p, const Topic<T>& t, const Qos& q)
+      : e_(check(dds_create_writer(p.publisher(), t.handle(), q.get(), nullptr), "create writer")) {}
+  /// Returns Cyclone's return code; callers on hot paths count failures instead of throwing.
+  dds_return_t write(const T& sample) noexcept { return dds_write(e_.handle(), &sample); }
+  dds_entity_t handle() const noexcept { return e_.handle(); }
+  uint32_t matchedReaders() const noexcept {
+    dds_publication_matched_status_t st{};
+    return dds_get_publication_matched_status(e_.handle(), &st) == DDS_RETCODE_OK
+               ? st.current_count
+               : 0;
+  }
+
+ private:
+  Entity e_;
+};
+
+template <typename T>
+class Reader {
+ public:
+  Reader(const Participant& p, const Topic<T>& t, const Qos& q)
+      : e_(check(dds_create_reader(p.subscriber(), t.handle(), q.get(), nullptr), "create reader")) {
+    check(dds_set_status_mask(e_.handle(), DDS_DATA_AVAILABLE_STATUS), "reader status mask");
+  }
+  dds_entity_t handle() const noexcept { return e_.handle(); }
+
+  /// Takes up to `max` samples (loaned, no copy) and calls fn(const T&, const dds_sample_info_t&)
+  /// for each valid one. Returns how many valid samples it saw.
+  template <typename Fn>
+  std::size_t take(Fn&& fn, std::size_t max = 64) {
+    constexpr std::size_t kBatch = 64;
+    void* buf[kBatch];
+    dds_sample_info_t info[kBatch];
+    std::size_t seen = 0;
+    while (seen < max) {
+      buf[0] = nullptr;
+      const dds_return_t n = dds_take(e_.handle(), buf, info, kBatch, kBatch);
+      if (n <= 0) break;
+      for (dds_return_t i = 0; i < n; ++i) {
+        if (info[i].valid_data) {
+          fn(*static_cast<const T*>(buf[i]), info[i]);
+          ++seen;
+        }
+      }
+      dds_return_loan(e_.handle(), buf, n);
+      if (n < static_cast<dds_return_t>(kBatch)) break;
+    }
+    return seen;
+  }
+
+  uint32_t matchedWriters() const noexcept {
+    dds_subscription_matched_status_t st{};
+    return dds_get_subscription_matched_status(e_.handle(), &st) == DDS_RETCODE_OK
+               ? st.current_count
+               : 0;
+  }
+
+ private:
+  Entity e_;
+};
+
+/// Wakes a waitset from another thread (shutdown, new work).
+class GuardCondition {
+ public:
+  explicit GuardCondition(const Participant& p)
+      : e_(check(dds_create_guardcondition(p.handle()), "create guard condition")) {}
+  void trigger() noexcept { dds_set_guardcondition(e_.handle(), true); }
+  void clear() noexcept { dds_set_guardcondition(e_.handle(), false); }
+  dds_entity_t handle() const noexcept { return e_.handle(); }
+
+ private:
+  Entity e_;
+};
+
+class WaitSet {
+ public:
+  explicit WaitSet(const Participant& p)
+      : e_(check(dds_create_waitset(p.handle()), "create waitset")) {}
+  void attach(dds_entity_t entity, dds_attach_t id) {
+    check(dds_waitset_attach(e_.handle(), entity, id), "waitset attach");
+  }
+  /// Waits up to `timeout`; returns the ids of the entities that triggered.
+  std::vector<dds_attach_t> wait(std::chrono::nanoseconds timeout);
+
+ private:
+  Entity e_;
+};
+
+}  // namespace telehand::dds

@@ -1,0 +1,184 @@
+#include "telehand/protocol/dds.h"
+
+#include <filesystem>
+
+namespace telehand::dds {
+
+dds_return_t check(dds_return_t rc, const char* what) {
+  if (rc < 0) {
+    throw DdsError(std::string("DDS: ") + what + " failed: " + dds_strretcode(rc));
+  }
+  return rc;
+}
+
+void Entity::reset() noexcept {
+  if (h_ > 0) dds_delete(h_);
+  h_ = 0;
+}
+
+Qos& Qos::reliable(std::chrono::milliseconds max_blocking) {
+  dds_qset_reliability(q_, DDS_RELIABILITY_RELIABLE, DDS_MSECS(max_blocking.count()));
+  return *this;
+}
+Qos& Qos::bestEffort() {
+  dds_qset_reliability(q_, DDS_RELIABILITY_BEST_EFFORT, 0);
+  return *this;
+}
+Qos& Qos::keepLast(int32_t depth) {
+  dds_qset_history(q_, DDS_HISTORY_KEEP_LAST, depth);
+  return *this;
+}
+Qos& Qos::keepAll() {
+  dds_qset_history(q_, DDS_HISTORY_KEEP_ALL, DDS_LENGTH_UNLIMITED);
+  dds_qset_resource_limits(q_, DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+  return *this;
+}
+Qos& Qos::volatileDurability() {
+  dds_qset_durability(q_, DDS_DURABILITY_VOLATILE);
+  return *this;
+}
+Qos& Qos::transientLocal() {
+  dds_qset_durability(q_, DDS_DURABILITY_TRANSIENT_LOCAL);
+  return *this;
+}
+Qos& Qos::deadline(std::chrono::milliseconds period) {
+  dds_qset_deadline(q_, DDS_MSECS(period.count()));
+  return *this;
+}
+Qos& Qos::lateJoinerHistory(int32_t depth) {
+  dds_qset_durability_service(q_, 0, DDS_HISTORY_KEEP_LAST, depth, DDS_LENGTH_UNLIMITED,
+                              DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+  return *this;
+}
+Qos& Qos::partition(const std::string& name) {
+  dds_qset_partition1(q_, name.c_str());
+  return *this;
+}
+
+dds_reliability_kind_t Qos::reliabilityKind() const {
+  dds_reliability_kind_t k{};
+  dds_duration_t b{};
+  if (!dds_qget_reliability(q_, &k, &b)) throw DdsError("QoS has no reliability policy");
+  return k;
+}
+dds_durability_kind_t Qos::durabilityKind() const {
+  dds_durability_kind_t k{};
+  if (!dds_qget_durability(q_, &k)) throw DdsError("QoS has no durability policy");
+  return k;
+}
+std::pair<dds_history_kind_t, int32_t> Qos::history() const {
+  dds_history_kind_t k{};
+  int32_t d = 0;
+  if (!dds_qget_history(q_, &k, &d)) throw DdsError("QoS has no history policy");
+  return {k, d};
+}
+
+namespace qos {
+Qos deviceState() {
+  Qos q;
+  q.bestEffort().keepLast(1).volatileDurability().deadline(std::chrono::milliseconds(100));
+  return q;
+}
+Qos deviceStateReader(int32_t depth) {
+  Qos q = deviceState();
+  q.keepLast(depth);
+  return q;
+}
+Qos recordChunk() {
+  Qos q;
+  q.reliable(std::chrono::milliseconds(1000)).keepAll().volatileDurability();
+  return q;
+}
+Qos jointModel() {
+  Qos q;
+  q.reliable().keepLast(1).transientLocal();
+  return q;
+}
+Qos directForce(int32_t depth) {
+  Qos q;
+  q.bestEffort().keepLast(depth).volatileDurability();
+  return q;
+}
+Qos handState() {
+  Qos q;
+  q.bestEffort().keepLast(1).volatileDurability();
+  return q;
+}
+Qos sessionCommand() {
+  Qos q;
+  q.reliable().keepAll().volatileDurability();
+  return q;
+}
+Qos sessionStatus() {
+  Qos q;
+  q.reliable().keepLast(1).transientLocal();
+  return q;
+}
+Qos sessionEvent(int32_t depth) {
+  Qos q;
+  q.reliable().keepLast(depth).transientLocal().lateJoinerHistory(depth);
+  return q;
+}
+Qos handStateReader(int32_t depth) {
+  Qos q = handState();
+  q.keepLast(depth);
+  return q;
+}
+Qos latencyProbe() { return deviceState(); }
+}  // namespace qos
+
+namespace {
+std::string configUri(const std::string& config) {
+  if (config.empty() || config.front() == '<') return config;
+  std::error_code ec;
+  const auto path = std::filesystem::absolute(config, ec);
+  if (ec || !std::filesystem::is_regular_file(path)) {
+    throw ConfigError("DDS config file '" + config + "' does not exist or is not a file");
+  }
+  return "file://" + path.string();
+}
+}  // namespace
+
+Participant::Participant(const Options& options) : options_(options) {
+  if (options.domain > 230) {
+    throw ConfigError("DDS domain " + std::to_string(options.domain) + " is out of range 0..230");
+  }
+  if (!options.config.empty()) {
+    const std::string uri = configUri(options.config);
+    const dds_entity_t d = dds_create_domain(options.domain, uri.c_str());
+    if (d > 0) {
+      domain_ = Entity(d);
+    } else if (d != DDS_RETCODE_PRECONDITION_NOT_MET) {  // already created in this process
+      check(d, ("create domain from '" + options.config + "'").c_str());
+    }
+  }
+  participant_ = Entity(check(dds_create_participant(options.domain, nullptr, nullptr),
+                              "create participant (check the DDS config and network)"));
+  Qos q;
+  q.partition(options.partition);
+  publisher_ = Entity(check(dds_create_publisher(participant_.handle(), q.get(), nullptr),
+                            "create publisher"));
+  subscriber_ = Entity(check(dds_create_subscriber(participant_.handle(), q.get(), nullptr),
+                             "create subscriber"));
+}
+
+Topics::Topics(const Participant& p)
+    : device_state(p, topic::kDeviceState),
+      record_chunk(p, topic::kRecordChunk),
+      joint_model(p, topic::kJointModel),
+      hand_state(p, topic::kHandState),
+      session_command(p, topic::kSessionCommand),
+      session_status(p, topic::kSessionStatus),
+      session_event(p, topic::kSessionEvent),
+      latency_ping(p, topic::kLatencyPing),
+      latency_pong(p, topic::kLatencyPong),
+      direct_force(p, topic::kDirectForce) {}
+
+std::vector<dds_attach_t> WaitSet::wait(std::chrono::nanoseconds timeout) {
+  dds_attach_t xs[16];
+  const dds_return_t n = dds_waitset_wait(e_.handle(), xs, 16, timeout.count());
+  check(n, "waitset wait");
+  return {xs, xs + n};
+}
+
+}  // namespace telehand::dds

@@ -1,0 +1,99 @@
+// telehand-server: hosts sessions, keeps every record, publishes joint models and hand state.
+#include "telehand/core/cli.h"
+#include <csignal>
+#include <iostream>
+#include <optional>
+#include <thread>
+
+#include "telehand/server/link/server_link.h"
+#include "telehand/server/store/sqlite_store.h"
+#include "telehand/core/log.h"
+
+int main(int argc, char** argv) {
+  using namespace telehand;
+  CLI::App app{"telehand-server: authoritative session host. Opens and closes sessions on "
+               "request, records every DeviceState sample to SQLite (WAL), publishes each "
+               "session's JointModel and a decimated HandState, and echoes latency probes."};
+  std::string config_path, db, log_level = "info";
+  dds::Options dds_opts;
+  double seconds = 0.0, hand_hz = 0.0;
+  app.add_option("-c,--config", config_path, "TOML file with a [server] table")->check(CLI::ExistingFile);
+  app.add_option("--db", db, "record database (overrides server.db; default records/telehand.db)");
+  app.add_option("--hand-rate", hand_hz, "HandState rate in Hz (60-100 recommended)");
+  double hand_deadband = -1.0;
+  app.add_option("--hand-deadband", hand_deadband,
+                 "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
+      ->check(CLI::Range(0.0, 0.5));
+  app.add_option("--domain", dds_opts.domain, "DDS domain id")->check(CLI::Range(0, 230));
+  app.add_option("--partition", dds_opts.partition, "DDS partition")->capture_default_str();
+  app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
+  std::string hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
+  std::string cases = std::string(TELEHAND_DEPLOY_DIR) + "/cases";
+  bool list_dofs = false;
+  app.add_option("--hand", hand, "hand model (URDF) for the Bullet simulation; 'none': HandState from the shared joint model")
+      ->capture_default_str();
+  app.add_option("--cases", cases, "directory of patient cases (*.toml)")->capture_default_str();
+  app.add_flag("--list-dofs", list_dofs, "print the hand's joint rotations in HandState.joint_angles_rad order and exit");
+  app.add_option("--seconds", seconds, "stop after this many seconds (0 = until Ctrl-C)");
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
+  TELEHAND_CLI_PARSE(app, argc, argv)
+
+  try {
+    setupLogging("telehand-server", log_level);
+    ServerConfig cfg = config_path.empty() ? ServerConfig{} : loadServerConfig(config_path);
+    if (!db.empty()) cfg.db_path = db;
+    if (hand_hz > 0.0) cfg.hand_state_hz = hand_hz;
+    if (hand_deadband >= 0.0) cfg.hand_deadband_weber = hand_deadband;
+    if (cfg.hand_model.empty()) cfg.hand_model = hand == "none" ? "" : hand;
+    if (cfg.cases_dir.empty()) cfg.cases_dir = cases;
+    std::optional<server::sim::HandModel> hand_model;
+    if (!cfg.hand_model.empty()) hand_model = server::sim::HandModel::load(cfg.hand_model);
+    if (list_dofs) {
+      if (!hand_model) throw ConfigError("--list-dofs needs a hand model");
+      int i = 0;
+      for (const auto& n : hand_model->dofNames()) std::cout << i++ << " " << n << "\n";
+      return 0;
+    }
+    if (listPatientCases(cfg.cases_dir).empty()) {
+      throw ConfigError("no patient cases (*.toml) in '" + cfg.cases_dir + "'");
+    }
+
+    server::store::SqliteStore store(cfg.db_path);
+    server::link::ServerLink link(dds_opts);
+    server::session::SessionManager manager(store, link, cfg, hand_model ? &*hand_model : nullptr);
+    installStopSignals();
+    spdlog::info("serving on DDS domain {} partition '{}', records in {}, hand {}, cases in {}",
+                 dds_opts.domain, dds_opts.partition, store.location(),
+                 hand_model ? cfg.hand_model : "none (shared joint model)", cfg.cases_dir);
+
+    std::atomic<bool> stop{false};
+    const auto t0 = std::chrono::steady_clock::now();
+    // Turns Ctrl-C, SIGTERM and --seconds into a stop request the serve loop sees at once.
+    std::jthread stopper([&](std::stop_token token) {
+      while (!token.stop_requested() && !stop.load()) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        const bool timed_out = seconds > 0.0 && std::chrono::steady_clock::now() - t0 >
+                                                    std::chrono::duration<double>(seconds);
+        if (g_stop_requested.load() || timed_out) {
+          stop.store(true);
+          link.wake();
+        }
+      }
+    });
+    const auto tick = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / cfg.hand_state_hz));
+    link.serve(manager, stop, tick);
+    stop.store(true);
+    stopper.request_stop();
+    stopper.join();
+    const auto& st = manager.stats();
+    const auto& lc = link.counters();
+    spdlog::info("stopped: {} samples recorded, {} live, {} non-finite, {} for unknown sessions, "
+                 "{} bad commands, {} store errors, {} echoes",
+                 st.recorded_samples, st.live_samples, st.nonfinite_samples,
+                 st.unknown_session_samples, st.bad_commands, st.store_errors, lc.echoes.load());
+    return 0;
+  } catch (const telehand::Error& e) {
+    std::cerr << "telehand-server: " << e.what() << "\n";
+    return 2;
+  }
+}

@@ -1,0 +1,102 @@
+#pragma once
+/// Fitting a joint model from a capture (paper section IV.B): per MCP axis, the force at the
+/// lever arm that the thimbles measured against the angle the encoders measured, a
+/// least-squares cubic (plus a viscous term, so that mobilizing at speed does not bend the
+/// curve), its RMS residual, the angular range reached in each direction and the neutral
+/// zone. The same code serves the live refit in the server and `telehand-records fit`.
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "telehand/core/sample.h"
+#include "telehand/core/fit.h"
+#include "telehand/core/joint_model.h"
+
+namespace telehand::server::estimate {
+
+/// One usable capture sample.
+struct CapturePoint {
+  uint64_t seq = 0;
+  int64_t t_ns = 0;
+  Vec3 angles_rad = Vec3::Zero();
+  Vec3 axis_force_n = Vec3::Zero();  ///< force at the lever arm per axis, as captured (N)
+};
+
+/// Why samples were left out.
+struct CaptureCounts {
+  uint64_t used = 0;
+  uint64_t invalid = 0;     ///< stored flagged invalid (non-finite fields)
+  uint64_t fsr_fault = 0;   ///< a thimble sensor was flagged saturated or dead
+  uint64_t not_capture = 0; ///< the actuators were on (not a capture sample)
+};
+
+struct AxisFit {
+  bool ok = false;
+  CubicCurve curve;             ///< coefficients, range = the range reached
+  double rms_n = 0.0;           ///< RMS residual, N
+  double damping_nms_per_rad = 0.0;
+  double neutral_min_deg = 0.0; ///< where |F| stays under the neutral-zone threshold
+  double neutral_max_deg = 0.0;
+  std::size_t samples = 0;
+};
+
+struct CaptureFit {
+  std::array<AxisFit, kAxes> axes{};
+  CaptureCounts counts;
+  bool ok() const noexcept { return axes[0].ok && axes[1].ok && axes[2].ok; }
+  /// `base` with the fitted curves, ranges and damping (lever arm, scale, frame, name kept).
+  JointModelParams model(const JointModelParams& base) const;
+};
+
+struct FitOptions {
+  /// Force below which the joint counts as lax (the neutral zone), N. About a force JND
+  /// (7-10 %, FACTS.md) of the paper's 12-16 N band.
+  double neutral_force_n = 1.0;
+  /// Central difference half window for angular rates, samples (1 kHz: ±5 ms).
+  int rate_half_window = 5;
+  /// Samples an axis needs spread over at least this many degrees to be fitted.
+  double min_span_deg = 5.0;
+  std::size_t min_samples = 200;
+};
+
+/// The per-axis force that a sample's thimbles exert at the lever arm (paper eqs. 1-2 for
+/// each thimble, τ = Σ (p − c) × F, generalized per axis, divided by the lever arm), or
+/// nullopt with the reason counted.
+std::optional<CapturePoint> capturePoint(const JointModel& geometry,
+                                         const Sample& s, bool valid,
+                                         CaptureCounts& counts);
+
+/// Accumulates capture samples (in sequence order) and fits them.
+class CaptureFitter {
+ public:
+  explicit CaptureFitter(const JointModelParams& geometry, const FitOptions& options = {});
+  /// Returns true when the sample was used.
+  bool add(const Sample& s, bool valid);
+  std::size_t size() const noexcept { return points_.size(); }
+  const CaptureCounts& counts() const noexcept { return counts_; }
+  const std::vector<CapturePoint>& points() const noexcept { return points_; }
+  /// Angular rates of every point (central differences), rad/s.
+  std::vector<Vec3> rates() const;
+  /// `progress(axis, fraction)` is called as the fit advances (long captures).
+  CaptureFit fit(const std::function<void(int, double)>& progress = {}) const;
+
+ private:
+  JointModel geometry_;
+  FitOptions options_;
+  std::vector<CapturePoint> points_;
+  CaptureCounts counts_;
+};
+
+/// Geometry a capture is fitted with: the joint's frame and lever arm at reference scale
+/// (the thimbles measure real forces; 1:4 is a rendering scale).
+JointModelParams captureGeometry(const JointModelParams& joint);
+
+/// A patient-case TOML (deploy/cases format, loadable by sessions) of a fitted model.
+std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model,
+                            const std::string& name, const std::string& description,
+                            const std::string& source);
+
+}  // namespace telehand::server::estimate

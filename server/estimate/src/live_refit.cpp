@@ -1,0 +1,76 @@
+#include "telehand/server/estimate/live_refit.h"
+
+#include <algorithm>
+
+namespace telehand::server::estimate {
+
+LiveRefit::LiveRefit(const JointModelParams& geometry, const JointModelParams& initial,
+                     const LiveRefitOptions& options)
+    : options_(options), lever_m_(geometry.lever_arm_m), fitter_(geometry), published_(initial) {}
+
+void LiveRefit::add(const Sample& s, bool valid, int64_t arrival_ns) {
+  if (fitter_.add(s, valid)) newest_arrival_ns_ = std::max(newest_arrival_ns_, arrival_ns);
+}
+
+double LiveRefit::maxForceChange(const JointModelParams& a, const JointModelParams& b,
+                                 double jnd_fraction, double jnd_floor_n, bool* felt) {
+  const JointModel ma(a), mb(b);
+  double worst = 0.0;
+  bool any = false;
+  for (int i = 0; i < kAxes; ++i) {
+    const CubicCurve& c = a.axes[static_cast<std::size_t>(i)];
+    const CubicCurve& d = b.axes[static_cast<std::size_t>(i)];
+    const double lo = std::min(c.min_deg, d.min_deg), hi = std::max(c.max_deg, d.max_deg);
+    for (double deg = lo; deg <= hi + 1e-9; deg += 0.25) {
+      const double fa = ma.holdingForceN(i, degToRad(deg)), fb = mb.holdingForceN(i, degToRad(deg));
+      const double diff = std::abs(fa - fb);
+      worst = std::max(worst, diff);
+      any = any || (diff > jnd_floor_n && diff > jnd_fraction * std::max(std::abs(fa), std::abs(fb)));
+    }
+  }
+  if (felt) *felt = any;
+  return worst;
+}
+
+std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
+  if (now_ns - last_refit_ns_ < options_.min_interval_ns) return std::nullopt;
+  if (fitter_.size() < options_.min_samples || fitter_.size() == fitted_size_) return std::nullopt;
+  last_refit_ns_ = now_ns;
+  fitted_size_ = fitter_.size();
+  Update u;
+  u.fit = fitter_.fit();
+  bool any_axis = false;
+  for (auto& a : u.fit.axes) {
+    // An axis is taken once the clinician has mobilized it in both directions (the force
+    // crossed zero by more than a felt amount each way): a one-sided stretch of data would
+    // put an end-of-range wall right where the joint rests.
+    a.ok = a.ok && a.curve.eval(a.curve.min_deg) < -options_.jnd_floor_n &&
+           a.curve.eval(a.curve.max_deg) > options_.jnd_floor_n &&
+           a.curve.max_deg - a.curve.min_deg >= options_.min_span_deg;
+    any_axis = any_axis || a.ok;
+  }
+  if (!any_axis) return std::nullopt;
+  u.params = u.fit.model(published_);
+  u.params.knn = nullptr;
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    if (!u.fit.axes[i].ok) continue;
+    u.params.axes[i].min_deg -= options_.range_margin_deg;
+    u.params.axes[i].max_deg += options_.range_margin_deg;
+  }
+  bool felt = false;
+  u.max_change_n = maxForceChange(u.params, published_, options_.jnd_fraction, options_.jnd_floor_n, &felt);
+  if (!felt) {
+    return std::nullopt;
+  }
+  // The samples for data-driven followers: the passive (restoring) torque is minus what the
+  // clinician applied.
+  std::vector<KnnPoint> raw;
+  raw.reserve(fitter_.points().size());
+  for (const auto& p : fitter_.points()) raw.push_back({p.angles_rad, -p.axis_force_n * lever_m_});
+  u.knn_points = voxelAverage(raw, options_.knn.cell_deg, options_.knn_min_count);
+  u.newest_arrival_ns = newest_arrival_ns_;
+  published_ = u.params;
+  return u;
+}
+
+}  // namespace telehand::server::estimate

@@ -1,0 +1,69 @@
+#pragma once
+/// The server's DDS side: takes commands, live device states and record chunks, hands them
+/// to the SessionManager, publishes what it produces, and echoes latency probes on a thread
+/// of its own so that recording never delays an echo.
+#include <atomic>
+#include <thread>
+
+#include "telehand/server/session/session_manager.h"
+#include "telehand/protocol/dds.h"
+#include "telehand/protocol/dds_capture.h"
+
+namespace telehand::server::link {
+
+struct LinkCounters {
+  std::atomic<uint64_t> commands{0};
+  std::atomic<uint64_t> device_states{0};
+  std::atomic<uint64_t> chunks{0};
+  std::atomic<uint64_t> echoes{0};
+  std::atomic<uint64_t> publish_errors{0};
+};
+
+class ServerLink final : public session::Outbox {
+ public:
+  explicit ServerLink(const dds::Options& options);
+  ~ServerLink() override;
+
+  void publish(const telehand_msg_SessionStatus& s) override;
+  void publish(const telehand_msg_JointModel& m) override;
+  void publish(const telehand_msg_HandState& h) override;
+  void publish(const telehand_msg_SessionEvent& e) override;
+  void publish(const telehand_msg_KnnModel& k) override;
+  void publish(const telehand_msg_DirectForce& f) override;
+
+  /// Serve until `stop` becomes true; ticks the manager at least every `tick`.
+  void serve(session::SessionManager& manager, const std::atomic<bool>& stop,
+             std::chrono::nanoseconds tick);
+  /// Wake serve() (from a signal-safe context use the stop flag and wait one tick).
+  void wake() noexcept { wake_.trigger(); }
+
+  const LinkCounters& counters() const noexcept { return counters_; }
+
+ private:
+  void echoLoop();
+
+  dds::Participant participant_;
+  dds::Topics topics_;
+  dds::Reader<telehand_msg_DeviceState> device_reader_;
+  dds::Reader<telehand_msg_RecordChunk> chunk_reader_;
+  dds::Reader<telehand_msg_SessionCommand> command_reader_;
+  dds::Writer<telehand_msg_JointModel> model_writer_;
+  dds::Writer<telehand_msg_HandState> hand_writer_;
+  dds::Writer<telehand_msg_SessionStatus> status_writer_;
+  dds::Writer<telehand_msg_SessionEvent> event_writer_;
+  dds::Writer<telehand_msg_DirectForce> direct_writer_;
+  dds::Reader<telehand_msg_DeviceState> ping_reader_;
+  dds::Writer<telehand_msg_DeviceState> pong_writer_;
+  dds::GuardCondition wake_;
+  dds::GuardCondition echo_stop_;
+  dds::WaitSet waitset_;
+  dds::WaitSet echo_waitset_;
+  std::atomic<bool> echo_running_{true};
+  std::thread echo_thread_;
+  LinkCounters counters_;
+  dds::CaptureTopics capture_topics_;
+  dds::Reader<telehand_msg_SessionFile> file_reader_;
+  dds::Writer<telehand_msg_KnnModel> knn_writer_;
+};
+
+}  // namespace telehand::server::link

@@ -1,0 +1,114 @@
+#include "telehand/server/link/server_link.h"
+
+#include <pthread.h>
+
+#include "telehand/core/clock.h"
+
+namespace telehand::server::link {
+
+namespace {
+// The server takes the live stream in batches; a deep reader history keeps a slow tick
+// (a large SQLite commit) from overwriting samples that HandState and the rate need.
+constexpr int32_t kDeviceReaderDepth = 256;
+enum Attach : dds_attach_t { kWake = 1, kCommands, kDevice, kChunks, kFiles };
+}  // namespace
+
+ServerLink::ServerLink(const dds::Options& options)
+    : participant_(options),
+      topics_(participant_),
+      device_reader_(participant_, topics_.device_state, dds::qos::deviceStateReader(kDeviceReaderDepth)),
+      chunk_reader_(participant_, topics_.record_chunk, dds::qos::recordChunk()),
+      command_reader_(participant_, topics_.session_command, dds::qos::sessionCommand()),
+      model_writer_(participant_, topics_.joint_model, dds::qos::jointModel()),
+      hand_writer_(participant_, topics_.hand_state, dds::qos::handState()),
+      status_writer_(participant_, topics_.session_status, dds::qos::sessionStatus()),
+      event_writer_(participant_, topics_.session_event, dds::qos::sessionEvent()),
+      direct_writer_(participant_, topics_.direct_force, dds::qos::directForce()),
+      ping_reader_(participant_, topics_.latency_ping, dds::qos::latencyProbe()),
+      pong_writer_(participant_, topics_.latency_pong, dds::qos::latencyProbe()),
+      wake_(participant_),
+      echo_stop_(participant_),
+      waitset_(participant_),
+      echo_waitset_(participant_),
+      capture_topics_(participant_),
+      file_reader_(participant_, capture_topics_.session_file, dds::qos::sessionFile()),
+      knn_writer_(participant_, capture_topics_.knn_model, dds::qos::knnModel()) {
+  waitset_.attach(file_reader_.handle(), kFiles);
+  waitset_.attach(wake_.handle(), kWake);
+  waitset_.attach(command_reader_.handle(), kCommands);
+  waitset_.attach(device_reader_.handle(), kDevice);
+  waitset_.attach(chunk_reader_.handle(), kChunks);
+  echo_waitset_.attach(echo_stop_.handle(), kWake);
+  echo_waitset_.attach(ping_reader_.handle(), kDevice);
+  echo_thread_ = std::thread([this] { echoLoop(); });
+}
+
+ServerLink::~ServerLink() {
+  echo_running_.store(false);
+  echo_stop_.trigger();
+  if (echo_thread_.joinable()) echo_thread_.join();
+}
+
+void ServerLink::publish(const telehand_msg_SessionStatus& s) {
+  if (status_writer_.write(s) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_JointModel& m) {
+  if (model_writer_.write(m) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_HandState& h) {
+  if (hand_writer_.write(h) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_KnnModel& k) {
+  if (knn_writer_.write(k) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_DirectForce& f) {
+  if (direct_writer_.write(f) < 0) counters_.publish_errors.fetch_add(1);
+}
+void ServerLink::publish(const telehand_msg_SessionEvent& e) {
+  if (event_writer_.write(e) < 0) counters_.publish_errors.fetch_add(1);
+}
+
+void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>& stop,
+                       std::chrono::nanoseconds tick) {
+  SteadyClock clock;
+  while (!stop.load(std::memory_order_acquire)) {
+    waitset_.wait(tick);
+    wake_.clear();
+    const int64_t now = clock.nowNs();
+    // Commands first so that an OPEN is known before its first samples are handled.
+    counters_.commands += command_reader_.take(
+        [&](const telehand_msg_SessionCommand& c, const dds_sample_info_t&) {
+          manager.onCommand(c, now);
+        });
+    file_reader_.take([&](const telehand_msg_SessionFile& f, const dds_sample_info_t&) {
+      manager.onFile(f, now);
+    });
+    counters_.chunks += chunk_reader_.take(
+        [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t&) { manager.onChunk(c, now); },
+        1024);
+    counters_.device_states += device_reader_.take(
+        [&](const telehand_msg_DeviceState& d, const dds_sample_info_t&) {
+          manager.onDeviceState(d, now);
+        },
+        256);  // then tick: HandState and closing sessions wait at most one batch
+    manager.tick(clock.nowNs());
+  }
+  // Whatever is still in the readers belongs in the record.
+  const int64_t now = clock.nowNs();
+  chunk_reader_.take(
+      [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t&) { manager.onChunk(c, now); },
+      SIZE_MAX);
+  manager.closeAll(now);
+}
+
+void ServerLink::echoLoop() {
+  pthread_setname_np(pthread_self(), "telehand-echo");
+  while (echo_running_.load(std::memory_order_acquire)) {
+    echo_waitset_.wait(std::chrono::milliseconds(200));
+    ping_reader_.take([&](const telehand_msg_DeviceState& s, const dds_sample_info_t&) {
+      if (pong_writer_.write(s) >= 0) counters_.echoes.fetch_add(1, std::memory_order_relaxed);
+    });
+  }
+}
+
+}  // namespace telehand::server::link

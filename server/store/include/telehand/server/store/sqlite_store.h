@@ -1,0 +1,52 @@
+#pragma once
+/// SessionStore on SQLite in WAL mode: the embedded default. One writer (the server), any
+/// number of readers (telehand-records) at the same time.
+#include <sqlite3.h>
+
+#include <memory>
+
+#include "telehand/server/store/store.h"
+
+namespace telehand::server::store {
+
+class SqliteStore final : public SessionStore {
+ public:
+  enum class Mode { kReadWrite, kReadOnly };
+  /// Creates the file and its directory (read-write) or opens an existing one (read-only);
+  /// StoreError naming the path on failure.
+  explicit SqliteStore(const std::string& path, Mode mode = Mode::kReadWrite);
+  ~SqliteStore() override;
+
+  uint64_t createSession(const SessionInfo& info) override;
+  uint64_t appendSamples(uint64_t session_id, std::span<const Sample> samples,
+                         std::span<const uint8_t> valid) override;
+  void appendEvent(uint64_t session_id, const EventRecord& e) override;
+  void appendReach(uint64_t session_id, const Reach& r) override;
+  std::vector<Reach> reaches(uint64_t session_id) override;
+  void closeSession(uint64_t session_id, int64_t ended_ns, uint64_t samples_expected,
+                    const std::string& state) override;
+  std::vector<SessionInfo> listSessions() override;
+  std::optional<SessionInfo> session(uint64_t session_id) override;
+  void forEachSample(uint64_t session_id,
+                     const std::function<void(const Sample&, bool)>& fn) override;
+  std::vector<EventRecord> events(uint64_t session_id) override;
+  void appendFile(uint64_t session_id, const SessionFile& f) override;
+  std::vector<SessionFile> files(uint64_t session_id) override;
+  std::string location() const override { return path_; }
+
+ private:
+  struct Stmt;
+  void exec(const char* sql);
+  sqlite3_stmt* prepare(const char* sql);
+
+  std::string path_;
+  sqlite3* db_ = nullptr;
+  sqlite3_stmt* insert_sample_ = nullptr;
+};
+
+/// The sample columns, in record and CSV order (README "Records").
+const std::vector<std::string>& sampleColumns();
+/// One sample as CSV fields in sampleColumns() order.
+std::string sampleCsvRow(const Sample& s, bool valid);
+
+}  // namespace telehand::server::store
