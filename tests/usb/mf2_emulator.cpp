@@ -1,6 +1,6 @@
 #include "mf2_emulator.h"
 
-// FACTS.md "umockdev": <linux/ioctl.h> must come before <linux/usbdevice_fs.h>.
+// docs/facts.md "umockdev": <linux/ioctl.h> must come before <linux/usbdevice_fs.h>.
 #include <linux/ioctl.h>
 #include <linux/usbdevice_fs.h>
 #include <time.h>
@@ -83,7 +83,7 @@ Mf2Emulator::Mf2Emulator(const EmulatorOptions& options) : opt_(options), fw_(op
   testbed_ = umockdev_testbed_new();
   handler_ = umockdev_ioctl_base_new();
   g_signal_connect_after(handler_, "handle-ioctl", G_CALLBACK(onIoctl), this);
-  // FACTS.md: attach the handler before adding the sysfs device.
+  // docs/facts.md: attach the handler before adding the sysfs device.
   GError* err = nullptr;
   if (!umockdev_testbed_attach_ioctl(testbed_, kDevNode, handler_, &err)) {
     const std::string msg = err ? err->message : "unknown";
@@ -91,7 +91,7 @@ Mf2Emulator::Mf2Emulator(const EmulatorOptions& options) : opt_(options), fw_(op
     throw std::runtime_error("umockdev: cannot attach the ioctl handler: " + msg);
   }
   addDevice();
-  // FACTS.md: check /sys really is the testbed's, or libusb would talk to the host.
+  // docs/facts.md: check /sys really is the testbed's, or libusb would talk to the host.
   std::ifstream marker(std::string(kSysPath) + "/telehand_emulated");
   std::string v;
   if (!(marker >> v) || v != "1") {

@@ -43,7 +43,7 @@ std::string joined(const std::vector<std::string>& v) {
 class UsbMf2Test : public ::testing::Test {
  protected:
   void SetUp() override {
-    // FACTS.md: 1 ns timer slack speeds up the emulation's ioctl round trips; umockdev's
+    // docs/facts.md: 1 ns timer slack speeds up the emulation's ioctl round trips; umockdev's
     // worker thread inherits it from here.
     prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
     emu_ = std::make_unique<Mf2Emulator>(options_);

@@ -132,7 +132,7 @@ int main(int argc, char** argv) {
       patient = loadPatientCaseByName(cases_dir, patient_name).model;
       geometry.force_scale = 1.0;
       dyn.operator_damping = 0.0;  // the clinician's damping is in the servo: the FSRs see it
-      dyn.mass_kg += 2.1e-5 / (initial.lever_arm_m * initial.lever_arm_m);  // the phalanx (FACTS.md)
+      dyn.mass_kg += 2.1e-5 / (initial.lever_arm_m * initial.lever_arm_m);  // the phalanx (docs/facts.md)
       devices::SweepPlan plan = devices::planSweep(patient);
       plan.seconds_per_axis = sweep_seconds;
       clinician.emplace(plan);

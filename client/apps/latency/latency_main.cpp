@@ -38,7 +38,7 @@ using Sample = telehand_msg_DeviceState;
 
 constexpr int kExitError = 2;
 constexpr int kExitInterrupted = 130;
-constexpr auto kAutoEchoWait = 2s;    // the issue: a server echo must match within 2 s
+constexpr auto kAutoEchoWait = 2s;    // a server echo must answer within 2 s, or one is started
 constexpr auto kServerEchoWait = 5s;  // --echo server was asked for: allow slower discovery
 constexpr auto kSelfEchoWait = 10s;   // includes exec and the child's domain start-up
 constexpr auto kDrain = 500ms;        // after the last ping: later pongs count as lost
@@ -476,7 +476,7 @@ PingResult runPinger(const Settings& s, Progress& progress) {
   uint64_t write_errors = 0, overruns = 0;
   std::thread pinger([&] {
     pthread_setname_np(pthread_self(), "lat-ping");
-    // The default 50 µs slack makes a 1 kHz sleep wake ~84 µs late on these VMs (FACTS.md).
+    // The default 50 µs slack makes a 1 kHz sleep wake ~84 µs late on these VMs (docs/facts.md).
     prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
     Sample x{};
     x.session_id = run_id;

@@ -38,7 +38,7 @@ namespace {
 std::atomic<bool> g_stop{false};
 void onSignal(int) { g_stop.store(true); }
 
-constexpr int64_t kStaleNs = 500 * kNsPerMs;  // the "STALE" threshold
+constexpr int64_t kStaleNs = 500 * kNsPerMs;  // older than this, a view is shown STALE
 constexpr int64_t kRateWindowNs = kNsPerS;
 // The transient-local histories arrive in bursts after discovery, one per writer and in no
 // particular order across sessions: give them this long once a session is found before

@@ -154,7 +154,7 @@ void HapticLoop::stop() {
 }
 
 void HapticLoop::run() {
-  // FACTS.md: default timer slack wakes a 1 kHz sleep ~84 us late; 1 ns brings it to ~35 us.
+  // docs/facts.md: default timer slack wakes a 1 kHz sleep ~84 us late; 1 ns brings it to ~35 us.
   prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
   pthread_setname_np(pthread_self(), "telehand-rt");
   if (config_.rt_priority > 0) {

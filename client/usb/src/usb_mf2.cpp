@@ -273,7 +273,7 @@ void UsbMf2::setStatus(DeviceStatus s, const std::string& text, bool notify) {
 
 void UsbMf2::run() {
   // The event loop wakes for every packet: 1 ns timer slack keeps its wake-ups (and the
-  // ioctl round trips of an emulated device, FACTS.md "umockdev") short.
+  // ioctl round trips of an emulated device, docs/facts.md "umockdev") short.
   prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
   pthread_setname_np(pthread_self(), "telehand-usb");
   auto next_attempt = std::chrono::steady_clock::now();

@@ -30,7 +30,7 @@ double CubicCurve::slope(double deg) const noexcept {
 JointModelParams healthyIndexMcp() {
   JointModelParams p;
   p.version = 1;
-  // Paper eqs. 3-5 (FACTS.md "The paper"); ranges from FACTS.md "Index MCP biomechanics".
+  // Paper eqs. 3-5 (docs/facts.md "The paper"); ranges from docs/facts.md "Index MCP biomechanics".
   p.axes[kFlexion] = {{1.834e-5, 0.0010338, 0.046382, 0.59057}, -45.0, 90.0};
   p.axes[kAbduction] = {{0.00017, 0.0012, 0.13, -0.49}, -20.0, 20.0};
   p.axes[kAxial] = {{0.0014, -0.014, 0.65, 0.09}, -10.0, 15.0};

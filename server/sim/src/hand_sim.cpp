@@ -25,7 +25,7 @@ struct JointLimits {
   std::array<bool, 3> rows{true, true, true};
 };
 
-// Bullet's Spring2 reads its Euler angles off the transposed relative rotation (FACTS.md:
+// Bullet's Spring2 reads its Euler angles off the transposed relative rotation (docs/facts.md:
 // a +0.30 rad turn reads -0.30), so R = Ry(a) Rx(g) Rz(b) is its RO_ZXY with every angle
 // negated: limits are handed over mirrored. The middle axis is then x, the axial rotation.
 // An axis whose rows are off is handed over free (lower > upper).

@@ -1,4 +1,4 @@
-// HapticLoop::step() allocates nothing (DESIGN.md "House style"). This executable replaces
+// HapticLoop::step() allocates nothing (docs/design.md "House style"). This executable replaces
 // the global operator new/delete with counting versions, armed per thread around step().
 #include <gtest/gtest.h>
 

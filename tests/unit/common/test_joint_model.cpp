@@ -1,5 +1,5 @@
 // The reduced index MCP model: paper eqs. 3-5, kinematics, torque mapping and the proxy's
-// cross-fade (FACTS.md "The paper", "Rendering").
+// cross-fade (docs/facts.md "The paper", "Rendering").
 #include "telehand/core/joint_model.h"
 
 #include <gtest/gtest.h>

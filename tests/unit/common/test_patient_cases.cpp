@@ -102,7 +102,7 @@ TEST(PatientCases, EveryCaseStaysWithinItsRangesAndResistsEverywhereInThem) {
       EXPECT_LT(torqueAt(m, axis, c.max_deg + 1.0), -0.005);
       EXPECT_GT(torqueAt(m, axis, c.min_deg - 1.0), 0.0);
     }
-    // Anatomical ranges (FACTS.md): flexion within −80..95 deg, abduction ±25, axial small.
+    // Anatomical ranges (docs/facts.md): flexion within −80..95 deg, abduction ±25, axial small.
     EXPECT_GE(pc.model.axes[kFlexion].min_deg, -80.0) << name;
     EXPECT_LE(pc.model.axes[kFlexion].max_deg, 95.0) << name;
     EXPECT_GE(pc.model.axes[kAbduction].min_deg, -25.0) << name;
@@ -121,7 +121,7 @@ TEST(PatientCases, HealthyIsThePaperJoint) {
 TEST(PatientCases, StiffnessesAreInThePublishedRanges) {
   const JointModel healthy(load("healthy").model);
   const JointModel stiff(load("stiff").model);
-  // Post-stroke (FACTS.md): resting at 40-58 deg flexion, 0.085-0.64 N·m/rad near rest.
+  // Post-stroke (docs/facts.md): resting at 40-58 deg flexion, 0.085-0.64 N·m/rad near rest.
   const double stiff_rest = restDeg(stiff, kFlexion);
   EXPECT_GE(stiff_rest, 40.0);
   EXPECT_LE(stiff_rest, 58.0);

@@ -1,4 +1,4 @@
-// QoS profiles against DESIGN.md's "Data over DDS" table.
+// QoS profiles against docs/design.md's "Data over DDS" table.
 #include <gtest/gtest.h>
 
 #include "telehand/protocol/dds.h"

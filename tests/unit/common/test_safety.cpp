@@ -1,4 +1,4 @@
-// The one gate every force passes (DESIGN.md "House style"): finite check, per-finger clamp
+// The one gate every force passes (docs/design.md "House style"): finite check, per-finger clamp
 // to 4 N, rate limit, watchdog; a fault commands zero at once.
 #include "telehand/core/safety.h"
 

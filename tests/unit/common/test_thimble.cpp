@@ -1,4 +1,4 @@
-// Paper eqs. 1-2 (FACTS.md "The paper"): F_tangential = F2 - F3, F_normal = sqrt(F4^2 + F1^2).
+// Paper eqs. 1-2 (docs/facts.md "The paper"): F_tangential = F2 - F3, F_normal = sqrt(F4^2 + F1^2).
 #include "telehand/core/thimble.h"
 
 #include <gtest/gtest.h>

@@ -17,7 +17,7 @@
 namespace telehand::server::estimate {
 namespace {
 
-constexpr double kPaperNoiseN = 1.43;  // thimble accuracy, FACTS.md "The paper"
+constexpr double kPaperNoiseN = 1.43;  // thimble accuracy, docs/facts.md "The paper"
 
 TEST(FitCubic, RecoversAnExactCubicOverAWideRange) {
   // Raw powers of ±90 deg span 1..7e5: the centred, scaled QR keeps full precision.
@@ -122,7 +122,7 @@ TEST(CaptureFit, PaperJointWithThimbleNoise) {
   EXPECT_NEAR(fit.model(healthyIndexMcp()).damping_nms_per_rad, 0.002, 0.001);
 }
 
-/// A joint drawn at random within physiological limits (FACTS.md "Index MCP biomechanics"):
+/// A joint drawn at random within physiological limits (docs/facts.md "Index MCP biomechanics"):
 /// ranges around flexion -60..100, abduction about ±20, axial -12..18 deg; monotonic
 /// cubics holding 6-20 N at the range ends, the rest angle near neutral.
 JointModelParams randomJoint(std::mt19937_64& rng) {

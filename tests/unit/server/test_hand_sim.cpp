@@ -1,5 +1,5 @@
 // The authoritative hand: URDF loading, conventions, limits, the 1-DoF ODE ground truth and
-// torque agreement with the client proxy (FACTS.md "Bullet").
+// torque agreement with the client proxy (docs/facts.md "Bullet").
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -16,7 +16,7 @@ namespace {
 const std::string kHand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
 
 /// One finger reduced to the index metacarpal (fixed) and a 30 g proximal phalanx on the
-/// three-axis MCP: the 1-DoF ground truth of FACTS.md.
+/// three-axis MCP: the 1-DoF ground truth of docs/facts.md.
 const char* kOnePhalanx = R"(<?xml version="1.0"?>
 <robot name="one">
   <link name="carpus"/>
@@ -49,7 +49,7 @@ TEST(HandModel, LoadsTheTwentyFourDofHandPlusAxialRotation) {
                         "index_pip", "index_dip", "little_dip"}) {
     EXPECT_NE(std::find(names.begin(), names.end(), n), names.end()) << n;
   }
-  // FACTS.md: index bones 45/37/30/15 mm.
+  // docs/facts.md: index bones 45/37/30/15 mm.
   EXPECT_NEAR(m.bones()[m.bone("index_metacarpal")].length_m, 0.045, 1e-6);
   EXPECT_NEAR(m.bones()[m.bone("index_proximal")].length_m, 0.037, 1e-6);
   EXPECT_NEAR(m.bones()[m.bone("index_middle")].length_m, 0.030, 1e-6);

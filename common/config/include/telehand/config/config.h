@@ -15,7 +15,7 @@ namespace telehand {
 
 /// The simulated clinician/student who moves the simulated MF-2 (client/device).
 struct OperatorConfig {
-  double frequency_hz = 3.0;    ///< mobilization oscillation, 1-6 Hz (FACTS.md)
+  double frequency_hz = 3.0;    ///< mobilization oscillation, 1-6 Hz (docs/facts.md)
   double band_min_n = 12.0;     ///< target force band, reference scale (paper: 12-16 N)
   double band_max_n = 16.0;
   double ramp_s = 1.5;          ///< time to build up to the band
@@ -36,7 +36,7 @@ struct ClientConfig {
 
 struct ServerConfig {
   std::string db_path = "records/telehand.db";
-  double hand_state_hz = 100.0;  ///< decimated HandState, 60-100 Hz (DESIGN.md)
+  double hand_state_hz = 100.0;  ///< decimated HandState, 60-100 Hz (docs/design.md)
   double close_grace_s = 5.0;    ///< how long a closing session waits for in-flight records
   std::string cases_dir;         ///< patient cases (*.toml); empty = the built-in healthy case only
   std::string hand_model;        ///< URDF of the hand; empty = HandState from the shared joint model

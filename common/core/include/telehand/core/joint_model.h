@@ -7,12 +7,12 @@
 /// R_J · Ry(alpha) · Rx(gamma) · Rz(beta): alpha = flexion (+ toward the palm), gamma = axial
 /// rotation (+ = supination, an assumption; see healthyIndexMcp), beta = abduction. Axial
 /// rotation, the smallest range, is the middle Euler axis, as the Bullet joint needs
-/// (FACTS.md "Bullet"). The student pinches the phalanx at the lever arm: the thumb on the
+/// (docs/facts.md "Bullet"). The student pinches the phalanx at the lever arm: the thumb on the
 /// dorsal side (+z of the phalanx), the index on the palmar side.
 ///
 /// Torques. Per-axis torques are the generalized forces conjugate to (alpha, beta, gamma):
 /// tau_i = e_i · tau, with e_alpha = y_J, e_gamma = Ry(alpha) x, e_beta = Ry(alpha) Rx(gamma) z,
-/// and tau = sum over fingers of (p_i − c) × F_i (FACTS.md "Rendering").
+/// and tau = sum over fingers of (p_i − c) × F_i (docs/facts.md "Rendering").
 #include <algorithm>
 #include <array>
 #include <cstdint>
@@ -44,7 +44,7 @@ struct CubicCurve {
 
 /// Stiffness of the end-of-range wall beyond [min_deg, max_deg], N/deg at reference scale:
 /// 1 N/deg at 1 cm is 1.4 N/mm after the 1:4 device scale, under the 2 N/mm that a 1 kHz
-/// loop renders stably (FACTS.md "Stable wall").
+/// loop renders stably (docs/facts.md "Stable wall").
 constexpr double kWallNPerDeg = 1.0;
 
 /// The MCP Euler convention as free functions (joint frame, no joint model needed):
@@ -84,7 +84,7 @@ struct JointModelParams {
 };
 
 /// The healthy index MCP of the paper: eqs. 3 (flexion), 4 (abduction), 5 (axial), with the
-/// range of motion of FACTS.md (flexion -45..90 deg, abduction ±20 deg) and, as a stated
+/// range of motion of docs/facts.md (flexion -45..90 deg, abduction ±20 deg) and, as a stated
 /// assumption since no reliable figures exist, axial rotation -10 (pronation) .. +15 deg
 /// (supination). Damping 0.002 N·m·s/rad: chosen so that viscous force stays under 5 % of
 /// the passive force during a 3 Hz mobilization at the 1 cm lever arm.
@@ -194,7 +194,7 @@ class JointProxy {
   ProxyOutput render(const PerFinger<Vec3>& p_device_finger, int64_t now_ns) noexcept;
 
   /// No tick's force may change by more than this share of the force, or the floor, because
-  /// of a model update (the force JND is 7-10 %, FACTS.md "Rendering and perception").
+  /// of a model update (the force JND is 7-10 %, docs/facts.md "Rendering and perception").
   static constexpr double kUpdateStepFraction = 0.05;
   static constexpr double kUpdateStepFloorN = 0.1;
   /// The largest force step (N) an update may cause on a tick rendering `force_n`.

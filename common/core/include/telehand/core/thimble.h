@@ -1,7 +1,7 @@
 #pragma once
 /// Thimble force estimation from the four FlexiForce A201 sensors of an MF-2 thimble.
 /// Sensors 1 (end) and 4 (pad) are normal to the fingertip, 2 and 3 are the sides
-/// (paper section IV, FACTS.md "The paper").
+/// (paper section IV, docs/facts.md "The paper").
 #include <array>
 
 #include "telehand/core/math.h"

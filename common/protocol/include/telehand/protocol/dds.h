@@ -1,6 +1,6 @@
 #pragma once
 /// A thin RAII layer over the Cyclone DDS C API: participant, topic, writer, reader,
-/// waitset, guard condition, and QoS profiles named after their use (DESIGN.md "Data over
+/// waitset, guard condition, and QoS profiles named after their use (docs/design.md "Data over
 /// DDS"). dds_write runs on the caller's thread: never call into this from the 1 kHz step.
 #include <dds/dds.h>
 
@@ -72,7 +72,7 @@ class Qos {
   dds_qos_t* q_;
 };
 
-/// QoS profiles, one per use, as DESIGN.md's table states them.
+/// QoS profiles, one per use, as docs/design.md's table states them.
 namespace qos {
 Qos deviceState();                  ///< best-effort, keep-last 1, volatile, 100 ms deadline
 Qos deviceStateReader(int32_t depth);  ///< as deviceState but a deeper reader history

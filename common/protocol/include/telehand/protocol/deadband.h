@@ -1,5 +1,5 @@
 #pragma once
-/// Perceptual deadband coding (Hinterseer & Steinbach; FACTS.md "Rendering and perception"):
+/// Perceptual deadband coding (Hinterseer & Steinbach; docs/facts.md "Rendering and perception"):
 /// a state goes out only when it differs from the last one sent by more than a Weber fraction
 /// of that value (forces), or by an absolute step where Weber's law does not apply (angles,
 /// forces near zero), or when nothing has gone out for `max_interval_ns`. The receiver holds

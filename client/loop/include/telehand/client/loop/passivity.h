@@ -1,6 +1,6 @@
 #pragma once
 /// Time-domain passivity observer and controller at the device port (Hannaford & Ryu 2002;
-/// FACTS.md "Rendering and perception"). Whatever renders the force (the local joint model,
+/// docs/facts.md "Rendering and perception"). Whatever renders the force (the local joint model,
 /// or forces from a remote server), the observer counts the energy that side has absorbed
 /// from the operator:
 ///   E(n) = E(n-1) − Σ_fingers F(n-1) · (p(n) − p(n-1)),

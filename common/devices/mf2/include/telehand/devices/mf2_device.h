@@ -4,7 +4,7 @@
 /// readings -> newtons with fault flags (thimble calibration). Parameters come from a device
 /// file (deploy/devices/mf2.toml) and one calibration file per thimble.
 ///
-/// Kinematics (paper section II.A, FACTS.md "MF-2"): 7 actuators, 13 DoF. Actuator 0 is the
+/// Kinematics (paper section II.A, docs/facts.md "MF-2"): 7 actuators, 13 DoF. Actuator 0 is the
 /// redundant base joint shared by both fingers, a rotation q_b about the device z axis
 /// through `base_pivot_m`. Each finger then has a yaw joint q_y about z at its own pivot
 /// (`yaw_pivot_m`, carried by the base), and a planar five-bar in the vertical plane of the

@@ -53,7 +53,7 @@ struct CaptureFit {
 
 struct FitOptions {
   /// Force below which the joint counts as lax (the neutral zone), N. About a force JND
-  /// (7-10 %, FACTS.md) of the paper's 12-16 N band.
+  /// (7-10 %, docs/facts.md) of the paper's 12-16 N band.
   double neutral_force_n = 1.0;
   /// Central difference half window for angular rates, samples (1 kHz: ±5 ms).
   int rate_half_window = 5;

@@ -1,5 +1,5 @@
 #pragma once
-/// Live refit of a capture session (DESIGN.md "cross-continent demonstration"): samples are
+/// Live refit of a capture session (docs/design.md "cross-continent demonstration"): samples are
 /// added as they arrive; poll() refits at most every `min_interval_ns` and returns a new
 /// model only when it differs from the one last published by more than a force JND
 /// somewhere in the captured range, so followers get a new JointModel version only when
@@ -17,7 +17,7 @@ namespace telehand::server::estimate {
 struct LiveRefitOptions {
   int64_t min_interval_ns = 500'000'000;  ///< at most two refits a second
   /// A change is felt when the force differs by more than this fraction of it (force JND
-  /// 7-10 %, FACTS.md "Rendering and perception")...
+  /// 7-10 %, docs/facts.md "Rendering and perception")...
   double jnd_fraction = 0.07;
   /// ...and by more than this many newtons at reference scale (an assumption: 0.5 N at the
   /// lever arm is 0.125 N at the device, near the smallest forces a fingertip resolves).

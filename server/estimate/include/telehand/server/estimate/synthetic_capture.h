@@ -20,7 +20,7 @@ namespace telehand::server::estimate {
 
 struct SyntheticCaptureOptions {
   JointModelParams truth = healthyIndexMcp();
-  /// Thimble error as the force each axis sees, N RMS: the paper's ±1.43 N (FACTS.md).
+  /// Thimble error as the force each axis sees, N RMS: the paper's ±1.43 N (docs/facts.md).
   double noise_n = 1.43;
   double sensor_noise_n = 0.02;     ///< FSR channel noise before the ADC, N
   double seconds_per_axis = 20.0;

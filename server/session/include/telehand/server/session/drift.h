@@ -20,7 +20,7 @@
 namespace telehand::server::session {
 
 struct DriftOptions {
-  /// Low-pass time constant: a 1-6 Hz mobilization (FACTS.md) passes at under a tenth of its
+  /// Low-pass time constant: a 1-6 Hz mobilization (docs/facts.md) passes at under a tenth of its
   /// amplitude; a slip that stays is corrected within about a second.
   double tau_s = 0.5;
   /// Correct when the filtered drift exceeds this on any axis: half the ±1° to which an

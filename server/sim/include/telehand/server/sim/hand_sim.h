@@ -3,7 +3,7 @@
 /// btGeneric6DofSpring2Constraint with translations locked and rotations limited per axis;
 /// the index MCP's non-linear stiffness comes from the shared joint model (common/), applied
 /// as external torques before every step (Bullet's own springs are linear and get capped at
-/// low rates: FACTS.md "Bullet"). The student's thumb and index are spheres pulled toward
+/// low rates: docs/facts.md "Bullet"). The student's thumb and index are spheres pulled toward
 /// the thimble positions by a spring-damper (virtual coupling); they push the proximal
 /// phalanx through frictionless contacts and hold it by skin friction, solved inside
 /// Bullet's solver and bounded by the friction limit, with a squeeze that follows the load
@@ -24,7 +24,7 @@ struct HandSimConfig {
   bool fix_metacarpals = true;           ///< the therapist stabilises the hand on the table
   std::string mcp_joint = "index_mcp_flexion";  ///< the joint the shared model drives
   /// Passive tone of every other joint toward neutral (an assumption: a few N·cm/rad,
-  /// linear, an order below the MCP's; FACTS.md gives no figures for them).
+  /// linear, an order below the MCP's; docs/facts.md gives no figures for them).
   double other_stiffness_nm_per_rad = 0.01;
   double other_damping_nms_per_rad = 0.0001;  // explicit: b·dt/I stays < 0.2 for a 15 mm distal phalanx
   double sphere_radius_m = 0.003;        ///< + 5 mm bone radius = the 8 mm thimble half width
