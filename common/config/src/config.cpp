@@ -1,5 +1,7 @@
 #include "telehand/config/config.h"
 
+#include "telehand/config/toml_reader.h"
+
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -13,121 +15,15 @@
 namespace telehand {
 namespace {
 
-[[noreturn]] void fail(const std::string& origin, const std::string& what) {
-  throw ConfigError(origin + ": " + what);
-}
+using config::fail;
+using config::parseToml;
+using config::rejectUnknownTables;
+using TableReader = config::TomlTable;
 
-/// Reads keys of one table, rejecting keys it was not asked about.
-class TableReader {
- public:
-  TableReader(const toml::table& root, const std::string& name, const std::string& origin)
-      : origin_(origin), name_(name) {
-    if (const toml::node* n = root.get(name)) {
-      table_ = n->as_table();
-      if (!table_) fail(origin, "'" + name + "' must be a table");
-    }
-  }
-  template <typename T>
-  void read(const std::string& key, T& out) {
-    known_.push_back(key);
-    if (!table_) return;
-    const toml::node* n = table_->get(key);
-    if (!n) return;
-    if constexpr (std::is_same_v<T, std::string>) {
-      if (auto v = n->value<std::string>()) {
-        out = *v;
-        return;
-      }
-    } else if constexpr (std::is_same_v<T, bool>) {
-      if (n->is_boolean()) {
-        out = *n->value<bool>();
-        return;
-      }
-    } else if constexpr (std::is_floating_point_v<T>) {
-      if (auto v = n->value<double>()) {
-        out = *v;
-        return;
-      }
-    } else {
-      // toml++ would convert a boolean: only a TOML integer counts, and it must fit T.
-      if (auto v = n->value<int64_t>(); v && n->is_integer() && *v >= 0) {
-        if (!std::in_range<T>(*v)) {
-          fail(origin_, "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." +
-                            key + "' = " + std::to_string(*v) + " is too large");
-        }
-        out = static_cast<T>(*v);
-        return;
-      }
-    }
-    std::string want = std::is_same_v<T, std::string> ? "a string"
-                       : std::is_same_v<T, bool>        ? "true or false"
-                       : std::is_floating_point_v<T>   ? "a number"
-                                                       : "a non-negative integer";
-    fail(origin_, "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." + key +
-                      "' must be " + want + " (found " + std::string(toml::impl::node_type_friendly_names[static_cast<int>(n->type())]) + ")");
-  }
-  /// A TOML array of exactly N numbers.
-  template <std::size_t N>
-  void readArray(const std::string& key, std::array<double, N>& out) {
-    known_.push_back(key);
-    if (!table_) return;
-    const toml::node* n = table_->get(key);
-    if (!n) return;
-    const toml::array* arr = n->as_array();
-    const std::string where = "line " + std::to_string(n->source().begin.line) + ": '" + name_ + "." + key + "'";
-    if (!arr || arr->size() != N) fail(origin_, where + " must be an array of " + std::to_string(N) + " numbers");
-    for (std::size_t i = 0; i < N; ++i) {
-      auto v = (*arr)[i].value<double>();
-      if (!v || !std::isfinite(*v)) fail(origin_, where + ": element " + std::to_string(i) + " is not a finite number");
-      out[i] = *v;
-    }
-  }
-  bool present() const { return table_ != nullptr; }
-  void rejectUnknown() const {
-    if (!table_) return;
-    for (const auto& [k, v] : *table_) {
-      if (std::find(known_.begin(), known_.end(), std::string(k.str())) == known_.end()) {
-        fail(origin_, "line " + std::to_string(v.source().begin.line) + ": unknown key '" +
-                          name_ + "." + std::string(k.str()) + "'");
-      }
-    }
-  }
-
- private:
-  std::string origin_;
-  std::string name_;
-  const toml::table* table_ = nullptr;
-  std::vector<std::string> known_;
-};
+std::string readFile(const std::string& path) { return config::readTextFile(path, "config file"); }
 
 toml::table parse(const std::string& text, const std::string& origin) {
-  try {
-    return toml::parse(text, origin);
-  } catch (const toml::parse_error& e) {
-    fail(origin, "line " + std::to_string(e.source().begin.line) + ", column " +
-                     std::to_string(e.source().begin.column) + ": " +
-                     std::string(e.description()));
-  }
-}
-
-void rejectUnknownTables(const toml::table& root, std::initializer_list<const char*> known,
-                         const std::string& origin) {
-  for (const auto& [k, v] : root) {
-    bool ok = false;
-    for (const char* n : known) ok = ok || k.str() == n;
-    if (!ok) {
-      fail(origin, "line " + std::to_string(v.source().begin.line) + ": unknown table '" +
-                       std::string(k.str()) + "'");
-    }
-  }
-}
-
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError("config file '" + path + "' cannot be read");
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
+  return parseToml(text, origin);
 }
 
 void requireRange(const std::string& origin, const char* key, double v, double lo, double hi) {

@@ -4,81 +4,37 @@
 #include <cmath>
 #include <fstream>
 #include <sstream>
-#include <toml++/toml.h>
 
+#include "telehand/config/toml_reader.h"
 #include "telehand/core/error.h"
 
 namespace telehand {
 
-namespace {
-
-[[noreturn]] void fail(const std::string& origin, const std::string& what) {
-  throw ConfigError(origin + ": " + what);
-}
-
-std::string lineOf(const toml::node& n) { return "line " + std::to_string(n.source().begin.line); }
-
-}  // namespace
-
 LinkProfile parseLinkProfile(const std::string& text, const std::string& origin) {
-  toml::table root;
-  try {
-    root = toml::parse(text, origin);
-  } catch (const toml::parse_error& e) {
-    fail(origin, "line " + std::to_string(e.source().begin.line) + ", column " +
-                     std::to_string(e.source().begin.column) + ": " + std::string(e.description()));
-  }
-  for (const auto& [k, v] : root) {
-    if (k.str() != "link") fail(origin, lineOf(v) + ": unknown table '" + std::string(k.str()) + "'");
-  }
-  const toml::table* t = root["link"].as_table();
-  if (!t) fail(origin, "missing table [link]");
+  const toml::table root = config::parseToml(text, origin);
+  config::rejectUnknownTables(root, {"link"}, origin);
+  config::TomlTable t(root, "link", origin, /*required=*/true);
   LinkProfile p;
-  struct Num {
-    const char* key;
-    double* out;
-    double lo, hi;
-  };
-  const Num nums[] = {{"rtt_ms", &p.rtt_ms, 0.0, 10000.0},
-                      {"jitter_ms", &p.jitter_ms, 0.0, 5000.0},
-                      {"jitter_corr_ms", &p.jitter_corr_ms, 0.0, 60000.0},
-                      {"loss_pct", &p.loss_pct, 0.0, 90.0},
-                      {"loss_burst", &p.loss_burst, 1.0, 1000.0},
-                      {"reorder_pct", &p.reorder_pct, 0.0, 100.0}};
-  for (const auto& [k, v] : *t) {
-    const std::string key(k.str());
-    const std::string where = lineOf(v) + ": 'link." + key + "'";
-    if (key == "name" || key == "description") {
-      auto s = v.value<std::string>();
-      if (!s) fail(origin, where + " must be a string");
-      (key == "name" ? p.name : p.description) = *s;
-      continue;
-    }
-    const Num* n = std::find_if(std::begin(nums), std::end(nums),
-                                [&](const Num& x) { return key == x.key; });
-    if (n == std::end(nums)) fail(origin, lineOf(v) + ": unknown key 'link." + key + "'");
-    auto d = v.value<double>();
-    if (!d || v.is_boolean()) fail(origin, where + " must be a number");
-    if (!(*d >= n->lo && *d <= n->hi)) {
-      fail(origin, where + " = " + std::to_string(*d) + " is outside [" + std::to_string(n->lo) +
-                       ", " + std::to_string(n->hi) + "]");
-    }
-    *n->out = *d;
-  }
+  p.name = t.text("name", p.name);
+  p.description = t.text("description", p.description);
+  p.rtt_ms = t.number("rtt_ms", p.rtt_ms, 0.0, 10000.0);
+  p.jitter_ms = t.number("jitter_ms", p.jitter_ms, 0.0, 5000.0);
+  p.jitter_corr_ms = t.number("jitter_corr_ms", p.jitter_corr_ms, 0.0, 60000.0);
+  p.loss_pct = t.number("loss_pct", p.loss_pct, 0.0, 90.0);
+  p.loss_burst = t.number("loss_burst", p.loss_burst, 1.0, 1000.0);
+  p.reorder_pct = t.number("reorder_pct", p.reorder_pct, 0.0, 100.0);
+  t.rejectUnknown();
   if (p.jitter_ms > p.rtt_ms * 0.5) {
-    fail(origin, "'link.jitter_ms' = " + std::to_string(p.jitter_ms) +
-                     " exceeds the one-way delay (rtt_ms / 2 = " + std::to_string(p.rtt_ms * 0.5) +
-                     "): a packet would arrive before it was sent");
+    config::fail(origin, "'link.jitter_ms' = " + std::to_string(p.jitter_ms) +
+                             " exceeds the one-way delay (rtt_ms / 2 = " +
+                             std::to_string(p.rtt_ms * 0.5) +
+                             "): a packet would arrive before it was sent");
   }
   return p;
 }
 
 LinkProfile loadLinkProfile(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError("link profile '" + path + "' cannot be read");
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return parseLinkProfile(ss.str(), path);
+  return parseLinkProfile(config::readTextFile(path, "link profile"), path);
 }
 
 GilbertElliott::GilbertElliott(double loss_fraction, double mean_burst_packets) {

@@ -7,6 +7,7 @@
 #include <set>
 #include <sstream>
 
+#include "telehand/config/toml_reader.h"
 #include "telehand/core/error.h"
 #include "telehand/devices/mf2_device.h"
 
@@ -14,116 +15,12 @@ namespace telehand::mf2 {
 
 namespace {
 
+using config::parseToml;
+using config::rejectUnknownTables;
+using Table = config::TomlTable;
+
 std::string readText(const std::string& path, const char* what) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError(std::string(what) + " '" + path + "' cannot be read");
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-toml::table parseToml(const std::string& text, const std::string& origin) {
-  try {
-    return toml::parse(text, origin);
-  } catch (const toml::parse_error& e) {
-    throw ConfigError(origin + ": line " + std::to_string(e.source().begin.line) + ", column " +
-                      std::to_string(e.source().begin.column) + ": " + std::string(e.description()));
-  }
-}
-
-/// Reads one table strictly: every key must be read, every read key must have the right type.
-class Table {
- public:
-  Table(const toml::table& root, const std::string& name, const std::string& origin, bool required)
-      : origin_(origin), name_(name) {
-    const toml::node* n = root.get(name);
-    if (!n) {
-      if (required) throw ConfigError(origin + ": missing table [" + name + "]");
-      return;
-    }
-    t_ = n->as_table();
-    if (!t_) throw ConfigError(origin + ": '" + name + "' must be a table");
-  }
-  bool present() const { return t_ != nullptr; }
-
-  double number(const std::string& key, double fallback, double lo, double hi) {
-    const toml::node* n = get(key);
-    if (!n) return fallback;
-    auto v = n->value<double>();
-    if (!v || !std::isfinite(*v)) fail(n, key, "must be a finite number");
-    if (!(*v >= lo && *v <= hi)) {
-      fail(n, key, "= " + std::to_string(*v) + " is outside [" + std::to_string(lo) + ", " +
-                       std::to_string(hi) + "]");
-    }
-    return *v;
-  }
-  int64_t integer(const std::string& key, int64_t fallback, int64_t lo, int64_t hi) {
-    const toml::node* n = get(key);
-    if (!n) return fallback;
-    if (!n->is_integer()) fail(n, key, "must be an integer");
-    const int64_t v = *n->value<int64_t>();
-    if (v < lo || v > hi) fail(n, key, "= " + std::to_string(v) + " is outside its range");
-    return v;
-  }
-  std::string text(const std::string& key, const std::string& fallback) {
-    const toml::node* n = get(key);
-    if (!n) return fallback;
-    auto v = n->value<std::string>();
-    if (!v || !n->is_string()) fail(n, key, "must be a string");
-    return *v;
-  }
-  template <std::size_t N>
-  std::array<double, N> numbers(const std::string& key, const std::array<double, N>& fallback,
-                                double lo, double hi) {
-    const toml::node* n = get(key);
-    if (!n) return fallback;
-    const toml::array* a = n->as_array();
-    if (!a || a->size() != N) fail(n, key, "must be an array of " + std::to_string(N) + " numbers");
-    std::array<double, N> out{};
-    for (std::size_t i = 0; i < N; ++i) {
-      auto v = (*a)[i].value<double>();
-      if (!v || !std::isfinite(*v) || *v < lo || *v > hi) {
-        fail(n, key, "element " + std::to_string(i) + " is not a number in [" + std::to_string(lo) +
-                         ", " + std::to_string(hi) + "]");
-      }
-      out[i] = *v;
-    }
-    return out;
-  }
-  void rejectUnknown() const {
-    if (!t_) return;
-    for (const auto& [k, v] : *t_) {
-      if (!known_.count(std::string(k.str()))) {
-        throw ConfigError(origin_ + ": line " + std::to_string(v.source().begin.line) +
-                          ": unknown key '" + name_ + "." + std::string(k.str()) + "'");
-      }
-    }
-  }
-
- private:
-  const toml::node* get(const std::string& key) {
-    known_.insert(key);
-    return t_ ? t_->get(key) : nullptr;
-  }
-  [[noreturn]] void fail(const toml::node* n, const std::string& key, const std::string& what) const {
-    throw ConfigError(origin_ + ": line " + std::to_string(n->source().begin.line) + ": '" + name_ +
-                      "." + key + "' " + what);
-  }
-
-  std::string origin_;
-  std::string name_;
-  const toml::table* t_ = nullptr;
-  std::set<std::string> known_;
-};
-
-void rejectUnknownTables(const toml::table& root, const std::set<std::string>& known,
-                         const std::string& origin) {
-  for (const auto& [k, v] : root) {
-    if (!known.count(std::string(k.str()))) {
-      throw ConfigError(origin + ": line " + std::to_string(v.source().begin.line) +
-                        ": unknown table '" + std::string(k.str()) + "'");
-    }
-  }
+  return config::readTextFile(path, what);
 }
 
 Quat quatFromRpyDeg(const std::array<double, 3>& rpy) {
