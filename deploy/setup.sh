@@ -19,6 +19,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   # the emulated MF-2 (USB tests) and the fuzz targets (clang's libFuzzer)
   umockdev libumockdev-dev clang libclang-rt-14-dev
+  # formatting check (tests/layout/check_format.sh)
+  clang-format
   # plots of fitted captures (telehand-records fit)
   gnuplot-nox
   # network namespaces for system tests

@@ -44,5 +44,13 @@ if [ -n "$climb" ]; then
   status=1
 fi
 
-[ $status -eq 0 ] && echo "layout: include directions hold"
+# Nothing points outside the repository: the design and the facts live in docs/.
+outside=$(git -C "$root" grep -nE '(^|[^/])(FACTS|DESIGN)\.md|shared/reference' -- ':!tests/layout/check_layout.sh' 2>/dev/null || true)
+if [ -n "$outside" ]; then
+  echo "layout: references outside the repository (use docs/design.md or docs/facts.md):"
+  echo "$outside" | sed 's/^/  /'
+  status=1
+fi
+
+[ $status -eq 0 ] && echo "layout: include directions hold, nothing cited outside the repository"
 exit $status
