@@ -162,10 +162,7 @@ void ClientLink::flushChunk(bool retry_only) {
     telehand_msg_RecordChunk c{};
     c.session_id = session_id_;
     c.chunk_seq = chunk_seq_;
-    c.samples._buffer = samples.data();
-    c.samples._length = static_cast<uint32_t>(samples.size());
-    c.samples._maximum = static_cast<uint32_t>(samples.size());
-    c.samples._release = false;
+    borrowSamples(c, samples);
     if (chunk_writer_.write(c) < 0) {  // writer blocked past max_blocking: keep it, retry
       stats_.chunk_retries.fetch_add(1, std::memory_order_relaxed);
       return;
@@ -180,16 +177,10 @@ void ClientLink::flushChunk(bool retry_only) {
 void ClientLink::pollModels() {
   knn_reader_.take([&](const telehand_msg_KnnModel& k, const dds_sample_info_t&) {
     if (k.session_id != session_id_ || (knn_samples_ && k.version <= knn_samples_->version)) return;
-    KnnWire w;
-    w.version = k.version;
-    w.k = static_cast<int>(std::clamp<uint32_t>(k.k, 1, 64));
-    w.points.reserve(k.samples._length);
-    for (uint32_t i = 0; i < k.samples._length; ++i) {
-      const auto& p = k.samples._buffer[i];
-      w.points.push_back({Vec3(p.angles_rad[0], p.angles_rad[1], p.angles_rad[2]),
-                          Vec3(p.torque_nm[0], p.torque_nm[1], p.torque_nm[2])});
-    }
-    knn_samples_ = std::move(w);
+    KnnReceived r;
+    r.version = k.version;
+    r.model = fromWire(k, &r.why);  // built here, on the link thread, never in the loop
+    knn_samples_ = std::move(r);
   });
   model_reader_.take([&](const telehand_msg_JointModel& m, const dds_sample_info_t&) {
     if (m.session_id != session_id_ || m.version <= model_version_) return;
@@ -211,19 +202,17 @@ void ClientLink::pollModels() {
     }
   });
   if (waiting_knn_ && knn_samples_ && knn_samples_->version == waiting_knn_->version) {
-    try {
-      KnnOptions o;
-      o.k = knn_samples_->k;
-      auto model = std::make_shared<const KnnTorqueModel>(std::move(knn_samples_->points), o);
-      knn_samples_->points.clear();
+    if (knn_samples_->model) {
+      std::shared_ptr<const KnnTorqueModel> model = std::move(knn_samples_->model);
       waiting_knn_->knn = model.get();
       knn_alive_.push_back(std::move(model));
       while (knn_alive_.size() > kKnnKeep) knn_alive_.pop_front();
       pending_model_ = *waiting_knn_;
-    } catch (const Error& e) {
+    } else {
       stats_.models_rejected.fetch_add(1);
       std::lock_guard lock(messages_mu_);
-      messages_.push_back("rejected k-nearest-neighbour model v" + std::to_string(waiting_knn_->version) + ": " + e.what());
+      messages_.push_back("rejected k-nearest-neighbour model v" + std::to_string(waiting_knn_->version) +
+                          ": " + knn_samples_->why);
     }
     waiting_knn_.reset();
   }
@@ -246,7 +235,7 @@ void ClientLink::pollDirectForces() {
     if (f.session_id != session_id_) return;
     loop::DirectForceSample d;
     d.device_seq = f.device_seq;
-    for (int k = 0; k < 2; ++k) d.force_n[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
+    d.force_n = forcesFromWire(f);
     stats_.direct_forces.fetch_add(1, std::memory_order_relaxed);
     loop_.directForces().tryPush(d);  // full: the loop holds the last one it took
   });

@@ -1,6 +1,10 @@
 #include "telehand/protocol/wire.h"
 
+#include <algorithm>
 #include <cmath>
+
+#include "telehand/core/error.h"
+#include "telehand/core/knn_model.h"
 
 namespace telehand {
 
@@ -150,6 +154,113 @@ Sample fromWire(const telehand_msg_DeviceState& d) noexcept {
   s.passivity_energy_j = d.passivity_energy_j;
   s.passivity_damping = d.passivity_damping;
   return s;
+}
+
+std::vector<Sample> samplesFromWire(const telehand_msg_RecordChunk& c) {
+  std::vector<Sample> samples;
+  samples.reserve(c.samples._length);
+  for (uint32_t i = 0; i < c.samples._length; ++i) samples.push_back(fromWire(c.samples._buffer[i]));
+  return samples;
+}
+
+void toWire(const KnnTorqueModel& m, uint64_t session_id, uint32_t version,
+            std::vector<telehand_msg_KnnSample>& storage, telehand_msg_KnnModel& out) {
+  storage.resize(m.size());
+  for (std::size_t i = 0; i < storage.size(); ++i) {
+    const KnnPoint& p = m.samples()[i];
+    for (int a = 0; a < 3; ++a) {
+      storage[i].angles_rad[a] = static_cast<float>(p.angles_rad[a]);
+      storage[i].torque_nm[a] = static_cast<float>(p.torque_nm[a]);
+    }
+  }
+  out.session_id = session_id;
+  out.version = version;
+  out.k = static_cast<uint32_t>(m.options().k);
+  borrowSequence(out.samples, std::span<telehand_msg_KnnSample>(storage));
+}
+
+std::unique_ptr<const KnnTorqueModel> fromWire(const telehand_msg_KnnModel& k, std::string* why) {
+  auto bad = [why](std::string w) -> std::unique_ptr<const KnnTorqueModel> {
+    if (why) *why = std::move(w);
+    return nullptr;
+  };
+  std::vector<KnnPoint> points;
+  points.reserve(k.samples._length);
+  for (uint32_t i = 0; i < k.samples._length; ++i) {
+    const auto& p = k.samples._buffer[i];
+    const Vec3 angles(p.angles_rad[0], p.angles_rad[1], p.angles_rad[2]);
+    const Vec3 torque(p.torque_nm[0], p.torque_nm[1], p.torque_nm[2]);
+    if (!allFinite(angles) || !allFinite(torque)) {
+      return bad("sample " + std::to_string(i) + " is not finite");
+    }
+    points.push_back({angles, torque});
+  }
+  KnnOptions o;
+  o.k = static_cast<int>(std::clamp<uint32_t>(k.k, 1, 64));
+  try {
+    return std::make_unique<const KnnTorqueModel>(std::move(points), o);
+  } catch (const Error& e) {
+    return bad(e.what());
+  }
+}
+
+void toWire(const HandStateFields& f, telehand_msg_HandState& out) noexcept {
+  out = telehand_msg_HandState{};
+  out.session_id = f.session_id;
+  out.source_time_ns = f.source_time_ns;
+  out.source = telehand_msg_HAND_SOURCE_SHARED_JOINT_MODEL;
+  out.device_rate_hz = f.device_rate_hz;
+  out.device_lost = f.device_lost;
+  out.model_version = f.model_version;
+  if (!f.have_device) return;
+  out.device_seq = f.device_seq;
+  out.device_time_ns = f.device_time_ns;
+  if (f.bullet) {
+    out.source = telehand_msg_HAND_SOURCE_BULLET;
+    out.dof_count = static_cast<uint16_t>(std::min<std::size_t>(f.joint_angles_rad.size(), 32));
+    for (std::size_t i = 0; i < out.dof_count; ++i) out.joint_angles_rad[i] = f.joint_angles_rad[i];
+    out.bone_count = static_cast<uint16_t>(std::min<std::size_t>(f.bone_poses.size(), 24));
+    for (std::size_t b = 0; b < out.bone_count; ++b) {
+      const auto& pose = f.bone_poses[b];
+      const double v[7] = {pose.position_m.x(),    pose.position_m.y(),    pose.position_m.z(),
+                           pose.orientation.w(), pose.orientation.x(), pose.orientation.y(),
+                           pose.orientation.z()};
+      for (int i = 0; i < 7; ++i) out.bone_pose[b][i] = v[i];
+    }
+    for (int k = 0; k < 2; ++k) {
+      for (int i = 0; i < 3; ++i) {
+        out.sphere_m[k][i] = f.sphere_m[static_cast<std::size_t>(k)][i];
+        out.contact_force_n[k][i] = f.contact_force_n[static_cast<std::size_t>(k)][i];
+      }
+    }
+  }
+  for (int k = 0; k < 2; ++k) {
+    for (int i = 0; i < 3; ++i) {
+      out.fingertip_m[k][i] = f.fingertip_m[static_cast<std::size_t>(k)][i];
+      out.fingertip_force_n[k][i] = f.fingertip_force_n[static_cast<std::size_t>(k)][i];
+    }
+  }
+  for (int i = 0; i < 3; ++i) {
+    out.mcp_angles_rad[i] = f.mcp_angles_rad[i];
+    out.mcp_torque_nm[i] = f.mcp_torque_nm[i];
+  }
+  out.applied_force_ref_n = f.applied_force_ref_n;
+}
+
+void toWire(uint64_t session_id, uint64_t device_seq, int64_t source_time_ns,
+            const PerFinger<Vec3>& force_n, telehand_msg_DirectForce& out) noexcept {
+  out.session_id = session_id;
+  out.device_seq = device_seq;
+  out.source_time_ns = source_time_ns;
+  for (int k = 0; k < 2; ++k) {
+    for (int i = 0; i < 3; ++i) out.force_n[k][i] = force_n[static_cast<std::size_t>(k)][i];
+  }
+}
+
+PerFinger<Vec3> forcesFromWire(const telehand_msg_DirectForce& f) noexcept {
+  PerFinger<Vec3> force;
+  for (std::size_t k = 0; k < 2; ++k) force[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
+  return force;
 }
 
 std::string_view modeName(telehand_msg_SessionMode m) noexcept {

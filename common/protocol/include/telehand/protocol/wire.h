@@ -2,10 +2,14 @@
 /// Conversions between wire types (idl/telehand.idl) and the C++ model, and checks on
 /// samples that arrive from the network.
 #include <cstddef>
+#include <cstdint>
 #include <cstring>
+#include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "telehand.h"
 #include "telehand/core/joint_model.h"
@@ -36,6 +40,69 @@ inline telehand_msg_DeviceState toWire(const Sample& s) noexcept {
   toWire(s, out);
   return out;
 }
+
+/// Point a wire sequence at `items` without handing it ownership: the sequence is valid while
+/// `items` is, and nothing frees the buffer on its behalf.
+template <class Sequence, class T>
+void borrowSequence(Sequence& seq, std::span<T> items) noexcept {
+  seq._buffer = items.data();
+  seq._length = static_cast<uint32_t>(items.size());
+  seq._maximum = static_cast<uint32_t>(items.size());
+  seq._release = false;
+}
+
+/// A RecordChunk whose samples are `samples` (not owned: keep them alive while it is used).
+inline void borrowSamples(telehand_msg_RecordChunk& c,
+                          std::span<telehand_msg_DeviceState> samples) noexcept {
+  borrowSequence(c.samples, samples);
+}
+/// A RecordChunk's samples, decoded (unchecked, as fromWire(DeviceState)).
+std::vector<Sample> samplesFromWire(const telehand_msg_RecordChunk& c);
+
+/// The samples behind a data-driven model as a wire KnnModel of `session_id` and `version`
+/// (k from the model's options; source_time_ns left to the caller). The samples go through
+/// `storage`, resized here, which the sequence borrows: keep it alive while `out` is used.
+void toWire(const KnnTorqueModel& m, uint64_t session_id, uint32_t version,
+            std::vector<telehand_msg_KnnSample>& storage, telehand_msg_KnnModel& out);
+/// The model a wire KnnModel describes (k clamped to [1, 64]); null with `why` set when it
+/// has no samples, a sample is not finite, or the index cannot be built. Allocates.
+std::unique_ptr<const KnnTorqueModel> fromWire(const telehand_msg_KnnModel& k, std::string* why);
+
+/// Everything a HandState says, as plain values; toWire packs it.
+struct HandStateFields {
+  uint64_t session_id = 0;
+  int64_t source_time_ns = 0;
+  /// The authoritative Bullet hand computed it (else the shared joint model).
+  bool bullet = false;
+  float device_rate_hz = 0.0f;
+  uint64_t device_lost = 0;
+  uint32_t model_version = 0;
+  /// The device sample it reflects; without one every field below stays zero on the wire.
+  bool have_device = false;
+  uint64_t device_seq = 0;
+  int64_t device_time_ns = 0;
+  Vec3 mcp_angles_rad = Vec3::Zero();
+  Vec3 mcp_torque_nm = Vec3::Zero();
+  PerFinger<Vec3> fingertip_m{Vec3::Zero(), Vec3::Zero()};
+  PerFinger<Vec3> fingertip_force_n{Vec3::Zero(), Vec3::Zero()};
+  float applied_force_ref_n = 0.0f;
+  // Bullet only: the whole hand (device frame); beyond the wire's capacity is cut off.
+  struct BonePose {
+    Vec3 position_m = Vec3::Zero();
+    Quat orientation = Quat::Identity();
+  };
+  std::vector<double> joint_angles_rad;
+  std::vector<BonePose> bone_poses;
+  PerFinger<Vec3> sphere_m{Vec3::Zero(), Vec3::Zero()};
+  PerFinger<Vec3> contact_force_n{Vec3::Zero(), Vec3::Zero()};
+};
+/// A whole HandState from `f`, seq zero (the publisher numbers what it sends).
+void toWire(const HandStateFields& f, telehand_msg_HandState& out) noexcept;
+
+/// Direct mode's fingertip forces (device frame) for device sample `device_seq`, and back.
+void toWire(uint64_t session_id, uint64_t device_seq, int64_t source_time_ns,
+            const PerFinger<Vec3>& force_n, telehand_msg_DirectForce& out) noexcept;
+PerFinger<Vec3> forcesFromWire(const telehand_msg_DirectForce& f) noexcept;
 
 std::string_view modeName(telehand_msg_SessionMode m) noexcept;
 std::optional<telehand_msg_SessionMode> parseMode(std::string_view name) noexcept;

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -121,12 +122,12 @@ class ClientLink {
   dds::CaptureTopics capture_topics_;
   dds::Writer<telehand_msg_SessionFile> file_writer_;
   dds::Reader<telehand_msg_KnnModel> knn_reader_;
-  struct KnnWire {
+  struct KnnReceived {
     uint32_t version = 0;
-    int k = 8;
-    std::vector<KnnPoint> points;
+    std::unique_ptr<const KnnTorqueModel> model;  // null: rejected, for `why`
+    std::string why;
   };
-  std::optional<KnnWire> knn_samples_;
+  std::optional<KnnReceived> knn_samples_;
   std::optional<JointModelParams> waiting_knn_;
   /// Every model the loop may still render: the ring's 8, the proxy's current and previous,
   /// and the one pending. Older ones are freed here, never on the loop's thread.

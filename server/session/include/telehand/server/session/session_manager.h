@@ -12,6 +12,8 @@
 #include "telehand/server/estimate/live_refit.h"
 #include "telehand/server/session/drift.h"
 #include "telehand/server/session/exploration.h"
+#include "telehand/server/session/outbox.h"
+#include "telehand/server/session/session_context.h"
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/sim/hand_sim.h"
 #include "telehand/server/store/store.h"
@@ -22,37 +24,12 @@
 
 namespace telehand::server::session {
 
+class Session;
+
 using store::EventRecord;
 using store::SessionFile;
 using store::SessionInfo;
 using store::SessionStore;
-
-/// Where the manager's messages go (the DDS link in the server, a recorder in tests).
-class Outbox {
- public:
-  virtual ~Outbox() = default;
-  virtual void publish(const telehand_msg_SessionStatus& s) = 0;
-  virtual void publish(const telehand_msg_JointModel& m) = 0;
-  virtual void publish(const telehand_msg_HandState& h) = 0;
-  virtual void publish(const telehand_msg_SessionEvent& e) = 0;
-  /// The samples behind a data-driven JointModel of the same session and version.
-  virtual void publish(const telehand_msg_KnnModel& k) { (void)k; }
-  /// Direct mode only (the baseline design).
-  virtual void publish(const telehand_msg_DirectForce& f) { (void)f; }
-};
-
-struct ManagerStats {
-  uint64_t live_samples = 0;
-  uint64_t recorded_samples = 0;
-  uint64_t nonfinite_samples = 0;
-  uint64_t unknown_session_samples = 0;
-  uint64_t bad_commands = 0;
-  uint64_t store_errors = 0;
-  uint64_t live_models = 0;            ///< JointModels published by live refits (captures)
-  int64_t last_refit_latency_ns = 0;   ///< newest sample's arrival -> its model published
-  int64_t max_refit_latency_ns = 0;
-  uint64_t drift_corrections = 0;      ///< JointModels published to correct drift (all sessions)
-};
 
 class SessionManager {
  public:
@@ -97,30 +74,15 @@ class SessionManager {
   static constexpr double kDriftEventDeg = 1.0;
 
  private:
-  struct Session;
   void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  /// End a session: score its exploration, part it from its capture or followers, close it.
   void finish(Session& s, int64_t now_ns, const std::string& state);
-  void recover(Session& s, int64_t now_ns);
-  /// One 1 ms step of the session's hand, observed for exploration and treatment time.
-  void stepHand(Session& s);
-  void refit(Session& s, int64_t now_ns);
-  /// Make `next` the session's model: the next version, the session's drift correction kept
-  /// (the grip on the finger did not change with the stiffness), in the hand and the direct
-  /// renderer, published.
-  void adoptModel(Session& s, JointModelParams next);
-  /// After a live sample stepped the hand: fold persistent drift into the model.
-  void correctDrift(Session& s, const PerFinger<Vec3>& grip, double dt_s, int64_t now_ns);
-  void publishModel(const Session& s);
-  void endExploration(Session& s, int64_t now_ns);
-  void publishStatus(const Session& s, telehand_msg_SessionState state, int64_t now_ns);
-  void publishHand(Session& s, int64_t now_ns);
-  void store(Session& s, std::vector<Sample>&& samples,
-             std::vector<uint8_t>&& valid);
   void event(uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
              const std::string& text, int64_t now_ns);
   /// Error about a session id nobody opened, at most once per id per 5 s.
   void unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns);
+  Session* find(uint64_t session_id);
 
   SessionStore& store_;
   Outbox& out_;
@@ -132,6 +94,7 @@ class SessionManager {
   ManagerStats stats_;
   estimate::LiveRefitOptions refit_options_;
   sim::HandSimConfig hand_config_;
+  SessionContext ctx_;  // for the sessions' parts: the members above
 };
 
 }  // namespace telehand::server::session

@@ -1,0 +1,80 @@
+#pragma once
+/// A session's hand: the Bullet hand stepped on device time (catching up on lost samples,
+/// holding on withheld ones), the exploration phases it is observed for, the drift between
+/// it and the proxy, and the HandState it is published as.
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "telehand/core/joint_model.h"
+#include "telehand/protocol/deadband.h"
+#include "telehand/server/session/drift.h"
+#include "telehand/server/session/exploration.h"
+#include "telehand/server/session/live_stream.h"
+#include "telehand/server/session/session_context.h"
+#include "telehand/server/sim/hand_model.h"
+#include "telehand/server/sim/hand_sim.h"
+
+namespace telehand::server::session {
+
+class HandRunner {
+ public:
+  /// With `hand`, the Bullet hand runs on `params`; without, HandState comes from the shared
+  /// joint model.
+  HandRunner(uint64_t session_id, const sim::HandModel* hand, const JointModelParams& params,
+             const sim::HandSimConfig& hand_config, double hand_deadband_weber, int64_t now_ns);
+
+  bool simulated() const noexcept { return sim_ != nullptr; }
+  /// The session adopted a new model.
+  void setModel(const JointModelParams& params) {
+    if (sim_) sim_->setMcpModel(params);
+  }
+
+  /// A finite live sample, before `live` takes it: step the hand to it and observe it.
+  /// True when the drift corrector changed its offset (the session adopts it; `before` is
+  /// the offset it had).
+  bool advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
+               const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
+               telehand_msg_SessionMode mode, int64_t now_ns, Vec3* before);
+  /// Report a drift correction just adopted as model `version`.
+  void reportDrift(SessionContext& ctx, const Vec3& before, uint32_t version, int64_t now_ns);
+  const DriftCorrector& drift() const noexcept { return drift_; }
+
+  /// Publish the HandState if one is due at `now_ns`.
+  void publishDue(SessionContext& ctx, const LiveStream& live, const JointModel& model,
+                  int64_t now_ns);
+
+  void beginExploration(const std::string& phase) { exploration_.begin(phase); }
+  /// Score and store the exploration phase under way, if any.
+  void endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns);
+
+  /// Time the pads pressed the joint (recovery).
+  double treatmentS() const noexcept { return treatment_s_; }
+  uint64_t published() const noexcept { return hand_seq_; }
+  uint64_t withheld() const noexcept { return hand_withheld_; }
+
+ private:
+  /// One 1 ms step of the hand, observed for exploration and treatment time.
+  void step(const JointModel& model);
+  /// After a live sample stepped the hand: fold persistent drift into the model.
+  bool correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip, const JointModel& model,
+                    telehand_msg_SessionMode mode, double dt_s, int64_t now_ns, Vec3* before);
+  void publish(SessionContext& ctx, const LiveStream& live, const JointModel& model, int64_t now_ns);
+
+  uint64_t session_id_;
+  std::unique_ptr<sim::HandSim> sim_;  // null: HandState from the shared joint model
+  double treatment_s_ = 0.0;
+  Exploration exploration_;
+  std::vector<store::SessionStore::Reach> baseline_;
+  DriftCorrector drift_;  // hand against proxy (sessions with a hand)
+  Vec3 prev_angles_ = Vec3::Zero();
+  int64_t prev_angles_ns_ = 0;
+  uint64_t hand_seq_ = 0;  // HandStates published so far
+  int64_t next_hand_ns_ = 0;
+  HandStateDeadband hand_deadband_;
+  uint64_t hand_withheld_ = 0;
+};
+
+}  // namespace telehand::server::session

@@ -1,0 +1,82 @@
+#pragma once
+/// One open session: who opened it and on what case, the joint model it renders (and the
+/// k-nearest-neighbour models that model may use), and its parts: the live stream, the
+/// record, the hand and, for captures and their followers, the live fit's fan-out.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "telehand.h"
+#include "telehand/config/config.h"
+#include "telehand/core/joint_model.h"
+#include "telehand/core/knn_model.h"
+#include "telehand/server/session/capture_fanout.h"
+#include "telehand/server/session/hand_runner.h"
+#include "telehand/server/session/live_stream.h"
+#include "telehand/server/session/recorder.h"
+#include "telehand/server/session/session_context.h"
+
+namespace telehand::server::session {
+
+class Session {
+ public:
+  Session(SessionContext& ctx, const store::SessionInfo& info,
+          const telehand_msg_SessionCommand& cmd, const PatientCase& patient,
+          const sim::HandModel* hand, const sim::HandSimConfig& hand_config, int64_t now_ns);
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  /// Make `next` the session's model: the next version, the session's drift correction kept
+  /// (the grip on the finger did not change with the stiffness), in the hand and the direct
+  /// renderer, published. `knn`: the data-driven model `next.knn` points at, held while
+  /// anything here can still render it.
+  void adoptModel(JointModelParams next, std::shared_ptr<const KnnTorqueModel> knn);
+  void publishModel();
+  void publishStatus(telehand_msg_SessionState state);
+
+  /// A live sample of this session.
+  void onLive(const Sample& d, int64_t now_ns);
+  /// Recorded samples of this session (`valid` per sample): the live fit, then the record.
+  void onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid, int64_t now_ns);
+  /// Periodic work of its own: rate, due HandState, store retries.
+  void tick(int64_t now_ns);
+  /// A recovering joint: republish its range once a second when it has grown enough.
+  void recoverIfDue(int64_t now_ns);
+  /// Report the link's rates and the outcome, close the record, publish CLOSED.
+  void close(const std::string& state, int64_t now_ns);
+
+  SessionContext& ctx;
+  store::SessionInfo info;
+  uint64_t client_id = 0;
+  uint32_t request_seq = 0;  // the OPEN this session answers
+  telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
+  PatientCase patient;
+  JointModelParams params;
+  JointModel model{params};
+  int64_t opened_ns = 0;
+  // closing
+  bool closing = false;
+  uint64_t expected = 0;
+  int64_t close_deadline_ns = 0;
+
+  LiveStream live;
+  Recorder recorder;
+  HandRunner hand;
+  CaptureFanout capture;
+
+ private:
+  void recover(int64_t now_ns);
+  /// Free the k-NN models nothing here can render any more (the model, the hand and the
+  /// direct renderer's current, fading-out and waiting versions).
+  void releaseKnn();
+
+  int64_t next_recovery_check_ns_ = 0;
+  std::unique_ptr<JointProxy> direct_;  // direct mode: the server renders the force
+  uint64_t direct_sent_ = 0;
+  std::vector<std::shared_ptr<const KnnTorqueModel>> knn_held_;
+  const KnnTorqueModel* direct_knn_ = nullptr;       // the direct renderer's current model's
+  const KnnTorqueModel* direct_knn_prev_ = nullptr;  // and the one it may be fading out
+};
+
+}  // namespace telehand::server::session

@@ -1,0 +1,203 @@
+#include "telehand/server/session/hand_runner.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cstdio>
+
+#include "telehand/core/clock.h"
+#include "telehand/core/error.h"
+#include "telehand/core/thimble.h"
+#include "telehand/protocol/wire.h"
+#include "telehand/server/session/session_manager.h"
+
+namespace telehand::server::session {
+
+HandRunner::HandRunner(uint64_t session_id, const sim::HandModel* hand,
+                       const JointModelParams& params, const sim::HandSimConfig& hand_config,
+                       double hand_deadband_weber, int64_t now_ns)
+    : session_id_(session_id),
+      next_hand_ns_(now_ns),
+      hand_deadband_(DeadbandConfig{hand_deadband_weber}) {
+  if (hand) sim_ = std::make_unique<sim::HandSim>(*hand, params, hand_config);
+}
+
+void HandRunner::step(const JointModel& model) {
+  sim_->step();
+  const auto f = sim_->contactForcesDevice();
+  if (exploration_.active()) {
+    const Vec3 angles = sim_->mcpAngles();
+    // The force at the reach is what holds the joint there: the pads' torque about it as a
+    // force at the lever arm, as the paper's curves give it (the squeeze cancels out).
+    const double holding_n =
+        model.axisTorque(sim_->contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}).norm() /
+        model.params().lever_arm_m;
+    exploration_.observe(angles, holding_n);
+  }
+  if (f[0].norm() + f[1].norm() > 1.0) treatment_s_ += 1e-3;
+}
+
+bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
+                         const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
+                         telehand_msg_SessionMode mode, int64_t now_ns, Vec3* before) {
+  if (sim_ && live.isNew(d)) {
+    // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
+    // on the way, with the thimbles moving in a straight line across the gap (jumping the
+    // pads to the new sample would kick the finger and leave the hand lagging the
+    // thimbles). An overloaded server must not try to catch up on every lost millisecond
+    // (each catch-up would fall further behind): past kMaxCatchUpSteps the hand skips time
+    // and the gap shows in HandState.device_lost. A deadband-coded stream withholds samples
+    // on purpose: those steps run on the last state received.
+    const uint64_t gap = live.ticksTo(d);
+    const uint64_t steps = std::min<uint64_t>(
+        gap, coded ? SessionManager::kMaxHeldSteps : SessionManager::kMaxCatchUpSteps);
+    if (live.have() && steps > 1) {
+      const bool hold = coded;
+      const PerFinger<Vec3> from = thimblePositions(live.last()), &to = grip;
+      for (uint64_t i = 1; i < steps; ++i) {
+        const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
+        sim_->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
+                               true);
+        step(model);
+      }
+    }
+    sim_->setFingerTargets(grip, true);
+    step(model);
+    return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, now_ns, before);
+  }
+  if (!sim_ && exploration_.active()) exploration_.observe(model.anglesFromGrip(grip), 0.0);
+  return false;
+}
+
+bool HandRunner::correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip,
+                              const JointModel& model, telehand_msg_SessionMode mode, double dt_s,
+                              int64_t now_ns, Vec3* before) {
+  // A capture renders nothing (the actuators are off): there is no proxy to correct.
+  if (!ctx.config.drift_correction || mode == telehand_msg_MODE_CAPTURE) return false;
+  const auto pads = sim_->contactForcesDevice();
+  const double min_grip = drift_.options().min_grip_n;
+  const bool held = pads[0].norm() >= min_grip && pads[1].norm() >= min_grip;
+  Vec3 proxy = model.proxyAngles(grip);
+  // Past a range end the proxy renders the end-of-range wall while the hand rests on its
+  // hard limit: that gap is the wall's give, which the student must feel, not drift.
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    const auto& axis = model.params().axes[i];
+    proxy[static_cast<int>(i)] = std::clamp(proxy[static_cast<int>(i)], degToRad(axis.min_deg),
+                                            degToRad(axis.max_deg));
+  }
+  *before = drift_.offset();
+  return drift_.observe(sim_->mcpAngles(), proxy, held, dt_s, now_ns);
+}
+
+void HandRunner::reportDrift(SessionContext& ctx, const Vec3& before, uint32_t version,
+                             int64_t now_ns) {
+  const Vec3 change_deg = radToDeg(1.0) * (drift_.offset() - before);
+  spdlog::debug("session {}: drift correction v{}: {:.2f} {:.2f} {:.2f} deg", session_id_,
+                version, change_deg[0], change_deg[1], change_deg[2]);
+  // A slip anyone would notice goes in the record and to the supervisors.
+  if (change_deg.cwiseAbs().maxCoeff() >= SessionManager::kDriftEventDeg) {
+    const Vec3 total = radToDeg(1.0) * drift_.offset();
+    char text[200];
+    std::snprintf(text, sizeof text,
+                  "grip slipped: the hand is %+.1f/%+.1f/%+.1f deg (flexion/abduction/axial) from "
+                  "the thimbles; the proxy follows it (model v%u)",
+                  total[0], total[1], total[2], version);
+    ctx.event(session_id_, 0, telehand_msg_EVENT_INFO, text, now_ns);
+  }
+}
+
+void HandRunner::publishDue(SessionContext& ctx, const LiveStream& live, const JointModel& model,
+                            int64_t now_ns) {
+  if (now_ns < next_hand_ns_) return;
+  const int64_t hand_period = static_cast<int64_t>(1e9 / ctx.config.hand_state_hz);
+  publish(ctx, live, model, now_ns);
+  next_hand_ns_ += hand_period;
+  if (next_hand_ns_ < now_ns) next_hand_ns_ = now_ns + hand_period;
+}
+
+void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const JointModel& model,
+                         int64_t now_ns) {
+  const JointModelParams& params = model.params();
+  HandStateFields hf;
+  hf.session_id = session_id_;
+  hf.source_time_ns = wallNs();
+  hf.device_rate_hz = live.rateHz();
+  hf.device_lost = live.lost();
+  hf.model_version = params.version;
+  if (live.have()) {
+    const auto& d = live.last();
+    hf.have_device = true;
+    hf.device_seq = d.seq;
+    hf.device_time_ns = d.source_time_ns;
+    const PerFinger<Vec3> p = thimblePositions(d);
+    if (!sim_) {
+      // No hand: the shared joint model at the thimbles, rates from successive states.
+      const Vec3 mcp = model.anglesFromGrip(p);
+      Vec3 rates = Vec3::Zero();
+      if (prev_angles_ns_ != 0 && d.source_time_ns > prev_angles_ns_) {
+        rates = (mcp - prev_angles_) /
+                (static_cast<double>(d.source_time_ns - prev_angles_ns_) * 1e-9);
+      }
+      prev_angles_ = mcp;
+      prev_angles_ns_ = d.source_time_ns;
+      hf.mcp_angles_rad = mcp;
+      hf.mcp_torque_nm = model.passiveTorqueNm(mcp, rates);
+    } else {
+      // The authoritative hand: its angles, torques, bones, spheres and contacts.
+      const sim::HandSim& hs = *sim_;
+      hf.bullet = true;
+      hf.mcp_angles_rad = hs.mcpAngles();
+      hf.mcp_torque_nm = hs.mcpPassiveTorque();
+      hf.joint_angles_rad = hs.jointAngles();
+      const std::size_t bones = std::min<std::size_t>(hs.model().bones().size(), 24);
+      const sim::Pose to_device = hs.deviceToWorld().inverse();
+      hf.bone_poses.resize(bones);
+      for (std::size_t b = 0; b < bones; ++b) {
+        const sim::Pose pose = to_device * hs.bonePose(static_cast<int>(b));
+        hf.bone_poses[b] = {pose.translation(), Quat(pose.linear())};
+      }
+      hf.sphere_m = hs.spherePositionsDevice();
+      hf.contact_force_n = hs.contactForcesDevice();
+    }
+    Vec3 applied = Vec3::Zero();
+    for (std::size_t k = 0; k < 2; ++k) {
+      const auto& f = d.fingers[k];
+      const Quat q(f.orientation_q[0], f.orientation_q[1], f.orientation_q[2], f.orientation_q[3]);
+      const Vec3 fv = thimbleForceVector({f.tangential_n, f.normal_n}, q);
+      applied += fv;
+      hf.fingertip_m[k] = p[k];
+      hf.fingertip_force_n[k] = fv;
+    }
+    hf.applied_force_ref_n = static_cast<float>(applied.norm() / params.force_scale);
+  }
+  telehand_msg_HandState h;
+  toWire(hf, h);
+  if (!hand_deadband_.admit(h, now_ns)) {
+    ++hand_withheld_;
+    return;
+  }
+  h.seq = hand_seq_++;  // viewers see consecutive numbers for what they get
+  ctx.out.publish(h);
+}
+
+void HandRunner::endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns) {
+  if (!exploration_.active()) return;
+  const std::string phase = exploration_.phase();
+  const auto reached = exploration_.finish();
+  if (reached.empty()) return;
+  for (const auto& r : reached) {
+    try {
+      ctx.store.appendReach(session_id_, r);
+    } catch (const StoreError& e) {
+      ++ctx.stats.store_errors;
+      spdlog::error("session {}: {}", session_id_, e.what());
+    }
+  }
+  const bool baseline = phase == "baseline";
+  ctx.event(session_id_, client_id, telehand_msg_EVENT_SCORE,
+            phase + ": " + Exploration::summary(reached, baseline ? decltype(baseline_){} : baseline_),
+            now_ns);
+  if (baseline) baseline_ = reached;
+}
+
+}  // namespace telehand::server::session

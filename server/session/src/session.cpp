@@ -1,0 +1,206 @@
+#include "telehand/server/session/session.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "telehand/core/clock.h"
+#include "telehand/core/error.h"
+#include "telehand/core/thimble.h"
+#include "telehand/protocol/wire.h"
+#include "telehand/server/session/session_manager.h"
+
+namespace telehand::server::session {
+
+namespace {
+JointModelParams openingModel(const PatientCase& patient) {
+  JointModelParams p = patient.at(0.0);
+  p.version = 1;
+  p.knn = nullptr;
+  return p;
+}
+}  // namespace
+
+Session::Session(SessionContext& context, const store::SessionInfo& session_info,
+                 const telehand_msg_SessionCommand& cmd, const PatientCase& patient_case,
+                 const sim::HandModel* hand_model, const sim::HandSimConfig& hand_config,
+                 int64_t now_ns)
+    : ctx(context),
+      info(session_info),
+      client_id(cmd.client_id),
+      request_seq(cmd.request_seq),
+      mode(cmd.mode),
+      patient(patient_case),
+      params(openingModel(patient_case)),
+      model(params),
+      opened_ns(now_ns),
+      live(now_ns),
+      recorder(session_info.id),
+      hand(session_info.id, hand_model, params, hand_config, context.config.hand_deadband_weber,
+           now_ns),
+      next_recovery_check_ns_(now_ns + kNsPerS) {
+  if (cmd.mode == telehand_msg_MODE_EXPLORATION) hand.beginExploration("baseline");
+  if (cmd.direct_force) direct_ = std::make_unique<JointProxy>(params);
+}
+
+void Session::publishModel() {
+  telehand_msg_JointModel m{};
+  toWire(params, info.id, m);
+  m.source_time_ns = wallNs();
+  ctx.out.publish(m);
+}
+
+void Session::adoptModel(JointModelParams next, std::shared_ptr<const KnnTorqueModel> knn) {
+  next.version = params.version + 1;
+  next.grip_offset_rad = hand.drift().offset();
+  params = next;
+  model = JointModel(params);
+  hand.setModel(params);
+  if (direct_) direct_->setModel(params);
+  if (knn) knn_held_.push_back(std::move(knn));
+  releaseKnn();
+  publishModel();
+}
+
+void Session::releaseKnn() {
+  // The direct renderer's waiting version, if any, is the newest: params.
+  std::erase_if(knn_held_, [&](const std::shared_ptr<const KnnTorqueModel>& k) {
+    const KnnTorqueModel* m = k.get();
+    return m != params.knn && m != direct_knn_ && m != direct_knn_prev_;
+  });
+}
+
+void Session::publishStatus(telehand_msg_SessionState state) {
+  telehand_msg_SessionStatus st{};
+  st.session_id = info.id;
+  st.client_id = client_id;
+  st.request_seq = request_seq;
+  st.source_time_ns = wallNs();
+  st.state = state;
+  st.mode = mode;
+  st.started_ns = info.started_ns;
+  st.ended_ns = state == telehand_msg_SESSION_CLOSED ? wallNs() : 0;
+  st.samples_recorded = recorder.recorded();
+  st.samples_missing = state == telehand_msg_SESSION_CLOSED && expected > recorder.recorded()
+                           ? expected - recorder.recorded()
+                           : 0;
+  copyString(st.case_name, info.case_name);
+  copyString(st.user, info.user);
+  copyString(st.record, ctx.store.location() + " session " + std::to_string(info.id));
+  ctx.out.publish(st);
+}
+
+void Session::onLive(const Sample& d, int64_t now_ns) {
+  live.touch(now_ns);
+  if (auto bad = firstNonFinite(d)) {
+    recorder.nonFinite(ctx, client_id, d, *bad, now_ns);
+    return;
+  }
+  ++ctx.stats.live_samples;
+  const PerFinger<Vec3> grip = thimblePositions(d);
+  const bool coded = (d.flags & sample_flags::kDeadband) != 0;
+  if (direct_ && live.isNew(d)) {
+    // The baseline design: the server renders the force with the same proxy the client
+    // would run, on device time, and sends it back.
+    const ProxyOutput out = direct_->render(grip, d.source_time_ns);
+    // What the direct renderer may still use: its current model and, while it fades, the
+    // one before.
+    const KnnTorqueModel* current = direct_->model().params().knn;
+    if (current != direct_knn_) {
+      direct_knn_prev_ = direct_knn_;
+      direct_knn_ = current;
+    }
+    if (!direct_->blending() && direct_knn_prev_) {
+      direct_knn_prev_ = nullptr;
+      releaseKnn();
+    }
+    telehand_msg_DirectForce f{};
+    toWire(info.id, d.seq, wallNs(), out.force_device_n, f);
+    ctx.out.publish(f);
+    ++direct_sent_;
+  }
+  Vec3 before = Vec3::Zero();
+  if (hand.advance(ctx, live, d, grip, coded, model, mode, now_ns, &before)) {
+    ++ctx.stats.drift_corrections;
+    adoptModel(params, nullptr);
+    hand.reportDrift(ctx, before, params.version, now_ns);
+  }
+  live.accept(d, coded);
+}
+
+void Session::onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid,
+                       int64_t now_ns) {
+  live.touch(now_ns);
+  capture.add(samples, valid, now_ns);
+  recorder.store(ctx, std::move(samples), std::move(valid));
+}
+
+void Session::tick(int64_t now_ns) {
+  live.updateRate(now_ns);
+  hand.publishDue(ctx, live, model, now_ns);
+  recorder.retry(ctx);
+}
+
+void Session::recoverIfDue(int64_t now_ns) {
+  if (!patient.recovers || now_ns < next_recovery_check_ns_) return;
+  next_recovery_check_ns_ = now_ns + kNsPerS;
+  recover(now_ns);
+}
+
+void Session::recover(int64_t now_ns) {
+  JointModelParams next = patient.at(hand.treatmentS());
+  double grown = 0.0;
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    grown = std::max({grown, params.axes[i].min_deg - next.axes[i].min_deg,
+                      next.axes[i].max_deg - params.axes[i].max_deg});
+  }
+  if (grown < SessionManager::kRecoveryStepDeg) return;  // not a change anyone would feel
+  adoptModel(next, nullptr);
+  char text[160];
+  std::snprintf(text, sizeof text,
+                "recovery: after %.0f s of treatment, flexion range %.1f..%.1f deg (model v%u)",
+                hand.treatmentS(), params.axes[kFlexion].min_deg, params.axes[kFlexion].max_deg,
+                params.version);
+  ctx.event(info.id, 0, telehand_msg_EVENT_INFO, text, now_ns);
+}
+
+void Session::close(const std::string& state, int64_t now_ns) {
+  {
+    // The link's packet rates, into the record.
+    const double secs = std::max(static_cast<double>(now_ns - opened_ns) * 1e-9, 1e-3);
+    char text[240];
+    std::snprintf(text, sizeof text,
+                  "link: DeviceState %.1f packets/s received live (%s), HandState %.1f/s "
+                  "published (%llu withheld by the deadband)%s",
+                  static_cast<double>(live.count()) / secs,
+                  live.deadbandCoded() ? "deadband-coded" : "every sample",
+                  static_cast<double>(hand.published()) / secs,
+                  static_cast<unsigned long long>(hand.withheld()),
+                  direct_ ? (", DirectForce " +
+                             std::to_string(static_cast<long long>(
+                                 std::llround(static_cast<double>(direct_sent_) / secs))) +
+                             "/s sent").c_str()
+                          : "");
+    ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, text, now_ns);
+  }
+  try {
+    ctx.store.closeSession(info.id, wallNs(), expected, state);
+  } catch (const StoreError& e) {
+    ++ctx.stats.store_errors;
+    spdlog::error("session {}: {}", info.id, e.what());
+  }
+  const uint64_t recorded = recorder.recorded();
+  const uint64_t missing = expected > recorded ? expected - recorded : 0;
+  ctx.event(info.id, client_id, missing ? telehand_msg_EVENT_ERROR : telehand_msg_EVENT_INFO,
+            state + ": " + std::to_string(recorded) + " samples recorded" +
+                (missing ? ", " + std::to_string(missing) + " missing" : "") +
+                (recorder.nonfinite()
+                     ? ", " + std::to_string(recorder.nonfinite()) + " non-finite live samples ignored"
+                     : ""),
+            now_ns);
+  publishStatus(telehand_msg_SESSION_CLOSED);
+}
+
+}  // namespace telehand::server::session
