@@ -1,10 +1,16 @@
 #include "telehand/server/store/sqlite_store.h"
 
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstddef>
-#include <cstring>
+#include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <sstream>
+#include <type_traits>
 
 #include "telehand/core/error.h"
 
@@ -12,30 +18,24 @@ namespace telehand::server::store {
 
 namespace {
 
-// The sample is kept whole as its fixed-size wire struct (x86-64 layout) plus the columns a
-// query needs; kSampleFormat changes whenever idl/telehand.idl's DeviceState does.
-// Format 2 appended the passivity fields; format 1 samples (shorter) are read with them zero.
-constexpr int kSampleFormat = 2;
-constexpr int kSampleFormat1Bytes = static_cast<int>(offsetof(Sample, passivity_energy_j));
+// ---- Schema ---------------------------------------------------------------------------------
+//
+// The file says what it is in its SQLite header: application_id is kApplicationId and
+// user_version the schema number. Schema 1 (no marker in the header, user_version 0) kept each
+// sample as a BLOB of the C struct's memory next to a few query columns; schema 2 keeps every
+// field of the sample in a column of its own, named as in the CSV export (sampleColumns()).
+constexpr int32_t kApplicationId = 0x54484E44;  // "THND"
+constexpr int kSchemaVersion = 2;
+constexpr int kBlobSchemaVersion = 1;
 
-constexpr const char* kSchema = R"sql(
+// Tables other than samples; the same in schema 1 (session_files came late in it) and 2.
+constexpr const char* kOtherTables = R"sql(
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS sessions (
   id INTEGER PRIMARY KEY,
   user TEXT NOT NULL, case_name TEXT NOT NULL, mode TEXT NOT NULL,
   state TEXT NOT NULL, started_ns INTEGER NOT NULL, ended_ns INTEGER NOT NULL DEFAULT 0,
   samples_expected INTEGER NOT NULL DEFAULT 0);
-CREATE TABLE IF NOT EXISTS samples (
-  session_id INTEGER NOT NULL REFERENCES sessions(id),
-  seq INTEGER NOT NULL,
-  t_ns INTEGER NOT NULL,
-  valid INTEGER NOT NULL,
-  flags INTEGER NOT NULL,
-  model_version INTEGER NOT NULL,
-  alpha_rad REAL, beta_rad REAL, gamma_rad REAL,
-  format INTEGER NOT NULL,
-  data BLOB NOT NULL,
-  PRIMARY KEY (session_id, seq)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS events (
   session_id INTEGER NOT NULL,
   time_ns INTEGER NOT NULL,
@@ -55,6 +55,184 @@ CREATE TABLE IF NOT EXISTS session_files (
   PRIMARY KEY (session_id, name));
 )sql";
 
+/// Calls f(field) for every field of a sample except session_id, in sampleColumns() order.
+/// The one place that order is written down: the table, the insert, the read and the CSV
+/// all follow it.
+template <class S, class F>
+void visitFields(S& s, F&& f) {
+  f(s.seq);
+  f(s.source_time_ns);
+  f(s.model_version);
+  f(s.flags);
+  for (auto& v : s.mcp_angles_rad) f(v);
+  for (auto& v : s.mcp_torque_nm) f(v);
+  for (auto& finger : s.fingers) {
+    for (auto& v : finger.position_m) f(v);
+    for (auto& v : finger.orientation_q) f(v);
+    for (auto& v : finger.fsr_n) f(v);
+    f(finger.tangential_n);
+    f(finger.normal_n);
+    for (auto& v : finger.command_n) f(v);
+  }
+  f(s.passivity_energy_j);
+  f(s.passivity_damping);
+}
+
+/// The names visitFields() goes through, in its order.
+const std::vector<std::string>& fieldNames() {
+  static const std::vector<std::string> names = [] {
+    std::vector<std::string> n = {"seq", "t_ns", "model_version", "flags"};
+    const char* axes[3] = {"alpha", "beta", "gamma"};
+    for (const char* a : axes) n.push_back(std::string(a) + "_rad");
+    for (const char* a : axes) n.push_back("tau_" + std::string(a) + "_nm");
+    const char* xyz[3] = {"x", "y", "z"};
+    const char* wxyz[4] = {"w", "x", "y", "z"};
+    for (const std::string f : {"thumb", "index"}) {
+      for (const char* c : xyz) n.push_back(f + "_p" + c + "_m");
+      for (const char* c : wxyz) n.push_back(f + "_q" + c);
+      for (int i = 1; i <= 4; ++i) n.push_back(f + "_fsr" + std::to_string(i) + "_n");
+      n.push_back(f + "_tangential_n");
+      n.push_back(f + "_normal_n");
+      for (const char* c : xyz) n.push_back(f + "_cmd" + c + "_n");
+    }
+    n.push_back("passivity_energy_j");
+    n.push_back("passivity_damping_ns_per_m");
+    return n;
+  }();
+  return names;
+}
+
+/// Integer fields are INTEGER NOT NULL; floating-point ones REAL, NULL standing for NaN
+/// (SQLite keeps no NaN). ±inf are kept as they are.
+std::string samplesTableSql() {
+  std::string sql =
+      "CREATE TABLE IF NOT EXISTS samples (\n"
+      "  session_id INTEGER NOT NULL REFERENCES sessions(id)";
+  Sample probe{};
+  std::size_t i = 0;
+  visitFields(probe, [&](auto& v) {
+    using T = std::remove_reference_t<decltype(v)>;
+    sql += ",\n  " + fieldNames()[i++] + (std::is_integral_v<T> ? " INTEGER NOT NULL" : " REAL");
+  });
+  sql += ",\n  valid INTEGER NOT NULL,\n  PRIMARY KEY (session_id, seq)) WITHOUT ROWID;\n";
+  return sql;
+}
+
+std::string insertSampleSql() {
+  std::string cols = "session_id";
+  std::string marks = "?";
+  for (const auto& n : fieldNames()) {
+    cols += ", " + n;
+    marks += ",?";
+  }
+  return "INSERT OR IGNORE INTO samples (" + cols + ", valid) VALUES (" + marks + ",?)";
+}
+
+/// SELECT of every field in visitFields() order, then valid.
+std::string selectSamplesSql() {
+  std::string cols;
+  for (const auto& n : fieldNames()) cols += n + ", ";
+  return "SELECT " + cols + "valid FROM samples WHERE session_id = ? ORDER BY seq";
+}
+
+/// Binds session_id, the fields and valid to an insert statement.
+void bindSample(sqlite3_stmt* st, uint64_t session_id, const Sample& s, bool valid) {
+  int col = 1;
+  sqlite3_bind_int64(st, col++, static_cast<sqlite3_int64>(session_id));
+  visitFields(s, [&](const auto& v) {
+    using T = std::remove_cvref_t<decltype(v)>;
+    if constexpr (std::is_integral_v<T>) {
+      sqlite3_bind_int64(st, col++, static_cast<sqlite3_int64>(v));
+    } else if (std::isnan(v)) {
+      sqlite3_bind_null(st, col++);
+    } else {
+      sqlite3_bind_double(st, col++, static_cast<double>(v));
+    }
+  });
+  sqlite3_bind_int(st, col, valid ? 1 : 0);
+}
+
+/// Reads the fields from a row of selectSamplesSql(); returns valid.
+bool readSample(sqlite3_stmt* st, uint64_t session_id, Sample& s) {
+  int col = 0;
+  s.session_id = session_id;
+  visitFields(s, [&](auto& v) {
+    using T = std::remove_reference_t<decltype(v)>;
+    if constexpr (std::is_integral_v<T>) {
+      v = static_cast<T>(sqlite3_column_int64(st, col++));
+    } else if (sqlite3_column_type(st, col) == SQLITE_NULL) {
+      v = std::numeric_limits<T>::quiet_NaN();
+      ++col;
+    } else {
+      v = static_cast<T>(sqlite3_column_double(st, col++));
+    }
+  });
+  return sqlite3_column_int(st, col) != 0;
+}
+
+// ---- Schema 1: the sample as a BLOB ---------------------------------------------------------
+//
+// The bytes of the C struct as g++ laid it out on x86-64 (little-endian, natural alignment):
+// session_id u64 @0, seq u64 @8, source_time_ns i64 @16, model_version u32 @24, flags u32 @28,
+// fingers[2] @32 and @136, each 104 bytes (position_m f64[3] @0, orientation_q f64[4] @24,
+// fsr_n f32[4] @56, tangential_n f32 @72, normal_n f32 @76, command_n f64[3] @80),
+// mcp_angles_rad f64[3] @240, mcp_torque_nm f64[3] @264, passivity_energy_j f32 @288,
+// passivity_damping f32 @292. Blob format 2 is those 296 bytes; blob format 1 the first 288
+// (no passivity fields, read as zero).
+constexpr int kBlobFormat1Bytes = 288;
+constexpr int kBlobFormat2Bytes = 296;
+
+class BlobReader {
+ public:
+  explicit BlobReader(const unsigned char* p) : p_(p) {}
+  uint64_t u64(std::size_t at) const {
+    uint64_t v = 0;
+    for (int i = 7; i >= 0; --i) v = (v << 8) | p_[at + static_cast<std::size_t>(i)];
+    return v;
+  }
+  uint32_t u32(std::size_t at) const {
+    uint32_t v = 0;
+    for (int i = 3; i >= 0; --i) v = (v << 8) | p_[at + static_cast<std::size_t>(i)];
+    return v;
+  }
+  double f64(std::size_t at) const { return std::bit_cast<double>(u64(at)); }
+  float f32(std::size_t at) const { return std::bit_cast<float>(u32(at)); }
+
+ private:
+  const unsigned char* p_;
+};
+
+/// Decodes a schema-1 sample blob; false when format and size do not match a known layout.
+bool decodeBlob(int format, const void* data, int bytes, Sample& s) {
+  const bool v1 = format == 1 && bytes == kBlobFormat1Bytes;
+  const bool v2 = format == 2 && bytes == kBlobFormat2Bytes;
+  if (!(v1 || v2) || data == nullptr) return false;
+  const BlobReader b(static_cast<const unsigned char*>(data));
+  s = Sample{};
+  s.session_id = b.u64(0);
+  s.seq = b.u64(8);
+  s.source_time_ns = static_cast<int64_t>(b.u64(16));
+  s.model_version = b.u32(24);
+  s.flags = b.u32(28);
+  for (std::size_t k = 0; k < 2; ++k) {
+    const std::size_t f = 32 + 104 * k;
+    auto& finger = s.fingers[k];
+    for (std::size_t i = 0; i < 3; ++i) finger.position_m[i] = b.f64(f + 8 * i);
+    for (std::size_t i = 0; i < 4; ++i) finger.orientation_q[i] = b.f64(f + 24 + 8 * i);
+    for (std::size_t i = 0; i < 4; ++i) finger.fsr_n[i] = b.f32(f + 56 + 4 * i);
+    finger.tangential_n = b.f32(f + 72);
+    finger.normal_n = b.f32(f + 76);
+    for (std::size_t i = 0; i < 3; ++i) finger.command_n[i] = b.f64(f + 80 + 8 * i);
+  }
+  for (std::size_t i = 0; i < 3; ++i) s.mcp_angles_rad[i] = b.f64(240 + 8 * i);
+  for (std::size_t i = 0; i < 3; ++i) s.mcp_torque_nm[i] = b.f64(264 + 8 * i);
+  if (v2) {
+    s.passivity_energy_j = b.f32(288);
+    s.passivity_damping = b.f32(292);
+  }
+  return true;
+}
+
 class Statement {
  public:
   Statement(sqlite3* db, const char* sql) : db_(db) {
@@ -62,6 +240,7 @@ class Statement {
       throw StoreError(std::string("SQLite: cannot prepare '") + sql + "': " + sqlite3_errmsg(db));
     }
   }
+  Statement(sqlite3* db, const std::string& sql) : Statement(db, sql.c_str()) {}
   ~Statement() { sqlite3_finalize(s_); }
   Statement(const Statement&) = delete;
   Statement& operator=(const Statement&) = delete;
@@ -82,9 +261,65 @@ class Statement {
   sqlite3_stmt* s_ = nullptr;
 };
 
-double nullIfNan(double v) { return v; }
+int64_t queryInt(sqlite3* db, const char* sql) {
+  Statement st(db, sql);
+  return st.step() ? sqlite3_column_int64(st.get(), 0) : 0;
+}
 
 }  // namespace
+
+/// What an opened file holds, read from its header and tables; refuses what is not ours.
+SqliteStore::Layout SqliteStore::inspect() {
+  int64_t app_id = 0, version = 0;
+  std::vector<std::string> tables;
+  try {  // a file that is not SQLite at all fails here, with a message lacking the path
+    app_id = queryInt(db_, "PRAGMA application_id");
+    version = queryInt(db_, "PRAGMA user_version");
+    Statement st(db_, "SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name");
+    while (st.step()) tables.push_back(st.text(0));
+  } catch (const StoreError&) {
+    throw StoreError("cannot read record database '" + path_ + "': " + sqlite3_errmsg(db_));
+  }
+  const auto has = [&](const char* t) {
+    return std::find(tables.begin(), tables.end(), t) != tables.end();
+  };
+  if (app_id == kApplicationId) {
+    if (version > kSchemaVersion) {
+      throw StoreError("'" + path_ + "' was written by a newer telehand (schema " +
+                       std::to_string(version) + ", this program knows up to " +
+                       std::to_string(kSchemaVersion) + "); it was left untouched");
+    }
+    if (version != kSchemaVersion || !has("samples")) {
+      throw StoreError("'" + path_ + "' carries the telehand marker but schema " +
+                       std::to_string(version) + (has("samples") ? "" : " without a samples table") +
+                       ", which this program does not know (it knows " +
+                       std::to_string(kSchemaVersion) + "); it was left untouched");
+    }
+    return Layout::kCurrent;
+  }
+  if (app_id != 0) {
+    char hex[16];
+    std::snprintf(hex, sizeof hex, "0x%08x", static_cast<uint32_t>(app_id));
+    throw StoreError("'" + path_ + "' is not a telehand record database (SQLite application_id " +
+                     hex + ", telehand's is 0x54484e44); it was left untouched");
+  }
+  if (tables.empty() && version == 0) return Layout::kEmpty;
+  if (version == 0 && has("samples") && has("sessions")) {
+    bool format = false, data = false;
+    Statement st(db_, "SELECT name FROM pragma_table_info('samples')");
+    while (st.step()) {
+      const std::string c = st.text(0);
+      format = format || c == "format";
+      data = data || c == "data";
+    }
+    if (format && data) return Layout::kBlob;
+  }
+  std::string list;
+  for (const auto& t : tables) list += (list.empty() ? "" : ", ") + t;
+  throw StoreError("'" + path_ + "' is not a telehand record database (user_version " +
+                   std::to_string(version) + ", tables: " + (list.empty() ? "none" : list) +
+                   "; no telehand marker); it was left untouched");
+}
 
 SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
   int flags = SQLITE_OPEN_FULLMUTEX;
@@ -106,32 +341,87 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
   }
   sqlite3_busy_timeout(db_, 5000);
   try {
-    if (mode == Mode::kReadWrite) {
-      exec("PRAGMA journal_mode=WAL;");
-      exec("PRAGMA synchronous=NORMAL;");
-      exec(kSchema);
-      exec(("INSERT OR IGNORE INTO meta VALUES ('sample_format', '" + std::to_string(kSampleFormat) +
-            "');").c_str());
-      insert_sample_ = prepare(
-          "INSERT OR IGNORE INTO samples (session_id, seq, t_ns, valid, flags, model_version, "
-          "alpha_rad, beta_rad, gamma_rad, format, data) VALUES (?,?,?,?,?,?,?,?,?,?,?)");
-    } else {
-      bool has_samples = false;
-      try {  // a file that is not SQLite at all fails here, with a message lacking the path
-        Statement check(db_, "SELECT count(*) FROM sqlite_master WHERE name = 'samples'");
-        has_samples = check.step() && sqlite3_column_int(check.get(), 0) == 1;
-      } catch (const StoreError&) {
-        throw StoreError("cannot read record database '" + path + "': " + sqlite3_errmsg(db_));
+    // Nothing is written before inspect() has said the file is ours (or empty).
+    Layout layout = inspect();
+    if (mode == Mode::kReadOnly) {
+      if (layout == Layout::kEmpty) {
+        throw StoreError("'" + path + "' is not a telehand record database (it is empty)");
       }
-      if (!has_samples) {
-        throw StoreError("'" + path + "' is not a telehand record database (no samples table)");
+      return;  // a schema-1 file is read as it is (forEachSample decodes its blobs)
+    }
+    if (layout != Layout::kCurrent) {
+      exec("BEGIN IMMEDIATE");
+      try {
+        layout = inspect();  // another program may have got there first
+        if (layout == Layout::kEmpty) {
+          exec(kOtherTables);
+          exec(samplesTableSql().c_str());
+          exec(("PRAGMA application_id = " + std::to_string(kApplicationId) + ";").c_str());
+          exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+        } else if (layout == Layout::kBlob) {
+          migrateFromBlobs();
+        }
+        exec("COMMIT");
+      } catch (...) {
+        sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+        throw;
       }
     }
+    exec("PRAGMA journal_mode=WAL;");
+    exec("PRAGMA synchronous=NORMAL;");
+    if (!insert_sample_) insert_sample_ = prepare(insertSampleSql().c_str());
   } catch (...) {
     sqlite3_finalize(insert_sample_);
     sqlite3_close(db_);
     throw;
   }
+}
+
+/// Schema 1 -> 2 inside the caller's transaction: every blob decoded into the columns, the
+/// old table dropped only when all its rows arrived.
+void SqliteStore::migrateFromBlobs() {
+  const int64_t old_rows = queryInt(db_, "SELECT count(*) FROM samples");
+  exec("ALTER TABLE samples RENAME TO samples_schema1;");
+  exec(kOtherTables);
+  exec(samplesTableSql().c_str());
+  insert_sample_ = prepare(insertSampleSql().c_str());
+  Statement old(db_, "SELECT session_id, seq, valid, format, data FROM samples_schema1");
+  int64_t copied = 0;
+  while (old.step()) {
+    const auto session_id = static_cast<uint64_t>(sqlite3_column_int64(old.get(), 0));
+    const int format = sqlite3_column_int(old.get(), 3);
+    const void* data = sqlite3_column_blob(old.get(), 4);
+    const int bytes = sqlite3_column_bytes(old.get(), 4);
+    Sample s{};
+    if (!decodeBlob(format, data, bytes, s)) {
+      throw StoreError("cannot migrate '" + path_ + "': sample " +
+                       std::to_string(sqlite3_column_int64(old.get(), 1)) + " of session " +
+                       std::to_string(session_id) + " has blob format " + std::to_string(format) +
+                       " (" + std::to_string(bytes) + " bytes), known are 1 (" +
+                       std::to_string(kBlobFormat1Bytes) + " bytes) and 2 (" +
+                       std::to_string(kBlobFormat2Bytes) + " bytes); the file was left as it was");
+    }
+    s.seq = static_cast<uint64_t>(sqlite3_column_int64(old.get(), 1));  // the key as stored
+    sqlite3_reset(insert_sample_);
+    bindSample(insert_sample_, session_id, s, sqlite3_column_int(old.get(), 2) != 0);
+    if (sqlite3_step(insert_sample_) != SQLITE_DONE) {
+      throw StoreError("cannot migrate '" + path_ + "': " + sqlite3_errmsg(db_));
+    }
+    copied += sqlite3_changes(db_);
+  }
+  const int64_t new_rows = queryInt(db_, "SELECT count(*) FROM samples");
+  if (copied != old_rows || new_rows != old_rows) {
+    throw StoreError("cannot migrate '" + path_ + "': " + std::to_string(old_rows) +
+                     " samples in the old table but " + std::to_string(new_rows) +
+                     " in the new one; the file was left as it was");
+  }
+  exec("DROP TABLE samples_schema1;");
+  exec("DELETE FROM meta WHERE key = 'sample_format';");
+  exec(("PRAGMA application_id = " + std::to_string(kApplicationId) + ";").c_str());
+  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  spdlog::info("record database '{}': migrated {} samples from schema {} (one blob per sample) "
+               "to schema {} (one column per field)",
+               path_, copied, kBlobSchemaVersion, kSchemaVersion);
 }
 
 SqliteStore::~SqliteStore() {
@@ -180,21 +470,7 @@ uint64_t SqliteStore::appendSamples(uint64_t session_id,
       const bool ok = i < valid.size() ? valid[i] != 0 : true;
       sqlite3_stmt* st = insert_sample_;
       sqlite3_reset(st);
-      sqlite3_bind_int64(st, 1, static_cast<sqlite3_int64>(session_id));
-      sqlite3_bind_int64(st, 2, static_cast<sqlite3_int64>(s.seq));
-      sqlite3_bind_int64(st, 3, s.source_time_ns);
-      sqlite3_bind_int(st, 4, ok ? 1 : 0);
-      sqlite3_bind_int64(st, 5, s.flags);
-      sqlite3_bind_int64(st, 6, s.model_version);
-      for (int a = 0; a < 3; ++a) {
-        if (std::isfinite(s.mcp_angles_rad[a])) {
-          sqlite3_bind_double(st, 7 + a, nullIfNan(s.mcp_angles_rad[a]));
-        } else {
-          sqlite3_bind_null(st, 7 + a);
-        }
-      }
-      sqlite3_bind_int(st, 10, kSampleFormat);
-      sqlite3_bind_blob(st, 11, &s, sizeof(s), SQLITE_STATIC);
+      bindSample(st, session_id, s, ok);
       if (sqlite3_step(st) != SQLITE_DONE) {
         throw StoreError("SQLite: cannot store sample " + std::to_string(s.seq) + " of session " +
                          std::to_string(session_id) + ": " + sqlite3_errmsg(db_));
@@ -289,23 +565,33 @@ std::optional<SessionInfo> SqliteStore::session(uint64_t session_id) {
 
 void SqliteStore::forEachSample(
     uint64_t session_id, const std::function<void(const Sample&, bool)>& fn) {
-  Statement st(db_,
-               "SELECT seq, valid, format, data FROM samples WHERE session_id = ? ORDER BY seq");
-  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
-  while (st.step()) {
-    const int format = sqlite3_column_int(st.get(), 2);
-    const int bytes = sqlite3_column_bytes(st.get(), 3);
-    const bool current = format == kSampleFormat && bytes == static_cast<int>(sizeof(Sample));
-    const bool older = format == 1 && bytes == kSampleFormat1Bytes;
-    if (!current && !older) {
-      throw StoreError("sample " + std::to_string(sqlite3_column_int64(st.get(), 0)) +
-                       " of session " + std::to_string(session_id) + " in '" + path_ +
-                       "' has format " + std::to_string(format) + " (" + std::to_string(bytes) +
-                       " bytes); this build reads format " + std::to_string(kSampleFormat));
+  if (queryInt(db_, "PRAGMA user_version") == 0) {
+    // Schema 1, open read-only (a writer migrates it on opening).
+    Statement st(db_,
+                 "SELECT seq, valid, format, data FROM samples WHERE session_id = ? ORDER BY seq");
+    sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+    while (st.step()) {
+      const int format = sqlite3_column_int(st.get(), 2);
+      const int bytes = sqlite3_column_bytes(st.get(), 3);
+      Sample s{};
+      if (!decodeBlob(format, sqlite3_column_blob(st.get(), 3), bytes, s)) {
+        throw StoreError("sample " + std::to_string(sqlite3_column_int64(st.get(), 0)) +
+                         " of session " + std::to_string(session_id) + " in '" + path_ +
+                         "' has blob format " + std::to_string(format) + " (" +
+                         std::to_string(bytes) + " bytes); known are 1 and 2");
+      }
+      s.session_id = session_id;
+      s.seq = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0));
+      fn(s, sqlite3_column_int(st.get(), 1) != 0);
     }
-    Sample s{};
-    std::memcpy(&s, sqlite3_column_blob(st.get(), 3), static_cast<std::size_t>(bytes));
-    fn(s, sqlite3_column_int(st.get(), 1) != 0);
+    return;
+  }
+  Statement st(db_, selectSamplesSql());
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  Sample s{};
+  while (st.step()) {
+    const bool valid = readSample(st.get(), session_id, s);
+    fn(s, valid);
   }
 }
 
@@ -339,67 +625,9 @@ std::vector<EventRecord> SqliteStore::events(uint64_t session_id) {
   return out;
 }
 
-namespace {
-struct Column {
-  std::string name;
-  std::function<void(std::ostream&, const Sample&)> put;
-};
-
-const std::vector<Column>& columns() {
-  static const std::vector<Column> cols = [] {
-    std::vector<Column> c;
-    c.push_back({"seq", [](std::ostream& o, const auto& s) { o << s.seq; }});
-    c.push_back({"t_ns", [](std::ostream& o, const auto& s) { o << s.source_time_ns; }});
-    c.push_back({"model_version", [](std::ostream& o, const auto& s) { o << s.model_version; }});
-    c.push_back({"flags", [](std::ostream& o, const auto& s) { o << s.flags; }});
-    const char* axes[3] = {"alpha", "beta", "gamma"};
-    for (int a = 0; a < 3; ++a) {
-      c.push_back({std::string(axes[a]) + "_rad",
-                   [a](std::ostream& o, const auto& s) { o << s.mcp_angles_rad[a]; }});
-    }
-    for (int a = 0; a < 3; ++a) {
-      c.push_back({"tau_" + std::string(axes[a]) + "_nm",
-                   [a](std::ostream& o, const auto& s) { o << s.mcp_torque_nm[a]; }});
-    }
-    const char* fingers[2] = {"thumb", "index"};
-    const char* xyz[3] = {"x", "y", "z"};
-    const char* wxyz[4] = {"w", "x", "y", "z"};
-    for (int k = 0; k < 2; ++k) {
-      const std::string f = fingers[k];
-      for (int i = 0; i < 3; ++i) {
-        c.push_back({f + "_p" + xyz[i] + "_m",
-                     [k, i](std::ostream& o, const auto& s) { o << s.fingers[k].position_m[i]; }});
-      }
-      for (int i = 0; i < 4; ++i) {
-        c.push_back({f + "_q" + wxyz[i],
-                     [k, i](std::ostream& o, const auto& s) { o << s.fingers[k].orientation_q[i]; }});
-      }
-      for (int i = 0; i < 4; ++i) {
-        c.push_back({f + "_fsr" + std::to_string(i + 1) + "_n",
-                     [k, i](std::ostream& o, const auto& s) { o << s.fingers[k].fsr_n[i]; }});
-      }
-      c.push_back({f + "_tangential_n",
-                   [k](std::ostream& o, const auto& s) { o << s.fingers[k].tangential_n; }});
-      c.push_back({f + "_normal_n",
-                   [k](std::ostream& o, const auto& s) { o << s.fingers[k].normal_n; }});
-      for (int i = 0; i < 3; ++i) {
-        c.push_back({f + "_cmd" + xyz[i] + "_n",
-                     [k, i](std::ostream& o, const auto& s) { o << s.fingers[k].command_n[i]; }});
-      }
-    }
-    c.push_back({"passivity_energy_j", [](std::ostream& o, const auto& s) { o << s.passivity_energy_j; }});
-    c.push_back({"passivity_damping_ns_per_m",
-                 [](std::ostream& o, const auto& s) { o << s.passivity_damping; }});
-    return c;
-  }();
-  return cols;
-}
-}  // namespace
-
 const std::vector<std::string>& sampleColumns() {
   static const std::vector<std::string> names = [] {
-    std::vector<std::string> n;
-    for (const auto& c : columns()) n.push_back(c.name);
+    std::vector<std::string> n = fieldNames();
     n.push_back("valid");
     return n;
   }();
@@ -409,10 +637,7 @@ const std::vector<std::string>& sampleColumns() {
 std::string sampleCsvRow(const Sample& s, bool valid) {
   std::ostringstream o;
   o.precision(9);
-  for (const auto& c : columns()) {
-    c.put(o, s);
-    o << ',';
-  }
+  visitFields(s, [&](const auto& v) { o << v << ','; });
   o << (valid ? 1 : 0);
   return o.str();
 }

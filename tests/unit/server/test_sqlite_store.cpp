@@ -1,4 +1,5 @@
-// The SQLite session store: sessions, samples (duplicates ignored), events, CSV columns.
+// The SQLite session store: sessions, samples (duplicates ignored), events, CSV columns,
+// the schema marker and version, migration of schema-1 (blob) files, refusal of foreign ones.
 #include "telehand/server/store/sqlite_store.h"
 
 #include <gmock/gmock.h>
@@ -8,9 +9,14 @@
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
+#include <limits>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -300,6 +306,478 @@ TEST_F(SqliteStoreTest, ReadOnlyOpenOfAForeignFileNamesThePath) {
 
 TEST_F(SqliteStoreTest, ErrorsAreTelehandErrors) {
   EXPECT_THROW(SqliteStore((dir_ / "missing.db").string(), SqliteStore::Mode::kReadOnly), Error);
+}
+
+// ---- Columns, schema version, migration, refusal --------------------------------------------
+
+/// Every field of a sample, random, with magnitudes over many decades.
+Sample randomSample(std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> mant(-1.0, 1.0);
+  std::uniform_int_distribution<int> exp64(-300, 300);
+  std::uniform_int_distribution<int> exp32(-30, 30);
+  auto d = [&] { return mant(rng) * std::pow(10.0, exp64(rng)); };
+  auto f = [&] { return static_cast<float>(mant(rng) * std::pow(10.0, exp32(rng))); };
+  Sample s{};
+  s.seq = rng();
+  s.source_time_ns = static_cast<int64_t>(rng());
+  s.model_version = static_cast<uint32_t>(rng());
+  s.flags = static_cast<uint32_t>(rng());
+  for (auto& finger : s.fingers) {
+    for (auto& v : finger.position_m) v = d();
+    for (auto& v : finger.orientation_q) v = d();
+    for (auto& v : finger.fsr_n) v = f();
+    finger.tangential_n = f();
+    finger.normal_n = f();
+    for (auto& v : finger.command_n) v = d();
+  }
+  for (auto& v : s.mcp_angles_rad) v = d();
+  for (auto& v : s.mcp_torque_nm) v = d();
+  s.passivity_energy_j = f();
+  s.passivity_damping = f();
+  return s;
+}
+
+/// Field-by-field equality; NaN equals NaN.
+template <class T>
+void expectSame(T got, T want, const char* what) {
+  if constexpr (std::is_floating_point_v<T>) {
+    if (std::isnan(want)) {
+      EXPECT_TRUE(std::isnan(got)) << what;
+      return;
+    }
+  }
+  EXPECT_EQ(got, want) << what;
+}
+
+void expectSameSample(const Sample& got, const Sample& want) {
+  expectSame(got.session_id, want.session_id, "session_id");
+  expectSame(got.seq, want.seq, "seq");
+  expectSame(got.source_time_ns, want.source_time_ns, "source_time_ns");
+  expectSame(got.model_version, want.model_version, "model_version");
+  expectSame(got.flags, want.flags, "flags");
+  for (int k = 0; k < 2; ++k) {
+    SCOPED_TRACE("finger " + std::to_string(k));
+    const auto& g = got.fingers[k];
+    const auto& w = want.fingers[k];
+    for (int i = 0; i < 3; ++i) expectSame(g.position_m[i], w.position_m[i], "position_m");
+    for (int i = 0; i < 4; ++i) expectSame(g.orientation_q[i], w.orientation_q[i], "orientation_q");
+    for (int i = 0; i < 4; ++i) expectSame(g.fsr_n[i], w.fsr_n[i], "fsr_n");
+    expectSame(g.tangential_n, w.tangential_n, "tangential_n");
+    expectSame(g.normal_n, w.normal_n, "normal_n");
+    for (int i = 0; i < 3; ++i) expectSame(g.command_n[i], w.command_n[i], "command_n");
+  }
+  for (int i = 0; i < 3; ++i) expectSame(got.mcp_angles_rad[i], want.mcp_angles_rad[i], "mcp_angles_rad");
+  for (int i = 0; i < 3; ++i) expectSame(got.mcp_torque_nm[i], want.mcp_torque_nm[i], "mcp_torque_nm");
+  expectSame(got.passivity_energy_j, want.passivity_energy_j, "passivity_energy_j");
+  expectSame(got.passivity_damping, want.passivity_damping, "passivity_damping");
+}
+
+/// Raw SQLite access to a record file, as another program would have it.
+class RawDb {
+ public:
+  explicit RawDb(const std::string& path) {
+    EXPECT_EQ(sqlite3_open(path.c_str(), &db_), SQLITE_OK) << path;
+  }
+  ~RawDb() { sqlite3_close(db_); }
+  RawDb(const RawDb&) = delete;
+  RawDb& operator=(const RawDb&) = delete;
+  void exec(const std::string& sql) {
+    char* err = nullptr;
+    EXPECT_EQ(sqlite3_exec(db_, sql.c_str(), nullptr, nullptr, &err), SQLITE_OK)
+        << sql << ": " << (err ? err : "");
+    sqlite3_free(err);
+  }
+  int64_t integer(const std::string& sql) {
+    sqlite3_stmt* st = nullptr;
+    EXPECT_EQ(sqlite3_prepare_v2(db_, sql.c_str(), -1, &st, nullptr), SQLITE_OK) << sql;
+    int64_t v = -1;
+    if (sqlite3_step(st) == SQLITE_ROW) v = sqlite3_column_int64(st, 0);
+    sqlite3_finalize(st);
+    return v;
+  }
+  std::vector<std::string> strings(const std::string& sql) {
+    sqlite3_stmt* st = nullptr;
+    EXPECT_EQ(sqlite3_prepare_v2(db_, sql.c_str(), -1, &st, nullptr), SQLITE_OK) << sql;
+    std::vector<std::string> out;
+    while (sqlite3_step(st) == SQLITE_ROW) {
+      out.emplace_back(reinterpret_cast<const char*>(sqlite3_column_text(st, 0)));
+    }
+    sqlite3_finalize(st);
+    return out;
+  }
+  sqlite3* get() const { return db_; }
+
+ private:
+  sqlite3* db_ = nullptr;
+};
+
+std::string fileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+std::vector<std::string> dirListing(const fs::path& dir) {
+  std::vector<std::string> out;
+  for (const auto& e : fs::directory_iterator(dir)) out.push_back(e.path().filename().string());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+TEST_F(SqliteStoreTest, EveryFieldRoundTripsThroughTheColumns) {
+  SqliteStore store(dbPath());
+  for (uint64_t seed : {1u, 2u, 3u, 20240611u, 0xdeadbeefu}) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    std::mt19937_64 rng(seed);
+    const uint64_t id = store.createSession(info("alice"));
+    std::vector<Sample> batch;
+    std::vector<uint8_t> valid;
+    for (int i = 0; i < 50; ++i) {
+      Sample s = randomSample(rng);
+      s.session_id = id;
+      s.seq = static_cast<uint64_t>(i) * 1000 + (rng() % 1000);  // distinct, in order
+      batch.push_back(s);
+      valid.push_back(static_cast<uint8_t>(rng() % 2));
+    }
+    ASSERT_EQ(store.appendSamples(id, batch, valid), batch.size());
+    std::size_t n = 0;
+    store.forEachSample(id, [&](const Sample& got, bool ok) {
+      ASSERT_LT(n, batch.size());
+      expectSameSample(got, batch[n]);
+      EXPECT_EQ(ok, valid[n] != 0);
+      ++n;
+    });
+    EXPECT_EQ(n, batch.size());
+  }
+}
+
+TEST_F(SqliteStoreTest, NonFiniteValuesRoundTrip) {
+  SqliteStore store(dbPath());
+  const uint64_t id = store.createSession(info("alice"));
+  Sample s = sample(id, 1);
+  const double inf = std::numeric_limits<double>::infinity();
+  s.mcp_angles_rad[0] = std::nan("");
+  s.mcp_angles_rad[1] = inf;
+  s.mcp_torque_nm[2] = -inf;
+  s.fingers[1].fsr_n[2] = std::numeric_limits<float>::quiet_NaN();
+  s.fingers[0].normal_n = -std::numeric_limits<float>::infinity();
+  s.passivity_damping = std::numeric_limits<float>::quiet_NaN();
+  const uint8_t invalid = 0;
+  store.appendSamples(id, {&s, 1}, {&invalid, 1});
+  int n = 0;
+  store.forEachSample(id, [&](const Sample& got, bool ok) {
+    ++n;
+    EXPECT_FALSE(ok);
+    expectSameSample(got, s);
+  });
+  EXPECT_EQ(n, 1);
+}
+
+TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) {
+  { SqliteStore store(dbPath()); }
+  RawDb raw(dbPath());
+  std::vector<std::string> want = {"session_id"};
+  for (const auto& c : sampleColumns()) want.push_back(c);
+  EXPECT_EQ(raw.strings("SELECT name FROM pragma_table_info('samples') ORDER BY cid"), want);
+  EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'thumb_fsr1_n'"),
+            std::vector<std::string>{"REAL"});
+  EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'flags'"),
+            std::vector<std::string>{"INTEGER"});
+  EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 2);
+}
+
+// ---- Schema 1: one blob per sample, the C struct's bytes (x86-64, little-endian) ----------
+
+/// The schema-1 tables as that version created them.
+constexpr const char* kSchema1 = R"sql(
+PRAGMA journal_mode=WAL;
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE sessions (
+  id INTEGER PRIMARY KEY,
+  user TEXT NOT NULL, case_name TEXT NOT NULL, mode TEXT NOT NULL,
+  state TEXT NOT NULL, started_ns INTEGER NOT NULL, ended_ns INTEGER NOT NULL DEFAULT 0,
+  samples_expected INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE samples (
+  session_id INTEGER NOT NULL REFERENCES sessions(id),
+  seq INTEGER NOT NULL,
+  t_ns INTEGER NOT NULL,
+  valid INTEGER NOT NULL,
+  flags INTEGER NOT NULL,
+  model_version INTEGER NOT NULL,
+  alpha_rad REAL, beta_rad REAL, gamma_rad REAL,
+  format INTEGER NOT NULL,
+  data BLOB NOT NULL,
+  PRIMARY KEY (session_id, seq)) WITHOUT ROWID;
+CREATE TABLE events (
+  session_id INTEGER NOT NULL,
+  time_ns INTEGER NOT NULL,
+  kind TEXT NOT NULL,
+  text TEXT NOT NULL);
+CREATE INDEX events_by_session ON events(session_id, time_ns);
+CREATE TABLE explorations (
+  session_id INTEGER NOT NULL,
+  phase TEXT NOT NULL,
+  direction TEXT NOT NULL,
+  angle_deg REAL NOT NULL,
+  force_n REAL NOT NULL);
+INSERT INTO meta VALUES ('sample_format', '2');
+)sql";
+
+/// A sample's schema-1 blob written field by field: format 2 is 296 bytes, format 1 the
+/// first 288 (no passivity fields).
+std::vector<unsigned char> blobOf(const Sample& s, int format) {
+  std::vector<unsigned char> b(format == 1 ? 288 : 296, 0);
+  auto put = [&](std::size_t at, uint64_t v, int bytes) {
+    for (int i = 0; i < bytes; ++i) b[at + static_cast<std::size_t>(i)] = static_cast<unsigned char>(v >> (8 * i));
+  };
+  auto f64 = [&](std::size_t at, double v) { put(at, std::bit_cast<uint64_t>(v), 8); };
+  auto f32 = [&](std::size_t at, float v) { put(at, std::bit_cast<uint32_t>(v), 4); };
+  put(0, s.session_id, 8);
+  put(8, s.seq, 8);
+  put(16, static_cast<uint64_t>(s.source_time_ns), 8);
+  put(24, s.model_version, 4);
+  put(28, s.flags, 4);
+  for (std::size_t k = 0; k < 2; ++k) {
+    const std::size_t f = 32 + 104 * k;
+    const auto& finger = s.fingers[k];
+    for (std::size_t i = 0; i < 3; ++i) f64(f + 8 * i, finger.position_m[i]);
+    for (std::size_t i = 0; i < 4; ++i) f64(f + 24 + 8 * i, finger.orientation_q[i]);
+    for (std::size_t i = 0; i < 4; ++i) f32(f + 56 + 4 * i, finger.fsr_n[i]);
+    f32(f + 72, finger.tangential_n);
+    f32(f + 76, finger.normal_n);
+    for (std::size_t i = 0; i < 3; ++i) f64(f + 80 + 8 * i, finger.command_n[i]);
+  }
+  for (std::size_t i = 0; i < 3; ++i) f64(240 + 8 * i, s.mcp_angles_rad[i]);
+  for (std::size_t i = 0; i < 3; ++i) f64(264 + 8 * i, s.mcp_torque_nm[i]);
+  if (format != 1) {
+    f32(288, s.passivity_energy_j);
+    f32(292, s.passivity_damping);
+  }
+  return b;
+}
+
+void insertSchema1Sample(RawDb& raw, uint64_t session_id, const Sample& s, bool valid, int format,
+                         const std::vector<unsigned char>& blob) {
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(raw.get(),
+                               "INSERT INTO samples (session_id, seq, t_ns, valid, flags, "
+                               "model_version, alpha_rad, beta_rad, gamma_rad, format, data) "
+                               "VALUES (?,?,?,?,?,?,?,?,?,?,?)",
+                               -1, &st, nullptr),
+            SQLITE_OK);
+  sqlite3_bind_int64(st, 1, static_cast<sqlite3_int64>(session_id));
+  sqlite3_bind_int64(st, 2, static_cast<sqlite3_int64>(s.seq));
+  sqlite3_bind_int64(st, 3, s.source_time_ns);
+  sqlite3_bind_int(st, 4, valid ? 1 : 0);
+  sqlite3_bind_int64(st, 5, s.flags);
+  sqlite3_bind_int64(st, 6, s.model_version);
+  for (int a = 0; a < 3; ++a) {
+    if (std::isfinite(s.mcp_angles_rad[a])) {
+      sqlite3_bind_double(st, 7 + a, s.mcp_angles_rad[a]);
+    } else {
+      sqlite3_bind_null(st, 7 + a);
+    }
+  }
+  sqlite3_bind_int(st, 10, format);
+  sqlite3_bind_blob(st, 11, blob.data(), static_cast<int>(blob.size()), SQLITE_TRANSIENT);
+  EXPECT_EQ(sqlite3_step(st), SQLITE_DONE) << sqlite3_errmsg(raw.get());
+  sqlite3_finalize(st);
+}
+
+/// A schema-1 file: session 1 with format-2 samples (one invalid, NaN angle), session 2 with
+/// format-1 samples, an event. Returns the samples per session as they should read back.
+std::vector<std::vector<std::pair<Sample, bool>>> writeSchema1File(const std::string& path) {
+  fs::create_directories(fs::path(path).parent_path());
+  RawDb raw(path);
+  raw.exec(kSchema1);
+  raw.exec("INSERT INTO sessions (id, user, case_name, mode, state, started_ns, ended_ns, "
+           "samples_expected) VALUES (1, 'alice', 'healthy', 'mobilization', 'closed', 10, 20, 6), "
+           "(2, 'bob', 'stiff', 'exploration', 'active', 30, 0, 0);");
+  raw.exec("INSERT INTO events VALUES (1, 15, 'mark', 'half way');");
+  std::vector<std::vector<std::pair<Sample, bool>>> want(2);
+  std::mt19937_64 rng(7);
+  for (uint64_t session : {1u, 2u}) {
+    const int format = session == 1 ? 2 : 1;
+    for (uint64_t seq = 0; seq < 6; ++seq) {
+      Sample s = randomSample(rng);
+      s.session_id = session;
+      s.seq = seq;
+      const bool valid = !(session == 1 && seq == 4);
+      if (!valid) s.mcp_angles_rad[0] = std::nan("");
+      insertSchema1Sample(raw, session, s, valid, format, blobOf(s, format));
+      if (format == 1) {  // format 1 had no passivity fields: they read as zero
+        s.passivity_energy_j = 0.0f;
+        s.passivity_damping = 0.0f;
+      }
+      want[session - 1].push_back({s, valid});
+    }
+  }
+  return want;
+}
+
+void expectSessionsRead(SqliteStore& store,
+                        const std::vector<std::vector<std::pair<Sample, bool>>>& want) {
+  for (uint64_t session : {1u, 2u}) {
+    SCOPED_TRACE("session " + std::to_string(session));
+    const auto& w = want[session - 1];
+    std::size_t n = 0;
+    store.forEachSample(session, [&](const Sample& got, bool ok) {
+      ASSERT_LT(n, w.size());
+      expectSameSample(got, w[n].first);
+      EXPECT_EQ(ok, w[n].second);
+      ++n;
+    });
+    EXPECT_EQ(n, w.size());
+  }
+  const auto s1 = store.session(1);
+  ASSERT_TRUE(s1);
+  EXPECT_EQ(s1->user, "alice");
+  EXPECT_EQ(s1->samples, 6u);
+  EXPECT_EQ(s1->rejected, 1u);
+  EXPECT_EQ(s1->samples_expected, 6u);
+  EXPECT_EQ(store.session(2)->samples, 6u);
+  ASSERT_EQ(store.events(1).size(), 1u);
+  EXPECT_EQ(store.events(1)[0].text, "half way");
+}
+
+TEST_F(SqliteStoreTest, MigratesASchema1BlobFileInPlace) {
+  const auto want = writeSchema1File(dbPath());
+  {
+    RawDb raw(dbPath());
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 0);
+    EXPECT_EQ(raw.integer("PRAGMA application_id"), 0);
+  }
+  const std::string before = fileBytes(dbPath());
+
+  // A reader reads the blobs as they are and changes nothing.
+  {
+    SqliteStore reader(dbPath(), SqliteStore::Mode::kReadOnly);
+    expectSessionsRead(reader, want);
+  }
+  EXPECT_EQ(fileBytes(dbPath()), before) << "a read-only open must not migrate";
+
+  // The writer migrates on opening.
+  {
+    SqliteStore store(dbPath());
+    expectSessionsRead(store, want);
+    const uint64_t id = store.createSession(info("carol"));
+    EXPECT_GT(id, 2u);
+    EXPECT_EQ(store.appendSamples(id, samples(id, 0, 3), {}), 3u);
+    EXPECT_EQ(store.appendSamples(1, {&want[0][0].first, 1}, {}), 0u) << "keys kept";
+  }
+  {
+    RawDb raw(dbPath());
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 2);
+    EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
+    EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name LIKE 'samples_%'"), 0)
+        << "old table dropped";
+    EXPECT_EQ(raw.integer("SELECT count(*) FROM pragma_table_info('samples') "
+                          "WHERE name IN ('data', 'format')"),
+              0);
+    EXPECT_EQ(raw.integer("SELECT count(*) FROM samples"), 15);
+    EXPECT_EQ(raw.integer("SELECT count(*) FROM meta WHERE key = 'sample_format'"), 0);
+    EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name = 'session_files'"), 1);
+  }
+  // Opening again finds schema 2: nothing more to do.
+  SqliteStore again(dbPath());
+  expectSessionsRead(again, want);
+  EXPECT_EQ(again.session(3)->samples, 3u);
+}
+
+TEST_F(SqliteStoreTest, MigrationStopsUntouchedAtABlobItCannotRead) {
+  auto want = writeSchema1File(dbPath());
+  {
+    RawDb raw(dbPath());
+    Sample s = sample(2, 99);
+    insertSchema1Sample(raw, 2, s, true, 3, std::vector<unsigned char>(300, 0));
+  }
+  const std::string before = fileBytes(dbPath());
+  try {
+    SqliteStore store(dbPath());
+    FAIL() << "migrated a blob of an unknown format";
+  } catch (const StoreError& e) {
+    EXPECT_THAT(e.what(), HasSubstr(dbPath()));
+    EXPECT_THAT(e.what(), HasSubstr("format 3 (300 bytes)"));
+  }
+  EXPECT_EQ(fileBytes(dbPath()), before);
+  RawDb raw(dbPath());
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 0);
+  EXPECT_EQ(raw.integer("SELECT count(*) FROM samples"), 13);
+}
+
+TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
+  {
+    SqliteStore store(dbPath());
+    const uint64_t id = store.createSession(info("alice"));
+    store.appendSamples(id, samples(id, 0, 10), {});
+  }
+  {
+    RawDb raw(dbPath());
+    raw.exec("PRAGMA user_version = 7;");
+  }
+  const fs::path dir = fs::path(dbPath()).parent_path();
+  const auto listing = dirListing(dir);
+  const std::string before = fileBytes(dbPath());
+  for (auto mode : {SqliteStore::Mode::kReadWrite, SqliteStore::Mode::kReadOnly}) {
+    try {
+      SqliteStore store(dbPath(), mode);
+      FAIL() << "opened a newer schema";
+    } catch (const StoreError& e) {
+      EXPECT_THAT(e.what(), HasSubstr(dbPath()));
+      EXPECT_THAT(e.what(),
+                  HasSubstr("was written by a newer telehand (schema 7, this program knows up to 2)"));
+    }
+    EXPECT_EQ(fileBytes(dbPath()), before);
+    if (mode == SqliteStore::Mode::kReadWrite) {
+      EXPECT_EQ(dirListing(dir), listing) << "no journal left behind";
+    } else if (fs::exists(dbPath() + "-wal")) {
+      // A read-only connection cannot remove the WAL files of a WAL database; it wrote none.
+      EXPECT_EQ(fs::file_size(dbPath() + "-wal"), 0u);
+    }
+  }
+}
+
+TEST_F(SqliteStoreTest, RefusesAForeignSqliteFileAndLeavesItUntouched) {
+  const std::string foreign = (dir_ / "foreign.db").string();
+  {
+    RawDb raw(foreign);
+    raw.exec("CREATE TABLE foo (x INTEGER); INSERT INTO foo VALUES (42);");
+  }
+  const std::string marked = (dir_ / "marked.db").string();
+  {
+    RawDb raw(marked);
+    raw.exec("PRAGMA application_id = 1234; CREATE TABLE samples (x INTEGER);");
+  }
+  for (const auto& path : {foreign, marked}) {
+    const std::string before = fileBytes(path);
+    const auto listing = dirListing(dir_);
+    for (auto mode : {SqliteStore::Mode::kReadWrite, SqliteStore::Mode::kReadOnly}) {
+      try {
+        SqliteStore store(path, mode);
+        FAIL() << "opened " << path;
+      } catch (const StoreError& e) {
+        EXPECT_THAT(e.what(), HasSubstr(path));
+        EXPECT_THAT(e.what(), HasSubstr("is not a telehand record database"));
+      }
+    }
+    EXPECT_EQ(fileBytes(path), before) << path;
+    EXPECT_EQ(dirListing(dir_), listing) << path;
+  }
+  RawDb raw(foreign);
+  EXPECT_EQ(raw.integer("SELECT x FROM foo"), 42);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 0);
+}
+
+TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
+  fs::create_directories(fs::path(dbPath()).parent_path());
+  std::ofstream(dbPath()).close();  // zero bytes
+  {
+    SqliteStore store(dbPath());
+    const uint64_t id = store.createSession(info("alice"));
+    EXPECT_EQ(store.appendSamples(id, samples(id, 0, 2), {}), 2u);
+  }
+  RawDb raw(dbPath());
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 2);
 }
 
 // ---- CSV ----------------------------------------------------------------------------------

@@ -1,6 +1,12 @@
 #pragma once
 /// SessionStore on SQLite in WAL mode: the embedded default. One writer (the server), any
 /// number of readers (telehand-records) at the same time.
+///
+/// Schema 2: one row per sample, one column per field (the CSV names of sampleColumns()),
+/// marked in the SQLite header by application_id 0x54484e44 ("THND") and user_version 2.
+/// Opening read-write creates the schema in an empty file and migrates a schema-1 file (one
+/// blob per sample) in place, in one transaction; a file of a newer schema, or an SQLite file
+/// that is not a telehand record, is refused unmodified.
 #include <sqlite3.h>
 
 #include <memory>
@@ -13,7 +19,7 @@ class SqliteStore final : public SessionStore {
  public:
   enum class Mode { kReadWrite, kReadOnly };
   /// Creates the file and its directory (read-write) or opens an existing one (read-only);
-  /// StoreError naming the path on failure.
+  /// StoreError naming the path on failure or refusal.
   explicit SqliteStore(const std::string& path, Mode mode = Mode::kReadWrite);
   ~SqliteStore() override;
 
@@ -35,7 +41,9 @@ class SqliteStore final : public SessionStore {
   std::string location() const override { return path_; }
 
  private:
-  struct Stmt;
+  enum class Layout { kEmpty, kBlob, kCurrent };
+  Layout inspect();
+  void migrateFromBlobs();
   void exec(const char* sql);
   sqlite3_stmt* prepare(const char* sql);
 
