@@ -1,7 +1,7 @@
 // telehand-client: the device PC side. Runs the 1 kHz haptic loop on an MF-2 (simulated by
 // default, or over USB), opens a session on the server, streams every sample and renders
 // the joint model the server publishes.
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 #include <algorithm>
 #include <cstring>
 #include <atomic>
