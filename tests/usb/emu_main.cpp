@@ -1,19 +1,17 @@
 // telehand-mf2-emu: runs a command against an emulated MF-2 (no hardware). The emulated USB
 // bus is visible to the command and its children. Run under umockdev-wrapper:
 //   umockdev-wrapper build/release/tests/usb/telehand-mf2-emu build/release/client/telehand-probe --live 3
-#include <spawn.h>
 #include <sys/prctl.h>
-#include <sys/wait.h>
 
 #include <algorithm>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "mf2_emulator.h"
-#include "telehand/core/cli.h"
-
-extern char** environ;
+#include "telehand/app/cli.h"
+#include "telehand/app/process.h"
 
 int main(int argc, char** argv) {
   using namespace telehand;
@@ -70,22 +68,20 @@ int main(int argc, char** argv) {
       }
       return 0;
     });
-    std::vector<char*> args;
-    for (auto& a : command) args.push_back(a.data());
-    args.push_back(nullptr);
-    pid_t pid = -1;
-    if (posix_spawnp(&pid, args[0], nullptr, nullptr, args.data(), environ) != 0) {
-      std::fprintf(stderr, "telehand-mf2-emu: cannot run %s\n", args[0]);
+    std::optional<app::Process> child;
+    try {
+      child.emplace(app::ProcessOptions{.argv = command, .search_path = true});
+    } catch (const std::exception&) {
+      std::fprintf(stderr, "telehand-mf2-emu: cannot run %s\n", command.front().c_str());
       return 2;
     }
-    int status = 0;
-    waitpid(pid, &status, 0);
+    const int exit_code = child->wait();
     const auto c = emu.counters();
     std::fprintf(stderr, "telehand-mf2-emu: %llu state packets, %llu commands, %llu unhandled ioctls\n",
                  static_cast<unsigned long long>(c.states_sent),
                  static_cast<unsigned long long>(c.commands_received),
                  static_cast<unsigned long long>(c.unhandled_ioctls));
-    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    return exit_code;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "telehand-mf2-emu: %s\n", e.what());
     return 2;

@@ -7,7 +7,7 @@
 #include <thread>
 
 #include "telehand/client/usb/usb_mf2.h"
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 #include "telehand/core/error.h"
 
 int main(int argc, char** argv) {

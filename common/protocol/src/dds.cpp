@@ -127,7 +127,6 @@ Qos handStateReader(int32_t depth) {
 Qos latencyProbe() { return deviceState(); }
 }  // namespace qos
 
-namespace {
 std::string configUri(const std::string& config) {
   if (config.empty() || config.front() == '<') return config;
   std::error_code ec;
@@ -137,7 +136,6 @@ std::string configUri(const std::string& config) {
   }
   return "file://" + path.string();
 }
-}  // namespace
 
 Participant::Participant(const Options& options) : options_(options) {
   if (options.domain > 230) {

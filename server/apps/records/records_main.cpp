@@ -1,5 +1,5 @@
 // telehand-records: read session records (list, export to CSV).
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 #include <fstream>
 #include <iomanip>
 #include <iostream>

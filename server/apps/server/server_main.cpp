@@ -1,5 +1,5 @@
 // telehand-server: hosts sessions, keeps every record, publishes joint models and hand state.
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 #include <csignal>
 #include <iostream>
 #include <optional>

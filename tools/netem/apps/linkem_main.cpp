@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/netem/link_emulation.h"
@@ -108,8 +108,6 @@ Fd tunIn(const std::string& ns, const std::string& dev, const std::string& local
   }
 }
 
-volatile sig_atomic_t g_stop = 0;
-
 struct Direction {
   const char* name;
   int from;
@@ -159,10 +157,7 @@ int main(int argc, char** argv) {
     Fd tun_a = tunIn(ns_a, dev, addr_a, addr_b, home.get());
     Fd tun_b = tunIn(ns_b, dev, addr_b, addr_a, home.get());
 
-    struct sigaction sa{};
-    sa.sa_handler = [](int) { g_stop = 1; };
-    sigaction(SIGINT, &sa, nullptr);
-    sigaction(SIGTERM, &sa, nullptr);
+    installStopSignals(/*restart_syscalls=*/false);  // no call on the TUNs resumes after one
 
     Direction ab{"a->b", tun_a.get(), tun_b.get(), DelayLine<std::vector<uint8_t>>(profile, seed * 2 + 1)};
     Direction ba{"b->a", tun_b.get(), tun_a.get(), DelayLine<std::vector<uint8_t>>(profile, seed * 2 + 2)};
@@ -178,7 +173,7 @@ int main(int argc, char** argv) {
     std::vector<uint8_t> buf(65536);
     pollfd fds[2] = {{tun_a.get(), POLLIN, 0}, {tun_b.get(), POLLIN, 0}};
     Direction* dirs[2] = {&ab, &ba};
-    while (!g_stop && clock.nowNs() < end) {
+    while (!g_stop_requested.load() && clock.nowNs() < end) {
       const int64_t now = clock.nowNs();
       const int64_t next = std::min({ab.line.nextArrivalNs(), ba.line.nextArrivalNs(), now + 100 * kNsPerMs, end});
       const int64_t wait = std::max<int64_t>(next - now, 0);

@@ -18,6 +18,10 @@ namespace telehand::dds {
 /// Throws DdsError naming `what` if rc is a Cyclone error.
 dds_return_t check(dds_return_t rc, const char* what);
 
+/// A Cyclone config as Cyclone's URI: inline XML stays as is, a file becomes
+/// file://ABSOLUTE. Throws ConfigError if the file does not exist.
+std::string configUri(const std::string& config);
+
 /// Owns one dds_entity_t; deleting it deletes its children too.
 class Entity {
  public:

@@ -1,0 +1,49 @@
+#include "device.h"
+
+#include <spdlog/fmt/fmt.h>
+
+#include <chrono>
+
+namespace telehand::client::app {
+
+usb::UsbMf2Config usbConfig(const ClientOptions& o) {
+  usb::UsbMf2Config c;
+  c.vendor_id = usb::parseUsbId(o.usb_vid, "--usb-vid");
+  c.product_id = usb::parseUsbId(o.usb_pid, "--usb-pid");
+  c.serial = o.usb_serial;
+  return c;
+}
+
+ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& description,
+                           telehand_msg_SessionMode mode, const JointModelParams& initial,
+                           const Clock& clock)
+    : usb_calibration_(description) {
+  if (o.device_kind == "usb") {
+    usb_ = std::make_unique<usb::UsbMf2>(usbConfig(o), usb_calibration_, clock);
+    device_ = usb_.get();
+    usb_->start();
+    if (!usb_->waitReady(std::chrono::milliseconds(static_cast<int64_t>(o.device_timeout * 1000)))) {
+      throw DeviceError(fmt::format("the MF-2 is not streaming after {:.1f} s: {}", o.device_timeout,
+                                    usb_->statusText()));
+    }
+  } else if (mode == telehand_msg_MODE_CAPTURE) {
+    // Capture: a real (simulated) finger in the grip, moved by a clinician with the
+    // actuators off; the thimbles measure real forces (no 1:4 rendering scale).
+    devices::CaptureRigOptions rig;
+    rig.geometry = initial;
+    rig.patient = loadPatientCaseByName(o.cases_dir, o.patient_name).model;
+    rig.plan = devices::planSweep(rig.patient);
+    rig.plan.seconds_per_axis = o.sweep_seconds;
+    rig.op = o.cfg.op;
+    rig.axis_noise_n = o.thimble_noise;
+    rig.device = description;
+    rig_ = std::make_unique<devices::CaptureRig>(rig, clock);
+    device_ = &rig_->device();
+  } else {
+    sim_ = std::make_unique<devices::SimulatedMf2>(initial, o.cfg.op, clock,
+                                                   devices::SimulatedMf2Dynamics{}, description);
+    device_ = sim_.get();
+  }
+}
+
+}  // namespace telehand::client::app

@@ -1,0 +1,36 @@
+#pragma once
+// The MF-2 the session runs on: over USB, the simulated one held by a virtual clinician, or
+// in capture mode the simulated one on the capture rig (a patient's finger in the grip).
+#include <memory>
+
+#include "options.h"
+#include "telehand/client/usb/usb_mf2.h"
+#include "telehand/core/clock.h"
+#include "telehand/devices/capture_rig.h"
+#include "telehand/devices/mf2_device.h"
+#include "telehand/protocol/wire.h"
+
+namespace telehand::client::app {
+
+/// --usb-vid, --usb-pid and --usb-serial.
+usb::UsbMf2Config usbConfig(const ClientOptions& o);
+
+class ClientDevice {
+ public:
+  /// Opens the device `o` asks for; a USB MF-2 must be streaming within --device-timeout.
+  ClientDevice(const ClientOptions& o, const mf2::Mf2Description& description,
+               telehand_msg_SessionMode mode, const JointModelParams& initial, const Clock& clock);
+
+  devices::Device& device() noexcept { return *device_; }
+  /// The USB MF-2, or null.
+  usb::UsbMf2* usb() noexcept { return usb_.get(); }
+
+ private:
+  devices::Mf2ModelCalibration usb_calibration_;
+  std::unique_ptr<usb::UsbMf2> usb_;
+  std::unique_ptr<devices::CaptureRig> rig_;
+  std::unique_ptr<devices::SimulatedMf2> sim_;
+  devices::Device* device_ = nullptr;
+};
+
+}  // namespace telehand::client::app
