@@ -1,7 +1,7 @@
 // telehand-test-inject: a misbehaving client for integration tests. Sends what a correct
 // client never would (commands for sessions nobody opened, samples with NaN) and reports
 // what the server answered.
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 #include <cmath>
 #include <iostream>
 #include <thread>

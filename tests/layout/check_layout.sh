@@ -22,19 +22,20 @@ rule() {
 }
 
 rule common/core            'telehand/core/'
+rule common/app             'telehand/app/'
 rule common/config          'telehand/(core|config)/'
 rule common/devices         'telehand/(core|config|devices)/'
 rule common/protocol        'telehand/(core|protocol)/|telehand\.h|dds/'
 rule client/loop            'telehand/(core|config|devices|client/loop)/'
 rule client/usb             'telehand/(core|devices|client/usb)/'
 rule client/link            'telehand/(core|config|devices|protocol|client/(loop|link))/|telehand\.h|dds/'
-rule client/apps            'telehand/(core|config|devices|protocol|client/)|telehand\.h|dds/'
+rule client/apps            'telehand/(core|config|devices|protocol|app|client/)|telehand\.h|dds/'
 rule server/sim             'telehand/(core|server/sim)/'
 rule server/store           'telehand/(core|server/store)/'
 rule server/estimate        'telehand/(core|config|devices|server/(store|estimate))/'
 rule server/session         'telehand/(core|config|protocol|server/(sim|store|estimate|session))/|telehand\.h'
 rule server/link            'telehand/(core|config|protocol|server/(sim|store|estimate|session|link))/|telehand\.h|dds/'
-rule server/apps            'telehand/(core|config|devices|protocol|server/)|telehand\.h|dds/'
+rule server/apps            'telehand/(core|config|devices|protocol|app|server/)|telehand\.h|dds/'
 
 # No relative includes that climb out of a library.
 climb=$(grep -rnE '^\s*#\s*include\s*"\.\./' common client server tools --include='*.h' --include='*.cpp' || true)

@@ -11,7 +11,7 @@
 #include <optional>
 #include <sstream>
 
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 #include "telehand/core/error.h"
 #include "telehand/netem/teleop_harness.h"
 

@@ -13,7 +13,7 @@
 
 #include "telehand/client/usb/usb_mf2.h"
 #include "mf2_emulator.h"
-#include "telehand/core/cli.h"
+#include "telehand/app/cli.h"
 
 int main(int argc, char** argv) {
   using namespace telehand;

@@ -3,7 +3,7 @@
 /// README's "bad input" code) with CLI11's message naming the option.
 #include <CLI/CLI.hpp>
 
-#include "signals.h"  // by its own folder: also reached through telehand/core/cli.h
+#include "telehand/app/signals.h"
 
 #define TELEHAND_CLI_PARSE(app, argc, argv)        \
   try {                                             \

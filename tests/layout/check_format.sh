@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Every C++ file the repository tracks is formatted as .clang-format says (clang-format 14,
+# Debian's clang-format). Lists the files that are not; exit 1 if any.
+set -uo pipefail
+root=${1:-$(cd "$(dirname "$0")/../.." && pwd)}
+cd "$root" || exit 2
+command -v clang-format >/dev/null || { echo "format: clang-format not found (deploy/setup.sh installs it)"; exit 1; }
+bad=()
+while IFS= read -r f; do
+  clang-format --dry-run --Werror "$f" >/dev/null 2>&1 || bad+=("$f")
+done < <(git ls-files '*.h' '*.cpp')
+if [ ${#bad[@]} -gt 0 ]; then
+  echo "format: ${#bad[@]} files differ from .clang-format (clang-format -i FILE to fix):"
+  printf '  %s\n' "${bad[@]}"
+  exit 1
+fi
+echo "format: every tracked C++ file matches .clang-format"
