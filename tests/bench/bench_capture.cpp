@@ -6,6 +6,7 @@
 //     the JointModel fitted from it being published, with the capture streamed in real
 //     time as the client's 100-sample record chunks; and the refit's compute time.
 // Usage: telehand_bench_capture [--quick]
+#include <spdlog/spdlog.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -15,14 +16,12 @@
 #include <filesystem>
 #include <vector>
 
+#include "telehand/core/clock.h"
+#include "telehand/core/knn_model.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/estimate/synthetic_capture.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/store/sqlite_store.h"
-#include "telehand/core/clock.h"
-#include "telehand/core/knn_model.h"
-
-#include <spdlog/spdlog.h>
 
 using namespace telehand;
 
@@ -42,9 +41,14 @@ void sleepUntil(int64_t t) {
 
 void report(const char* what, std::vector<int64_t> ns, double unit = 1e3, const char* u = "us") {
   std::sort(ns.begin(), ns.end());
-  auto q = [&](double p) { return static_cast<double>(ns[std::min(ns.size() - 1, static_cast<std::size_t>(p * static_cast<double>(ns.size())))]) / unit; };
-  std::printf("%-52s n=%-7zu p50 %8.2f  p90 %8.2f  p99 %8.2f  p99.9 %8.2f  max %8.2f %s\n", what, ns.size(),
-              q(0.5), q(0.9), q(0.99), q(0.999), static_cast<double>(ns.back()) / unit, u);
+  auto q = [&](double p) {
+    return static_cast<double>(ns[std::min(
+               ns.size() - 1, static_cast<std::size_t>(p * static_cast<double>(ns.size())))]) /
+           unit;
+  };
+  std::printf("%-52s n=%-7zu p50 %8.2f  p90 %8.2f  p99 %8.2f  p99.9 %8.2f  max %8.2f %s\n", what,
+              ns.size(), q(0.5), q(0.9), q(0.99), q(0.999), static_cast<double>(ns.back()) / unit,
+              u);
 }
 
 class Recorder final : public server::session::Outbox {
@@ -77,7 +81,8 @@ int main(int argc, char** argv) {
   for (const auto& s : train.samples) ft.add(s, true);
   for (const auto& s : held.samples) fh.add(s, true);
   std::vector<KnnPoint> raw;
-  for (const auto& p : ft.points()) raw.push_back({p.angles_rad, -p.axis_force_n * train.geometry.lever_arm_m});
+  for (const auto& p : ft.points())
+    raw.push_back({p.angles_rad, -p.axis_force_n * train.geometry.lever_arm_m});
   const KnnTorqueModel cells(voxelAverage(raw, KnnOptions{}.cell_deg));
   const KnnTorqueModel all(raw);
   std::printf("kNN model: %zu cell-averaged samples (the live model), %zu raw samples; k = %d\n",
@@ -92,7 +97,9 @@ int main(int argc, char** argv) {
       sink = sink + m->torqueNm(p.angles_rad)[0];
       t.push_back(now() - t0);
     }
-    report(m == &cells ? "query back to back, cell-averaged model" : "query back to back, raw samples", t);
+    report(
+        m == &cells ? "query back to back, cell-averaged model" : "query back to back, raw samples",
+        t);
   }
   {
     // Paced at 1 kHz: one query per millisecond along the held-out trajectory.
@@ -124,13 +131,16 @@ int main(int argc, char** argv) {
         sink = sink + proxy->render(grip, clock).torque_ref_nm[0];
         t.push_back(now() - t0);
       }
-      report(proxy == &knn_proxy ? "JointProxy::render, kNN model" : "JointProxy::render, cubic model", t);
+      report(
+          proxy == &knn_proxy ? "JointProxy::render, kNN model" : "JointProxy::render, cubic model",
+          t);
     }
   }
 
   // 2. Live refit latency, real time.
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("telehand-bench-capture-" + std::to_string(getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("telehand-bench-capture-" + std::to_string(getpid()));
   fs::create_directories(dir);
   {
     server::store::SqliteStore store((dir / "r.db").string());
@@ -168,7 +178,8 @@ int main(int argc, char** argv) {
       }
       next_chunk += 100 * kNsPerMs;
       chunk.clear();
-    for (std::size_t j = i; j < std::min(i + 100, cap.samples.size()); ++j) chunk.push_back(toWire(cap.samples[j]));
+      for (std::size_t j = i; j < std::min(i + 100, cap.samples.size()); ++j)
+        chunk.push_back(toWire(cap.samples[j]));
       for (auto& s : chunk) s.session_id = 1;
       telehand_msg_RecordChunk c{};
       c.session_id = 1;
@@ -180,17 +191,20 @@ int main(int argc, char** argv) {
       mgr.onChunk(c, t0);
       chunk_cost.push_back(now() - t0);
     }
-    std::printf("live refit: %d models published from a %.0f s capture (%zu samples), refit at most every %.1f s;\n"
-                "  a sample that arrives just after a refit waits for the next one (up to that interval)\n",
-                out.capture_models, static_cast<double>(cap.samples.size()) / 1000.0, cap.samples.size(),
-                static_cast<double>(server::estimate::LiveRefitOptions{}.min_interval_ns) / 1e9);
+    std::printf(
+        "live refit: %d models published from a %.0f s capture (%zu samples), refit at most every "
+        "%.1f s;\n"
+        "  a sample that arrives just after a refit waits for the next one (up to that interval)\n",
+        out.capture_models, static_cast<double>(cap.samples.size()) / 1000.0, cap.samples.size(),
+        static_cast<double>(server::estimate::LiveRefitOptions{}.min_interval_ns) / 1e9);
     if (!latency.empty()) {
       report("newest sample's arrival -> model published", latency, 1e6, "ms");
       report("refit compute (tick that published)", compute, 1e6, "ms");
     }
     report("storing + feeding one 100-sample chunk", chunk_cost, 1e6, "ms");
-    std::printf("  end to end add the client's chunking (a sample waits up to 100 ms for its chunk) "
-                "and DDS (~0.1 ms on loopback)\n");
+    std::printf(
+        "  end to end add the client's chunking (a sample waits up to 100 ms for its chunk) "
+        "and DDS (~0.1 ms on loopback)\n");
     mgr.closeAll(now());
   }
   fs::remove_all(dir);

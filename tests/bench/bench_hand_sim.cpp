@@ -15,14 +15,15 @@
 #include <memory>
 #include <vector>
 
-#include "telehand/server/sim/hand_sim.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/server/sim/hand_sim.h"
 
 namespace telehand::server::sim {
 namespace {
 
 const HandModel& hand() {
-  static const HandModel m = HandModel::load(std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf");
+  static const HandModel m =
+      HandModel::load(std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf");
   return m;
 }
 
@@ -43,7 +44,8 @@ class Pinch {
   explicit Pinch(const JointModel& m, int phase_steps = 0) {
     for (int i = 0; i < kCycleSteps; ++i) {
       const double t = (i + phase_steps) * kStepS;
-      const Vec3 a(degToRad(50.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), degToRad(2.0), degToRad(1.0));
+      const Vec3 a(degToRad(50.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), degToRad(2.0),
+                   degToRad(1.0));
       angles_.push_back(a);
       grips_.push_back(m.gripFromAngles(a, 0.008));
     }
@@ -123,7 +125,8 @@ std::vector<Session>& pinchedHands(int n) {
     const JointModelParams params = healthyIndexMcp();
     const JointModel proxy(params);
     for (int k = 0; k < n; ++k) {
-      sessions.push_back({std::make_unique<HandSim>(hand(), params), Pinch(proxy, k * kCycleSteps / (3 * n))});
+      sessions.push_back(
+          {std::make_unique<HandSim>(hand(), params), Pinch(proxy, k * kCycleSteps / (3 * n))});
       sessions.back().pinch.engage(*sessions.back().sim);
     }
   }

@@ -5,11 +5,11 @@
 #include <cmath>
 #include <vector>
 
-#include "telehand/devices/simulated_mf2.h"
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/joint_model.h"
 #include "telehand/core/safety.h"
+#include "telehand/devices/simulated_mf2.h"
 
 namespace telehand {
 namespace {

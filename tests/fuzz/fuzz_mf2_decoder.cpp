@@ -31,20 +31,25 @@ void withCrcFixed(const uint8_t* data, std::size_t size, std::size_t packet_size
   std::vector<uint8_t> b(data, data + size);
   const uint32_t crc = proto::crc32(std::span<const uint8_t>(b.data(), size - 4));
   for (int i = 0; i < 4; ++i) b[size - 4 + i] = static_cast<uint8_t>(crc >> (8 * i));
-  roundTrip<proto::StatePacket, proto::kStateSize>(b.data(), size, proto::decodeState,
-                                               [](const proto::StatePacket& p, std::span<uint8_t> o) {
-                                                 return proto::encodeState(p, o);
-                                               });
+  roundTrip<proto::StatePacket, proto::kStateSize>(
+      b.data(), size, proto::decodeState,
+      [](const proto::StatePacket& p, std::span<uint8_t> o) { return proto::encodeState(p, o); });
   roundTrip<proto::CommandPacket, proto::kCommandSize>(
       b.data(), size, proto::decodeCommand,
-      [](const proto::CommandPacket& p, std::span<uint8_t> o) { return proto::encodeCommand(p, o); });
+      [](const proto::CommandPacket& p, std::span<uint8_t> o) {
+        return proto::encodeCommand(p, o);
+      });
 }
 
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
-  auto enc_state = [](const proto::StatePacket& p, std::span<uint8_t> o) { return proto::encodeState(p, o); };
-  auto enc_cmd = [](const proto::CommandPacket& p, std::span<uint8_t> o) { return proto::encodeCommand(p, o); };
+  auto enc_state = [](const proto::StatePacket& p, std::span<uint8_t> o) {
+    return proto::encodeState(p, o);
+  };
+  auto enc_cmd = [](const proto::CommandPacket& p, std::span<uint8_t> o) {
+    return proto::encodeCommand(p, o);
+  };
   roundTrip<proto::StatePacket, proto::kStateSize>(data, size, proto::decodeState, enc_state);
   roundTrip<proto::CommandPacket, proto::kCommandSize>(data, size, proto::decodeCommand, enc_cmd);
   withCrcFixed(data, size, proto::kStateSize);

@@ -1,11 +1,11 @@
 // telehand-test-inject: a misbehaving client for integration tests. Sends what a correct
 // client never would (commands for sessions nobody opened, samples with NaN) and reports
 // what the server answered.
-#include "telehand/app/cli.h"
 #include <cmath>
 #include <iostream>
 #include <thread>
 
+#include "telehand/app/cli.h"
 #include "telehand/core/clock.h"
 #include "telehand/protocol/dds.h"
 #include "telehand/protocol/wire.h"
@@ -58,8 +58,8 @@ struct Peer {
     while (!found && std::chrono::steady_clock::now() < deadline) {
       events.take([&](const telehand_msg_SessionEvent& e, const dds_sample_info_t&) {
         const std::string text = e.text;
-        const bool mine = e.client_id == client_id || (session && e.session_id == session) ||
-                          e.session_id == 0;
+        const bool mine =
+            e.client_id == client_id || (session && e.session_id == session) || e.session_id == 0;
         if (!found && mine && e.kind == telehand_msg_EVENT_ERROR &&
             text.find(needle) != std::string::npos) {
           found = text;

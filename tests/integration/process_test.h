@@ -44,7 +44,9 @@ class ProcessTest : public ::testing::Test {
     for (auto& a : dds()) v.push_back(a);
     return v;
   }
-  std::string path(const std::string& name) const { return (std::filesystem::path(dir_) / name).string(); }
+  std::string path(const std::string& name) const {
+    return (std::filesystem::path(dir_) / name).string();
+  }
 
   std::string prefix_, dds_config_;
   std::string dir_;

@@ -1,6 +1,7 @@
 // The cross-continent demonstration on loopback: an expert captures a (simulated) healthy
 // finger with the actuators off while a follower in another session, who starts on the lax
-// joint the capture session opened with, feels the server's live fit of it. Processes in a partition of their own, stopped by PID.
+// joint the capture session opened with, feels the server's live fit of it. Processes in a
+// partition of their own, stopped by PID.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -8,9 +9,9 @@
 #include <regex>
 
 #include "process.h"
+#include "telehand/config/config.h"
 #include "telehand/core/clock.h"
 #include "telehand/server/store/sqlite_store.h"
-#include "telehand/config/config.h"
 
 namespace telehand::test {
 namespace {
@@ -48,20 +49,21 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
     return v;
   };
   const std::string db = (dir / "records.db").string();
-  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "90"}), (dir / "server.log").string());
+  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "90"}),
+                 (dir / "server.log").string());
   // The expert: the healthy case's finger in the grip, each axis mobilized for 4 s; the
   // session opens on the lax case (its model until the first fit).
-  Process expert(cmd(TELEHAND_CLIENT_BIN, {"--mode", "capture", "--case", "lax", "--patient", "healthy",
-                                           "--sweep-seconds", "4",
-                                           "--seconds", "16", "-q", "--device-file",
-                                           TELEHAND_DEPLOY_DIR "/devices/mf2.toml"}),
-                 (dir / "expert.log").string());
+  Process expert(
+      cmd(TELEHAND_CLIENT_BIN,
+          {"--mode", "capture", "--case", "lax", "--patient", "healthy", "--sweep-seconds", "4",
+           "--seconds", "16", "-q", "--device-file", TELEHAND_DEPLOY_DIR "/devices/mf2.toml"}),
+      (dir / "expert.log").string());
   const uint64_t capture = waitForSession(expert, 20s);
   ASSERT_GT(capture, 0u) << expert.output() << server.output();
   // The follower: a student elsewhere, starting on the lax joint until the fit arrives,
   // mobilizing with 6-10 N (the expert went to 15 N: the student stays in the captured range).
-  Process follower(cmd(TELEHAND_CLIENT_BIN, {"--follow", std::to_string(capture), "--seconds", "13", "-q",
-                                             "--band-min", "6", "--band-max", "10"}),
+  Process follower(cmd(TELEHAND_CLIENT_BIN, {"--follow", std::to_string(capture), "--seconds", "13",
+                                             "-q", "--band-min", "6", "--band-max", "10"}),
                    (dir / "follower.log").string());
   const auto expert_rc = expert.wait(40s);
   const auto follower_rc = follower.wait(40s);
@@ -93,7 +95,8 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
     if (dt_ns <= 0 || dt_ns > 20 * kNsPerMs) continue;  // a stalled loop repeats its sample
     for (int k = 0; k < 3; ++k) {
       a[k] = s[i].mcp_angles_rad[k];
-      rate[k] = (s[i + 5].mcp_angles_rad[k] - s[i - 5].mcp_angles_rad[k]) / (static_cast<double>(dt_ns) * 1e-9);
+      rate[k] = (s[i + 5].mcp_angles_rad[k] - s[i - 5].mcp_angles_rad[k]) /
+                (static_cast<double>(dt_ns) * 1e-9);
     }
     const double want = truth.passiveTorqueNm(a, rate)[kFlexion];
     const double got = s[i].mcp_torque_nm[kFlexion];
@@ -109,8 +112,10 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   ASSERT_GT(early.n, 100) << "the follower rendered the initial (lax) joint first";
   ASSERT_GT(late.n, 1000);
   const double e0 = early.error / early.n, e1 = late.error / late.n, t1 = late.truth / late.n;
-  std::printf("follower flexion torque error: %.4f N m on model v1, %.4f N m at the end (v%u), truth %.4f N m\n",
-              e0, e1, last_version, t1);
+  std::printf(
+      "follower flexion torque error: %.4f N m on model v1, %.4f N m at the end (v%u), truth %.4f "
+      "N m\n",
+      e0, e1, last_version, t1);
   EXPECT_LT(e1, 0.25 * e0) << "the rendered torque converged toward the captured joint";
   EXPECT_LT(e1, 0.1 * t1) << "within 10 % of the ground truth's torque";
   if (!HasFailure()) fs::remove_all(dir);

@@ -15,14 +15,16 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
 TEST(RecordsFit, SynthThenFitWritesACaseAndPlots) {
-  const fs::path dir = fs::temp_directory_path() / ("telehand-records-fit-" + std::to_string(getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("telehand-records-fit-" + std::to_string(getpid()));
   fs::create_directories(dir);
   const std::string db = (dir / "r.db").string();
-  Process synth({TELEHAND_RECORDS_BIN, "--db", db, "synth", "--case", "stiff", "--seconds-per-axis", "6",
-                 "--device", TELEHAND_DEPLOY_DIR "/devices/mf2.toml", "-q"},
+  Process synth({TELEHAND_RECORDS_BIN, "--db", db, "synth", "--case", "stiff", "--seconds-per-axis",
+                 "6", "--device", TELEHAND_DEPLOY_DIR "/devices/mf2.toml", "-q"},
                 (dir / "synth.log").string());
   ASSERT_EQ(synth.wait(60s), 0) << synth.output();
-  EXPECT_NE(synth.output().find("session 1: synthetic capture of case 'stiff'"), std::string::npos) << synth.output();
+  EXPECT_NE(synth.output().find("session 1: synthetic capture of case 'stiff'"), std::string::npos)
+      << synth.output();
 
   Process fit({TELEHAND_RECORDS_BIN, "--db", db, "fit", "1", "--name", "stiff-fit", "-o",
                (dir / "cases" / "stiff-fit.toml").string(), "--plots", (dir / "plots").string()},
@@ -39,7 +41,9 @@ TEST(RecordsFit, SynthThenFitWritesACaseAndPlots) {
       EXPECT_NEAR(fitted.holdingForceN(i, degToRad(d)), m.holdingForceN(i, degToRad(d)), 0.5)
           << kAxisNames[static_cast<std::size_t>(i)] << " at " << d << " deg";
     }
-    const fs::path plot = dir / "plots" / ("stiff-fit-" + std::string(kAxisNames[static_cast<std::size_t>(i)]) + ".png");
+    const fs::path plot =
+        dir / "plots" /
+        ("stiff-fit-" + std::string(kAxisNames[static_cast<std::size_t>(i)]) + ".png");
     ASSERT_TRUE(fs::exists(plot)) << plot;
     EXPECT_GT(fs::file_size(plot), 10'000u);
   }

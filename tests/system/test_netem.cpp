@@ -64,8 +64,9 @@ class NetemTest : public ::testing::Test {
  protected:
   void SetUp() override {
     if (geteuid() != 0) GTEST_SKIP() << "needs root for network namespaces";
-    struct stat st{};
-    if (stat("/dev/net/tun", &st) != 0 || stat(kIp, &st) != 0) GTEST_SKIP() << "no /dev/net/tun or ip";
+    struct stat st {};
+    if (stat("/dev/net/tun", &st) != 0 || stat(kIp, &st) != 0)
+      GTEST_SKIP() << "no /dev/net/tun or ip";
     removeStaleNamespaces();
     char tmpl[] = "/tmp/telehand-netem-XXXXXX";
     dir_ = mkdtemp(tmpl);
@@ -80,8 +81,13 @@ class NetemTest : public ::testing::Test {
   /// argv running `bin` in namespace `ns` with the WAN config's addresses set.
   std::vector<std::string> inNs(const Netns& ns, const std::string& self, const std::string& peer,
                                 std::string bin, std::vector<std::string> args) const {
-    std::vector<std::string> v{kIp, "netns", "exec", ns.name(), kEnv,
-                               "TELEHAND_DDS_ADDRESS=" + self, "TELEHAND_DDS_PEER=" + peer,
+    std::vector<std::string> v{kIp,
+                               "netns",
+                               "exec",
+                               ns.name(),
+                               kEnv,
+                               "TELEHAND_DDS_ADDRESS=" + self,
+                               "TELEHAND_DDS_PEER=" + peer,
                                std::move(bin)};
     v.insert(v.end(), args.begin(), args.end());
     for (const std::string& a : {std::string("--dds-config"), std::string(TELEHAND_WAN_XML),
@@ -111,7 +117,8 @@ TEST_F(NetemTest, SpainAustraliaSessionRecordsEverySampleAcrossTheDelayLine) {
   const std::string tag = "thsys" + std::to_string(getpid());
   Netns srv_ns(tag + "a"), cli_ns(tag + "b");
   ASSERT_TRUE(srv_ns.ok() && cli_ns.ok()) << "cannot create network namespaces";
-  auto line = linkem(srv_ns, cli_ns, std::string(TELEHAND_DEPLOY_DIR) + "/links/spain-australia.toml");
+  auto line =
+      linkem(srv_ns, cli_ns, std::string(TELEHAND_DEPLOY_DIR) + "/links/spain-australia.toml");
   ASSERT_NE(line->output().find("linkem ready"), std::string::npos) << line->output();
 
   const std::string db = path("records.db");
@@ -162,7 +169,8 @@ TEST_F(NetemTest, SpainAustraliaSessionRecordsEverySampleAcrossTheDelayLine) {
   EXPECT_EQ(expect, sent);
   EXPECT_EQ(flagged_live, live);
   bool rates = false;
-  for (const auto& e : store.events(session)) rates = rates || e.text.find("packets/s received live") != std::string::npos;
+  for (const auto& e : store.events(session))
+    rates = rates || e.text.find("packets/s received live") != std::string::npos;
   EXPECT_TRUE(rates) << "the link's packet rates are in the record";
 }
 
@@ -170,7 +178,8 @@ TEST_F(NetemTest, DirectModeRunsAcrossTheDelayLineAndTheGuardActs) {
   const std::string tag = "thsys" + std::to_string(getpid());
   Netns srv_ns(tag + "a"), cli_ns(tag + "b");
   ASSERT_TRUE(srv_ns.ok() && cli_ns.ok()) << "cannot create network namespaces";
-  auto line = linkem(srv_ns, cli_ns, std::string(TELEHAND_DEPLOY_DIR) + "/links/spain-australia.toml");
+  auto line =
+      linkem(srv_ns, cli_ns, std::string(TELEHAND_DEPLOY_DIR) + "/links/spain-australia.toml");
   ASSERT_NE(line->output().find("linkem ready"), std::string::npos) << line->output();
   Process server(inNs(srv_ns, "10.77.0.1", "10.77.0.2", TELEHAND_SERVER_BIN,
                       {"--db", path("records.db"), "--seconds", "90", "--hand", "none"}),

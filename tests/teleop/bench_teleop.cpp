@@ -5,7 +5,6 @@
 // error against the zero-delay model-mediated run, the largest force step from a model
 // update, packets per second each way, and loop overruns.
 #include <CLI/CLI.hpp>
-
 #include <cstdio>
 #include <iostream>
 #include <optional>
@@ -41,29 +40,31 @@ void printRow(const CellSpec& spec, const CellResult& r, double err, bool markdo
   // In direct mode the client's proxy renders nothing: its fades are not felt.
   char step[64] = "n/a";
   if (spec.render == RenderMode::kModel) {
-    std::snprintf(step, sizeof step, "%.3f N (%.2f), %.1f µJ", r.update_step_max_n, r.update_step_ratio,
-                  r.fade_unpaid_j * 1e6);
+    std::snprintf(step, sizeof step, "%.3f N (%.2f), %.1f µJ", r.update_step_max_n,
+                  r.update_step_ratio, r.fade_unpaid_j * 1e6);
   }
   char line[512];
-  std::snprintf(line, sizeof line,
-                markdown ? "| %s | %s | %.0f ±%.0f | %.0f | %s (%.1f %%) | %s (%.1f mJ, %llu) | %.1f %% | "
-                           "%s | %.2f° / %.2f° (%llu) | %.0f | %.0f | %.0f | %llu (%.0f µs) |"
-                         : "%-15s %-18s %5.0f ±%-4.0f %4.0f  %-8s %5.1f%%  %-3s %7.1f mJ %6llu  %6.1f%%  "
-                           "%-15s  %5.2f/%5.2f deg (%llu)  %6.0f %6.0f %6.0f  %llu (%.0f us)",
-                modeName(spec.render), spec.link.name.c_str(), spec.link.rtt_ms, spec.link.jitter_ms,
-                spec.link.loss_pct, stable(r) ? "stable" : "UNSTABLE", r.oscillation * 100.0,
-                passive(r) ? "yes" : "NO", r.po_min_j * 1e3, static_cast<unsigned long long>(r.pc_ticks),
-                err * 100.0, step, r.drift_mean_deg, r.drift_rms_deg,
-                static_cast<unsigned long long>(r.drift_corrections), r.device_state_pps, r.up_pps, r.down_pps,
-                static_cast<unsigned long long>(r.overruns), r.step_max_us);
+  std::snprintf(
+      line, sizeof line,
+      markdown ? "| %s | %s | %.0f ±%.0f | %.0f | %s (%.1f %%) | %s (%.1f mJ, %llu) | %.1f %% | "
+                 "%s | %.2f° / %.2f° (%llu) | %.0f | %.0f | %.0f | %llu (%.0f µs) |"
+               : "%-15s %-18s %5.0f ±%-4.0f %4.0f  %-8s %5.1f%%  %-3s %7.1f mJ %6llu  %6.1f%%  "
+                 "%-15s  %5.2f/%5.2f deg (%llu)  %6.0f %6.0f %6.0f  %llu (%.0f us)",
+      modeName(spec.render), spec.link.name.c_str(), spec.link.rtt_ms, spec.link.jitter_ms,
+      spec.link.loss_pct, stable(r) ? "stable" : "UNSTABLE", r.oscillation * 100.0,
+      passive(r) ? "yes" : "NO", r.po_min_j * 1e3, static_cast<unsigned long long>(r.pc_ticks),
+      err * 100.0, step, r.drift_mean_deg, r.drift_rms_deg,
+      static_cast<unsigned long long>(r.drift_corrections), r.device_state_pps, r.up_pps,
+      r.down_pps, static_cast<unsigned long long>(r.overruns), r.step_max_us);
   std::cout << line << std::endl;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"telehand-teleop-bench: model-mediated against direct rendering over emulated "
-               "links (RTT x loss), in simulated time, with the real loop and server code"};
+  CLI::App app{
+      "telehand-teleop-bench: model-mediated against direct rendering over emulated "
+      "links (RTT x loss), in simulated time, with the real loop and server code"};
   std::vector<double> rtts = {0, 50, 150, 300, 600, 1000};
   std::vector<double> losses = {0, 2, 10};
   std::vector<std::string> modes = {"model", "direct"};
@@ -75,30 +76,45 @@ int main(int argc, char** argv) {
   std::string case_name = "regain";
   std::string clinician = "force";
   app.add_option("--rtt", rtts, "round trips, ms")->capture_default_str();
-  app.add_option("--loss", losses, "mean losses, % (bursty, 4 packets per burst)")->capture_default_str();
-  app.add_option("--modes", modes, "model, direct")->check(CLI::IsMember({"model", "direct"}))->capture_default_str();
-  app.add_option("--profile", profiles, "also run these link profiles (deploy/links/*.toml)")->check(CLI::ExistingFile);
-  app.add_option("--deadband", deadbands, "also run model-mediated cells with these Weber fractions")->check(CLI::Range(0.0, 0.5));
-  app.add_option("--seconds", seconds, "simulated session length")->capture_default_str()->check(CLI::Range(2.0, 3600.0));
-  app.add_option("--steady-from", steady, "metrics from this time on (after the ramp), s")->capture_default_str();
+  app.add_option("--loss", losses, "mean losses, % (bursty, 4 packets per burst)")
+      ->capture_default_str();
+  app.add_option("--modes", modes, "model, direct")
+      ->check(CLI::IsMember({"model", "direct"}))
+      ->capture_default_str();
+  app.add_option("--profile", profiles, "also run these link profiles (deploy/links/*.toml)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--deadband", deadbands,
+                 "also run model-mediated cells with these Weber fractions")
+      ->check(CLI::Range(0.0, 0.5));
+  app.add_option("--seconds", seconds, "simulated session length")
+      ->capture_default_str()
+      ->check(CLI::Range(2.0, 3600.0));
+  app.add_option("--steady-from", steady, "metrics from this time on (after the ramp), s")
+      ->capture_default_str();
   app.add_option("--clinician", clinician,
                  "force: pushes the paper's 12-16 N band; servo: moves the joint along a set path "
                  "through that band, so the force shows what is rendered")
       ->check(CLI::IsMember({"force", "servo"}))
       ->capture_default_str();
-  app.add_option("--case", case_name, "patient case (tests/teleop/cases, deploy/cases)")->capture_default_str();
-  app.add_option("--recovery-s", treatment, "treatment time over which a recovering case regains its range")->capture_default_str();
+  app.add_option("--case", case_name, "patient case (tests/teleop/cases, deploy/cases)")
+      ->capture_default_str();
+  app.add_option("--recovery-s", treatment,
+                 "treatment time over which a recovering case regains its range")
+      ->capture_default_str();
   app.add_option("--seed", seed, "operator and link seed")->capture_default_str();
   app.add_flag("--markdown", markdown, "print Markdown tables");
-  app.add_flag("--no-hand", no_hand, "no Bullet hand on the server (no treatment, no recovery updates)");
+  app.add_flag("--no-hand", no_hand,
+               "no Bullet hand on the server (no treatment, no recovery updates)");
   app.add_flag("--no-passivity-control", no_pc, "observe passivity but never add damping");
-  app.add_flag("--drift", drift, "also compare drift (hand against proxy) with the server's correction off and on");
+  app.add_flag("--drift", drift,
+               "also compare drift (hand against proxy) with the server's correction off and on");
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
     if (steady >= seconds) throw telehand::ConfigError("--steady-from must be below --seconds");
     std::optional<server::sim::HandModel> hand;
-    if (!no_hand) hand = server::sim::HandModel::load(std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf");
+    if (!no_hand)
+      hand = server::sim::HandModel::load(std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf");
     auto spec = [&](const LinkProfile& link, RenderMode mode) {
       CellSpec s;
       s.link = link;
@@ -118,11 +134,15 @@ int main(int argc, char** argv) {
               << " model versions applied, " << ref.samples_recorded << " of " << ref.ticks
               << " samples recorded\n\n";
     if (markdown) {
-      std::cout << "| mode | link | RTT ms | loss % | stable (force above 15 Hz) | passive (lowest PO energy, PC ticks) | "
-                   "RMS force error | largest update step (/ bound), unpaid fade energy | drift mean / RMS (corrections) | DeviceState /s | up /s | down /s | overruns (worst step CPU) |\n"
-                   "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+      std::cout
+          << "| mode | link | RTT ms | loss % | stable (force above 15 Hz) | passive (lowest PO "
+             "energy, PC ticks) | "
+             "RMS force error | largest update step (/ bound), unpaid fade energy | drift mean / "
+             "RMS (corrections) | DeviceState /s | up /s | down /s | overruns (worst step CPU) |\n"
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     } else {
-      std::cout << "mode            link               RTT ms      loss  stable   osc     passive  PO min  PC ticks  "
+      std::cout << "mode            link               RTT ms      loss  stable   osc     passive  "
+                   "PO min  PC ticks  "
                    "error   update step      drift mean/RMS (corr)  DS/s   up/s down/s  overruns\n";
     }
     int failures = 0;
@@ -144,10 +164,13 @@ int main(int argc, char** argv) {
       for (const auto& path : profiles) run(spec(loadLinkProfile(path), mode));
     }
     if (!deadbands.empty()) {
-      std::cout << "\ndeadband (model-mediated): DeviceState packets against every sample, rendered "
-                   "force error against the same link without deadband, server-side reconstruction error\n";
+      std::cout
+          << "\ndeadband (model-mediated): DeviceState packets against every sample, rendered "
+             "force error against the same link without deadband, server-side reconstruction "
+             "error\n";
       if (markdown) {
-        std::cout << "| link | Weber | DeviceState /s | fewer packets | rendered force error | reconstruction error | HandState /s |\n"
+        std::cout << "| link | Weber | DeviceState /s | fewer packets | rendered force error | "
+                     "reconstruction error | HandState /s |\n"
                      "|---|---|---|---|---|---|---|\n";
       }
       for (const auto& link : {matrixLink(0, 0), matrixLink(300, 2)}) {
@@ -158,14 +181,17 @@ int main(int argc, char** argv) {
           s.deadband.weber = w;
           const CellResult r = runCell(s, hand ? &*hand : nullptr);
           char line[400];
-          std::snprintf(line, sizeof line,
-                        markdown ? "| %s | %.2f | %.0f (of %.0f) | %.1f %% | %.2f %% | %.2f %% | %.0f (of %.0f) |"
-                                 : "%-14s weber %.2f  DeviceState %5.0f/s (of %.0f)  %.1f %% fewer  rendered error %.2f %%  "
-                                   "reconstruction error %.2f %%  HandState %.0f/s (of %.0f)",
-                        link.name.c_str(), w, r.device_state_pps, full.device_state_pps,
-                        100.0 * (1.0 - r.device_state_pps / full.device_state_pps),
-                        100.0 * forceError(r, full, s), 100.0 * r.reconstruction_error,
-                        r.hand_state_pps, full.hand_state_pps);
+          std::snprintf(
+              line, sizeof line,
+              markdown
+                  ? "| %s | %.2f | %.0f (of %.0f) | %.1f %% | %.2f %% | %.2f %% | %.0f (of %.0f) |"
+                  : "%-14s weber %.2f  DeviceState %5.0f/s (of %.0f)  %.1f %% fewer  rendered "
+                    "error %.2f %%  "
+                    "reconstruction error %.2f %%  HandState %.0f/s (of %.0f)",
+              link.name.c_str(), w, r.device_state_pps, full.device_state_pps,
+              100.0 * (1.0 - r.device_state_pps / full.device_state_pps),
+              100.0 * forceError(r, full, s), 100.0 * r.reconstruction_error, r.hand_state_pps,
+              full.hand_state_pps);
           std::cout << line << std::endl;
         }
       }
@@ -175,7 +201,8 @@ int main(int argc, char** argv) {
                    "device sample, largest axis; force error against the zero-delay run with the "
                    "correction on\n";
       if (markdown) {
-        std::cout << "| link | correction | drift mean | drift RMS | corrections | largest update step (/ bound) | RMS force error |\n"
+        std::cout << "| link | correction | drift mean | drift RMS | corrections | largest update "
+                     "step (/ bound) | RMS force error |\n"
                      "|---|---|---|---|---|---|---|\n";
       }
       std::vector<LinkProfile> links = {matrixLink(0, 0), matrixLink(300, 2), matrixLink(1000, 10)};
@@ -186,13 +213,15 @@ int main(int argc, char** argv) {
           s.drift_correction = on;
           const CellResult r = runCell(s, hand ? &*hand : nullptr);
           char line[400];
-          std::snprintf(line, sizeof line,
-                        markdown ? "| %s | %s | %.2f° | %.2f° | %llu | %.3f N (%.2f) | %.1f %% |"
-                                 : "%-18s correction %-3s  drift mean %.2f deg  RMS %.2f deg  %llu corrections  "
-                                   "update step %.3f N (%.2f)  force error %.1f %%",
-                        link.name.c_str(), on ? "on" : "off", r.drift_mean_deg, r.drift_rms_deg,
-                        static_cast<unsigned long long>(r.drift_corrections), r.update_step_max_n,
-                        r.update_step_ratio, 100.0 * forceError(r, ref, s));
+          std::snprintf(
+              line, sizeof line,
+              markdown
+                  ? "| %s | %s | %.2f° | %.2f° | %llu | %.3f N (%.2f) | %.1f %% |"
+                  : "%-18s correction %-3s  drift mean %.2f deg  RMS %.2f deg  %llu corrections  "
+                    "update step %.3f N (%.2f)  force error %.1f %%",
+              link.name.c_str(), on ? "on" : "off", r.drift_mean_deg, r.drift_rms_deg,
+              static_cast<unsigned long long>(r.drift_corrections), r.update_step_max_n,
+              r.update_step_ratio, 100.0 * forceError(r, ref, s));
           std::cout << line << std::endl;
         }
       }

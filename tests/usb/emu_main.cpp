@@ -1,6 +1,7 @@
 // telehand-mf2-emu: runs a command against an emulated MF-2 (no hardware). The emulated USB
 // bus is visible to the command and its children. Run under umockdev-wrapper:
-//   umockdev-wrapper build/release/tests/usb/telehand-mf2-emu build/release/client/telehand-probe --live 3
+//   umockdev-wrapper build/release/tests/usb/telehand-mf2-emu build/release/client/telehand-probe
+//   --live 3
 #include <sys/prctl.h>
 
 #include <algorithm>
@@ -15,14 +16,16 @@
 
 int main(int argc, char** argv) {
   using namespace telehand;
-  CLI::App app{"telehand-mf2-emu: run a command against an emulated MF-2 (run this under "
-               "umockdev-wrapper)"};
+  CLI::App app{
+      "telehand-mf2-emu: run a command against an emulated MF-2 (run this under "
+      "umockdev-wrapper)"};
   int64_t pace_us = 1000;
   double push_nm = 0.05, push_hz = 1.0;
   std::string fsr_text;
   std::vector<double> fsr;
   std::vector<std::string> command;
-  app.add_option("--pace-us", pace_us, "state packet period, us (0: as fast as asked)")->capture_default_str();
+  app.add_option("--pace-us", pace_us, "state packet period, us (0: as fast as asked)")
+      ->capture_default_str();
   app.add_option("--push", push_nm, "operator torque on the thumb's first crank, N m amplitude")
       ->capture_default_str();
   app.add_option("--push-hz", push_hz, "operator push frequency")->capture_default_str();
@@ -35,7 +38,8 @@ int main(int argc, char** argv) {
     try {
       fsr.push_back(std::stod(fsr_text.substr(pos, comma - pos)));
     } catch (const std::exception&) {
-      std::fprintf(stderr, "telehand-mf2-emu: --fsr: '%s' is not a list of numbers\n", fsr_text.c_str());
+      std::fprintf(stderr, "telehand-mf2-emu: --fsr: '%s' is not a list of numbers\n",
+                   fsr_text.c_str());
       return 2;
     }
     pos = comma + 1;
@@ -77,7 +81,8 @@ int main(int argc, char** argv) {
     }
     const int exit_code = child->wait();
     const auto c = emu.counters();
-    std::fprintf(stderr, "telehand-mf2-emu: %llu state packets, %llu commands, %llu unhandled ioctls\n",
+    std::fprintf(stderr,
+                 "telehand-mf2-emu: %llu state packets, %llu commands, %llu unhandled ioctls\n",
                  static_cast<unsigned long long>(c.states_sent),
                  static_cast<unsigned long long>(c.commands_received),
                  static_cast<unsigned long long>(c.unhandled_ioctls));

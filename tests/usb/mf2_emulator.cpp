@@ -1,8 +1,10 @@
 #include "mf2_emulator.h"
 
 // docs/facts.md "umockdev": <linux/ioctl.h> must come before <linux/usbdevice_fs.h>.
+// clang-format off
 #include <linux/ioctl.h>
 #include <linux/usbdevice_fs.h>
+// clang-format on
 #include <time.h>
 #include <umockdev.h>
 #include <unistd.h>
@@ -44,19 +46,19 @@ std::string hexBytes(const std::vector<uint8_t>& b) {
 std::vector<uint8_t> descriptors(const EmulatorOptions& o) {
   auto lo = [](uint16_t v) { return static_cast<uint8_t>(v & 0xff); };
   auto hi = [](uint16_t v) { return static_cast<uint8_t>(v >> 8); };
-  return {
-      // device: USB 2.0, class per interface, EP0 64 bytes, IDs, bcdDevice, strings 1/2/3
-      0x12, 0x01, 0x00, 0x02, 0x00, 0x00, 0x00, 0x40, lo(o.vendor_id), hi(o.vendor_id),
-      lo(o.product_id), hi(o.product_id), lo(o.bcd_device), hi(o.bcd_device), 0x01, 0x02, 0x03,
-      0x01,
-      // configuration 1: 32 bytes in all, one interface, bus powered, 500 mA
-      0x09, 0x02, 0x20, 0x00, 0x01, 0x01, 0x00, 0x80, 0xfa,
-      // interface 0: two endpoints, vendor specific
-      0x09, 0x04, 0x00, 0x00, 0x02, 0xff, 0x00, 0x00, 0x00,
-      // endpoint 0x81 interrupt IN, 128 bytes, bInterval 4 (2^3 microframes = 1 ms)
-      0x07, 0x05, proto::kEndpointIn, 0x03, lo(proto::kMaxPacketIn), hi(proto::kMaxPacketIn), 0x04,
-      // endpoint 0x01 interrupt OUT, 64 bytes, 1 ms
-      0x07, 0x05, proto::kEndpointOut, 0x03, 0x40, 0x00, 0x04};
+  return {// device: USB 2.0, class per interface, EP0 64 bytes, IDs, bcdDevice, strings 1/2/3
+          0x12, 0x01, 0x00, 0x02, 0x00, 0x00, 0x00, 0x40, lo(o.vendor_id), hi(o.vendor_id),
+          lo(o.product_id), hi(o.product_id), lo(o.bcd_device), hi(o.bcd_device), 0x01, 0x02, 0x03,
+          0x01,
+          // configuration 1: 32 bytes in all, one interface, bus powered, 500 mA
+          0x09, 0x02, 0x20, 0x00, 0x01, 0x01, 0x00, 0x80, 0xfa,
+          // interface 0: two endpoints, vendor specific
+          0x09, 0x04, 0x00, 0x00, 0x02, 0xff, 0x00, 0x00, 0x00,
+          // endpoint 0x81 interrupt IN, 128 bytes, bInterval 4 (2^3 microframes = 1 ms)
+          0x07, 0x05, proto::kEndpointIn, 0x03, lo(proto::kMaxPacketIn), hi(proto::kMaxPacketIn),
+          0x04,
+          // endpoint 0x01 interrupt OUT, 64 bytes, 1 ms
+          0x07, 0x05, proto::kEndpointOut, 0x03, 0x40, 0x00, 0x04};
 }
 
 std::vector<uint8_t> stringDescriptor(const std::string& s) {
@@ -129,7 +131,8 @@ void Mf2Emulator::addDevice() {
       "A: devnum=1\\n\n"
       "A: speed=480\\n\n"
       "A: telehand_emulated=1\\n\n"
-      "H: descriptors=" + desc + "\n";
+      "H: descriptors=" +
+      desc + "\n";
   {
     std::lock_guard lock(mu_);
     fw_.reset();
@@ -246,9 +249,15 @@ bool Mf2Emulator::produceIn(Urb& u, int64_t now_ns) {
     --corrupt_left_;
     ++counters_.corrupted_sent;
     switch (corruption_) {
-      case Corruption::kBitFlip: out[40] ^= 0x10; break;
-      case Corruption::kShort: len = 60; break;
-      case Corruption::kBadMagic: out[0] = 'X'; break;
+      case Corruption::kBitFlip:
+        out[40] ^= 0x10;
+        break;
+      case Corruption::kShort:
+        len = 60;
+        break;
+      case Corruption::kBadMagic:
+        out[0] = 'X';
+        break;
       case Corruption::kBadVersion: {
         proto::StatePacket s;
         proto::decodeState(pkt, s);
@@ -285,11 +294,20 @@ bool Mf2Emulator::answerControl(Urb& u) {
   std::vector<uint8_t> reply;
   if (request_type == 0x80 && request == 0x06 && (value >> 8) == 0x03) {  // GET_DESCRIPTOR string
     switch (value & 0xff) {
-      case 0: reply = {0x04, 0x03, 0x09, 0x04}; break;  // English (US)
-      case 1: reply = stringDescriptor("telehand"); break;
-      case 2: reply = stringDescriptor("MF-2 controller (emulated)"); break;
-      case 3: reply = stringDescriptor(opt_.serial); break;
-      default: break;
+      case 0:
+        reply = {0x04, 0x03, 0x09, 0x04};
+        break;  // English (US)
+      case 1:
+        reply = stringDescriptor("telehand");
+        break;
+      case 2:
+        reply = stringDescriptor("MF-2 controller (emulated)");
+        break;
+      case 3:
+        reply = stringDescriptor(opt_.serial);
+        break;
+      default:
+        break;
     }
   }
   if (reply.empty()) {
@@ -297,8 +315,8 @@ bool Mf2Emulator::answerControl(Urb& u) {
     u.actual = 0;
     return true;
   }
-  const std::size_t n = std::min<std::size_t>({reply.size(), length,
-                                               static_cast<std::size_t>(urb->buffer_length - 8)});
+  const std::size_t n = std::min<std::size_t>(
+      {reply.size(), length, static_cast<std::size_t>(urb->buffer_length - 8)});
   std::memcpy(buf + 8, reply.data(), n);
   u.status = 0;
   u.actual = static_cast<int>(n);
@@ -357,8 +375,9 @@ bool Mf2Emulator::handleIoctl(UMockdevIoctlClient* client) {
       Urb u;
       u.data = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_urb), nullptr);
       auto* urb = reinterpret_cast<usbdevfs_urb*>(u.data->data);
-      UMockdevIoctlData* buffer = umockdev_ioctl_data_resolve(
-          u.data, offsetof(usbdevfs_urb, buffer), static_cast<std::size_t>(urb->buffer_length), nullptr);
+      UMockdevIoctlData* buffer =
+          umockdev_ioctl_data_resolve(u.data, offsetof(usbdevfs_urb, buffer),
+                                      static_cast<std::size_t>(urb->buffer_length), nullptr);
       if (buffer) umockdev_ioctl_data_unref(buffer);  // the URB keeps it as its child
       u.client = static_cast<UMockdevIoctlClient*>(g_object_ref(client));
       u.addr = u.data->client_addr;

@@ -39,12 +39,12 @@ struct EmulatorOptions {
 };
 
 enum class Corruption {
-  kBitFlip,      ///< one payload bit flipped: CRC mismatch
-  kShort,        ///< truncated to 60 bytes
+  kBitFlip,  ///< one payload bit flipped: CRC mismatch
+  kShort,    ///< truncated to 60 bytes
   kBadMagic,
-  kBadVersion,   ///< protocol version 2
-  kDuplicate,    ///< the previous packet again (stale)
-  kOutOfOrder,   ///< a packet from 2 ticks ago
+  kBadVersion,  ///< protocol version 2
+  kDuplicate,   ///< the previous packet again (stale)
+  kOutOfOrder,  ///< a packet from 2 ticks ago
 };
 
 class Mf2Emulator {
@@ -79,8 +79,8 @@ class Mf2Emulator {
     uint64_t corrupted_sent = 0;     ///< deliberately bad packets delivered
     uint64_t commands_received = 0;  ///< OUT transfers (good or not)
     uint64_t stalls_cleared = 0;
-    uint64_t unhandled_ioctls = 0;   ///< must stay 0: something the emulation does not know
-    uint64_t discarded = 0;          ///< URBs the host cancelled (timeouts, close)
+    uint64_t unhandled_ioctls = 0;  ///< must stay 0: something the emulation does not know
+    uint64_t discarded = 0;         ///< URBs the host cancelled (timeouts, close)
   };
   Counters counters() const;
 

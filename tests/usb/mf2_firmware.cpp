@@ -42,7 +42,8 @@ FirmwareParams firmwareFor(const mf2::Mf2Description& d, const devices::Mf2Motor
   mf2::JointAngles q;
   if (kin.inverse(target, 0.0, q)) {
     const mf2::EncoderCounts c = kin.countsFromAngles(q);
-    for (int i = 0; i < proto::kActuators; ++i) p.start_counts[i] = static_cast<int32_t>(c.actuators[i]);
+    for (int i = 0; i < proto::kActuators; ++i)
+      p.start_counts[i] = static_cast<int32_t>(c.actuators[i]);
     for (int k = 0; k < 2; ++k) {
       for (int j = 0; j < 3; ++j) p.gimbal_counts[3 * k + j] = static_cast<int32_t>(c.gimbal[k][j]);
     }
@@ -74,7 +75,8 @@ bool Mf2Firmware::receive(std::span<const uint8_t> bytes) {
     return false;
   }
   if (c.flags & proto::kCommandEstop) estop_latched_ = true;
-  if ((c.flags & proto::kCommandClearFault) && !(c.flags & proto::kCommandEstop) && !estop_button_) {
+  if ((c.flags & proto::kCommandClearFault) && !(c.flags & proto::kCommandEstop) &&
+      !estop_button_) {
     estop_latched_ = false;
   }
   last_ = c;
@@ -104,7 +106,8 @@ proto::StatePacket Mf2Firmware::tick() {
   }
   const double t_s = static_cast<double>(tick_) * kDt;
   for (int i = 0; i < proto::kActuators; ++i) {
-    double tau = p_.nm_per_amp[i] * applied_a_[i] + external_nm_[i] - p_.damping_nm_s_per_rad * v_[i];
+    double tau =
+        p_.nm_per_amp[i] * applied_a_[i] + external_nm_[i] - p_.damping_nm_s_per_rad * v_[i];
     if (i == p_.operator_actuator) {
       tau += p_.operator_amplitude_nm * std::sin(2.0 * M_PI * p_.operator_hz * t_s);
     }
@@ -120,14 +123,17 @@ proto::StatePacket Mf2Firmware::tick() {
   s.seq = static_cast<uint32_t>(tick_);
   s.device_time_us = tick_ * 1000u;
   for (int i = 0; i < proto::kActuators; ++i) {
-    s.actuator_counts[i] = static_cast<int32_t>(std::lround(p_.zero_counts[i] + q_[i] * p_.counts_per_rad[i]));
+    s.actuator_counts[i] =
+        static_cast<int32_t>(std::lround(p_.zero_counts[i] + q_[i] * p_.counts_per_rad[i]));
   }
   s.gimbal_counts = p_.gimbal_counts;
   for (int i = 0; i < proto::kFsrs; ++i) {
     // One count of ADC noise, as a powered FSR channel always shows.
-    const double noise = static_cast<double>(static_cast<int>((tick_ + static_cast<uint64_t>(i)) % 3) - 1);
+    const double noise =
+        static_cast<double>(static_cast<int>((tick_ + static_cast<uint64_t>(i)) % 3) - 1);
     const double c = std::round(p_.fsr_zero_counts[i] + p_.fsr_counts_per_n[i] * fsr_n_[i]) + noise;
-    s.fsr_raw[i] = static_cast<uint16_t>(std::clamp(c, 0.0, static_cast<double>(proto::kFsrMaxRaw)));
+    s.fsr_raw[i] =
+        static_cast<uint16_t>(std::clamp(c, 0.0, static_cast<double>(proto::kFsrMaxRaw)));
   }
   s.status = static_cast<uint16_t>((enabled_ ? proto::kStatusEnabled : 0) |
                                    (estop_button_ ? proto::kStatusEstopButton : 0) |

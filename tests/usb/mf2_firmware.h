@@ -22,8 +22,8 @@ struct FirmwareParams {
   std::array<double, proto::kActuators> zero_counts{};
   std::array<double, proto::kActuators> min_rad{}, max_rad{};
   std::array<double, proto::kActuators> nm_per_amp{};
-  double max_current_a = 6.0;      ///< the motor driver clamps here and flags overcurrent
-  double inertia_kgm2 = 5e-4;      ///< per joint: ~50 g at a 10 cm crank
+  double max_current_a = 6.0;  ///< the motor driver clamps here and flags overcurrent
+  double inertia_kgm2 = 5e-4;  ///< per joint: ~50 g at a 10 cm crank
   double damping_nm_s_per_rad = 5e-3;
   std::array<double, proto::kFsrs> fsr_zero_counts{}, fsr_counts_per_n{};
   std::array<int32_t, proto::kActuators> start_counts{};
@@ -36,8 +36,7 @@ struct FirmwareParams {
 
 /// Firmware parameters for the hardware a device file and motor constants describe, with
 /// the thimbles resting on the grip of the default index MCP joint at `flexion_rad`.
-FirmwareParams firmwareFor(const mf2::Mf2Description& device,
-                           const devices::Mf2Motors& motors = {},
+FirmwareParams firmwareFor(const mf2::Mf2Description& device, const devices::Mf2Motors& motors = {},
                            double flexion_rad = 20.0 * 3.14159265358979 / 180.0);
 
 class Mf2Firmware {

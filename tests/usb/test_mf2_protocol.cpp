@@ -5,10 +5,10 @@
 #include <string>
 #include <vector>
 
-#include "telehand/devices/mf2_calibration.h"
-#include "telehand/devices/mf2_protocol.h"
 #include "mf2_firmware.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/devices/mf2_calibration.h"
+#include "telehand/devices/mf2_protocol.h"
 
 namespace telehand::devices::proto {
 namespace {
@@ -182,10 +182,10 @@ TEST(SequenceTracker, AcceptsInOrderCountsGapsRejectsStaleAndOutOfOrder) {
   using V = SequenceTracker::Verdict;
   EXPECT_EQ(t.check(10, 10'000), V::kAccept);
   EXPECT_EQ(t.check(11, 11'000), V::kAccept);
-  EXPECT_EQ(t.check(11, 11'000), V::kStale);       // duplicate
-  EXPECT_EQ(t.check(12, 11'000), V::kStale);       // seq moved, device time did not
-  EXPECT_EQ(t.check(9, 9'000), V::kOutOfOrder);    // older than the last accepted
-  EXPECT_EQ(t.check(15, 15'000), V::kAccept);      // 12, 13, 14 lost
+  EXPECT_EQ(t.check(11, 11'000), V::kStale);     // duplicate
+  EXPECT_EQ(t.check(12, 11'000), V::kStale);     // seq moved, device time did not
+  EXPECT_EQ(t.check(9, 9'000), V::kOutOfOrder);  // older than the last accepted
+  EXPECT_EQ(t.check(15, 15'000), V::kAccept);    // 12, 13, 14 lost
   EXPECT_EQ(t.accepted(), 3u);
   EXPECT_EQ(t.stale(), 2u);
   EXPECT_EQ(t.outOfOrder(), 1u);
@@ -281,13 +281,13 @@ TEST(Mf2Firmware, EmergencyStopLatchesUntilCleared) {
   s = fw.tick();
   EXPECT_TRUE(s.status & proto::kStatusEstopLatched) << "released button: still latched";
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.0);
-  ASSERT_TRUE(fw.receive(command(3, {800, 0, 0, 0, 0, 0, 0},
-                                 proto::kCommandEnable | proto::kCommandClearFault)));
+  ASSERT_TRUE(fw.receive(
+      command(3, {800, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable | proto::kCommandClearFault)));
   s = fw.tick();
   EXPECT_FALSE(s.status & proto::kStatusEstopLatched);
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.8);
-  ASSERT_TRUE(fw.receive(command(4, {800, 0, 0, 0, 0, 0, 0},
-                                 proto::kCommandEnable | proto::kCommandEstop)));
+  ASSERT_TRUE(fw.receive(
+      command(4, {800, 0, 0, 0, 0, 0, 0}, proto::kCommandEnable | proto::kCommandEstop)));
   fw.tick();
   EXPECT_TRUE(fw.estopLatched()) << "the host's e-stop bit latches too";
   EXPECT_DOUBLE_EQ(fw.appliedCurrentA()[0], 0.0);
@@ -316,7 +316,8 @@ TEST(Mf2ModelCalibration, CountsGoThroughTheDeviceModel) {
   s.actuator_counts = fp.start_counts;
   s.gimbal_counts = fp.gimbal_counts;
   for (int i = 0; i < proto::kFsrs; ++i) {
-    s.fsr_raw[i] = static_cast<uint16_t>(std::lround(fp.fsr_zero_counts[i] + fp.fsr_counts_per_n[i] * (i + 1)));
+    s.fsr_raw[i] = static_cast<uint16_t>(
+        std::lround(fp.fsr_zero_counts[i] + fp.fsr_counts_per_n[i] * (i + 1)));
   }
   PerFinger<FingerSample> f;
   ASSERT_TRUE(cal.toFingers(s, f));
@@ -353,7 +354,8 @@ TEST(Mf2ModelCalibration, CurrentsRenderTheForceThroughTheJacobian) {
   proto::StatePacket s;
   s.actuator_counts = fp.start_counts;
   s.gimbal_counts = fp.gimbal_counts;
-  const mf2::ActuatorAngles q = kin.anglesFromCounts(Mf2ModelCalibration::encoderCounts(s)).actuators;
+  const mf2::ActuatorAngles q =
+      kin.anglesFromCounts(Mf2ModelCalibration::encoderCounts(s)).actuators;
   const PerFinger<Vec3> want{Vec3(0.5, -1.0, 2.0), Vec3(-1.5, 0.25, -0.5)};
   CurrentsMa ma{};
   cal.toCurrents(want, s, ma);

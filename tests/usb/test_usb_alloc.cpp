@@ -8,9 +8,9 @@
 #include <thread>
 
 #include "alloc_guard.h"
-#include "telehand/client/usb/usb_mf2.h"
-#include "telehand/client/loop/haptic_loop.h"
 #include "mf2_emulator.h"
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/client/usb/usb_mf2.h"
 
 namespace telehand::test::usb {
 namespace {

@@ -7,21 +7,21 @@
 #include <chrono>
 #include <thread>
 
-#include "telehand/client/usb/usb_mf2.h"
-#include "telehand/client/loop/haptic_loop.h"
 #include "mf2_emulator.h"
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/client/usb/usb_mf2.h"
 
 namespace telehand::test::usb {
 namespace {
 
 using namespace std::chrono_literals;
+using client::usb::UsbMf2;
+using client::usb::UsbMf2Config;
+using devices::CurrentsMa;
 using devices::DeviceSample;
 using devices::DeviceStatus;
 using devices::ForceCommand;
-using devices::CurrentsMa;
 using devices::Mf2ModelCalibration;
-using client::usb::UsbMf2;
-using client::usb::UsbMf2Config;
 
 /// Polls `pred` until it holds or `timeout` passes.
 template <typename Pred>
@@ -87,14 +87,16 @@ TEST_F(UsbMf2Test, ListsAndOpensByVendorAndProductId) {
   EXPECT_EQ(found[0].bcd_device, 0x0100);
   EXPECT_EQ(found[0].problem, "");
   EXPECT_TRUE(client::usb::listUsbMf2(0x1209, 0xbeef).empty());
-  EXPECT_NE(client::usb::formatUsbMf2List(found, 0x1209, 0x4d32)
-                .find("MF-2 1209:4d32 at bus 001 address 001, firmware 1.00, serial MF2-EMU-0001: ready"),
-            std::string::npos);
+  EXPECT_NE(
+      client::usb::formatUsbMf2List(found, 0x1209, 0x4d32)
+          .find("MF-2 1209:4d32 at bus 001 address 001, firmware 1.00, serial MF2-EMU-0001: ready"),
+      std::string::npos);
 
   UsbMf2& dev = startDevice();
   ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
   EXPECT_NE(dev.statusText().find("streaming from bus 1 address 1, serial MF2-EMU-0001"),
-            std::string::npos) << dev.statusText();
+            std::string::npos)
+      << dev.statusText();
   EXPECT_EQ(dev.stats().connects.load(), 1u);
 }
 
@@ -141,7 +143,8 @@ TEST_F(UsbMf2Test, Streams5000CyclesWithContentCheckedBothWays) {
     ASSERT_TRUE(cycle(forceFor(i), s)) << "no sample in cycle " << i << ": " << dev.statusText();
     samples.push_back(s);
   }
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   dev.stop();
   std::printf("5000 cycles in %.2f s: %.0f cycles/s\n", seconds, kCycles / seconds);
 
@@ -202,8 +205,8 @@ TEST_F(UsbMf2Test, Streams5000CyclesWithContentCheckedBothWays) {
           }
         }
       }
-      ASSERT_TRUE(found) << "command " << n << " carries no force of cycles " << last_cycle
-                         << ".." << last_cycle + 4;
+      ASSERT_TRUE(found) << "command " << n << " carries no force of cycles " << last_cycle << ".."
+                         << last_cycle + 4;
     }
     EXPECT_GE(enabled, kCycles - 2);
     EXPECT_GE(last_cycle, kCycles - 3) << "the last forces written reached the device";
@@ -249,7 +252,8 @@ TEST_F(UsbMf2Test, CorruptShortStaleAndOutOfOrderPacketsAreRejectedAndCounted) {
   // Each bad packet took the place of a good one: the seq gaps are counted as lost.
   EXPECT_EQ(st.lost.load(), 30u);
   const std::string log = joined(dev.takeMessages());
-  EXPECT_NE(log.find("speaks protocol version 2; this client speaks version 1"), std::string::npos) << log;
+  EXPECT_NE(log.find("speaks protocol version 2; this client speaks version 1"), std::string::npos)
+      << log;
   EXPECT_EQ(dev.status(), DeviceStatus::kOk) << dev.statusText();
 }
 
@@ -282,7 +286,8 @@ TEST_F(UsbMf2Test, ATimeoutIsReportedAndStreamingResumes) {
   streamFor(20);
   emu_->silence(300'000'000);
   ASSERT_TRUE(eventually([&] { return dev.status() == DeviceStatus::kNotReady; }, 2s));
-  EXPECT_NE(dev.statusText().find("no state packet for 50 ms (IN transfer timeout)"), std::string::npos)
+  EXPECT_NE(dev.statusText().find("no state packet for 50 ms (IN transfer timeout)"),
+            std::string::npos)
       << dev.statusText();
   ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
   EXPECT_GE(dev.stats().timeouts.load(), 2u);
@@ -300,7 +305,8 @@ TEST_F(UsbMf2Test, OverflowsAreCountedAndStreamingContinues) {
   EXPECT_EQ(dev.stats().overflows.load(), 3u);
   EXPECT_EQ(dev.status(), DeviceStatus::kOk);
   const std::string log = joined(dev.takeMessages());
-  EXPECT_NE(log.find("overflowed the 128-byte buffer (overflow); dropped"), std::string::npos) << log;
+  EXPECT_NE(log.find("overflowed the 128-byte buffer (overflow); dropped"), std::string::npos)
+      << log;
 }
 
 TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
@@ -314,8 +320,9 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
   proto::StatePacket start;
   start.actuator_counts = fp.start_counts;
   mf2::ActuatorTorques tau;
-  ASSERT_TRUE(kin.actuatorTorques(
-      kin.anglesFromCounts(Mf2ModelCalibration::encoderCounts(start)).actuators, {flex, flex}, tau));
+  ASSERT_TRUE(
+      kin.actuatorTorques(kin.anglesFromCounts(Mf2ModelCalibration::encoderCounts(start)).actuators,
+                          {flex, flex}, tau));
   emu_->withFirmware([&](Mf2Firmware& fw) {
     for (int i = 0; i < proto::kActuators; ++i) fw.setExternalTorque(i, tau[i]);
   });
@@ -325,8 +332,10 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
   client::loop::HapticLoop loop(dev, clock_, model, SafetyLimits{});
   Sample rec{};
   auto forceOf = [](const Sample& s) {
-    return Vec3(s.fingers[0].command_n[0], s.fingers[0].command_n[1], s.fingers[0].command_n[2]).norm() +
-           Vec3(s.fingers[1].command_n[0], s.fingers[1].command_n[1], s.fingers[1].command_n[2]).norm();
+    return Vec3(s.fingers[0].command_n[0], s.fingers[0].command_n[1], s.fingers[0].command_n[2])
+               .norm() +
+           Vec3(s.fingers[1].command_n[0], s.fingers[1].command_n[1], s.fingers[1].command_n[2])
+               .norm();
   };
   // One tick per millisecond from this thread; returns the status seen before the tick.
   int64_t last_step_ns = clock_.nowNs();
@@ -359,8 +368,9 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
     const DeviceStatus before = tick(rec);
     if (before != DeviceStatus::kOk) {
       if (!seen_down) {
-        const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
-                                                                    t_unplug).count();
+        const double ms =
+            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_unplug)
+                .count();
         std::printf("unplug seen by the driver after %.1f ms\n", ms);
         EXPECT_LT(ms, 1000.0);
       }

@@ -41,14 +41,16 @@ TEST_F(UsbProgramsTest, ProbeListsAndStreamsTheDevice) {
 
   Process client({TELEHAND_CLIENT_BIN, "--list-devices"}, path("client-list.log"));
   EXPECT_EQ(client.wait(20s), 0) << client.output();
-  EXPECT_NE(client.output().find("serial MF2-EMU-0001: ready"), std::string::npos) << client.output();
+  EXPECT_NE(client.output().find("serial MF2-EMU-0001: ready"), std::string::npos)
+      << client.output();
 
   emu.withFirmware([](Mf2Firmware& fw) { fw.setFsrForces({0, 0, 0, 10.0, 0, 0, 0, 0}); });
   Process live({TELEHAND_PROBE_BIN, "--live", "1"}, path("live.log"));
   EXPECT_EQ(live.wait(20s), 0) << live.output();
   const std::string out = live.output();
   EXPECT_GE(matchNumber(out, R"(seq (\d+) t )"), 1u) << out;
-  EXPECT_TRUE(std::regex_search(out, std::regex(R"(\| fsr N 0\.0\d 0\.0\d 0\.0\d (9\.99|10\.0\d) )")))
+  EXPECT_TRUE(
+      std::regex_search(out, std::regex(R"(\| fsr N 0\.0\d 0\.0\d 0\.0\d (9\.99|10\.0\d) )")))
       << "the thumb's pad FSR at 10 N, the others at 0 (one count of ADC noise)\n"
       << out;
   EXPECT_NE(out.find("rejected 0, lost"), std::string::npos) << out;

@@ -57,7 +57,8 @@ int main(int argc, char** argv) {
     req.case_name = o.case_name;
     req.user = o.user;
     req.follow_session = o.follow;
-    req.stiffness = o.stiffness == "knn" ? telehand_msg_STIFFNESS_KNN : telehand_msg_STIFFNESS_CUBIC;
+    req.stiffness =
+        o.stiffness == "knn" ? telehand_msg_STIFFNESS_KNN : telehand_msg_STIFFNESS_CUBIC;
     req.direct_force = teleop.render == client::loop::RenderMode::kDirect;
     const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(o.connect_timeout * 1000));
     const uint64_t session = link.open(req, timeout);
@@ -73,9 +74,9 @@ int main(int argc, char** argv) {
                 << description.thimbles[kThumb].serial << " and "
                 << description.thimbles[kIndex].serial << std::endl;
     } else {
-      std::cout << "session " << session << " open: " << o.mode_name << " on case '"
-                << o.case_name << "', device " << device.name() << ", " << cfg.op.frequency_hz
-                << " Hz in " << cfg.op.band_min_n << "-" << cfg.op.band_max_n << " N"
+      std::cout << "session " << session << " open: " << o.mode_name << " on case '" << o.case_name
+                << "', device " << device.name() << ", " << cfg.op.frequency_hz << " Hz in "
+                << cfg.op.band_min_n << "-" << cfg.op.band_max_n << " N"
                 << (o.follow ? ", following capture session " + std::to_string(o.follow) + " (" +
                                    o.stiffness + ")"
                              : "")

@@ -22,9 +22,10 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
     usb_ = std::make_unique<usb::UsbMf2>(usbConfig(o), usb_calibration_, clock);
     device_ = usb_.get();
     usb_->start();
-    if (!usb_->waitReady(std::chrono::milliseconds(static_cast<int64_t>(o.device_timeout * 1000)))) {
-      throw DeviceError(fmt::format("the MF-2 is not streaming after {:.1f} s: {}", o.device_timeout,
-                                    usb_->statusText()));
+    if (!usb_->waitReady(
+            std::chrono::milliseconds(static_cast<int64_t>(o.device_timeout * 1000)))) {
+      throw DeviceError(fmt::format("the MF-2 is not streaming after {:.1f} s: {}",
+                                    o.device_timeout, usb_->statusText()));
     }
   } else if (mode == telehand_msg_MODE_CAPTURE) {
     // Capture: a real (simulated) finger in the grip, moved by a clinician with the

@@ -5,12 +5,14 @@
 namespace telehand::client::app {
 
 std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
-  CLI::App app{"telehand-client: run a session from the device PC. The simulated MF-2 is held "
-               "by a virtual clinician performing the paper's MCP mobilization."};
+  CLI::App app{
+      "telehand-client: run a session from the device PC. The simulated MF-2 is held "
+      "by a virtual clinician performing the paper's MCP mobilization."};
   app.add_option("-c,--config", o.config_path, "TOML file with [operator], [safety], [loop] tables")
       ->check(CLI::ExistingFile);
   app.add_option("--device", o.device_kind, "sim: the simulated MF-2; usb: an MF-2 on USB")
-      ->check(CLI::IsMember({"sim", "usb"}))->capture_default_str();
+      ->check(CLI::IsMember({"sim", "usb"}))
+      ->capture_default_str();
   app.add_flag("--list-devices", o.list_devices, "list the MF-2s attached over USB and exit");
   app.add_option("--device-file", o.device_file,
                  "MF-2 device file: kinematics, encoders, thimble calibration (default: the "
@@ -20,42 +22,67 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   app.add_option("--usb-pid", o.usb_pid, "MF-2 USB product ID, hex")->capture_default_str();
   app.add_option("--usb-serial", o.usb_serial, "use the MF-2 with this serial number");
   app.add_option("--device-timeout", o.device_timeout, "seconds to wait for the USB MF-2 to stream")
-      ->capture_default_str()->check(CLI::PositiveNumber);
-  app.add_option("--seconds", o.seconds, "session length (Ctrl-C ends it early)")->capture_default_str()->check(CLI::PositiveNumber);
-  app.add_option("--mode", o.mode_name, "session mode")->check(CLI::IsMember({"mobilization", "exploration", "capture"}))->capture_default_str();
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("--seconds", o.seconds, "session length (Ctrl-C ends it early)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("--mode", o.mode_name, "session mode")
+      ->check(CLI::IsMember({"mobilization", "exploration", "capture"}))
+      ->capture_default_str();
   app.add_option("--case", o.case_name, "patient case on the server")->capture_default_str();
   app.add_option("--user", o.user, "who is at the device")->capture_default_str();
-  auto* freq = app.add_option("--frequency", o.cfg.op.frequency_hz, "simulated mobilization frequency, Hz (1-6)");
-  auto* bmin = app.add_option("--band-min", o.cfg.op.band_min_n, "force band low end, N at reference scale");
-  auto* bmax = app.add_option("--band-max", o.cfg.op.band_max_n, "force band high end, N at reference scale");
+  auto* freq = app.add_option("--frequency", o.cfg.op.frequency_hz,
+                              "simulated mobilization frequency, Hz (1-6)");
+  auto* bmin =
+      app.add_option("--band-min", o.cfg.op.band_min_n, "force band low end, N at reference scale");
+  auto* bmax = app.add_option("--band-max", o.cfg.op.band_max_n,
+                              "force band high end, N at reference scale");
   auto* seed = app.add_option("--seed", o.cfg.op.seed, "simulated operator seed");
   app.add_option("--domain", o.dds.domain, "DDS domain id")->check(CLI::Range(0, 230));
   app.add_option("--partition", o.dds.partition, "DDS partition")->capture_default_str();
   app.add_option("--dds-config", o.dds.config, "Cyclone DDS XML config file");
-  app.add_option("--connect-timeout", o.connect_timeout, "seconds to wait for the server")->capture_default_str();
+  app.add_option("--connect-timeout", o.connect_timeout, "seconds to wait for the server")
+      ->capture_default_str();
   app.add_flag("-q,--quiet", o.quiet, "no progress line");
-  auto* rt = app.add_option("--rt-priority", o.cfg.loop.rt_priority,
-                            "run the 1 kHz loop at this SCHED_FIFO priority (1-99; needs CAP_SYS_NICE)")
-                 ->check(CLI::Range(1, 99));
+  auto* rt =
+      app.add_option("--rt-priority", o.cfg.loop.rt_priority,
+                     "run the 1 kHz loop at this SCHED_FIFO priority (1-99; needs CAP_SYS_NICE)")
+          ->check(CLI::Range(1, 99));
   app.add_option("--render", o.render,
                  "model: render from the local joint model (model-mediated); direct: render the "
                  "force the server computes (the baseline design)")
-      ->check(CLI::IsMember({"model", "direct"}))->capture_default_str();
+      ->check(CLI::IsMember({"model", "direct"}))
+      ->capture_default_str();
   app.add_option("--deadband", o.deadband,
-                 "perceptual deadband on the live DeviceState stream, Weber fraction (e.g. 0.05; 0 = every sample)")
-      ->check(CLI::Range(0.0, 0.5))->capture_default_str();
+                 "perceptual deadband on the live DeviceState stream, Weber fraction (e.g. 0.05; 0 "
+                 "= every sample)")
+      ->check(CLI::Range(0.0, 0.5))
+      ->capture_default_str();
   app.add_flag("--no-passivity-control", o.no_pc, "passivity observer only, no added damping");
-  app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off")->capture_default_str();
+  app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off")
+      ->capture_default_str();
   o.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
-  app.add_option("--follow", o.follow, "feel the live fit of this capture session (e.g. an expert's, elsewhere)");
-  app.add_option("--stiffness", o.stiffness, "with --follow: render the fitted cubics or the captured samples (k nearest neighbours)")
-      ->check(CLI::IsMember({"cubic", "knn"}))->capture_default_str();
-  app.add_option("--patient", o.patient_name, "capture mode, simulated MF-2: the real finger in the grip (a patient case)")->capture_default_str();
-  app.add_option("--cases", o.cases_dir, "patient cases directory (for --patient)")->capture_default_str();
-  app.add_option("--thimble-noise", o.thimble_noise, "capture mode, simulated MF-2: thimble error per axis, N RMS (paper: 1.43)")
-      ->check(CLI::Range(0.0, 10.0))->capture_default_str();
-  app.add_option("--sweep-seconds", o.sweep_seconds, "capture mode, simulated MF-2: seconds the clinician mobilizes each axis")
-      ->check(CLI::Range(1.0, 600.0))->capture_default_str();
+  app.add_option("--follow", o.follow,
+                 "feel the live fit of this capture session (e.g. an expert's, elsewhere)");
+  app.add_option(
+         "--stiffness", o.stiffness,
+         "with --follow: render the fitted cubics or the captured samples (k nearest neighbours)")
+      ->check(CLI::IsMember({"cubic", "knn"}))
+      ->capture_default_str();
+  app.add_option("--patient", o.patient_name,
+                 "capture mode, simulated MF-2: the real finger in the grip (a patient case)")
+      ->capture_default_str();
+  app.add_option("--cases", o.cases_dir, "patient cases directory (for --patient)")
+      ->capture_default_str();
+  app.add_option("--thimble-noise", o.thimble_noise,
+                 "capture mode, simulated MF-2: thimble error per axis, N RMS (paper: 1.43)")
+      ->check(CLI::Range(0.0, 10.0))
+      ->capture_default_str();
+  app.add_option("--sweep-seconds", o.sweep_seconds,
+                 "capture mode, simulated MF-2: seconds the clinician mobilizes each axis")
+      ->check(CLI::Range(1.0, 600.0))
+      ->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   TELEHAND_CLI_PARSE(app, argc, argv)

@@ -24,8 +24,8 @@ struct ClientOptions {
   std::string stiffness = "cubic", patient_name = "healthy", cases_dir;
   double thimble_noise = 1.43, sweep_seconds = 10.0;
   // Given on the command line: these win over the config file.
-  bool frequency_given = false, band_min_given = false, band_max_given = false,
-       seed_given = false, rt_given = false;
+  bool frequency_given = false, band_min_given = false, band_max_given = false, seed_given = false,
+       rt_given = false;
 };
 
 /// Parses the command line into `o`; returns the exit code when the program is done (--help:

@@ -1,5 +1,6 @@
 #include "session.h"
 
+#include <spdlog/fmt/fmt.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -9,8 +10,6 @@
 #include <iostream>
 #include <string>
 #include <thread>
-
-#include <spdlog/fmt/fmt.h>
 
 #include "telehand/app/signals.h"
 
@@ -28,13 +27,13 @@ RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::Clien
   if (cfg.loop.rt_priority > 0) {
     std::this_thread::sleep_for(10ms);
     if (const int err = loop.realtimeError()) {
-      std::cerr << "telehand-client: SCHED_FIFO priority " << cfg.loop.rt_priority
-                << " refused (" << std::strerror(err) << "): the loop runs at normal priority\n";
+      std::cerr << "telehand-client: SCHED_FIFO priority " << cfg.loop.rt_priority << " refused ("
+                << std::strerror(err) << "): the loop runs at normal priority\n";
     }
   }
   const auto t0 = std::chrono::steady_clock::now();
   const bool tty = isatty(STDOUT_FILENO) != 0;
-    auto next_print = t0 + 1s;
+  auto next_print = t0 + 1s;
   uint64_t live_prev = 0;
   while (!g_stop_requested.load()) {
     std::this_thread::sleep_for(50ms);
@@ -56,9 +55,9 @@ RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::Clien
       const std::string line = fmt::format(
           "{} t={:5.1f}s  sent {:7}  live {:4}/s  overruns {}  force {:.2f} N  applied {:5.1f} N "
           "ref  model v{}  PO {:.3f} J",
-          tty ? "\r" : "", t, link.stats().samples_sent.load(), live - live_prev,
-          h.overruns.load(), h.last_force_n.load(), h.applied_ref_n.load(),
-          h.model_version.load(), h.passivity_energy_j.load());
+          tty ? "\r" : "", t, link.stats().samples_sent.load(), live - live_prev, h.overruns.load(),
+          h.last_force_n.load(), h.applied_ref_n.load(), h.model_version.load(),
+          h.passivity_energy_j.load());
       live_prev = live;
       std::cout << line << (tty ? "" : "\n") << std::flush;
     }
@@ -82,18 +81,21 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
   const std::string& render = o.render;
   const double deadband = o.deadband;
   const uint64_t sent = link.stats().samples_sent.load();
-  std::printf("summary: session %llu, %.1f s, %llu ticks, %llu samples sent (%llu in %llu record chunks)\n",
-              static_cast<unsigned long long>(session), duration,
-              static_cast<unsigned long long>(h.ticks.load()), static_cast<unsigned long long>(sent),
-              static_cast<unsigned long long>(link.stats().samples_chunked.load()),
-              static_cast<unsigned long long>(link.stats().chunks_sent.load()));
-  std::printf("  loop: %llu overruns, worst wake-up %.0f us late, %llu watchdog trips, "
-              "%llu clamps, %llu rate-limited, %llu samples dropped\n",
-              static_cast<unsigned long long>(h.overruns.load()), static_cast<double>(h.max_lateness_ns.load()) / 1e3,
-              static_cast<unsigned long long>(h.watchdog_trips.load()),
-              static_cast<unsigned long long>(h.clamped.load()),
-              static_cast<unsigned long long>(h.rate_limited.load()),
-              static_cast<unsigned long long>(h.samples_dropped.load()));
+  std::printf(
+      "summary: session %llu, %.1f s, %llu ticks, %llu samples sent (%llu in %llu record chunks)\n",
+      static_cast<unsigned long long>(session), duration,
+      static_cast<unsigned long long>(h.ticks.load()), static_cast<unsigned long long>(sent),
+      static_cast<unsigned long long>(link.stats().samples_chunked.load()),
+      static_cast<unsigned long long>(link.stats().chunks_sent.load()));
+  std::printf(
+      "  loop: %llu overruns, worst wake-up %.0f us late, %llu watchdog trips, "
+      "%llu clamps, %llu rate-limited, %llu samples dropped\n",
+      static_cast<unsigned long long>(h.overruns.load()),
+      static_cast<double>(h.max_lateness_ns.load()) / 1e3,
+      static_cast<unsigned long long>(h.watchdog_trips.load()),
+      static_cast<unsigned long long>(h.clamped.load()),
+      static_cast<unsigned long long>(h.rate_limited.load()),
+      static_cast<unsigned long long>(h.samples_dropped.load()));
   if (capture) {
     // The loop scales what the thimbles measure by the rendering scale; a capture has none.
     const double scale = force_scale;
@@ -101,42 +103,46 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
                 h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min * scale,
                 applied_max * scale);
   } else {
-    std::printf("  force: commanded up to %.2f N per finger; applied %.1f..%.1f N at reference scale "
-                "(band %.0f-%.0f N)\n",
-                h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max,
-                cfg.op.band_min_n, cfg.op.band_max_n);
+    std::printf(
+        "  force: commanded up to %.2f N per finger; applied %.1f..%.1f N at reference scale "
+        "(band %.0f-%.0f N)\n",
+        h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max,
+        cfg.op.band_min_n, cfg.op.band_max_n);
   }
-  std::printf("  teleop: render %s; DeviceState live %.1f packets/s (%llu of %llu samples%s)%s; "
-              "passivity energy %.4f J (lowest %.4f J), controller active %llu ticks; "
-              "%llu model updates, largest update step %.3f N (%.2f of the bound)\n",
-              render.c_str(), static_cast<double>(link.stats().live_sent.load()) / std::max(duration, 1e-3),
-              static_cast<unsigned long long>(link.stats().live_sent.load()),
-              static_cast<unsigned long long>(sent), deadband > 0.0 ? ", deadband" : "",
-              render == "direct" ? (", " + std::to_string(link.stats().direct_forces.load()) +
-                                    " server forces received").c_str()
-                                 : "",
-              h.passivity_energy_j.load(), h.passivity_min_energy_j.load(),
-              static_cast<unsigned long long>(h.passivity_activations.load()),
-              static_cast<unsigned long long>(h.models_applied.load()), h.update_step_max_n.load(),
-              h.update_step_max_ratio.load());
+  std::printf(
+      "  teleop: render %s; DeviceState live %.1f packets/s (%llu of %llu samples%s)%s; "
+      "passivity energy %.4f J (lowest %.4f J), controller active %llu ticks; "
+      "%llu model updates, largest update step %.3f N (%.2f of the bound)\n",
+      render.c_str(), static_cast<double>(link.stats().live_sent.load()) / std::max(duration, 1e-3),
+      static_cast<unsigned long long>(link.stats().live_sent.load()),
+      static_cast<unsigned long long>(sent), deadband > 0.0 ? ", deadband" : "",
+      render == "direct"
+          ? (", " + std::to_string(link.stats().direct_forces.load()) + " server forces received")
+                .c_str()
+          : "",
+      h.passivity_energy_j.load(), h.passivity_min_energy_j.load(),
+      static_cast<unsigned long long>(h.passivity_activations.load()),
+      static_cast<unsigned long long>(h.models_applied.load()), h.update_step_max_n.load(),
+      h.update_step_max_ratio.load());
   if (usb != nullptr) {
     const auto& u = usb->stats();
     const uint64_t rtts = u.rtt_count.load();
-    std::printf("  usb: %llu state packets, %llu commands, %llu rejected (%llu stale, %llu out of "
-                "order), %llu lost, %llu stalls, %llu timeouts, %llu overflows, %llu disconnects; "
-                "command round trip mean %.0f us, max %.0f us\n",
-                static_cast<unsigned long long>(u.packets_in.load()),
-                static_cast<unsigned long long>(u.commands_out.load()),
-                static_cast<unsigned long long>(u.rejectedTotal()),
-                static_cast<unsigned long long>(u.stale.load()),
-                static_cast<unsigned long long>(u.out_of_order.load()),
-                static_cast<unsigned long long>(u.lost.load()),
-                static_cast<unsigned long long>(u.stalls.load()),
-                static_cast<unsigned long long>(u.timeouts.load()),
-                static_cast<unsigned long long>(u.overflows.load()),
-                static_cast<unsigned long long>(u.disconnects.load()),
-                rtts ? static_cast<double>(u.rtt_sum_ns.load()) / static_cast<double>(rtts) / 1e3 : 0.0,
-                static_cast<double>(u.rtt_max_ns.load()) / 1e3);
+    std::printf(
+        "  usb: %llu state packets, %llu commands, %llu rejected (%llu stale, %llu out of "
+        "order), %llu lost, %llu stalls, %llu timeouts, %llu overflows, %llu disconnects; "
+        "command round trip mean %.0f us, max %.0f us\n",
+        static_cast<unsigned long long>(u.packets_in.load()),
+        static_cast<unsigned long long>(u.commands_out.load()),
+        static_cast<unsigned long long>(u.rejectedTotal()),
+        static_cast<unsigned long long>(u.stale.load()),
+        static_cast<unsigned long long>(u.out_of_order.load()),
+        static_cast<unsigned long long>(u.lost.load()),
+        static_cast<unsigned long long>(u.stalls.load()),
+        static_cast<unsigned long long>(u.timeouts.load()),
+        static_cast<unsigned long long>(u.overflows.load()),
+        static_cast<unsigned long long>(u.disconnects.load()),
+        rtts ? static_cast<double>(u.rtt_sum_ns.load()) / static_cast<double>(rtts) / 1e3 : 0.0,
+        static_cast<double>(u.rtt_max_ns.load()) / 1e3);
   }
   if (!closed.confirmed) {
     std::printf("  record: the server did not confirm the close within 15 s\n");

@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <poll.h>
+#include <spdlog/fmt/fmt.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -10,8 +11,6 @@
 #include <cstring>
 #include <optional>
 #include <sstream>
-
-#include <spdlog/fmt/fmt.h>
 
 #include "echo.h"
 #include "telehand/app/signals.h"
@@ -143,8 +142,9 @@ DdsperfResult runDdsperf(const Settings& s, const std::string& path, uint32_t si
     if (monoNs() >= next_report) {
       next_report += kNsPerS;
       const double t = static_cast<double>(monoNs() - t0) / 1e9;
-      progress.line(fmt::format(
-          "telehand-latency: ddsperf ping-pong running, {:5.1f} s of about {:.0f} s", t, ping_s + 1));
+      progress.line(
+          fmt::format("telehand-latency: ddsperf ping-pong running, {:5.1f} s of about {:.0f} s", t,
+                      ping_s + 1));
     }
   }
   progress.done();

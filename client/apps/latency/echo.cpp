@@ -1,6 +1,7 @@
 #include "echo.h"
 
 #include <pthread.h>
+#include <spdlog/fmt/fmt.h>
 #include <sys/prctl.h>
 
 #include <algorithm>
@@ -12,8 +13,6 @@
 #include <optional>
 #include <random>
 #include <thread>
-
-#include <spdlog/fmt/fmt.h>
 
 #include "telehand/app/signals.h"
 
@@ -31,9 +30,8 @@ std::vector<std::string> childEnv(const std::string& dds_uri) {
   return env;
 }
 
-
 int runEcho(const Settings& s, bool seconds_given) {
-    dds::Participant participant(s.dds);
+  dds::Participant participant(s.dds);
   dds::Topic<Sample> ping_topic(participant, dds::topic::kLatencyPing);
   dds::Topic<Sample> pong_topic(participant, dds::topic::kLatencyPong);
   dds::Reader<Sample> ping_reader(participant, ping_topic, dds::qos::latencyProbe());
@@ -43,7 +41,8 @@ int runEcho(const Settings& s, bool seconds_given) {
   if (!s.quiet) {
     std::cerr << "telehand-latency: echoing on domain " << s.dds.domain << ", partition '"
               << s.dds.partition << "' "
-              << (seconds_given ? fmt::format("for {:g} s", s.seconds) : "until SIGINT/SIGTERM") << "\n";
+              << (seconds_given ? fmt::format("for {:g} s", s.seconds) : "until SIGINT/SIGTERM")
+              << "\n";
   }
   const int64_t end_ns =
       seconds_given ? monoNs() + static_cast<int64_t>(s.seconds * 1e9) : INT64_MAX;
@@ -71,8 +70,7 @@ bool awaitEcho(const dds::Writer<Sample>& ping, const dds::Reader<Sample>& pong,
   while (monoNs() < deadline && !g_stop_requested.load()) {
     if (ping.matchedReaders() > 0 && pong.matchedWriters() > 0) return true;
     if (child && !child->alive()) {
-      throw Error("the self echo (self echo) " + child->describeExit() +
-                  " before it matched");
+      throw Error("the self echo (self echo) " + child->describeExit() + " before it matched");
     }
     std::this_thread::sleep_for(10ms);
   }
@@ -82,7 +80,7 @@ bool awaitEcho(const dds::Writer<Sample>& ping, const dds::Reader<Sample>& pong,
 }  // namespace
 
 PingResult runPinger(const Settings& s, Progress& progress) {
-    PingResult r;
+  PingResult r;
   const int64_t period_ns = static_cast<int64_t>(std::llround(1e9 / s.rate_hz));
   r.warmup_pings = static_cast<uint64_t>(std::llround(s.warmup_s * s.rate_hz));
   r.planned = static_cast<uint64_t>(std::llround(s.seconds * s.rate_hz));
@@ -135,10 +133,8 @@ PingResult runPinger(const Settings& s, Progress& progress) {
       argv.push_back("--dds-config");
       argv.push_back(s.dds_config);
     }
-    echo_child.emplace(app::ProcessOptions{.argv = argv,
-                                          .env = childEnv(""),
-                                          .null_stdin = true,
-                                          .die_with_parent = true});
+    echo_child.emplace(app::ProcessOptions{
+        .argv = argv, .env = childEnv(""), .null_stdin = true, .die_with_parent = true});
     ep.emplace(o);
     if (!awaitEcho(ep->ping, ep->pong, kSelfEchoWait, &*echo_child)) {
       if (g_stop_requested.load()) throw Error("interrupted");
@@ -204,10 +200,10 @@ PingResult runPinger(const Settings& s, Progress& progress) {
     Sample x{};
     x.session_id = run_id;
     int64_t start = monoNs() + period_ns;
-    for (uint64_t seq = 0; seq < total && !g_stop_requested.load(std::memory_order_relaxed); ++seq) {
+    for (uint64_t seq = 0; seq < total && !g_stop_requested.load(std::memory_order_relaxed);
+         ++seq) {
       const int64_t due = start + static_cast<int64_t>(seq) * period_ns;
-      const timespec ts{static_cast<time_t>(due / kNsPerS),
-                        static_cast<long>(due % kNsPerS)};
+      const timespec ts{static_cast<time_t>(due / kNsPerS), static_cast<long>(due % kNsPerS)};
       while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
       }
       const int64_t now = monoNs();

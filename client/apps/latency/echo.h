@@ -34,7 +34,6 @@ struct PingResult {
   std::size_t seconds_count = 0;
 };
 
-
 /// Pings through a server's echo or one of its own; then the figures.
 PingResult runPinger(const Settings& s, Progress& progress);
 

@@ -5,13 +5,13 @@
 //
 // options: the command line; echo: the echo and the pinger; stats: the percentiles;
 // ddsperf: the baseline; report: text and JSON.
+#include <spdlog/fmt/fmt.h>
+
 #include <algorithm>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
 #include <optional>
-
-#include <spdlog/fmt/fmt.h>
 
 #include "ddsperf.h"
 #include "echo.h"

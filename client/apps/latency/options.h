@@ -21,7 +21,6 @@ struct Settings {
   dds::Options dds;
 };
 
-
 /// Parses the command line into `s`; returns the exit code when the program is done (--help:
 /// 0, bad input: 2) and sets `seconds_given` when --seconds was on it.
 std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& seconds_given);

@@ -1,11 +1,10 @@
 #include "report.h"
 
 #include <dds/ddsi/ddsi_cdrstream.h>
+#include <spdlog/fmt/fmt.h>
 #include <unistd.h>
 
 #include <cstdio>
-
-#include <spdlog/fmt/fmt.h>
 
 namespace telehand::latency {
 
@@ -19,7 +18,6 @@ uint32_t serializedSize(const Sample& s, uint32_t* xcdr_version) {
   dds_ostream_fini(&os);
   return n;
 }
-
 
 void printPing(const Settings& s, const PingResult& r, std::size_t size_of, uint32_t ser,
                uint32_t xcdr) {

@@ -52,5 +52,4 @@ Summary aggregateSeconds(const std::vector<Summary>& secs) {
   return a;
 }
 
-
 }  // namespace telehand::latency

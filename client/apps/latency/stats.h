@@ -13,7 +13,6 @@ struct Summary {
   double p50_us = 0, p90_us = 0, p99_us = 0, p999_us = 0, max_us = 0, mean_us = 0;
 };
 
-
 /// Sorts `rtt_ns` and summarizes it as one-way latency (RTT/2).
 Summary summarize(std::vector<int64_t>& rtt_ns);
 

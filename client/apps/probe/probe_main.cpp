@@ -6,8 +6,8 @@
 #include <iostream>
 #include <thread>
 
-#include "telehand/client/usb/usb_mf2.h"
 #include "telehand/app/cli.h"
+#include "telehand/client/usb/usb_mf2.h"
 #include "telehand/core/error.h"
 
 int main(int argc, char** argv) {
@@ -15,9 +15,10 @@ int main(int argc, char** argv) {
   using namespace telehand::client::usb;
   using namespace telehand::devices;
   using namespace std::chrono_literals;
-  CLI::App app{"telehand-probe: list the MF-2 haptic devices attached over USB; --live streams "
-               "one and prints its readings. Exit code 0 when an MF-2 is usable, 1 when none "
-               "is, 2 on bad options."};
+  CLI::App app{
+      "telehand-probe: list the MF-2 haptic devices attached over USB; --live streams "
+      "one and prints its readings. Exit code 0 when an MF-2 is usable, 1 when none "
+      "is, 2 on bad options."};
   std::string vid = "1209", pid = "4d32", serial, device_file;
   double live_s = 0.0, rate_hz = 10.0;
   app.add_option("--usb-vid", vid, "USB vendor ID, hex")->capture_default_str();
@@ -27,7 +28,8 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_option("--live", live_s, "stream for this many seconds and print readings")
       ->check(CLI::PositiveNumber);
-  app.add_option("--rate", rate_hz, "lines per second with --live")->check(CLI::Range(0.5, 100.0))
+  app.add_option("--rate", rate_hz, "lines per second with --live")
+      ->check(CLI::Range(0.5, 100.0))
       ->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
 
@@ -71,8 +73,8 @@ int main(int argc, char** argv) {
                         std::chrono::duration<double>(now - last_t).count();
       last_packets = packets;
       last_t = now;
-      std::printf("seq %u t %.3f s status 0x%02x | act", s.seq, static_cast<double>(s.device_time_us) * 1e-6,
-                  s.status);
+      std::printf("seq %u t %.3f s status 0x%02x | act", s.seq,
+                  static_cast<double>(s.device_time_us) * 1e-6, s.status);
       for (const int32_t c : s.actuator_counts) std::printf(" %d", c);
       std::printf(" | gimbal");
       for (const int32_t c : s.gimbal_counts) std::printf(" %d", c);
@@ -86,10 +88,12 @@ int main(int argc, char** argv) {
       }
       const auto& st = dev.stats();
       const uint64_t rtts = st.rtt_count.load();
-      std::printf(" | %.0f Hz, rejected %llu, lost %llu, rtt mean %.0f us\n", hz,
-                  static_cast<unsigned long long>(st.rejectedTotal() + st.stale.load() + st.out_of_order.load()),
-                  static_cast<unsigned long long>(st.lost.load()),
-                  rtts ? static_cast<double>(st.rtt_sum_ns.load()) / static_cast<double>(rtts) / 1e3 : 0.0);
+      std::printf(
+          " | %.0f Hz, rejected %llu, lost %llu, rtt mean %.0f us\n", hz,
+          static_cast<unsigned long long>(st.rejectedTotal() + st.stale.load() +
+                                          st.out_of_order.load()),
+          static_cast<unsigned long long>(st.lost.load()),
+          rtts ? static_cast<double>(st.rtt_sum_ns.load()) / static_cast<double>(rtts) / 1e3 : 0.0);
       std::fflush(stdout);
     }
     dev.stop();

@@ -112,7 +112,8 @@ inline std::string clockTime(int64_t wall_ns) {
 inline double ms(int64_t ns) { return static_cast<double>(ns) / 1e6; }
 /// Capped at ~30 years so that a huge --seconds or --wait cannot overflow a deadline.
 inline int64_t secondsToNs(double s) { return static_cast<int64_t>(std::min(s, 1e9) * 1e9); }
-inline double norm3(const double (&v)[3]) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
-
+inline double norm3(const double (&v)[3]) {
+  return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
 
 }  // namespace telehand::client::watch

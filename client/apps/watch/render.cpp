@@ -74,7 +74,6 @@ std::string clip(const std::string& s, std::size_t max) {
   return s.substr(0, n) + "~";
 }
 
-
 // ANSI styling for the terminal view only.
 constexpr const char* kBold = "\x1b[1m";
 constexpr const char* kDim = "\x1b[2m";

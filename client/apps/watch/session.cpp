@@ -144,5 +144,4 @@ int run(const Options& o) {
   return 0;
 }
 
-
 }  // namespace telehand::client::watch

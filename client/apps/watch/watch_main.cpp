@@ -7,13 +7,12 @@
 //
 // model: the options and the sessions as they arrive; watcher: the readers; render: the
 // views; session: choosing the session and watching it.
+#include <spdlog/fmt/fmt.h>
 #include <unistd.h>
 
 #include <cstdlib>
 #include <cstring>
 #include <iostream>
-
-#include <spdlog/fmt/fmt.h>
 
 #include "session.h"
 #include "telehand/app/cli.h"

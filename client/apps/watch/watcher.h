@@ -144,5 +144,4 @@ class Watcher {
   uint64_t arrivals_ = 0;
 };
 
-
 }  // namespace telehand::client::watch

@@ -11,7 +11,7 @@
 namespace telehand::client::link {
 
 namespace {
-constexpr std::size_t kChunkSamples = 100;   // the record travels 10 chunks per second
+constexpr std::size_t kChunkSamples = 100;  // the record travels 10 chunks per second
 constexpr auto kChunkMaxAge = std::chrono::milliseconds(100);
 
 uint64_t randomClientId() {
@@ -50,8 +50,8 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
     if (std::chrono::steady_clock::now() > deadline) {
       const auto& o = participant_.options();
       throw Error("no telehand server found within " + std::to_string(timeout.count()) +
-                  " ms on DDS domain " + std::to_string(o.domain) + ", partition '" +
-                  o.partition + "' (is telehand-server running with the same --domain, " +
+                  " ms on DDS domain " + std::to_string(o.domain) + ", partition '" + o.partition +
+                  "' (is telehand-server running with the same --domain, " +
                   "--partition and --dds-config?)");
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
@@ -211,8 +211,8 @@ void ClientLink::pollModels() {
     } else {
       stats_.models_rejected.fetch_add(1);
       std::lock_guard lock(messages_mu_);
-      messages_.push_back("rejected k-nearest-neighbour model v" + std::to_string(waiting_knn_->version) +
-                          ": " + knn_samples_->why);
+      messages_.push_back("rejected k-nearest-neighbour model v" +
+                          std::to_string(waiting_knn_->version) + ": " + knn_samples_->why);
     }
     waiting_knn_.reset();
   }
@@ -243,7 +243,8 @@ void ClientLink::pollDirectForces() {
 
 void ClientLink::pollEvents() {
   event_reader_.take([&](const telehand_msg_SessionEvent& e, const dds_sample_info_t&) {
-    const bool mine = (session_id_ != 0 && e.session_id == session_id_) || e.client_id == client_id_;
+    const bool mine =
+        (session_id_ != 0 && e.session_id == session_id_) || e.client_id == client_id_;
     if (!mine || e.kind != telehand_msg_EVENT_ERROR) return;
     std::lock_guard lock(messages_mu_);
     messages_.emplace_back(e.text);

@@ -133,8 +133,7 @@ StepStatus HapticLoop::step() noexcept {
 
   const double scale = proxy_.model().params().force_scale;
   health_.applied_ref_n.store(applied.norm() / scale, std::memory_order_relaxed);
-  health_.last_force_n.store((safe.force_n[0] + safe.force_n[1]).norm(),
-                             std::memory_order_relaxed);
+  health_.last_force_n.store((safe.force_n[0] + safe.force_n[1]).norm(), std::memory_order_relaxed);
   if (force_max > health_.force_max_n.load(std::memory_order_relaxed)) {
     health_.force_max_n.store(force_max, std::memory_order_relaxed);
   }

@@ -65,7 +65,8 @@ std::string readSerial(libusb_device_handle* h, uint8_t index) {
   if (index == 0) return {};
   unsigned char buf[128] = {};
   const int n = libusb_get_string_descriptor_ascii(h, index, buf, sizeof buf);
-  return n > 0 ? std::string(reinterpret_cast<char*>(buf), static_cast<std::size_t>(n)) : std::string{};
+  return n > 0 ? std::string(reinterpret_cast<char*>(buf), static_cast<std::size_t>(n))
+               : std::string{};
 }
 
 void bump(std::atomic<uint64_t>& c, uint64_t n = 1) noexcept {
@@ -117,7 +118,8 @@ std::vector<UsbMf2Info> listUsbMf2(uint16_t vendor_id, uint16_t product_id) {
       info.problem = "cannot open (" + usbError(rc) + ")";
     } else {
       info.serial = readSerial(h, d.iSerialNumber);
-      if (!hasMf2Interface(list[i])) info.problem = "no MF-2 interface (vendor class, endpoints 0x81/0x01)";
+      if (!hasMf2Interface(list[i]))
+        info.problem = "no MF-2 interface (vendor class, endpoints 0x81/0x01)";
       libusb_close(h);
     }
     found.push_back(std::move(info));
@@ -135,7 +137,8 @@ std::string formatUsbMf2List(const std::vector<UsbMf2Info>& devices, uint16_t ve
   std::string out;
   for (const UsbMf2Info& d : devices) {
     char line[160];
-    std::snprintf(line, sizeof line, "MF-2 %s at bus %03u address %03u, firmware %x.%02x, serial %s: ",
+    std::snprintf(line, sizeof line,
+                  "MF-2 %s at bus %03u address %03u, firmware %x.%02x, serial %s: ",
                   ids(d.vendor_id, d.product_id).c_str(), d.bus, d.address, d.bcd_device >> 8,
                   d.bcd_device & 0xffu, d.serial.empty() ? "(unknown)" : d.serial.c_str());
     out += line;
@@ -335,8 +338,9 @@ void UsbMf2::tryOpen() {
       continue;
     }
     if (rc != 0) {
-      problem = "MF-2 at " + where + ": cannot claim its interface (" + usbError(rc) + ")" +
-                (rc == LIBUSB_ERROR_BUSY ? ": another program (another telehand-client?) uses it" : "");
+      problem =
+          "MF-2 at " + where + ": cannot claim its interface (" + usbError(rc) + ")" +
+          (rc == LIBUSB_ERROR_BUSY ? ": another program (another telehand-client?) uses it" : "");
       libusb_close(h);
       continue;
     }
@@ -366,7 +370,8 @@ void UsbMf2::tryOpen() {
   cmd_seq_ = 0;
   last_echo_ = 0;
   bump(stats_.connects);
-  setStatus(DeviceStatus::kNotReady, "MF-2 opened at " + where_ + "; waiting for state packets", true);
+  setStatus(DeviceStatus::kNotReady, "MF-2 opened at " + where_ + "; waiting for state packets",
+            true);
   for (int i = 0; i < cfg_.in_flight; ++i) submitIn(i);
 }
 
@@ -403,7 +408,8 @@ void UsbMf2::onIn(libusb_transfer* t) {
       bump(stats_.timeouts);
       if (status() == DeviceStatus::kOk) {
         setStatus(DeviceStatus::kNotReady,
-                  "MF-2 at " + where_ + ": no state packet for " + std::to_string(cfg_.in_timeout_ms) +
+                  "MF-2 at " + where_ + ": no state packet for " +
+                      std::to_string(cfg_.in_timeout_ms) +
                       " ms (IN transfer timeout); forces zeroed, waiting for it to resume",
                   true);
       }
@@ -490,7 +496,8 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   if (s.status & (proto::kStatusEstopButton | proto::kStatusEstopLatched)) {
     setStatus(DeviceStatus::kFault,
               "MF-2 at " + where_ + ": emergency stop " +
-                  ((s.status & proto::kStatusEstopButton) ? "button pressed" : "latched (clear it to resume)"),
+                  ((s.status & proto::kStatusEstopButton) ? "button pressed"
+                                                          : "latched (clear it to resume)"),
               true);
   } else if (status_.load(std::memory_order_relaxed) != DeviceStatus::kOk) {
     // Only on the change: the text costs an allocation and a lock, once per packet otherwise.
@@ -652,8 +659,8 @@ void UsbMf2::closeDevice() {
     std::array<uint8_t, proto::kCommandSize> buf{};
     proto::encodeCommand(c, buf);
     int done = 0;
-    libusb_interrupt_transfer(handle_, proto::kEndpointOut, buf.data(), static_cast<int>(buf.size()),
-                              &done, 50);
+    libusb_interrupt_transfer(handle_, proto::kEndpointOut, buf.data(),
+                              static_cast<int>(buf.size()), &done, 50);
   }
   libusb_release_interface(handle_, proto::kInterfaceNumber);
   libusb_close(handle_);

@@ -1,15 +1,15 @@
 #include "telehand/config/config.h"
 
-#include "telehand/config/toml_reader.h"
+#include <toml++/toml.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <cstring>
 #include <sstream>
-#include <toml++/toml.h>
 #include <utility>
 
+#include "telehand/config/toml_reader.h"
 #include "telehand/core/error.h"
 
 namespace telehand {
@@ -151,7 +151,8 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
       }
     }
     if (!(curve.slope(steepest) > 0.0)) {
-      fail(origin, "'" + name + ".coeffs' fall at " + std::to_string(steepest) + " deg: a passive joint's force must rise with the angle");
+      fail(origin, "'" + name + ".coeffs' fall at " + std::to_string(steepest) +
+                       " deg: a passive joint's force must rise with the angle");
     }
   }
   TableReader rec(root, "recovery", origin);
@@ -164,7 +165,8 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
     requireRange(origin, "recovery.treatment_s", pc.recovery_treatment_s, 1.0, 36000.0);
     for (std::size_t i = 0; i < kAxes; ++i) {
       if (pc.final_min_deg[i] > m.axes[i].min_deg || pc.final_max_deg[i] < m.axes[i].max_deg) {
-        fail(origin, "'recovery' ranges must contain the starting ranges (" + std::string(kAxisNames[i]) + ")");
+        fail(origin, "'recovery' ranges must contain the starting ranges (" +
+                         std::string(kAxisNames[i]) + ")");
       }
     }
   }
@@ -173,7 +175,9 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
   return pc;
 }
 
-PatientCase loadPatientCase(const std::string& path) { return parsePatientCase(readFile(path), path); }
+PatientCase loadPatientCase(const std::string& path) {
+  return parsePatientCase(readFile(path), path);
+}
 
 JointModelParams PatientCase::at(double treatment_s) const {
   JointModelParams p = model;
@@ -198,8 +202,7 @@ std::vector<std::string> listPatientCases(const std::string& dir) {
 
 PatientCase loadPatientCaseByName(const std::string& dir, const std::string& name) {
   const bool well_formed =
-      !name.empty() && name.size() <= 63 &&
-      std::all_of(name.begin(), name.end(), [](char ch) {
+      !name.empty() && name.size() <= 63 && std::all_of(name.begin(), name.end(), [](char ch) {
         return (ch >= 'a' && ch <= 'z') || (ch >= '0' && ch <= '9') || ch == '_' || ch == '-';
       });
   if (!well_formed) {
@@ -209,10 +212,13 @@ PatientCase loadPatientCaseByName(const std::string& dir, const std::string& nam
   if (!std::filesystem::exists(path)) {
     std::string known;
     for (const auto& n : listPatientCases(dir)) known += (known.empty() ? "" : ", ") + n;
-    throw ConfigError("unknown patient case '" + name + "' (known: " + (known.empty() ? "none" : known) + ")");
+    throw ConfigError("unknown patient case '" + name +
+                      "' (known: " + (known.empty() ? "none" : known) + ")");
   }
   PatientCase pc = loadPatientCase(path);
-  if (pc.name != name) throw ConfigError(path + ": 'case.name' is '" + pc.name + "', the file name says '" + name + "'");
+  if (pc.name != name)
+    throw ConfigError(path + ": 'case.name' is '" + pc.name + "', the file name says '" + name +
+                      "'");
   return pc;
 }
 

@@ -24,8 +24,7 @@ toml::table parseToml(const std::string& text, const std::string& origin) {
     return toml::parse(text, origin);
   } catch (const toml::parse_error& e) {
     fail(origin, "line " + std::to_string(e.source().begin.line) + ", column " +
-                     std::to_string(e.source().begin.column) + ": " +
-                     std::string(e.description()));
+                     std::to_string(e.source().begin.column) + ": " + std::string(e.description()));
   }
 }
 
@@ -58,8 +57,9 @@ double TomlTable::number(const std::string& key, double fallback, double lo, dou
   if (!v || n->is_boolean()) fail(n, key, "must be a number");
   if (!std::isfinite(*v)) fail(n, key, "must be a finite number");
   if (!(*v >= lo && *v <= hi)) {
-    fail(n, key, "= " + std::to_string(*v) + " is outside [" + std::to_string(lo) + ", " +
-                     std::to_string(hi) + "]");
+    fail(n, key,
+         "= " + std::to_string(*v) + " is outside [" + std::to_string(lo) + ", " +
+             std::to_string(hi) + "]");
   }
   return *v;
 }

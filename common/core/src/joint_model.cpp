@@ -1,9 +1,9 @@
 #include "telehand/core/joint_model.h"
 
-#include "telehand/core/knn_model.h"
-
 #include <algorithm>
 #include <cstring>
+
+#include "telehand/core/knn_model.h"
 
 namespace telehand {
 
@@ -43,7 +43,8 @@ JointModelParams healthyIndexMcp() {
 }
 
 JointModel::JointModel(const JointModelParams& params) : p_(params) {
-  for (int i = 0; i < kAxes; ++i) rest_deg_[static_cast<std::size_t>(i)] = radToDeg(restAngleRad(i));
+  for (int i = 0; i < kAxes; ++i)
+    rest_deg_[static_cast<std::size_t>(i)] = radToDeg(restAngleRad(i));
 }
 
 double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
@@ -261,8 +262,7 @@ ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p
   ProxyOutput out;
   out.angles_rad = angles;
   out.torque_ref_nm = m.passiveTorqueNm(angles, rates);
-  out.force_device_n =
-      m.fingertipForces(p, angles, out.torque_ref_nm * m.params().force_scale);
+  out.force_device_n = m.fingertipForces(p, angles, out.torque_ref_nm * m.params().force_scale);
   return out;
 }
 
@@ -284,7 +284,6 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   last_angles_ = grip_angles;
   const Vec3 angles = grip_angles + current_.params().grip_offset_rad;
 
-
   ProxyOutput out = renderWith(current_, p, angles, rates_);
   const double v_current = current_.potentialEnergyJ(angles);
   out.potential_j = v_current;
@@ -297,8 +296,9 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   double gap = 0.0, now_force = 0.0;
   for (int k = 0; k < 2; ++k) {
     gap = std::max(gap, (out.force_device_n[k] - old.force_device_n[k]).norm());
-    now_force = std::max(now_force, (weight_ * out.force_device_n[k] +
-                                     (1.0 - weight_) * old.force_device_n[k]).norm());
+    now_force = std::max(
+        now_force,
+        (weight_ * out.force_device_n[k] + (1.0 - weight_) * old.force_device_n[k]).norm());
   }
   // The nominal pace: the whole fade in blend_ns.
   const double dt_ns = static_cast<double>(std::max<int64_t>(now_ns - fade_ns_, 0));
@@ -316,7 +316,8 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   // nominal pace, still under the step bound, and the passivity controller removes whatever
   // energy it adds once the operator takes it back.
   const bool waited_out = now_ns - fade_start_ns_ > kEnergyWaitNs;
-  if (dv > 0.0 && dw * dv > energy_budget_j_ && !waited_out) dw = std::max(energy_budget_j_, 0.0) / dv;
+  if (dv > 0.0 && dw * dv > energy_budget_j_ && !waited_out)
+    dw = std::max(energy_budget_j_, 0.0) / dv;
   dw = std::max(dw, 0.0);
   weight_ += dw;
   if (dv > 0.0) out.unpaid_energy_j = std::max(dw * dv - std::max(energy_budget_j_, 0.0), 0.0);

@@ -36,16 +36,19 @@ KnnTorqueModel::KnnTorqueModel(std::vector<KnnPoint> samples, const KnnOptions& 
     : samples_(std::move(samples)), options_(options) {
   if (samples_.empty()) throw Error("k-nearest-neighbour model: no samples");
   if (options_.k < 1) throw Error("k-nearest-neighbour model: k must be at least 1");
-  if (!(options_.cell_deg.minCoeff() > 0.0)) throw Error("k-nearest-neighbour model: cell sizes must be positive");
+  if (!(options_.cell_deg.minCoeff() > 0.0))
+    throw Error("k-nearest-neighbour model: cell sizes must be positive");
   const Vec3 inv = options_.cell_deg.unaryExpr([](double d) { return 1.0 / degToRad(d); });
   std::vector<double> c(samples_.size() * 3);
   for (std::size_t i = 0; i < samples_.size(); ++i) {
     if (!allFinite(samples_[i].angles_rad) || !allFinite(samples_[i].torque_nm)) {
       throw Error("k-nearest-neighbour model: sample " + std::to_string(i) + " is not finite");
     }
-    for (int a = 0; a < 3; ++a) c[i * 3 + static_cast<std::size_t>(a)] = samples_[i].angles_rad[a] * inv[a];
+    for (int a = 0; a < 3; ++a)
+      c[i * 3 + static_cast<std::size_t>(a)] = samples_[i].angles_rad[a] * inv[a];
   }
-  const std::size_t k = std::min<std::size_t>(static_cast<std::size_t>(options_.k), samples_.size());
+  const std::size_t k =
+      std::min<std::size_t>(static_cast<std::size_t>(options_.k), samples_.size());
   index_ = std::make_unique<Index>(std::move(c), samples_.size(), k, inv);
 }
 
@@ -80,8 +83,10 @@ std::vector<KnnPoint> voxelAverage(std::span<const KnnPoint> points, const Vec3&
   std::map<std::tuple<long, long, long>, Acc> cells;
   for (const auto& p : points) {
     if (!allFinite(p.angles_rad) || !allFinite(p.torque_nm)) continue;
-    const Vec3 c = p.angles_rad.unaryExpr([](double r) { return radToDeg(r); }).cwiseQuotient(cell_deg);
-    Acc& acc = cells[{std::lround(std::floor(c.x())), std::lround(std::floor(c.y())), std::lround(std::floor(c.z()))}];
+    const Vec3 c =
+        p.angles_rad.unaryExpr([](double r) { return radToDeg(r); }).cwiseQuotient(cell_deg);
+    Acc& acc = cells[{std::lround(std::floor(c.x())), std::lround(std::floor(c.y())),
+                      std::lround(std::floor(c.z()))}];
     acc.a += p.angles_rad;
     acc.t += p.torque_nm;
     ++acc.n;

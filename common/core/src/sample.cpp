@@ -31,8 +31,7 @@ std::optional<std::string> firstNonFinite(const Sample& s) {
 PerFinger<Vec3> thimblePositions(const Sample& s) noexcept {
   PerFinger<Vec3> p;
   for (int k = 0; k < 2; ++k) {
-    p[k] = Vec3(s.fingers[k].position_m[0], s.fingers[k].position_m[1],
-                s.fingers[k].position_m[2]);
+    p[k] = Vec3(s.fingers[k].position_m[0], s.fingers[k].position_m[1], s.fingers[k].position_m[2]);
   }
   return p;
 }

@@ -4,7 +4,7 @@ namespace telehand {
 
 ThimbleForces thimbleForces(const FsrReadings& fsr) noexcept {
   ThimbleForces f;
-  f.tangential_n = static_cast<double>(fsr[1]) - static_cast<double>(fsr[2]);  // eq. 1
+  f.tangential_n = static_cast<double>(fsr[1]) - static_cast<double>(fsr[2]);         // eq. 1
   f.normal_n = std::hypot(static_cast<double>(fsr[3]), static_cast<double>(fsr[0]));  // eq. 2
   return f;
 }

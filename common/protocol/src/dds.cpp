@@ -154,10 +154,10 @@ Participant::Participant(const Options& options) : options_(options) {
                               "create participant (check the DDS config and network)"));
   Qos q;
   q.partition(options.partition);
-  publisher_ = Entity(check(dds_create_publisher(participant_.handle(), q.get(), nullptr),
-                            "create publisher"));
-  subscriber_ = Entity(check(dds_create_subscriber(participant_.handle(), q.get(), nullptr),
-                             "create subscriber"));
+  publisher_ = Entity(
+      check(dds_create_publisher(participant_.handle(), q.get(), nullptr), "create publisher"));
+  subscriber_ = Entity(
+      check(dds_create_subscriber(participant_.handle(), q.get(), nullptr), "create subscriber"));
 }
 
 Topics::Topics(const Participant& p)

@@ -23,15 +23,12 @@ namespace {
 // Flags that do not by themselves make a sample worth sending: bookkeeping, and the gate's
 // clamp and rate limit, which flicker on every few ticks at the force limits (the record has
 // them all). Faults (watchdog, non-finite, FSR faults) and capture always go out.
-constexpr uint32_t kUncodedFlags = sample_flags::kModelBlending |
-                                   sample_flags::kSafetyClamped |
-                                   sample_flags::kSafetyRateLimited |
-                                   sample_flags::kPassivityControl |
-                                   sample_flags::kSentLive | sample_flags::kDeadband;
+constexpr uint32_t kUncodedFlags =
+    sample_flags::kModelBlending | sample_flags::kSafetyClamped | sample_flags::kSafetyRateLimited |
+    sample_flags::kPassivityControl | sample_flags::kSentLive | sample_flags::kDeadband;
 
 // The forces a remote side uses: each thimble's FSR pair (paper eqs. 1-2) and command.
-bool forcesMoved(const Sample& s, const Sample& r,
-                 const DeadbandConfig& c) noexcept {
+bool forcesMoved(const Sample& s, const Sample& r, const DeadbandConfig& c) noexcept {
   for (int k = 0; k < 2; ++k) {
     const double a[2] = {s.fingers[k].tangential_n, s.fingers[k].normal_n};
     const double b[2] = {r.fingers[k].tangential_n, r.fingers[k].normal_n};

@@ -21,7 +21,8 @@ void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointMo
   out.lever_arm_m = p.lever_arm_m;
   out.force_scale = p.force_scale;
   out.damping_nms_per_rad = p.damping_nms_per_rad;
-  for (int i = 0; i < kAxes; ++i) out.neutral_zone_deg[i] = p.neutral_zone_deg[static_cast<std::size_t>(i)];
+  for (int i = 0; i < kAxes; ++i)
+    out.neutral_zone_deg[i] = p.neutral_zone_deg[static_cast<std::size_t>(i)];
   out.speed_gain_s_per_rad = p.speed_gain_s_per_rad;
   for (int i = 0; i < 3; ++i) out.joint_origin_m[i] = p.joint_origin_m[i];
   out.joint_orientation_q[0] = p.joint_orientation.w();
@@ -60,7 +61,8 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
   for (int i = 0; i < kAxes; ++i) {
     p.neutral_zone_deg[static_cast<std::size_t>(i)] = m.neutral_zone_deg[i];
     if (!(m.neutral_zone_deg[i] >= 0.0 && m.neutral_zone_deg[i] <= 30.0)) {
-      return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) + " neutral zone out of [0, 30] deg");
+      return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) +
+                 " neutral zone out of [0, 30] deg");
     }
   }
   p.speed_gain_s_per_rad = m.speed_gain_s_per_rad;
@@ -159,7 +161,8 @@ Sample fromWire(const telehand_msg_DeviceState& d) noexcept {
 std::vector<Sample> samplesFromWire(const telehand_msg_RecordChunk& c) {
   std::vector<Sample> samples;
   samples.reserve(c.samples._length);
-  for (uint32_t i = 0; i < c.samples._length; ++i) samples.push_back(fromWire(c.samples._buffer[i]));
+  for (uint32_t i = 0; i < c.samples._length; ++i)
+    samples.push_back(fromWire(c.samples._buffer[i]));
   return samples;
 }
 
@@ -222,7 +225,7 @@ void toWire(const HandStateFields& f, telehand_msg_HandState& out) noexcept {
     out.bone_count = static_cast<uint16_t>(std::min<std::size_t>(f.bone_poses.size(), 24));
     for (std::size_t b = 0; b < out.bone_count; ++b) {
       const auto& pose = f.bone_poses[b];
-      const double v[7] = {pose.position_m.x(),    pose.position_m.y(),    pose.position_m.z(),
+      const double v[7] = {pose.position_m.x(),  pose.position_m.y(),  pose.position_m.z(),
                            pose.orientation.w(), pose.orientation.x(), pose.orientation.y(),
                            pose.orientation.z()};
       for (int i = 0; i < 7; ++i) out.bone_pose[b][i] = v[i];
@@ -259,15 +262,19 @@ void toWire(uint64_t session_id, uint64_t device_seq, int64_t source_time_ns,
 
 PerFinger<Vec3> forcesFromWire(const telehand_msg_DirectForce& f) noexcept {
   PerFinger<Vec3> force;
-  for (std::size_t k = 0; k < 2; ++k) force[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
+  for (std::size_t k = 0; k < 2; ++k)
+    force[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
   return force;
 }
 
 std::string_view modeName(telehand_msg_SessionMode m) noexcept {
   switch (m) {
-    case telehand_msg_MODE_MOBILIZATION: return "mobilization";
-    case telehand_msg_MODE_EXPLORATION: return "exploration";
-    case telehand_msg_MODE_CAPTURE: return "capture";
+    case telehand_msg_MODE_MOBILIZATION:
+      return "mobilization";
+    case telehand_msg_MODE_EXPLORATION:
+      return "exploration";
+    case telehand_msg_MODE_CAPTURE:
+      return "capture";
   }
   return "unknown";
 }
@@ -281,20 +288,28 @@ std::optional<telehand_msg_SessionMode> parseMode(std::string_view name) noexcep
 
 std::string_view stateName(telehand_msg_SessionState s) noexcept {
   switch (s) {
-    case telehand_msg_SESSION_ACTIVE: return "active";
-    case telehand_msg_SESSION_CLOSING: return "closing";
-    case telehand_msg_SESSION_CLOSED: return "closed";
+    case telehand_msg_SESSION_ACTIVE:
+      return "active";
+    case telehand_msg_SESSION_CLOSING:
+      return "closing";
+    case telehand_msg_SESSION_CLOSED:
+      return "closed";
   }
   return "unknown";
 }
 
 std::string_view eventKindName(telehand_msg_EventKind k) noexcept {
   switch (k) {
-    case telehand_msg_EVENT_INFO: return "info";
-    case telehand_msg_EVENT_MARK: return "mark";
-    case telehand_msg_EVENT_FEEDBACK: return "feedback";
-    case telehand_msg_EVENT_SCORE: return "score";
-    case telehand_msg_EVENT_ERROR: return "error";
+    case telehand_msg_EVENT_INFO:
+      return "info";
+    case telehand_msg_EVENT_MARK:
+      return "mark";
+    case telehand_msg_EVENT_FEEDBACK:
+      return "feedback";
+    case telehand_msg_EVENT_SCORE:
+      return "score";
+    case telehand_msg_EVENT_ERROR:
+      return "error";
   }
   return "unknown";
 }

@@ -8,11 +8,11 @@
 #include <fstream>
 #include <iostream>
 
+#include "telehand/config/config.h"
+#include "telehand/core/error.h"
 #include "telehand/server/estimate/capture_fit.h"
 #include "telehand/server/estimate/synthetic_capture.h"
 #include "telehand/server/store/sqlite_store.h"
-#include "telehand/config/config.h"
-#include "telehand/core/error.h"
 
 namespace telehand::records {
 
@@ -36,8 +36,8 @@ JointModelParams sessionGeometry(const std::string& cases_dir, const std::string
 /// One plot per axis like the paper's Fig. 3b: the captured force against the angle with
 /// the fitted cubic, and the residual below. Drawn by gnuplot (Debian gnuplot-nox).
 bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates, const CaptureFit& fit,
-              double lever_m, int axis, const fs::path& out, const std::string& format, const std::string& title,
-              std::string& error) {
+              double lever_m, int axis, const fs::path& out, const std::string& format,
+              const std::string& title, std::string& error) {
   const auto ax = static_cast<std::size_t>(axis);
   const auto& a = fit.axes[ax];
   const auto& pts = fitter.points();
@@ -46,8 +46,8 @@ bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates, const
     error = "cannot run gnuplot (deploy/setup.sh installs gnuplot-nox)";
     return false;
   }
-  const std::string terminal = format == "png" ? "pngcairo size 900,800 font ',10'"
-                                               : "svg size 900,800 font 'sans,11'";
+  const std::string terminal =
+      format == "png" ? "pngcairo size 900,800 font ',10'" : "svg size 900,800 font 'sans,11'";
   std::fprintf(gp, "set terminal %s\nset output '%s'\n", terminal.c_str(), out.string().c_str());
   // Decimate to at most ~8000 points: the plot shows the cloud, the fit used them all.
   const std::size_t stride = std::max<std::size_t>(1, pts.size() / 8000);
@@ -62,7 +62,8 @@ bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates, const
   const auto& c = a.curve.coeffs;
   std::fprintf(gp, "f(x) = ((%.12g*x + %.12g)*x + %.12g)*x + %.12g\n", c[0], c[1], c[2], c[3]);
   char curve_title[160], rms_title[64];
-  std::snprintf(curve_title, sizeof curve_title, "cubic: %.4g a^3 %+.4g a^2 %+.4g a %+.4g", c[0], c[1], c[2], c[3]);
+  std::snprintf(curve_title, sizeof curve_title, "cubic: %.4g a^3 %+.4g a^2 %+.4g a %+.4g", c[0],
+                c[1], c[2], c[3]);
   std::snprintf(rms_title, sizeof rms_title, "residual, RMS %.3f N", a.rms_n);
   std::fprintf(gp,
                "set multiplot layout 2,1 title \"%s\"\n"
@@ -73,14 +74,18 @@ bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates, const
                "f(x) with lines lw 2.5 lc rgb '#cc2222' title '%s'\n"
                "set size 1,0.35\nset origin 0,0\n"
                "set xlabel '%s angle (deg)'\nset ylabel 'residual (N)'\n"
-               "plot $data using 1:3 with points pt 7 ps 0.2 lc rgb '#555555' title '%s', 0 with lines lc rgb '#cc2222' notitle\n"
+               "plot $data using 1:3 with points pt 7 ps 0.2 lc rgb '#555555' title '%s', 0 with "
+               "lines lc rgb '#cc2222' notitle\n"
                "unset multiplot\n",
                title.c_str(), a.curve.min_deg, a.curve.max_deg, curve_title,
                std::string(kAxisNames[ax]).c_str(), rms_title);
   const int status = pclose(gp);
   if (status != 0) {
     error = "gnuplot failed (exit status " + std::to_string(WEXITSTATUS(status)) + ") writing '" +
-            out.string() + "'" + (WEXITSTATUS(status) == 127 ? ": gnuplot is not installed (deploy/setup.sh installs gnuplot-nox)" : "");
+            out.string() + "'" +
+            (WEXITSTATUS(status) == 127
+                 ? ": gnuplot is not installed (deploy/setup.sh installs gnuplot-nox)"
+                 : "");
     return false;
   }
   return true;
@@ -105,7 +110,8 @@ int runFit(const FitRequest& r) {
   const fs::path output = r.output.empty() ? fs::path(name + ".toml") : fs::path(r.output);
   const fs::path plots = r.plots_dir.empty() ? output.parent_path() : fs::path(r.plots_dir);
   if (r.plot_format != "svg" && r.plot_format != "png") {
-    std::cerr << "telehand-records: --plot-format must be svg or png, not '" << r.plot_format << "'\n";
+    std::cerr << "telehand-records: --plot-format must be svg or png, not '" << r.plot_format
+              << "'\n";
     return 2;
   }
 
@@ -116,12 +122,14 @@ int runFit(const FitRequest& r) {
   store.forEachSample(r.session, [&](const Sample& s, bool valid) {
     fitter.add(s, valid);
     if (++seen >= next_report && total > 50'000 && !r.quiet) {
-      std::cerr << "reading samples: " << seen << " / " << total << " (" << (100 * seen / total) << " %)\n";
+      std::cerr << "reading samples: " << seen << " / " << total << " (" << (100 * seen / total)
+                << " %)\n";
       next_report += total / 10;
     }
   });
   const CaptureFit fit = fitter.fit([&](int axis, double f) {
-    if (!r.quiet && f == 0.0 && total > 50'000) std::cerr << "fitting " << kAxisNames[static_cast<std::size_t>(axis)] << "\n";
+    if (!r.quiet && f == 0.0 && total > 50'000)
+      std::cerr << "fitting " << kAxisNames[static_cast<std::size_t>(axis)] << "\n";
   });
   const auto& k = fit.counts;
   std::cout << "session " << r.session << ": " << total << " samples, " << k.used << " used ("
@@ -130,8 +138,9 @@ int runFit(const FitRequest& r) {
   if (!fit.ok()) {
     for (std::size_t i = 0; i < kAxes; ++i) {
       if (!fit.axes[i].ok) {
-        std::cerr << "telehand-records: " << kAxisNames[i] << " could not be fitted: "
-                  << fit.axes[i].samples << " samples; the capture must move every axis through "
+        std::cerr << "telehand-records: " << kAxisNames[i]
+                  << " could not be fitted: " << fit.axes[i].samples
+                  << " samples; the capture must move every axis through "
                   << "at least a few degrees\n";
       }
     }
@@ -139,21 +148,25 @@ int runFit(const FitRequest& r) {
   }
   const JointModelParams model = fit.model(healthyIndexMcp());
   const std::string toml = server::estimate::patientCaseToml(
-      fit, model, name, "fitted from capture session " + std::to_string(r.session) + " (" + info->user + ")",
+      fit, model, name,
+      "fitted from capture session " + std::to_string(r.session) + " (" + info->user + ")",
       "telehand-records fit of " + r.db + " session " + std::to_string(r.session));
   // The file must load as a case: a fit whose force falls somewhere is refused here.
   try {
     parsePatientCase(toml, output.string());
   } catch (const ConfigError& e) {
-    std::cerr << "telehand-records: the fitted model is not a valid patient case: " << e.what() << "\n";
+    std::cerr << "telehand-records: the fitted model is not a valid patient case: " << e.what()
+              << "\n";
     return 3;
   }
   for (std::size_t i = 0; i < kAxes; ++i) {
     const auto& a = fit.axes[i];
-    std::printf("  %-9s range %6.1f .. %5.1f deg   RMS residual %.3f N   neutral zone %.1f .. %.1f deg   "
-                "F = %.5g a^3 %+.5g a^2 %+.5g a %+.5g\n",
-                kAxisNames[i].data(), a.curve.min_deg, a.curve.max_deg, a.rms_n, a.neutral_min_deg,
-                a.neutral_max_deg, a.curve.coeffs[0], a.curve.coeffs[1], a.curve.coeffs[2], a.curve.coeffs[3]);
+    std::printf(
+        "  %-9s range %6.1f .. %5.1f deg   RMS residual %.3f N   neutral zone %.1f .. %.1f deg   "
+        "F = %.5g a^3 %+.5g a^2 %+.5g a %+.5g\n",
+        kAxisNames[i].data(), a.curve.min_deg, a.curve.max_deg, a.rms_n, a.neutral_min_deg,
+        a.neutral_max_deg, a.curve.coeffs[0], a.curve.coeffs[1], a.curve.coeffs[2],
+        a.curve.coeffs[3]);
   }
   std::printf("  damping %.4f N m s/rad\n", model.damping_nms_per_rad);
   {
@@ -166,15 +179,18 @@ int runFit(const FitRequest& r) {
       return 2;
     }
   }
-  std::cout << "model: " << output.string() << " (case '" << name << "'; copy it into the server's cases directory to use it)\n";
+  std::cout << "model: " << output.string() << " (case '" << name
+            << "'; copy it into the server's cases directory to use it)\n";
   std::error_code ec;
   if (!plots.empty()) fs::create_directories(plots, ec);
   const std::vector<Vec3> rates = fitter.rates();
   for (int i = 0; i < kAxes; ++i) {
-    const fs::path p = plots / (name + "-" + std::string(kAxisNames[static_cast<std::size_t>(i)]) + "." + r.plot_format);
+    const fs::path p = plots / (name + "-" + std::string(kAxisNames[static_cast<std::size_t>(i)]) +
+                                "." + r.plot_format);
     std::string error;
     if (!plotAxis(fitter, rates, fit, geometry.lever_arm_m, i, p, r.plot_format,
-                  "session " + std::to_string(r.session) + ": " + std::string(kAxisNames[static_cast<std::size_t>(i)]),
+                  "session " + std::to_string(r.session) + ": " +
+                      std::string(kAxisNames[static_cast<std::size_t>(i)]),
                   error)) {
       std::cerr << "telehand-records: " << error << "\n";
       return 3;
@@ -198,7 +214,8 @@ int runSynth(const SynthRequest& r) {
   o.seed = r.seed;
   if (!r.device_file.empty()) o.device = mf2::loadMf2Description(r.device_file);
   const auto cap = server::estimate::synthesizeCapture(o, [&](double f) {
-    if (!r.quiet && f > 0.0 && f < 1.0) std::cerr << "capturing: " << static_cast<int>(f * 100) << " %\n";
+    if (!r.quiet && f > 0.0 && f < 1.0)
+      std::cerr << "capturing: " << static_cast<int>(f * 100) << " %\n";
   });
   server::store::SqliteStore store(r.db);
   const uint64_t id = server::estimate::storeCapture(store, cap, r.case_name, "synthetic",
@@ -206,7 +223,8 @@ int runSynth(const SynthRequest& r) {
   std::cout << "session " << id << ": synthetic capture of case '" << r.case_name << "', "
             << cap.samples.size() << " samples, thimble noise " << r.noise_n << " N per axis\n";
   for (std::size_t i = 0; i < kAxes; ++i) {
-    std::printf("  %-9s swept %.1f .. %.1f deg\n", kAxisNames[i].data(), cap.plan.lo_deg[i], cap.plan.hi_deg[i]);
+    std::printf("  %-9s swept %.1f .. %.1f deg\n", kAxisNames[i].data(), cap.plan.lo_deg[i],
+                cap.plan.hi_deg[i]);
   }
   return 0;
 }

@@ -9,11 +9,11 @@ namespace telehand::records {
 struct FitRequest {
   std::string db;
   uint64_t session = 0;
-  std::string output;      ///< case TOML to write; empty: <name>.toml in the current directory
-  std::string name;        ///< case name; empty: capture-<session>
-  std::string plots_dir;   ///< where the per-axis plots go; empty: next to the output
+  std::string output;     ///< case TOML to write; empty: <name>.toml in the current directory
+  std::string name;       ///< case name; empty: capture-<session>
+  std::string plots_dir;  ///< where the per-axis plots go; empty: next to the output
   std::string plot_format = "png";  ///< png or svg
-  std::string cases_dir;   ///< where the session's case (joint frame, lever arm) is looked up
+  std::string cases_dir;  ///< where the session's case (joint frame, lever arm) is looked up
   bool quiet = false;
 };
 

@@ -1,12 +1,12 @@
 // telehand-records: read session records (list, export to CSV).
-#include "telehand/app/cli.h"
 #include <fstream>
 #include <iomanip>
 #include <iostream>
 
 #include "records_fit.h"
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/app/cli.h"
 #include "telehand/core/error.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace {
 
@@ -29,33 +29,54 @@ int main(int argc, char** argv) {
   app.add_option("--db", db, "record database")->capture_default_str();
   app.require_subcommand(1);
   auto* list = app.add_subcommand("list", "list the sessions in the record database");
-  auto* exp = app.add_subcommand("export", "export one session's samples to CSV (one row per sample)");
+  auto* exp =
+      app.add_subcommand("export", "export one session's samples to CSV (one row per sample)");
   uint64_t session_id = 0;
   std::string out_path;
-  auto* show = app.add_subcommand("show", "one session: summary, events (marks, errors, scores) and exploration reaches");
+  auto* show = app.add_subcommand(
+      "show", "one session: summary, events (marks, errors, scores) and exploration reaches");
   show->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("-o,--output", out_path, "CSV file to write (default: stdout)");
   telehand::records::FitRequest fit_req;
   fit_req.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
-  auto* fit = app.add_subcommand("fit", "fit a capture session: a patient-case file (a cubic per axis) and a plot per axis");
+  auto* fit = app.add_subcommand(
+      "fit", "fit a capture session: a patient-case file (a cubic per axis) and a plot per axis");
   fit->add_option("session", fit_req.session, "capture session id (see 'list')")->required();
   fit->add_option("-o,--output", fit_req.output, "case file to write (default: NAME.toml)");
   fit->add_option("--name", fit_req.name, "case name (default: capture-SESSION)");
-  fit->add_option("--plots", fit_req.plots_dir, "directory for the plots (default: next to the case file)");
-  fit->add_option("--plot-format", fit_req.plot_format, "png or svg")->check(CLI::IsMember({"svg", "png"}))->capture_default_str();
-  fit->add_option("--cases", fit_req.cases_dir, "patient cases (the session's case gives the joint frame)")->capture_default_str();
+  fit->add_option("--plots", fit_req.plots_dir,
+                  "directory for the plots (default: next to the case file)");
+  fit->add_option("--plot-format", fit_req.plot_format, "png or svg")
+      ->check(CLI::IsMember({"svg", "png"}))
+      ->capture_default_str();
+  fit->add_option("--cases", fit_req.cases_dir,
+                  "patient cases (the session's case gives the joint frame)")
+      ->capture_default_str();
   fit->add_flag("-q,--quiet", fit_req.quiet, "no progress lines");
   telehand::records::SynthRequest synth_req;
   synth_req.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
-  auto* synth = app.add_subcommand("synth", "store a synthetic capture: a mobilization of a known joint through the simulated MF-2, with thimble noise");
-  synth->add_option("--case", synth_req.case_name, "ground-truth joint (a patient case)")->capture_default_str();
-  synth->add_option("--cases", synth_req.cases_dir, "patient cases directory")->capture_default_str();
-  synth->add_option("--device", synth_req.device_file, "MF-2 device file (default: built in)")->check(CLI::ExistingFile);
-  synth->add_option("--noise", synth_req.noise_n, "thimble error per axis, N RMS (paper: 1.43)")->check(CLI::Range(0.0, 10.0))->capture_default_str();
-  synth->add_option("--seconds-per-axis", synth_req.seconds_per_axis, "sweep time per axis")->check(CLI::Range(2.0, 600.0))->capture_default_str();
-  synth->add_option("--frequency", synth_req.frequency_hz, "sweep frequency, Hz")->check(CLI::Range(0.05, 6.0))->capture_default_str();
-  synth->add_option("--max-force", synth_req.max_force_n, "force the clinician stops at, N")->check(CLI::Range(1.0, 20.0))->capture_default_str();
+  auto* synth = app.add_subcommand("synth",
+                                   "store a synthetic capture: a mobilization of a known joint "
+                                   "through the simulated MF-2, with thimble noise");
+  synth->add_option("--case", synth_req.case_name, "ground-truth joint (a patient case)")
+      ->capture_default_str();
+  synth->add_option("--cases", synth_req.cases_dir, "patient cases directory")
+      ->capture_default_str();
+  synth->add_option("--device", synth_req.device_file, "MF-2 device file (default: built in)")
+      ->check(CLI::ExistingFile);
+  synth->add_option("--noise", synth_req.noise_n, "thimble error per axis, N RMS (paper: 1.43)")
+      ->check(CLI::Range(0.0, 10.0))
+      ->capture_default_str();
+  synth->add_option("--seconds-per-axis", synth_req.seconds_per_axis, "sweep time per axis")
+      ->check(CLI::Range(2.0, 600.0))
+      ->capture_default_str();
+  synth->add_option("--frequency", synth_req.frequency_hz, "sweep frequency, Hz")
+      ->check(CLI::Range(0.05, 6.0))
+      ->capture_default_str();
+  synth->add_option("--max-force", synth_req.max_force_n, "force the clinician stops at, N")
+      ->check(CLI::Range(1.0, 20.0))
+      ->capture_default_str();
   synth->add_option("--seed", synth_req.seed, "noise seed")->capture_default_str();
   synth->add_flag("-q,--quiet", synth_req.quiet, "no progress lines");
   TELEHAND_CLI_PARSE(app, argc, argv)
@@ -79,10 +100,13 @@ int main(int argc, char** argv) {
       std::cout << std::left << std::setw(6) << "id" << std::setw(14) << "user" << std::setw(14)
                 << "mode" << std::setw(10) << "case" << std::setw(12) << "state" << std::setw(21)
                 << "started" << std::right << std::setw(10) << "duration" << std::setw(10)
-                << "samples" << std::setw(10) << "missing" << "\n";
+                << "samples" << std::setw(10) << "missing"
+                << "\n";
       for (const auto& s : sessions) {
-        const double dur = s.ended_ns > s.started_ns ? static_cast<double>(s.ended_ns - s.started_ns) * 1e-9 : 0.0;
-        const uint64_t missing = s.samples_expected > s.samples ? s.samples_expected - s.samples : 0;
+        const double dur =
+            s.ended_ns > s.started_ns ? static_cast<double>(s.ended_ns - s.started_ns) * 1e-9 : 0.0;
+        const uint64_t missing =
+            s.samples_expected > s.samples ? s.samples_expected - s.samples : 0;
         std::ostringstream d;
         d << std::fixed << std::setprecision(1) << dur << " s";
         std::cout << std::left << std::setw(6) << s.id << std::setw(14) << s.user << std::setw(14)
@@ -94,7 +118,8 @@ int main(int argc, char** argv) {
     }
     const auto info = store.session(session_id);
     if (info && *show) {
-      const uint64_t missing = info->samples_expected > info->samples ? info->samples_expected - info->samples : 0;
+      const uint64_t missing =
+          info->samples_expected > info->samples ? info->samples_expected - info->samples : 0;
       std::cout << "session " << info->id << ": " << info->mode << " on case '" << info->case_name
                 << "' for " << info->user << ", " << info->state << ", started "
                 << formatTime(info->started_ns) << "\n  samples " << info->samples << " (missing "
@@ -108,11 +133,12 @@ int main(int argc, char** argv) {
       const auto reaches = store.reaches(session_id);
       if (!reaches.empty()) {
         std::cout << "exploration:\n  " << std::left << std::setw(14) << "phase" << std::setw(12)
-                  << "direction" << std::right << std::setw(10) << "angle" << std::setw(12) << "force\n";
+                  << "direction" << std::right << std::setw(10) << "angle" << std::setw(12)
+                  << "force\n";
         for (const auto& r : reaches) {
           std::cout << "  " << std::left << std::setw(14) << r.phase << std::setw(12) << r.direction
-                    << std::right << std::setw(8) << std::fixed << std::setprecision(1) << r.angle_deg
-                    << " deg" << std::setw(8) << r.force_n << " N\n";
+                    << std::right << std::setw(8) << std::fixed << std::setprecision(1)
+                    << r.angle_deg << " deg" << std::setw(8) << r.force_n << " N\n";
         }
       }
       return 0;
@@ -145,7 +171,8 @@ int main(int argc, char** argv) {
       return 2;
     }
     if (!out_path.empty()) {
-      std::cerr << "exported session " << session_id << ": " << rows << " samples to " << out_path << "\n";
+      std::cerr << "exported session " << session_id << ": " << rows << " samples to " << out_path
+                << "\n";
     }
     return 0;
   } catch (const telehand::Error& e) {

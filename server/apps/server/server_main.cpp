@@ -1,41 +1,49 @@
 // telehand-server: hosts sessions, keeps every record, publishes joint models and hand state.
-#include "telehand/app/cli.h"
 #include <csignal>
 #include <iostream>
 #include <optional>
 #include <thread>
 
+#include "telehand/app/cli.h"
+#include "telehand/core/log.h"
 #include "telehand/server/link/server_link.h"
 #include "telehand/server/store/sqlite_store.h"
-#include "telehand/core/log.h"
 
 int main(int argc, char** argv) {
   using namespace telehand;
-  CLI::App app{"telehand-server: authoritative session host. Opens and closes sessions on "
-               "request, records every DeviceState sample to SQLite (WAL), publishes each "
-               "session's JointModel and a decimated HandState, and echoes latency probes."};
+  CLI::App app{
+      "telehand-server: authoritative session host. Opens and closes sessions on "
+      "request, records every DeviceState sample to SQLite (WAL), publishes each "
+      "session's JointModel and a decimated HandState, and echoes latency probes."};
   std::string config_path, db, log_level = "info";
   dds::Options dds_opts;
   double seconds = 0.0, hand_hz = 0.0;
-  app.add_option("-c,--config", config_path, "TOML file with a [server] table")->check(CLI::ExistingFile);
+  app.add_option("-c,--config", config_path, "TOML file with a [server] table")
+      ->check(CLI::ExistingFile);
   app.add_option("--db", db, "record database (overrides server.db; default records/telehand.db)");
   app.add_option("--hand-rate", hand_hz, "HandState rate in Hz (60-100 recommended)");
   double hand_deadband = -1.0;
-  app.add_option("--hand-deadband", hand_deadband,
-                 "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
+  app.add_option(
+         "--hand-deadband", hand_deadband,
+         "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
       ->check(CLI::Range(0.0, 0.5));
   app.add_option("--domain", dds_opts.domain, "DDS domain id")->check(CLI::Range(0, 230));
   app.add_option("--partition", dds_opts.partition, "DDS partition")->capture_default_str();
-  app.add_option("--dds-config", dds_opts.config, "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
+  app.add_option("--dds-config", dds_opts.config,
+                 "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
   std::string hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
   std::string cases = std::string(TELEHAND_DEPLOY_DIR) + "/cases";
   bool list_dofs = false;
-  app.add_option("--hand", hand, "hand model (URDF) for the Bullet simulation; 'none': HandState from the shared joint model")
+  app.add_option("--hand", hand,
+                 "hand model (URDF) for the Bullet simulation; 'none': HandState from the shared "
+                 "joint model")
       ->capture_default_str();
   app.add_option("--cases", cases, "directory of patient cases (*.toml)")->capture_default_str();
-  app.add_flag("--list-dofs", list_dofs, "print the hand's joint rotations in HandState.joint_angles_rad order and exit");
+  app.add_flag("--list-dofs", list_dofs,
+               "print the hand's joint rotations in HandState.joint_angles_rad order and exit");
   app.add_option("--seconds", seconds, "stop after this many seconds (0 = until Ctrl-C)");
-  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")
+      ->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
@@ -87,10 +95,11 @@ int main(int argc, char** argv) {
     stopper.join();
     const auto& st = manager.stats();
     const auto& lc = link.counters();
-    spdlog::info("stopped: {} samples recorded, {} live, {} non-finite, {} for unknown sessions, "
-                 "{} bad commands, {} store errors, {} echoes",
-                 st.recorded_samples, st.live_samples, st.nonfinite_samples,
-                 st.unknown_session_samples, st.bad_commands, st.store_errors, lc.echoes.load());
+    spdlog::info(
+        "stopped: {} samples recorded, {} live, {} non-finite, {} for unknown sessions, "
+        "{} bad commands, {} store errors, {} echoes",
+        st.recorded_samples, st.live_samples, st.nonfinite_samples, st.unknown_session_samples,
+        st.bad_commands, st.store_errors, lc.echoes.load());
     return 0;
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-server: " << e.what() << "\n";

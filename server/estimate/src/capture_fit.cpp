@@ -9,8 +9,7 @@
 
 namespace telehand::server::estimate {
 
-std::optional<CapturePoint> capturePoint(const JointModel& geometry,
-                                         const Sample& s, bool valid,
+std::optional<CapturePoint> capturePoint(const JointModel& geometry, const Sample& s, bool valid,
                                          CaptureCounts& counts) {
   if (!valid) {
     ++counts.invalid;
@@ -34,7 +33,8 @@ std::optional<CapturePoint> capturePoint(const JointModel& geometry,
   PerFinger<Vec3> f;
   for (int k = 0; k < 2; ++k) {
     const auto& fi = s.fingers[k];
-    const Quat q(fi.orientation_q[0], fi.orientation_q[1], fi.orientation_q[2], fi.orientation_q[3]);
+    const Quat q(fi.orientation_q[0], fi.orientation_q[1], fi.orientation_q[2],
+                 fi.orientation_q[3]);
     f[k] = thimbleForceVector({fi.tangential_n, fi.normal_n}, q.normalized());
   }
   c.axis_force_n = geometry.axisTorque(p, c.angles_rad, f) / geometry.params().lever_arm_m;
@@ -175,9 +175,10 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
     const CubicCurve& c = model.axes[i];
     o << "\n[" << kAxisNames[i] << "]";
     if (a.ok) {
-      std::snprintf(buf, sizeof buf,
-                    "   # RMS residual %.3f N over %zu samples; lax zone (|F| < 1 N) %.1f..%.1f deg",
-                    a.rms_n, a.samples, a.neutral_min_deg, a.neutral_max_deg);
+      std::snprintf(
+          buf, sizeof buf,
+          "   # RMS residual %.3f N over %zu samples; lax zone (|F| < 1 N) %.1f..%.1f deg", a.rms_n,
+          a.samples, a.neutral_min_deg, a.neutral_max_deg);
       o << buf;
     } else {
       o << "   # not fitted (too few samples or too small a range): the base model's curve";

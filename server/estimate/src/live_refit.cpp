@@ -25,7 +25,8 @@ double LiveRefit::maxForceChange(const JointModelParams& a, const JointModelPara
       const double fa = ma.holdingForceN(i, degToRad(deg)), fb = mb.holdingForceN(i, degToRad(deg));
       const double diff = std::abs(fa - fb);
       worst = std::max(worst, diff);
-      any = any || (diff > jnd_floor_n && diff > jnd_fraction * std::max(std::abs(fa), std::abs(fb)));
+      any =
+          any || (diff > jnd_floor_n && diff > jnd_fraction * std::max(std::abs(fa), std::abs(fb)));
     }
   }
   if (felt) *felt = any;
@@ -58,7 +59,8 @@ std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
     u.params.axes[i].max_deg += options_.range_margin_deg;
   }
   bool felt = false;
-  u.max_change_n = maxForceChange(u.params, published_, options_.jnd_fraction, options_.jnd_floor_n, &felt);
+  u.max_change_n =
+      maxForceChange(u.params, published_, options_.jnd_fraction, options_.jnd_floor_n, &felt);
   if (!felt) {
     return std::nullopt;
   }

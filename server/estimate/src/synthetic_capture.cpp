@@ -1,9 +1,8 @@
 #include "telehand/server/estimate/synthetic_capture.h"
 
-
-#include "telehand/devices/capture_rig.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
+#include "telehand/devices/capture_rig.h"
 
 namespace telehand::server::estimate {
 
@@ -43,7 +42,8 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
 
 std::vector<store::SessionFile> deviceFiles(const mf2::Mf2Description& d) {
   std::vector<store::SessionFile> files;
-  for (auto& f : mf2::descriptionFiles(d)) files.push_back({std::move(f.name), std::move(f.content)});
+  for (auto& f : mf2::descriptionFiles(d))
+    files.push_back({std::move(f.name), std::move(f.content)});
   return files;
 }
 
@@ -60,9 +60,9 @@ uint64_t storeCapture(store::SessionStore& store, const SyntheticCapture& captur
   for (const auto& f : files) store.appendFile(id, f);
   constexpr std::size_t kBatch = 5000;
   for (std::size_t i = 0; i < capture.samples.size(); i += kBatch) {
-    std::vector<Sample> batch(
-        capture.samples.begin() + static_cast<std::ptrdiff_t>(i),
-        capture.samples.begin() + static_cast<std::ptrdiff_t>(std::min(i + kBatch, capture.samples.size())));
+    std::vector<Sample> batch(capture.samples.begin() + static_cast<std::ptrdiff_t>(i),
+                              capture.samples.begin() + static_cast<std::ptrdiff_t>(std::min(
+                                                            i + kBatch, capture.samples.size())));
     for (auto& s : batch) s.session_id = id;
     const std::vector<uint8_t> valid(batch.size(), 1);
     store.appendSamples(id, batch, valid);

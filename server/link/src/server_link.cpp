@@ -16,7 +16,8 @@ enum Attach : dds_attach_t { kWake = 1, kCommands, kDevice, kChunks, kFiles };
 ServerLink::ServerLink(const dds::Options& options)
     : participant_(options),
       topics_(participant_),
-      device_reader_(participant_, topics_.device_state, dds::qos::deviceStateReader(kDeviceReaderDepth)),
+      device_reader_(participant_, topics_.device_state,
+                     dds::qos::deviceStateReader(kDeviceReaderDepth)),
       chunk_reader_(participant_, topics_.record_chunk, dds::qos::recordChunk()),
       command_reader_(participant_, topics_.session_command, dds::qos::sessionCommand()),
       model_writer_(participant_, topics_.joint_model, dds::qos::jointModel()),
@@ -76,16 +77,17 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
     wake_.clear();
     const int64_t now = clock.nowNs();
     // Commands first so that an OPEN is known before its first samples are handled.
-    counters_.commands += command_reader_.take(
-        [&](const telehand_msg_SessionCommand& c, const dds_sample_info_t&) {
+    counters_.commands +=
+        command_reader_.take([&](const telehand_msg_SessionCommand& c, const dds_sample_info_t&) {
           manager.onCommand(c, now);
         });
     file_reader_.take([&](const telehand_msg_SessionFile& f, const dds_sample_info_t&) {
       manager.onFile(f, now);
     });
-    counters_.chunks += chunk_reader_.take(
-        [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t&) { manager.onChunk(c, now); },
-        1024);
+    counters_.chunks +=
+        chunk_reader_.take([&](const telehand_msg_RecordChunk& c,
+                               const dds_sample_info_t&) { manager.onChunk(c, now); },
+                           1024);
     counters_.device_states += device_reader_.take(
         [&](const telehand_msg_DeviceState& d, const dds_sample_info_t&) {
           manager.onDeviceState(d, now);

@@ -12,7 +12,8 @@ namespace telehand::server::session {
 
 void CaptureFanout::startRefit(const JointModelParams& params,
                                const estimate::LiveRefitOptions& options) {
-  refit_ = std::make_unique<estimate::LiveRefit>(estimate::captureGeometry(params), params, options);
+  refit_ =
+      std::make_unique<estimate::LiveRefit>(estimate::captureGeometry(params), params, options);
 }
 
 void CaptureFanout::add(const std::vector<Sample>& samples, const std::vector<uint8_t>& valid,

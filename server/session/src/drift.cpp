@@ -13,7 +13,8 @@ bool DriftCorrector::observe(const Vec3& hand_rad, const Vec3& proxy_rad, bool h
   drift_rad_ += (dt_s / (o_.tau_s + dt_s)) * (raw - drift_rad_);
   const double worst_deg = radToDeg(drift_rad_.cwiseAbs().maxCoeff());
   if (worst_deg < o_.threshold_deg) return false;
-  if (corrections_ > 0 && static_cast<double>(now_ns - last_correction_ns_) * 1e-9 < o_.min_interval_s) {
+  if (corrections_ > 0 &&
+      static_cast<double>(now_ns - last_correction_ns_) * 1e-9 < o_.min_interval_s) {
     return false;
   }
   const double limit = degToRad(o_.max_offset_deg);

@@ -82,8 +82,8 @@ bool HandRunner::correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip,
   // hard limit: that gap is the wall's give, which the student must feel, not drift.
   for (std::size_t i = 0; i < kAxes; ++i) {
     const auto& axis = model.params().axes[i];
-    proxy[static_cast<int>(i)] = std::clamp(proxy[static_cast<int>(i)], degToRad(axis.min_deg),
-                                            degToRad(axis.max_deg));
+    proxy[static_cast<int>(i)] =
+        std::clamp(proxy[static_cast<int>(i)], degToRad(axis.min_deg), degToRad(axis.max_deg));
   }
   *before = drift_.offset();
   return drift_.observe(sim_->mcpAngles(), proxy, held, dt_s, now_ns);
@@ -92,8 +92,8 @@ bool HandRunner::correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip,
 void HandRunner::reportDrift(SessionContext& ctx, const Vec3& before, uint32_t version,
                              int64_t now_ns) {
   const Vec3 change_deg = radToDeg(1.0) * (drift_.offset() - before);
-  spdlog::debug("session {}: drift correction v{}: {:.2f} {:.2f} {:.2f} deg", session_id_,
-                version, change_deg[0], change_deg[1], change_deg[2]);
+  spdlog::debug("session {}: drift correction v{}: {:.2f} {:.2f} {:.2f} deg", session_id_, version,
+                change_deg[0], change_deg[1], change_deg[2]);
   // A slip anyone would notice goes in the record and to the supervisors.
   if (change_deg.cwiseAbs().maxCoeff() >= SessionManager::kDriftEventDeg) {
     const Vec3 total = radToDeg(1.0) * drift_.offset();
@@ -135,8 +135,8 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
       const Vec3 mcp = model.anglesFromGrip(p);
       Vec3 rates = Vec3::Zero();
       if (prev_angles_ns_ != 0 && d.source_time_ns > prev_angles_ns_) {
-        rates = (mcp - prev_angles_) /
-                (static_cast<double>(d.source_time_ns - prev_angles_ns_) * 1e-9);
+        rates =
+            (mcp - prev_angles_) / (static_cast<double>(d.source_time_ns - prev_angles_ns_) * 1e-9);
       }
       prev_angles_ = mcp;
       prev_angles_ns_ = d.source_time_ns;
@@ -194,9 +194,10 @@ void HandRunner::endExploration(SessionContext& ctx, uint64_t client_id, int64_t
     }
   }
   const bool baseline = phase == "baseline";
-  ctx.event(session_id_, client_id, telehand_msg_EVENT_SCORE,
-            phase + ": " + Exploration::summary(reached, baseline ? decltype(baseline_){} : baseline_),
-            now_ns);
+  ctx.event(
+      session_id_, client_id, telehand_msg_EVENT_SCORE,
+      phase + ": " + Exploration::summary(reached, baseline ? decltype(baseline_){} : baseline_),
+      now_ns);
   if (baseline) baseline_ = reached;
 }
 

@@ -181,7 +181,8 @@ void Session::close(const std::string& state, int64_t now_ns) {
                   direct_ ? (", DirectForce " +
                              std::to_string(static_cast<long long>(
                                  std::llround(static_cast<double>(direct_sent_) / secs))) +
-                             "/s sent").c_str()
+                             "/s sent")
+                                .c_str()
                           : "");
     ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, text, now_ns);
   }
@@ -196,9 +197,9 @@ void Session::close(const std::string& state, int64_t now_ns) {
   ctx.event(info.id, client_id, missing ? telehand_msg_EVENT_ERROR : telehand_msg_EVENT_INFO,
             state + ": " + std::to_string(recorded) + " samples recorded" +
                 (missing ? ", " + std::to_string(missing) + " missing" : "") +
-                (recorder.nonfinite()
-                     ? ", " + std::to_string(recorder.nonfinite()) + " non-finite live samples ignored"
-                     : ""),
+                (recorder.nonfinite() ? ", " + std::to_string(recorder.nonfinite()) +
+                                            " non-finite live samples ignored"
+                                      : ""),
             now_ns);
   publishStatus(telehand_msg_SESSION_CLOSED);
 }

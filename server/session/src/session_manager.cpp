@@ -17,9 +17,8 @@ SessionManager::SessionManager(SessionStore& store, Outbox& out, const ServerCon
       hand_(hand),
       ctx_{store_, out_, config_, stats_,
            [this](uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
-                  const std::string& text, int64_t now_ns) {
-             event(session_id, client_id, kind, text, now_ns);
-           }} {}
+                  const std::string& text,
+                  int64_t now_ns) { event(session_id, client_id, kind, text, now_ns); }} {}
 
 SessionManager::~SessionManager() = default;
 
@@ -115,7 +114,8 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     }
     if (cmd.mode == telehand_msg_MODE_CAPTURE) {
       ++stats_.bad_commands;
-      event(0, cmd.client_id, telehand_msg_EVENT_ERROR, "a capture session cannot follow another", now_ns);
+      event(0, cmd.client_id, telehand_msg_EVENT_ERROR, "a capture session cannot follow another",
+            now_ns);
       return;
     }
     case_name = "capture-" + std::to_string(cmd.follow_session);
@@ -166,7 +166,8 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   s.publishModel();
   event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
         "opened: " + info.mode + " on case '" + case_name + "' for " + info.user +
-            (capture ? std::string(", following capture session ") + std::to_string(cmd.follow_session) +
+            (capture ? std::string(", following capture session ") +
+                           std::to_string(cmd.follow_session) +
                            (wants_knn ? " (k-nearest-neighbour model)" : " (cubic model)")
                      : "") +
             (cmd.direct_force ? " (direct force: the server renders)" : ""),
@@ -245,7 +246,8 @@ void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns) {
     return;
   }
   event(f.session_id, 0, telehand_msg_EVENT_INFO,
-        "stored " + name + " (" + std::to_string(content.size()) + " bytes) with the record", now_ns);
+        "stored " + name + " (" + std::to_string(content.size()) + " bytes) with the record",
+        now_ns);
 }
 
 void SessionManager::tick(int64_t now_ns) {
@@ -253,7 +255,8 @@ void SessionManager::tick(int64_t now_ns) {
   std::vector<uint64_t> done;
   for (auto& [id, s] : sessions_) {
     s.tick(now_ns);
-    if (s.capture.capturing() && !s.closing) s.capture.refit(ctx_, s, lookup, refit_options_.knn, now_ns);
+    if (s.capture.capturing() && !s.closing)
+      s.capture.refit(ctx_, s, lookup, refit_options_.knn, now_ns);
     s.recoverIfDue(now_ns);
     if (s.closing && ((s.recorder.recorded() >= s.expected && s.recorder.drained()) ||
                       now_ns >= s.close_deadline_ns)) {
@@ -293,7 +296,8 @@ void SessionManager::closeAll(int64_t now_ns) {
     s.recorder.retry(ctx_);
     if (!s.closing) s.expected = s.live.sentOr(s.recorder.recorded());
     finish(s, now_ns,
-           s.closing ? (s.recorder.recorded() >= s.expected ? "closed" : "incomplete") : "interrupted");
+           s.closing ? (s.recorder.recorded() >= s.expected ? "closed" : "incomplete")
+                     : "interrupted");
   }
   sessions_.clear();
 }

@@ -20,7 +20,8 @@ namespace {
 class CollectingHandler : public console_bridge::OutputHandler {
  public:
   void log(const std::string& text, console_bridge::LogLevel level, const char*, int) override {
-    if (level >= console_bridge::CONSOLE_BRIDGE_LOG_WARN) messages += (messages.empty() ? "" : "; ") + text;
+    if (level >= console_bridge::CONSOLE_BRIDGE_LOG_WARN)
+      messages += (messages.empty() ? "" : "; ") + text;
   }
   std::string messages;
 };
@@ -107,7 +108,8 @@ HandModel HandModel::parse(const std::string& xml, const std::string& origin) {
           if ((axis - Vec3::Unit(i)).norm() < 1e-9) a = i;
         }
         if (a < 0) throw fail("joint '" + cur->name + "': <axis> must be 1 0 0, 0 1 0 or 0 0 1");
-        if (j.dofOnAxis(a) >= 0) throw fail("joint '" + cur->name + "' repeats an axis of its chain");
+        if (j.dofOnAxis(a) >= 0)
+          throw fail("joint '" + cur->name + "' repeats an axis of its chain");
         j.dofs.push_back({cur->name, a, cur->limits->lower, cur->limits->upper});
         order.push_back(a);
         const urdf::LinkConstSharedPtr child = urdf->getLink(cur->child_link_name);
@@ -129,9 +131,10 @@ HandModel HandModel::parse(const std::string& xml, const std::string& origin) {
         if (!child->inertial || child->inertial->mass <= 0.0) {
           throw fail("link '" + child->name + "' needs <inertial> with a positive mass");
         }
-        const auto* cyl = child->collision && child->collision->geometry
-                              ? dynamic_cast<const urdf::Cylinder*>(child->collision->geometry.get())
-                              : nullptr;
+        const auto* cyl =
+            child->collision && child->collision->geometry
+                ? dynamic_cast<const urdf::Cylinder*>(child->collision->geometry.get())
+                : nullptr;
         if (!cyl) throw fail("link '" + child->name + "' needs a <collision> <cylinder>");
         b.length_m = cyl->length;
         b.radius_m = cyl->radius;

@@ -135,7 +135,8 @@ void configureBulletForMillimetres() {
 /// exceeds the friction. Body A is the sphere (no rotation), body B the bone.
 class PadGrip final : public btTypedConstraint {
  public:
-  PadGrip(btRigidBody& pad, btRigidBody& bone) : btTypedConstraint(CONTACT_CONSTRAINT_TYPE, pad, bone) {
+  PadGrip(btRigidBody& pad, btRigidBody& bone)
+      : btTypedConstraint(CONTACT_CONSTRAINT_TYPE, pad, bone) {
     setJointFeedback(&feedback_);
     enableFeedback(true);
   }
@@ -209,19 +210,20 @@ struct HandSim::Impl {
   btDiscreteDynamicsWorld world{&dispatcher, &broadphase, &solver, &collision_config};
   std::vector<std::unique_ptr<btCollisionShape>> shapes;
   std::vector<std::unique_ptr<btDefaultMotionState>> motion_states;
-  std::vector<std::unique_ptr<btRigidBody>> bodies;    // per bone
-  std::vector<Pose> com_in_link;                        // per bone
-  std::vector<std::unique_ptr<btGeneric6DofSpring2Constraint>> constraints;  // per joint; null if both ends fixed
-  std::vector<JointLimits> limits;                      // per joint
-  std::vector<Pose> frame_in_a, frame_in_b;             // per joint: joint frame in each body
-  std::vector<Vec3> axis_inertia;                       // per joint, per angle: downstream inertia
+  std::vector<std::unique_ptr<btRigidBody>> bodies;  // per bone
+  std::vector<Pose> com_in_link;                     // per bone
+  std::vector<std::unique_ptr<btGeneric6DofSpring2Constraint>>
+      constraints;                           // per joint; null if both ends fixed
+  std::vector<JointLimits> limits;           // per joint
+  std::vector<Pose> frame_in_a, frame_in_b;  // per joint: joint frame in each body
+  std::vector<Vec3> axis_inertia;            // per joint, per angle: downstream inertia
   PerFinger<std::unique_ptr<btRigidBody>> spheres;
   int mcp_joint = -1;
-  std::vector<Mat3> rot_in_a, rot_in_b;                 // per joint: rotations of frame_in_a/b
+  std::vector<Mat3> rot_in_a, rot_in_b;  // per joint: rotations of frame_in_a/b
   /// Per bone: the bones joined to it through joints, static ends excluded: one finger each
   /// with fixed metacarpals. A finger sleeps and wakes as one.
-  std::vector<int> chain;                               // per bone: component id (-1: static)
-  Vec3 external_seen = Vec3::Zero();                    // wakes the MCP's finger on a change
+  std::vector<int> chain;             // per bone: component id (-1: static)
+  Vec3 external_seen = Vec3::Zero();  // wakes the MCP's finger on a change
 
   /// Skin friction of one pad: anchored to the point of the bone it touched down on, held
   /// there by rows of the solver (PadGrip) up to the friction limit, and slipping beyond.
@@ -232,8 +234,8 @@ struct HandSim::Impl {
     Vec3 anchor_local = Vec3::Zero();  // sphere centre at touch-down, bone frame
     Vec3 normal = Vec3::Zero();        // bone -> sphere, world
     double normal_n = 0.0;
-    Vec3 force = Vec3::Zero();         // tangential force on the sphere, last step
-    std::unique_ptr<PadGrip> rows;     // in the world while the pad touches `bone`
+    Vec3 force = Vec3::Zero();      // tangential force on the sphere, last step
+    std::unique_ptr<PadGrip> rows;  // in the world while the pad touches `bone`
   };
   PerFinger<Grip> grips;
 
@@ -276,7 +278,8 @@ HandSim::HandSim(const HandModel& model, const JointModelParams& mcp, const Hand
   // Bullet's contact thresholds assume metre-sized objects; bones are millimetres.
   configureBulletForMillimetres();
   Impl& im = *impl_;
-  im.world.setGravity(btVector3(0, 0, 0));  // the measured curves already include the finger's weight
+  im.world.setGravity(
+      btVector3(0, 0, 0));  // the measured curves already include the finger's weight
   im.world.getSolverInfo().m_numIterations = config_.solver_iterations;
   im.world.setInternalTickCallback(&HandSim::preTick, this, true);
 
@@ -331,8 +334,8 @@ HandSim::HandSim(const HandModel& model, const JointModelParams& mcp, const Hand
     btRigidBody& a = im.body(j.parent_bone);
     btRigidBody& b = im.body(j.child_bone);
     if (a.getInvMass() == 0.0 && b.getInvMass() == 0.0) continue;  // fixed to fixed: no joint
-    auto c = std::make_unique<btGeneric6DofSpring2Constraint>(
-        a, b, bt(im.frame_in_a[ji]), bt(im.frame_in_b[ji]), RO_ZXY);
+    auto c = std::make_unique<btGeneric6DofSpring2Constraint>(a, b, bt(im.frame_in_a[ji]),
+                                                              bt(im.frame_in_b[ji]), RO_ZXY);
     c->setLinearLowerLimit(btVector3(0, 0, 0));
     c->setLinearUpperLimit(btVector3(0, 0, 0));
     btVector3 lo(0, 0, 0), hi(0, 0, 0);
@@ -406,7 +409,8 @@ void HandSim::setMcpModel(const JointModelParams& mcp) {
   Pose device_joint = Pose::Identity();
   device_joint.linear() = mcp.joint_orientation.toRotationMatrix();
   device_joint.translation() = mcp.joint_origin_m;
-  device_to_world_ = model_.bones()[static_cast<std::size_t>(j.child_bone)].pose0 * device_joint.inverse();
+  device_to_world_ =
+      model_.bones()[static_cast<std::size_t>(j.child_bone)].pose0 * device_joint.inverse();
   // New stiffness: the finger's rest pose moves, so it must not stay asleep in the old one.
   im.wakeChain(j.child_bone);
   auto& c = im.constraints[static_cast<std::size_t>(im.mcp_joint)];
@@ -524,8 +528,9 @@ void HandSim::applyJointTorques() {
       for (int axis = 0; axis < 3; ++axis) {
         if (!(l.lo[axis] < l.hi[axis])) continue;  // locked: one row, always needed
         const double a = s.angles[kAngleOfAxis[axis]];
-        const double reach = kLimitRowMarginRad +
-                             kLimitRowLookaheadSteps * std::abs(s.rates[kAngleOfAxis[axis]]) * config_.dt_s;
+        const double reach = kLimitRowMarginRad + kLimitRowLookaheadSteps *
+                                                      std::abs(s.rates[kAngleOfAxis[axis]]) *
+                                                      config_.dt_s;
         const bool near = a - l.lo[axis] < reach || l.hi[axis] - a < reach;
         auto& on = l.rows[static_cast<std::size_t>(axis)];
         changed |= near != on;
@@ -548,8 +553,9 @@ void HandSim::applyJointTorques() {
     btRigidBody& s = *im.spheres[k];
     const Vec3 target = target_world_[k] + (k == kThumb ? squeeze : Vec3(-squeeze));
     // Damping as backward Euler would apply it, so a light sphere stays stable at 1 ms.
-    const double c = config_.coupling_damping_ns_per_m /
-                     (1.0 + config_.coupling_damping_ns_per_m * config_.dt_s / config_.sphere_mass_kg);
+    const double c =
+        config_.coupling_damping_ns_per_m /
+        (1.0 + config_.coupling_damping_ns_per_m * config_.dt_s / config_.sphere_mass_kg);
     Vec3 f = config_.coupling_stiffness_n_per_m * (target - eig(s.getCenterOfMassPosition())) +
              c * (target_velocity_[k] - eig(s.getLinearVelocity()));
     const double n = f.norm();
@@ -610,7 +616,8 @@ void HandSim::readContacts() {
       g.normal = f[k] / normal_n;
       g.normal_n = normal_n;
       const Pose bone = eig(touched[k]->getCenterOfMassTransform());
-      const Vec3 skin = eig(im.spheres[k]->getCenterOfMassPosition()) - g.normal * config_.sphere_radius_m;
+      const Vec3 skin =
+          eig(im.spheres[k]->getCenterOfMassPosition()) - g.normal * config_.sphere_radius_m;
       if (g.bone != touched[k]) {
         if (g.rows) im.world.removeConstraint(g.rows.get());
         g.bone = touched[k];
@@ -627,13 +634,15 @@ void HandSim::readContacts() {
         slip -= g.normal * g.normal.dot(slip);
         const double keep_m = config_.skin_friction * normal_n / config_.grip_stiffness_n_per_m;
         const double slip_m = slip.norm();
-        if (slip_m > keep_m) g.anchor_local = bone.inverse() * Vec3(skin - slip * (keep_m / slip_m));
+        if (slip_m > keep_m)
+          g.anchor_local = bone.inverse() * Vec3(skin - slip * (keep_m / slip_m));
       }
     }
     // The squeeze this pad asks for: enough normal force to carry its tangential load with a
     // margin, and at least a light touch.
-    const double need = std::max(config_.min_pad_force_n, config_.grip_safety_margin * g.force.norm() /
-                                                              std::max(config_.skin_friction, 1e-6));
+    const double need =
+        std::max(config_.min_pad_force_n, config_.grip_safety_margin * g.force.norm() /
+                                              std::max(config_.skin_friction, 1e-6));
     shortfall_n = std::max(shortfall_n, need - (g.bone ? normal_n : 0.0));
     contact_device_[k] = to_device * (f[k] + g.force);
     const Vec3 centre = eig(im.spheres[k]->getCenterOfMassPosition());
@@ -644,7 +653,8 @@ void HandSim::readContacts() {
   // until the pad that needs it most has a safety margin above slipping. Both pads must touch:
   // a pad that does not lacks the whole light touch.
   if (!engaged_) return;
-  const double want = std::clamp(pinch_n_ + shortfall_n, config_.pinch_preload_n, config_.max_pinch_n);
+  const double want =
+      std::clamp(pinch_n_ + shortfall_n, config_.pinch_preload_n, config_.max_pinch_n);
   const double tau = want > pinch_n_ ? config_.grip_rise_s : config_.grip_fall_s;
   pinch_n_ += (want - pinch_n_) * std::min(1.0, config_.dt_s / tau);
 }
@@ -696,7 +706,8 @@ double HandSim::axisInertia(int joint, int axis) const {
   downstream[static_cast<std::size_t>(jt.child_bone)] = true;
   for (std::size_t i = 0; i < model_.bones().size(); ++i) {
     const int pj = model_.bones()[i].parent_joint;
-    if (pj >= 0 && downstream[static_cast<std::size_t>(model_.joints()[static_cast<std::size_t>(pj)].parent_bone)]) {
+    if (pj >= 0 && downstream[static_cast<std::size_t>(
+                       model_.joints()[static_cast<std::size_t>(pj)].parent_bone)]) {
       downstream[i] = true;
     }
     const btRigidBody& b = *im.bodies[i];

@@ -291,7 +291,8 @@ SqliteStore::Layout SqliteStore::inspect() {
     }
     if (version != kSchemaVersion || !has("samples")) {
       throw StoreError("'" + path_ + "' carries the telehand marker but schema " +
-                       std::to_string(version) + (has("samples") ? "" : " without a samples table") +
+                       std::to_string(version) +
+                       (has("samples") ? "" : " without a samples table") +
                        ", which this program does not know (it knows " +
                        std::to_string(kSchemaVersion) + "); it was left untouched");
     }
@@ -327,10 +328,13 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
     const auto dir = std::filesystem::path(path).parent_path();
     std::error_code ec;
     if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-    if (ec) throw StoreError("cannot create the record directory '" + dir.string() + "': " + ec.message());
+    if (ec)
+      throw StoreError("cannot create the record directory '" + dir.string() +
+                       "': " + ec.message());
     flags |= SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE;
   } else {
-    if (!std::filesystem::exists(path)) throw StoreError("record database '" + path + "' does not exist");
+    if (!std::filesystem::exists(path))
+      throw StoreError("record database '" + path + "' does not exist");
     flags |= SQLITE_OPEN_READONLY;
   }
   if (sqlite3_open_v2(path.c_str(), &db_, flags, nullptr) != SQLITE_OK) {
@@ -419,9 +423,10 @@ void SqliteStore::migrateFromBlobs() {
   exec("DELETE FROM meta WHERE key = 'sample_format';");
   exec(("PRAGMA application_id = " + std::to_string(kApplicationId) + ";").c_str());
   exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
-  spdlog::info("record database '{}': migrated {} samples from schema {} (one blob per sample) "
-               "to schema {} (one column per field)",
-               path_, copied, kBlobSchemaVersion, kSchemaVersion);
+  spdlog::info(
+      "record database '{}': migrated {} samples from schema {} (one blob per sample) "
+      "to schema {} (one column per field)",
+      path_, copied, kBlobSchemaVersion, kSchemaVersion);
 }
 
 SqliteStore::~SqliteStore() {
@@ -447,8 +452,8 @@ sqlite3_stmt* SqliteStore::prepare(const char* sql) {
 }
 
 uint64_t SqliteStore::createSession(const SessionInfo& info) {
-  Statement st(db_,
-               "INSERT INTO sessions (user, case_name, mode, state, started_ns) VALUES (?,?,?,?,?)");
+  Statement st(
+      db_, "INSERT INTO sessions (user, case_name, mode, state, started_ns) VALUES (?,?,?,?,?)");
   sqlite3_bind_text(st.get(), 1, info.user.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_text(st.get(), 2, info.case_name.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_text(st.get(), 3, info.mode.c_str(), -1, SQLITE_TRANSIENT);
@@ -458,8 +463,7 @@ uint64_t SqliteStore::createSession(const SessionInfo& info) {
   return static_cast<uint64_t>(sqlite3_last_insert_rowid(db_));
 }
 
-uint64_t SqliteStore::appendSamples(uint64_t session_id,
-                                    std::span<const Sample> samples,
+uint64_t SqliteStore::appendSamples(uint64_t session_id, std::span<const Sample> samples,
                                     std::span<const uint8_t> valid) {
   if (samples.empty()) return 0;
   exec("BEGIN");
@@ -495,8 +499,9 @@ void SqliteStore::appendEvent(uint64_t session_id, const EventRecord& e) {
 }
 
 void SqliteStore::appendReach(uint64_t session_id, const Reach& r) {
-  Statement st(db_, "INSERT INTO explorations (session_id, phase, direction, angle_deg, force_n) "
-                    "VALUES (?,?,?,?,?)");
+  Statement st(db_,
+               "INSERT INTO explorations (session_id, phase, direction, angle_deg, force_n) "
+               "VALUES (?,?,?,?,?)");
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   sqlite3_bind_text(st.get(), 2, r.phase.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_text(st.get(), 3, r.direction.c_str(), -1, SQLITE_TRANSIENT);
@@ -506,8 +511,9 @@ void SqliteStore::appendReach(uint64_t session_id, const Reach& r) {
 }
 
 std::vector<SessionStore::Reach> SqliteStore::reaches(uint64_t session_id) {
-  Statement st(db_, "SELECT phase, direction, angle_deg, force_n FROM explorations "
-                    "WHERE session_id = ? ORDER BY rowid");
+  Statement st(db_,
+               "SELECT phase, direction, angle_deg, force_n FROM explorations "
+               "WHERE session_id = ? ORDER BY rowid");
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   std::vector<Reach> out;
   while (st.step()) {
@@ -519,7 +525,8 @@ std::vector<SessionStore::Reach> SqliteStore::reaches(uint64_t session_id) {
 
 void SqliteStore::closeSession(uint64_t session_id, int64_t ended_ns, uint64_t samples_expected,
                                const std::string& state) {
-  Statement st(db_, "UPDATE sessions SET ended_ns = ?, samples_expected = ?, state = ? WHERE id = ?");
+  Statement st(db_,
+               "UPDATE sessions SET ended_ns = ?, samples_expected = ?, state = ? WHERE id = ?");
   sqlite3_bind_int64(st.get(), 1, ended_ns);
   sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(samples_expected));
   sqlite3_bind_text(st.get(), 3, state.c_str(), -1, SQLITE_TRANSIENT);
@@ -563,8 +570,8 @@ std::optional<SessionInfo> SqliteStore::session(uint64_t session_id) {
   return readSession(st);
 }
 
-void SqliteStore::forEachSample(
-    uint64_t session_id, const std::function<void(const Sample&, bool)>& fn) {
+void SqliteStore::forEachSample(uint64_t session_id,
+                                const std::function<void(const Sample&, bool)>& fn) {
   if (queryInt(db_, "PRAGMA user_version") == 0) {
     // Schema 1, open read-only (a writer migrates it on opening).
     Statement st(db_,
@@ -596,10 +603,12 @@ void SqliteStore::forEachSample(
 }
 
 void SqliteStore::appendFile(uint64_t session_id, const SessionFile& f) {
-  Statement st(db_, "INSERT OR REPLACE INTO session_files (session_id, name, content) VALUES (?,?,?)");
+  Statement st(db_,
+               "INSERT OR REPLACE INTO session_files (session_id, name, content) VALUES (?,?,?)");
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   sqlite3_bind_text(st.get(), 2, f.name.c_str(), -1, SQLITE_TRANSIENT);
-  sqlite3_bind_blob(st.get(), 3, f.content.data(), static_cast<int>(f.content.size()), SQLITE_TRANSIENT);
+  sqlite3_bind_blob(st.get(), 3, f.content.data(), static_cast<int>(f.content.size()),
+                    SQLITE_TRANSIENT);
   st.step();
 }
 
@@ -612,7 +621,8 @@ std::vector<SessionFile> SqliteStore::files(uint64_t session_id) {
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   while (st.step()) {
     const auto* b = static_cast<const char*>(sqlite3_column_blob(st.get(), 1));
-    out.push_back({st.text(0), std::string(b ? b : "", static_cast<std::size_t>(sqlite3_column_bytes(st.get(), 1)))});
+    out.push_back({st.text(0), std::string(b ? b : "", static_cast<std::size_t>(
+                                                           sqlite3_column_bytes(st.get(), 1)))});
   }
   return out;
 }

@@ -8,11 +8,11 @@
 #include <string>
 #include <vector>
 
-#include "telehand/devices/simulated_mf2.h"
+#include "alloc_guard.h"
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/clock.h"
-#include "alloc_guard.h"
 #include "telehand/core/knn_model.h"
+#include "telehand/devices/simulated_mf2.h"
 
 namespace telehand::client {
 namespace {
@@ -260,7 +260,8 @@ TEST(HapticLoopAlloc, StepAllocatesNothingWithPassivityControlDirectForcesAndQue
       // A server that renders an active (energy-injecting) force: the controller must act.
       loop::DirectForceSample f;
       f.device_seq = static_cast<uint64_t>(i);
-      f.force_n = {Vec3(0.0, 0.0, 3.5 * std::sin(i * 0.2)), Vec3(0.0, 0.0, -3.5 * std::sin(i * 0.2))};
+      f.force_n = {Vec3(0.0, 0.0, 3.5 * std::sin(i * 0.2)),
+                   Vec3(0.0, 0.0, -3.5 * std::sin(i * 0.2))};
       hl.directForces().tryPush(f);
     }
     {

@@ -7,10 +7,10 @@
 #include <cmath>
 #include <random>
 
-#include "telehand/devices/simulated_mf2.h"
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/client/loop/passivity.h"
 #include "telehand/core/clock.h"
+#include "telehand/devices/simulated_mf2.h"
 
 namespace telehand::client {
 namespace {

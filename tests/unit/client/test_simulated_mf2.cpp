@@ -1,6 +1,4 @@
 // The simulated MF-2 and its virtual operator, alone and inside the haptic loop.
-#include "telehand/devices/simulated_mf2.h"
-
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -11,6 +9,7 @@
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/thimble.h"
+#include "telehand/devices/simulated_mf2.h"
 
 namespace telehand::client {
 namespace {
@@ -127,8 +126,8 @@ TEST(SimulatedMf2, FsrReadingsMatchTheOperatorForce) {
     const double t_step = static_cast<double>(clock.nowNs()) * 1e-9;
     const Vec3 tau_op(dev.targetForceN(t_step) * model.force_scale * model.lever_arm_m, 0, 0);
     ForceCommand hold;
-    hold.force_n = m.fingertipForces(m.gripFromAngles(dev.angles(), kHalfWidth), dev.angles(),
-                                     -tau_op);
+    hold.force_n =
+        m.fingertipForces(m.gripFromAngles(dev.angles(), kHalfWidth), dev.angles(), -tau_op);
     dev.write(hold);
     clock.advance(kNsPerMs);
     ASSERT_TRUE(dev.read(s));

@@ -1,6 +1,4 @@
 // TOML configuration: good files load, bad ones give a ConfigError naming origin, line, key.
-#include "telehand/config/config.h"
-
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -9,6 +7,7 @@
 #include <fstream>
 #include <string>
 
+#include "telehand/config/config.h"
 #include "telehand/core/error.h"
 
 namespace telehand {
@@ -125,8 +124,8 @@ TEST(ClientConfig, ErrorIsAlsoATelehandError) {
 
 TEST(ClientConfig, UnknownKeyIsNamedWithItsTableAndLine) {
   const std::string msg = clientError("[operator]\nfrequency_hz = 3.0\nfrequncy_hz = 4.0\n");
-  EXPECT_THAT(msg, AllOf(HasSubstr(kOrigin), HasSubstr("line 3"),
-                         HasSubstr("operator.frequncy_hz"), HasSubstr("unknown key")));
+  EXPECT_THAT(msg, AllOf(HasSubstr(kOrigin), HasSubstr("line 3"), HasSubstr("operator.frequncy_hz"),
+                         HasSubstr("unknown key")));
   EXPECT_THAT(clientError("[safety]\nmax_force = 2.0\n"), HasSubstr("safety.max_force"));
   EXPECT_THAT(clientError("[loop]\nrate = 2.0\n"), HasSubstr("loop.rate"));
 }
@@ -190,7 +189,8 @@ TEST(ServerConfig, ValidFileParses) {
   EXPECT_DOUBLE_EQ(c.close_grace_s, 2.5);
   EXPECT_EQ(parseServerConfig("", "server.toml").db_path, ServerConfig{}.db_path);
   EXPECT_TRUE(parseServerConfig("", "server.toml").drift_correction);
-  EXPECT_FALSE(parseServerConfig("[server]\ndrift_correction = false\n", "server.toml").drift_correction);
+  EXPECT_FALSE(
+      parseServerConfig("[server]\ndrift_correction = false\n", "server.toml").drift_correction);
 }
 
 TEST(ServerConfig, ErrorsNameOriginAndKey) {
@@ -203,8 +203,9 @@ TEST(ServerConfig, ErrorsNameOriginAndKey) {
   EXPECT_THAT(serverError("[server]\nhandstate_hz = 60.0\n"),
               AllOf(HasSubstr("line 2"), HasSubstr("server.handstate_hz")));
   EXPECT_THAT(serverError("[operator]\nseed = 1\n"), HasSubstr("operator"));
-  EXPECT_THAT(serverError("[server]\ndrift_correction = 0\n"),
-              AllOf(HasSubstr("line 2"), HasSubstr("server.drift_correction"), HasSubstr("true or false")));
+  EXPECT_THAT(
+      serverError("[server]\ndrift_correction = 0\n"),
+      AllOf(HasSubstr("line 2"), HasSubstr("server.drift_correction"), HasSubstr("true or false")));
   EXPECT_THAT(serverError("[server\n"), AllOf(HasSubstr("server.toml"), HasSubstr("line 1")));
 }
 

@@ -1,7 +1,5 @@
 // The reduced index MCP model: paper eqs. 3-5, kinematics, torque mapping and the proxy's
 // cross-fade (docs/facts.md "The paper", "Rendering").
-#include "telehand/core/joint_model.h"
-
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -9,6 +7,7 @@
 #include <vector>
 
 #include "telehand/core/clock.h"
+#include "telehand/core/joint_model.h"
 
 namespace telehand {
 namespace {
@@ -18,9 +17,9 @@ namespace {
 JointModelParams offsetJoint() {
   JointModelParams p = healthyIndexMcp();
   p.joint_origin_m = Vec3(0.12, -0.03, 0.05);
-  p.joint_orientation = Quat(Eigen::AngleAxisd(0.4, Vec3::UnitZ()) *
-                             Eigen::AngleAxisd(-0.3, Vec3::UnitX()) *
-                             Eigen::AngleAxisd(0.2, Vec3::UnitY()));
+  p.joint_orientation =
+      Quat(Eigen::AngleAxisd(0.4, Vec3::UnitZ()) * Eigen::AngleAxisd(-0.3, Vec3::UnitX()) *
+           Eigen::AngleAxisd(0.2, Vec3::UnitY()));
   return p;
 }
 
@@ -153,7 +152,7 @@ TEST(JointModel, RestAngleIsWhereTheHoldingForceVanishes) {
 
 TEST(JointModel, RestAngleFallsBackToTheRangeEndWhenNoRootInside) {
   JointModelParams p = healthyIndexMcp();
-  p.axes[kFlexion].coeffs = {0.0, 0.0, 0.1, 50.0};  // positive throughout -45..90
+  p.axes[kFlexion].coeffs = {0.0, 0.0, 0.1, 50.0};     // positive throughout -45..90
   p.axes[kAbduction].coeffs = {0.0, 0.0, 0.1, -50.0};  // negative throughout -20..20
   const JointModel m(p);
   EXPECT_DOUBLE_EQ(m.restAngleRad(kFlexion), degToRad(-45.0));
@@ -201,8 +200,8 @@ TEST(JointModel, GripAnglesRoundTripOverTheRange) {
       for (double half_width : {0.004, 0.008, 0.015}) {
         const Vec3 back = m.anglesFromGrip(m.gripFromAngles(a, half_width));
         EXPECT_LT((back - a).cwiseAbs().maxCoeff(), 1e-9)
-            << "angles " << radToDeg(a.x()) << ", " << radToDeg(a.y()) << ", "
-            << radToDeg(a.z()) << " deg, half width " << half_width;
+            << "angles " << radToDeg(a.x()) << ", " << radToDeg(a.y()) << ", " << radToDeg(a.z())
+            << " deg, half width " << half_width;
       }
     }
   }
@@ -336,8 +335,8 @@ TEST(JointModel, FingertipForcesReproduceTheRequestedTorque) {
         const PerFinger<Vec3> f = m.fingertipForces(pos, a, tau);
         const Vec3 back = m.axisTorque(pos, a, f);
         EXPECT_LT((back - tau).cwiseAbs().maxCoeff(), 1e-9)
-            << "angles " << radToDeg(a.x()) << ", " << radToDeg(a.y()) << ", "
-            << radToDeg(a.z()) << " deg, tau " << tau.transpose() << " -> " << back.transpose();
+            << "angles " << radToDeg(a.x()) << ", " << radToDeg(a.y()) << ", " << radToDeg(a.z())
+            << " deg, tau " << tau.transpose() << " -> " << back.transpose();
         EXPECT_LT((axisTorqueByHand(p, pos, a, f) - tau).cwiseAbs().maxCoeff(), 1e-9);
       }
     }

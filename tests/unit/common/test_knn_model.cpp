@@ -1,12 +1,11 @@
 // The data-driven joint model: FLANN k-nearest-neighbour regression over captured samples.
-#include "telehand/core/knn_model.h"
-
 #include <gtest/gtest.h>
 
 #include <random>
 
 #include "telehand/core/error.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/core/knn_model.h"
 
 namespace telehand {
 namespace {
@@ -29,7 +28,8 @@ TEST(KnnTorqueModel, NearestSamplesAndInverseDistanceWeights) {
   EXPECT_NEAR(m2.torqueNm(Vec3(degToRad(4.5), 0, 0))[0], 0.015, 1e-12);
   // A quarter of the way (distances 0.25 and 0.75 cells): weights 1/0.75 and 1/1.25.
   const double w0 = 1.0 / 0.75, w1 = 1.0 / 1.25;
-  EXPECT_NEAR(m2.torqueNm(Vec3(degToRad(3.75), 0, 0))[0], (w0 * 0.01 + w1 * 0.02) / (w0 + w1), 1e-12);
+  EXPECT_NEAR(m2.torqueNm(Vec3(degToRad(3.75), 0, 0))[0], (w0 * 0.01 + w1 * 0.02) / (w0 + w1),
+              1e-12);
   EXPECT_EQ(m2.size(), 21u);
 }
 
@@ -70,7 +70,8 @@ TEST(KnnTorqueModel, CloseToBruteForceNeighbours) {
   }
   EXPECT_GE(exact, kQueries * 9 / 10);
   EXPECT_LT(worst, 0.05) << "torques here span about ±0.6";
-  std::printf("exact neighbours for %d of %d queries; worst torque difference %.4f\n", exact, kQueries, worst);
+  std::printf("exact neighbours for %d of %d queries; worst torque difference %.4f\n", exact,
+              kQueries, worst);
 }
 
 TEST(KnnTorqueModel, BadSamplesAreRefused) {
@@ -81,7 +82,8 @@ TEST(KnnTorqueModel, BadSamplesAreRefused) {
 
 TEST(KnnTorqueModel, VoxelAverageMeansPerCell) {
   std::vector<KnnPoint> pts;
-  for (int i = 0; i < 10; ++i) pts.push_back({Vec3(degToRad(0.5 + 0.1 * i), 0.001, 0.001), Vec3(i, 0, 0)});
+  for (int i = 0; i < 10; ++i)
+    pts.push_back({Vec3(degToRad(0.5 + 0.1 * i), 0.001, 0.001), Vec3(i, 0, 0)});
   pts.push_back({Vec3(degToRad(10.5), 0.001, 0.001), Vec3(100, 0, 0)});  // alone in its cell
   const auto v = voxelAverage(pts, Vec3(3.0, 1.0, 1.0), 3);
   ASSERT_EQ(v.size(), 1u);
@@ -111,7 +113,8 @@ TEST(KnnTorqueModel, JointModelRendersItWithWallsAndDamping) {
   const Vec3 w = m.passiveTorqueNm(Vec3(degToRad(95), 0, 0), Vec3::Zero());
   EXPECT_NEAR(w[0], -0.08 - kWallNPerDeg * 5.0 * p.lever_arm_m, 1e-9);
   p.damping_nms_per_rad = 0.01;
-  EXPECT_NEAR(JointModel(p).passiveTorqueNm(Vec3(degToRad(20), 0, 0), Vec3(2.0, 0, 0))[0], -0.02 - 0.02, 1e-12);
+  EXPECT_NEAR(JointModel(p).passiveTorqueNm(Vec3(degToRad(20), 0, 0), Vec3(2.0, 0, 0))[0],
+              -0.02 - 0.02, 1e-12);
 }
 
 }  // namespace

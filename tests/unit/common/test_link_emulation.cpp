@@ -100,8 +100,9 @@ TEST(LinkProfile, BadInputIsNamed) {
     }
     return std::string("no error");
   };
-  EXPECT_NE(message("[link]\nrtt_ms = 'far'\n").find("x.toml: line 2: 'link.rtt_ms' must be a number"),
-            std::string::npos);
+  EXPECT_NE(
+      message("[link]\nrtt_ms = 'far'\n").find("x.toml: line 2: 'link.rtt_ms' must be a number"),
+      std::string::npos);
   EXPECT_NE(message("[link]\nloss_pct = 95.0\n").find("'link.loss_pct'"), std::string::npos);
   EXPECT_NE(message("[link]\nlatency = 3\n").find("unknown key 'link.latency'"), std::string::npos);
   EXPECT_NE(message("[net]\n").find("unknown table 'net'"), std::string::npos);

@@ -1,7 +1,5 @@
 // The MF-2 device model: encoders, forward/inverse kinematics, Jacobian (finite differences
 // and virtual work), FSR calibration and fault flags, device and thimble files.
-#include "telehand/devices/mf2_device.h"
-
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -10,6 +8,7 @@
 
 #include "telehand/core/error.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/devices/mf2_device.h"
 
 namespace telehand::mf2 {
 namespace {
@@ -59,7 +58,8 @@ TEST(Mf2Encoders, CountsAndAnglesRoundTrip) {
     // Quantization: half a count of a 26076 counts/rad encoder.
     EXPECT_NEAR(back.actuators[i], q.actuators[i], 0.5 / 26076.0 + 1e-12) << i;
   }
-  for (int f = 0; f < 2; ++f) EXPECT_LT((back.gimbal[f] - q.gimbal[f]).cwiseAbs().maxCoeff(), 0.5 / 651.9 + 1e-12);
+  for (int f = 0; f < 2; ++f)
+    EXPECT_LT((back.gimbal[f] - q.gimbal[f]).cwiseAbs().maxCoeff(), 0.5 / 651.9 + 1e-12);
 }
 
 TEST(Mf2Kinematics, SymmetricFiveBarKnownCase) {
@@ -90,7 +90,9 @@ TEST(Mf2Kinematics, SymmetricFiveBarKnownCase) {
   ASSERT_TRUE(k.forward(q, turned));
   const Mat3 rz = Eigen::AngleAxisd(degToRad(30.0), Vec3::UnitZ()).toRotationMatrix();
   for (int f = 0; f < 2; ++f) {
-    EXPECT_LT((turned[f].position_m - (d.base_pivot_m + rz * (pose[f].position_m - d.base_pivot_m))).norm(), 1e-12);
+    EXPECT_LT((turned[f].position_m - (d.base_pivot_m + rz * (pose[f].position_m - d.base_pivot_m)))
+                  .norm(),
+              1e-12);
   }
 }
 
@@ -154,7 +156,8 @@ TEST(Mf2Kinematics, JacobianMatchesFiniteDifferences) {
       Eigen::Matrix<double, 6, 1> fd;
       fd << (pp[kThumb].position_m - pm[kThumb].position_m) / (2 * h),
           (pp[kIndex].position_m - pm[kIndex].position_m) / (2 * h);
-      EXPECT_LT((fd - j.col(c)).cwiseAbs().maxCoeff(), 1e-7) << "trial " << trial << " column " << c;
+      EXPECT_LT((fd - j.col(c)).cwiseAbs().maxCoeff(), 1e-7)
+          << "trial " << trial << " column " << c;
     }
   }
 }
@@ -169,7 +172,8 @@ TEST(Mf2Kinematics, VirtualWorkPowerAtFingertipsEqualsPowerAtActuators) {
     const JointAngles q = randomAngles(k, rng);
     ActuatorAngles qdot;
     for (int i = 0; i < kActuators; ++i) qdot[i] = 2.0 * n(rng);  // rad/s
-    const PerFinger<Vec3> force{Vec3(n(rng), n(rng), n(rng)) * 2.0, Vec3(n(rng), n(rng), n(rng)) * 2.0};
+    const PerFinger<Vec3> force{Vec3(n(rng), n(rng), n(rng)) * 2.0,
+                                Vec3(n(rng), n(rng), n(rng)) * 2.0};
     ActuatorTorques tau;
     ASSERT_TRUE(k.actuatorTorques(q.actuators, force, tau));
     constexpr double dt = 1e-7;
@@ -180,7 +184,8 @@ TEST(Mf2Kinematics, VirtualWorkPowerAtFingertipsEqualsPowerAtActuators) {
     ASSERT_TRUE(k.forward(qp, pp));
     ASSERT_TRUE(k.forward(qm, pm));
     double p_tip = 0.0;
-    for (int f = 0; f < 2; ++f) p_tip += force[f].dot((pp[f].position_m - pm[f].position_m) / (2 * dt));
+    for (int f = 0; f < 2; ++f)
+      p_tip += force[f].dot((pp[f].position_m - pm[f].position_m) / (2 * dt));
     const double p_act = tau.dot(qdot);
     EXPECT_NEAR(p_tip, p_act, 1e-6 * (1.0 + std::abs(p_act))) << trial;
   }
@@ -250,8 +255,8 @@ TEST(ThimbleCalibration, StuckChannelIsDeadAfterItsWindow) {
   std::uniform_int_distribution<int> jitter(-2, 2);
   ThimbleReading r;
   for (int i = 0; i < 99; ++i) {
-    r = mon.update({static_cast<uint16_t>(400 + jitter(rng)), 777, static_cast<uint16_t>(400 + (i % 2)),
-                    static_cast<uint16_t>(500 + (i % 3))});
+    r = mon.update({static_cast<uint16_t>(400 + jitter(rng)), 777,
+                    static_cast<uint16_t>(400 + (i % 2)), static_cast<uint16_t>(500 + (i % 3))});
     EXPECT_EQ(r.fault[1], kFsrOk) << i;
   }
   r = mon.update({401, 777, 400, 500});
@@ -263,7 +268,8 @@ TEST(ThimbleCalibration, StuckChannelIsDeadAfterItsWindow) {
 }
 
 TEST(Mf2DeviceFile, ShippedDeviceFileLoads) {
-  const Mf2Description d = loadMf2Description(std::string(TELEHAND_DEPLOY_DIR) + "/devices/mf2.toml");
+  const Mf2Description d =
+      loadMf2Description(std::string(TELEHAND_DEPLOY_DIR) + "/devices/mf2.toml");
   EXPECT_EQ(d.name, "mf2-sim");
   EXPECT_EQ(d.thimbles[kThumb].serial, "T01");
   EXPECT_EQ(d.thimbles[kIndex].serial, "T02");
@@ -278,7 +284,8 @@ TEST(Mf2DeviceFile, ShippedDeviceFileLoads) {
     EXPECT_EQ(d.fingers[f].distal_m, def.fingers[f].distal_m);
   }
   for (int i = 0; i < kActuators; ++i) {
-    EXPECT_NEAR(d.actuator_encoders[i].counts_per_rad, def.actuator_encoders[i].counts_per_rad, 0.5);
+    EXPECT_NEAR(d.actuator_encoders[i].counts_per_rad, def.actuator_encoders[i].counts_per_rad,
+                0.5);
   }
 }
 
@@ -287,7 +294,8 @@ class Mf2DeviceFileErrors : public ::testing::Test {
   void SetUp() override {
     dir_ = fs::temp_directory_path() / ("telehand-mf2-" + std::to_string(getpid()));
     fs::create_directories(dir_);
-    fs::copy(std::string(TELEHAND_DEPLOY_DIR) + "/devices", dir_ / "devices", fs::copy_options::recursive);
+    fs::copy(std::string(TELEHAND_DEPLOY_DIR) + "/devices", dir_ / "devices",
+             fs::copy_options::recursive);
   }
   void TearDown() override { fs::remove_all(dir_); }
   std::string rewrite(const std::string& from, const std::string& to) {

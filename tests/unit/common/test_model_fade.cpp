@@ -129,7 +129,9 @@ TEST(ModelFade, AStifferModelWaitsForEnergyToPayForIt) {
     const ProxyOutput out = proxy.render(held, i * kNsPerMs);
     EXPECT_TRUE(out.blending);
     EXPECT_LE(out.blend_energy_j, 0.0);
-    EXPECT_LT((out.force_device_n[0] - only_soft.render(held, i * kNsPerMs).force_device_n[0]).norm(), 1e-12);
+    EXPECT_LT(
+        (out.force_device_n[0] - only_soft.render(held, i * kNsPerMs).force_device_n[0]).norm(),
+        1e-12);
   }
   // Half the difference paid: half way, and the energy spent never exceeds what was given.
   double spent = 0.0;

@@ -598,8 +598,8 @@ TEST(PatientCaseWire, TheGripOffsetSurvivesTheWireAndBadOnesAreNamed) {
   ASSERT_TRUE(back.has_value()) << why;
   EXPECT_EQ(back->grip_offset_rad, p.grip_offset_rad);
   for (int axis = 0; axis < kAxes; ++axis) {
-    for (double bad : {degToRad(31.0), -degToRad(31.0), std::nan(""),
-                       std::numeric_limits<double>::infinity()}) {
+    for (double bad :
+         {degToRad(31.0), -degToRad(31.0), std::nan(""), std::numeric_limits<double>::infinity()}) {
       telehand_msg_JointModel b = w;
       b.grip_offset_rad[axis] = bad;
       why.clear();

@@ -1,12 +1,12 @@
 // The one gate every force passes (docs/design.md "House style"): finite check, per-finger clamp
 // to 4 N, rate limit, watchdog; a fault commands zero at once.
-#include "telehand/core/safety.h"
-
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <limits>
 #include <random>
+
+#include "telehand/core/safety.h"
 
 namespace telehand {
 namespace {
@@ -58,8 +58,8 @@ TEST(SafetyGate, NanCommandsZeroAtOnceOnBothFingers) {
 }
 
 TEST(SafetyGate, InfinityCommandsZero) {
-  for (double inf : {std::numeric_limits<double>::infinity(),
-                     -std::numeric_limits<double>::infinity()}) {
+  for (double inf :
+       {std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()}) {
     GateDriver d;
     d.settle({Vec3(1.0, 1.0, 1.0), Vec3(1.0, 1.0, 1.0)});
     const SafetyOutput out = d.tick({Vec3(1.0, 1.0, 1.0), Vec3(0.0, 0.0, inf)});
@@ -133,8 +133,8 @@ TEST(SafetyGate, RateLimitScalesWithTheTimeStep) {
   SafetyGate gate;
   gate.apply({Vec3::Zero(), Vec3::Zero()}, 0, 0);
   // 10 ms later: up to 2 N.
-  const SafetyOutput out = gate.apply({Vec3(3.0, 0.0, 0.0), Vec3(1.0, 0.0, 0.0)}, 10'000'000,
-                                      10'000'000);
+  const SafetyOutput out =
+      gate.apply({Vec3(3.0, 0.0, 0.0), Vec3(1.0, 0.0, 0.0)}, 10'000'000, 10'000'000);
   EXPECT_NEAR(out.force_n[0].x(), 2.0, 1e-12);
   EXPECT_NEAR(out.force_n[1].x(), 1.0, 1e-12);
   EXPECT_TRUE(out.flags & kSafetyRateLimited);
@@ -214,7 +214,8 @@ TEST(SafetyGate, RandomAbuseNeverExceedsTheLimits) {
   PerFinger<Vec3> prev{Vec3::Zero(), Vec3::Zero()};
   for (int i = 0; i < 20000; ++i) {
     PerFinger<Vec3> req;
-    for (int k = 0; k < 2; ++k) req[k] = Vec3(comp(rng), comp(rng), comp(rng)) * std::pow(10.0, mag(rng));
+    for (int k = 0; k < 2; ++k)
+      req[k] = Vec3(comp(rng), comp(rng), comp(rng)) * std::pow(10.0, mag(rng));
     const int what = kind(rng);
     if (what == 0) req[1].y() = std::nan("");
     if (what == 1) req[0].x() = std::numeric_limits<double>::infinity();
@@ -240,9 +241,9 @@ TEST(SafetyGateCapture, ZeroWhateverIsRequestedThenRampsOut) {
   int64_t t = 1'000'000'000;
   gate.apply({Vec3(0, 0, 3.0), Vec3::Zero()}, t, t);
   gate.setCapture(true);
-  for (const PerFinger<Vec3>& req :
-       {PerFinger<Vec3>{Vec3(0, 0, 3.0), Vec3(1, 1, 1)}, PerFinger<Vec3>{Vec3(1e6, 0, 0), Vec3::Zero()},
-        PerFinger<Vec3>{Vec3(nan, 0, 0), Vec3::Zero()}}) {
+  for (const PerFinger<Vec3>& req : {PerFinger<Vec3>{Vec3(0, 0, 3.0), Vec3(1, 1, 1)},
+                                     PerFinger<Vec3>{Vec3(1e6, 0, 0), Vec3::Zero()},
+                                     PerFinger<Vec3>{Vec3(nan, 0, 0), Vec3::Zero()}}) {
     t += 1'000'000;
     const SafetyOutput out = gate.apply(req, t, t - 100'000'000);  // even with a stale sample
     EXPECT_EQ(out.force_n[0], Vec3::Zero());

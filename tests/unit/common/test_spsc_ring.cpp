@@ -1,12 +1,12 @@
 // The fixed-size SPSC ring that carries every sample and model across the RT boundary.
-#include "telehand/core/rt/spsc_ring.h"
-
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <cstdint>
 #include <memory>
 #include <thread>
+
+#include "telehand/core/rt/spsc_ring.h"
 
 namespace telehand {
 namespace {

@@ -1,9 +1,9 @@
 // Paper eqs. 1-2 (docs/facts.md "The paper"): F_tangential = F2 - F3, F_normal = sqrt(F4^2 + F1^2).
-#include "telehand/core/thimble.h"
-
 #include <gtest/gtest.h>
 
 #include <cmath>
+
+#include "telehand/core/thimble.h"
 
 namespace telehand {
 namespace {

@@ -1,11 +1,11 @@
 // Velocity from quantized positions by adaptive windowing: quiet at low speed, no lag when
 // the motion is fast or turns.
-#include "telehand/core/velocity.h"
-
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <limits>
+
+#include "telehand/core/velocity.h"
 
 namespace telehand {
 namespace {

@@ -1,18 +1,17 @@
 // Capture and fitting end to end: synthetic captures of known joints through the simulated
 // MF-2 and the client's loop in capture mode, fitted per axis (paper section IV.B).
-#include "telehand/server/estimate/capture_fit.h"
-
 #include <gtest/gtest.h>
 
 #include <cstdlib>
 #include <filesystem>
 #include <random>
 
-#include "telehand/server/estimate/synthetic_capture.h"
-#include "telehand/server/store/sqlite_store.h"
 #include "telehand/config/config.h"
 #include "telehand/core/fit.h"
 #include "telehand/core/knn_model.h"
+#include "telehand/server/estimate/capture_fit.h"
+#include "telehand/server/estimate/synthetic_capture.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::server::estimate {
 namespace {
@@ -58,7 +57,8 @@ TEST(FitCubic, ExpandScaledCubic) {
   const auto c = expandScaledCubic({1, 2, 3, 4}, 5.0, 2.0);
   for (double xv : {-3.0, 0.0, 5.0, 11.0}) {
     const double t = (xv - 5.0) / 2.0;
-    EXPECT_NEAR(((c[0] * xv + c[1]) * xv + c[2]) * xv + c[3], 1 + 2 * t + 3 * t * t + 4 * t * t * t, 1e-9);
+    EXPECT_NEAR(((c[0] * xv + c[1]) * xv + c[2]) * xv + c[3], 1 + 2 * t + 3 * t * t + 4 * t * t * t,
+                1e-9);
   }
 }
 
@@ -112,8 +112,10 @@ TEST(CaptureFit, PaperJointWithThimbleNoise) {
   for (std::size_t i = 0; i < kAxes; ++i) {
     SCOPED_TRACE(std::string(kAxisNames[i]));
     EXPECT_LT(checks[i].max_error_n, 0.3) << "fitted curve vs eqs. 3-5 over the captured range";
-    EXPECT_NEAR(checks[i].rms_n, kPaperNoiseN, 0.2 * kPaperNoiseN) << "RMS residual vs injected noise";
-    RecordProperty(std::string(kAxisNames[i]) + "_max_error_n", std::to_string(checks[i].max_error_n));
+    EXPECT_NEAR(checks[i].rms_n, kPaperNoiseN, 0.2 * kPaperNoiseN)
+        << "RMS residual vs injected noise";
+    RecordProperty(std::string(kAxisNames[i]) + "_max_error_n",
+                   std::to_string(checks[i].max_error_n));
     RecordProperty(std::string(kAxisNames[i]) + "_rms_n", std::to_string(checks[i].rms_n));
     std::printf("%-9s max |fit - truth| %.3f N, RMS residual %.3f N\n", kAxisNames[i].data(),
                 checks[i].max_error_n, checks[i].rms_n);
@@ -129,17 +131,16 @@ JointModelParams randomJoint(std::mt19937_64& rng) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   auto in = [&](double lo, double hi) { return lo + (hi - lo) * u(rng); };
   JointModelParams p = healthyIndexMcp();
-  const std::array<std::array<double, 4>, kAxes> ranges = {{{-60, -30, 70, 100},
-                                                            {-25, -12, 12, 25},
-                                                            {-12, -6, 8, 18}}};
+  const std::array<std::array<double, 4>, kAxes> ranges = {
+      {{-60, -30, 70, 100}, {-25, -12, 12, 25}, {-12, -6, 8, 18}}};
   for (std::size_t i = 0; i < kAxes; ++i) {
     CubicCurve& c = p.axes[i];
     c.min_deg = in(ranges[i][0], ranges[i][1]);
     c.max_deg = in(ranges[i][2], ranges[i][3]);
     const double span = std::max(-c.min_deg, c.max_deg);
-    const double c1 = in(0.3, 1.2) * 6.0 / span;                 // N/deg near rest
+    const double c1 = in(0.3, 1.2) * 6.0 / span;                              // N/deg near rest
     const double c3 = in(0.5, 1.5) * (14.0 - c1 * span) / std::pow(span, 3);  // stiffer ends
-    const double c2max = 0.8 * std::sqrt(3.0 * c1 * std::max(c3, 0.0));  // keeps dF/da > 0
+    const double c2max = 0.8 * std::sqrt(3.0 * c1 * std::max(c3, 0.0));       // keeps dF/da > 0
     c.coeffs = {std::max(c3, 0.0), in(-c2max, c2max), c1, in(-1.0, 1.0)};
   }
   p.damping_nms_per_rad = in(0.0005, 0.004);
@@ -149,16 +150,18 @@ JointModelParams randomJoint(std::mt19937_64& rng) {
 TEST(CaptureFit, RandomPhysiologicalJoints) {
   uint64_t seed = std::random_device{}();
   if (const char* s = std::getenv("TELEHAND_TEST_SEED")) seed = std::strtoull(s, nullptr, 10);
-  std::printf("TELEHAND_TEST_SEED=%llu reproduces these joints\n", static_cast<unsigned long long>(seed));
+  std::printf("TELEHAND_TEST_SEED=%llu reproduces these joints\n",
+              static_cast<unsigned long long>(seed));
   std::mt19937_64 rng(seed);
   for (int trial = 0; trial < 3; ++trial) {
     const JointModelParams truth = randomJoint(rng);
     SCOPED_TRACE("seed " + std::to_string(seed) + ", joint " + std::to_string(trial));
     const auto checks = fitAndCompare(truth, seed + static_cast<uint64_t>(trial), 15.0);
     for (std::size_t i = 0; i < kAxes; ++i) {
-      SCOPED_TRACE(std::string(kAxisNames[i]) + " coeffs " + std::to_string(truth.axes[i].coeffs[0]) +
-                   ", " + std::to_string(truth.axes[i].coeffs[1]) + ", " +
-                   std::to_string(truth.axes[i].coeffs[2]) + ", " + std::to_string(truth.axes[i].coeffs[3]));
+      SCOPED_TRACE(
+          std::string(kAxisNames[i]) + " coeffs " + std::to_string(truth.axes[i].coeffs[0]) + ", " +
+          std::to_string(truth.axes[i].coeffs[1]) + ", " + std::to_string(truth.axes[i].coeffs[2]) +
+          ", " + std::to_string(truth.axes[i].coeffs[3]));
       EXPECT_LT(checks[i].max_error_n, 0.3);
       EXPECT_NEAR(checks[i].rms_n, kPaperNoiseN, 0.2 * kPaperNoiseN);
     }
@@ -219,12 +222,14 @@ TEST(CaptureFit, StoredCaptureFitsTheSameAndWritesALoadableCase) {
   for (std::size_t i = 0; i < kAxes; ++i) EXPECT_EQ(a.axes[i].curve, b.axes[i].curve);
 
   const JointModelParams model = b.model(healthyIndexMcp());
-  const std::string toml = patientCaseToml(b, model, "fitted", "fitted from session", "synthetic capture");
+  const std::string toml =
+      patientCaseToml(b, model, "fitted", "fitted from session", "synthetic capture");
   const PatientCase pc = parsePatientCase(toml, "fitted.toml");
   EXPECT_EQ(pc.name, "fitted");
   for (std::size_t i = 0; i < kAxes; ++i) {
     for (int c = 0; c < 4; ++c) {
-      EXPECT_NEAR(pc.model.axes[i].coeffs[c], model.axes[i].coeffs[c], 1e-8 * (1 + std::abs(model.axes[i].coeffs[c])));
+      EXPECT_NEAR(pc.model.axes[i].coeffs[c], model.axes[i].coeffs[c],
+                  1e-8 * (1 + std::abs(model.axes[i].coeffs[c])));
     }
     EXPECT_NEAR(pc.model.axes[i].min_deg, model.axes[i].min_deg, 1e-3);
   }
@@ -295,9 +300,12 @@ TEST(CaptureFit, KnnBeatsCubicsOnACoupledJoint) {
     ++n;
   }
   const double nd = static_cast<double>(n);
-  const double rms_cubic = std::sqrt(se_cubic / nd) / lever, rms_knn = std::sqrt(se_knn / nd) / lever;
-  std::printf("held-out abduction error, force at the lever arm: cubic %.3f N RMS, kNN %.3f N RMS "
-              "(%zu cells from %zu samples)\n", rms_cubic, rms_knn, knn.size(), fitter.size());
+  const double rms_cubic = std::sqrt(se_cubic / nd) / lever,
+               rms_knn = std::sqrt(se_knn / nd) / lever;
+  std::printf(
+      "held-out abduction error, force at the lever arm: cubic %.3f N RMS, kNN %.3f N RMS "
+      "(%zu cells from %zu samples)\n",
+      rms_cubic, rms_knn, knn.size(), fitter.size());
   RecordProperty("cubic_rms_n", std::to_string(rms_cubic));
   RecordProperty("knn_rms_n", std::to_string(rms_knn));
   EXPECT_LT(rms_knn, 0.6 * rms_cubic);

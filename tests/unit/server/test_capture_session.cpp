@@ -5,11 +5,11 @@
 
 #include <filesystem>
 
+#include "telehand/config/config.h"
+#include "telehand/protocol/wire.h"
 #include "telehand/server/estimate/synthetic_capture.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/store/sqlite_store.h"
-#include "telehand/config/config.h"
-#include "telehand/protocol/wire.h"
 
 namespace telehand::server::session {
 using store::SqliteStore;
@@ -23,7 +23,9 @@ class Recorder final : public Outbox {
   void publish(const telehand_msg_SessionStatus& s) override { statuses.push_back(s); }
   void publish(const telehand_msg_JointModel& m) override { models.push_back({m, now}); }
   void publish(const telehand_msg_HandState&) override {}
-  void publish(const telehand_msg_SessionEvent& e) override { events.emplace_back(e.kind, std::string(e.text)); }
+  void publish(const telehand_msg_SessionEvent& e) override {
+    events.emplace_back(e.kind, std::string(e.text));
+  }
   void publish(const telehand_msg_KnnModel& k) override {
     knn.push_back({k.session_id, k.version, k.samples._length});
   }
@@ -72,7 +74,8 @@ TEST(CaptureSession, LiveFitReachesFollowersOnlyWhenFeltAndAtABoundedRate) {
   mgr.onCommand(openCmd(4, telehand_msg_MODE_MOBILIZATION, 99, telehand_msg_STIFFNESS_CUBIC), now);
   ASSERT_EQ(mgr.activeSessions(), 3u);
   bool refused = false;
-  for (const auto& [kind, text] : out.events) refused |= text.find("cannot follow session 99") != std::string::npos;
+  for (const auto& [kind, text] : out.events)
+    refused |= text.find("cannot follow session 99") != std::string::npos;
   EXPECT_TRUE(refused);
 
   telehand_msg_SessionFile file{};
@@ -91,7 +94,8 @@ TEST(CaptureSession, LiveFitReachesFollowersOnlyWhenFeltAndAtABoundedRate) {
   uint64_t chunk_seq = 0;
   for (std::size_t i = 0; i < cap.samples.size(); i += 100) {
     chunk.clear();
-    for (std::size_t j = i; j < std::min(i + 100, cap.samples.size()); ++j) chunk.push_back(toWire(cap.samples[j]));
+    for (std::size_t j = i; j < std::min(i + 100, cap.samples.size()); ++j)
+      chunk.push_back(toWire(cap.samples[j]));
     for (auto& s : chunk) s.session_id = 1;
     telehand_msg_RecordChunk c{};
     c.session_id = 1;
@@ -140,7 +144,9 @@ TEST(CaptureSession, LiveFitReachesFollowersOnlyWhenFeltAndAtABoundedRate) {
   ASSERT_TRUE(last.has_value()) << why;
   const JointModel fitted(*last), truth(o.truth);
   for (double d = 25.0; d <= 60.0; d += 1.0) {
-    EXPECT_NEAR(fitted.holdingForceN(kFlexion, degToRad(d)), truth.holdingForceN(kFlexion, degToRad(d)), 0.5) << d;
+    EXPECT_NEAR(fitted.holdingForceN(kFlexion, degToRad(d)),
+                truth.holdingForceN(kFlexion, degToRad(d)), 0.5)
+        << d;
   }
   mgr.closeAll(now);
   fs::remove_all(dir);

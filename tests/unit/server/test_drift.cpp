@@ -5,9 +5,9 @@
 
 #include <cmath>
 
-#include "telehand/server/session/drift.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/server/session/drift.h"
 
 namespace telehand::server::session {
 namespace {

@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include "telehand/server/session/exploration.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/server/session/exploration.h"
 
 namespace telehand::server::session {
 namespace {

@@ -4,11 +4,11 @@
 
 #include <algorithm>
 #include <cmath>
-#include <utility>
 #include <memory>
+#include <utility>
 
-#include "telehand/server/sim/hand_sim.h"
 #include "telehand/core/error.h"
+#include "telehand/server/sim/hand_sim.h"
 
 namespace telehand::server::sim {
 namespace {
@@ -79,7 +79,10 @@ void expectConfigError(const std::string& xml, const std::string& needle) {
 TEST(HandModel, MalformedFilesNameTheElement) {
   expectConfigError("<robot name='x'><link name='a'/>", "not a valid URDF");
   std::string no_limit = kOnePhalanx;
-  no_limit.replace(no_limit.find("<limit lower=\"-0.175\""), std::string("<limit lower=\"-0.175\" upper=\"0.262\" effort=\"1\" velocity=\"1\"/>").size(), "");
+  no_limit.replace(
+      no_limit.find("<limit lower=\"-0.175\""),
+      std::string("<limit lower=\"-0.175\" upper=\"0.262\" effort=\"1\" velocity=\"1\"/>").size(),
+      "");
   expectConfigError(no_limit, "index_mcp_axial");
   std::string bad_axis = kOnePhalanx;
   bad_axis.replace(bad_axis.find("<axis xyz=\"0 0 1\"/>"), 19, "<axis xyz=\"0 1 1\"/>");
@@ -91,7 +94,8 @@ TEST(HandModel, MalformedFilesNameTheElement) {
   std::string bad_order = kOnePhalanx;  // abduction before flexion breaks the Euler convention
   bad_order.replace(bad_order.find("<origin xyz=\"0.045 0 0\"/><axis xyz=\"0 1 0\"/>"), 44,
                     "<origin xyz=\"0.045 0 0\"/><axis xyz=\"0 0 1\"/>");
-  bad_order.replace(bad_order.find("<axis xyz=\"0 0 1\"/><limit lower=\"-0.349\""), 19, "<axis xyz=\"0 1 0\"/>");
+  bad_order.replace(bad_order.find("<axis xyz=\"0 0 1\"/><limit lower=\"-0.349\""), 19,
+                    "<axis xyz=\"0 1 0\"/>");
   expectConfigError(bad_order, "order");
   EXPECT_THROW(HandModel::load("/nonexistent/hand.urdf"), ConfigError);
 }
@@ -155,7 +159,8 @@ std::vector<double> groundTruth(const JointModel& m, double inertia, double thet
                                 const std::function<double(double)>& tau_ext, double seconds) {
   const double b = m.params().damping_nms_per_rad;
   auto acc = [&](double t, double th, double w) {
-    return (tau_ext(t) + m.passiveTorqueNm(Vec3(th, 0, 0), Vec3::Zero())[kFlexion] - b * w) / inertia;
+    return (tau_ext(t) + m.passiveTorqueNm(Vec3(th, 0, 0), Vec3::Zero())[kFlexion] - b * w) /
+           inertia;
   };
   std::vector<double> out;
   double th = theta0, w = 0.0, t = 0.0;
@@ -164,8 +169,10 @@ std::vector<double> groundTruth(const JointModel& m, double inertia, double thet
   for (int ms = 0; ms < static_cast<int>(seconds * 1000); ++ms) {
     for (int i = 0; i < per_ms; ++i) {
       const double k1t = w, k1w = acc(t, th, w);
-      const double k2t = w + 0.5 * h * k1w, k2w = acc(t + 0.5 * h, th + 0.5 * h * k1t, w + 0.5 * h * k1w);
-      const double k3t = w + 0.5 * h * k2w, k3w = acc(t + 0.5 * h, th + 0.5 * h * k2t, w + 0.5 * h * k2w);
+      const double k2t = w + 0.5 * h * k1w,
+                   k2w = acc(t + 0.5 * h, th + 0.5 * h * k1t, w + 0.5 * h * k1w);
+      const double k3t = w + 0.5 * h * k2w,
+                   k3w = acc(t + 0.5 * h, th + 0.5 * h * k2t, w + 0.5 * h * k2w);
       const double k4t = w + h * k3w, k4w = acc(t + h, th + h * k3t, w + h * k3w);
       th += h / 6 * (k1t + 2 * k2t + 2 * k3t + k4t);
       w += h / 6 * (k1w + 2 * k2w + 2 * k3w + k4w);
@@ -192,18 +199,22 @@ void compareWithOde(const HandModel& model, const JointModelParams& params,
     worst = std::max(worst, std::abs(sim.mcpAngles()[kFlexion] - truth[ms]));
     swing = std::max(swing, std::abs(truth[ms]));
   }
-  EXPECT_GT(swing, 0.1 * range) << what << ": the push must move the joint for the test to mean anything";
+  EXPECT_GT(swing, 0.1 * range) << what
+                                << ": the push must move the joint for the test to mean anything";
   EXPECT_LT(worst, 0.01 * range) << what << ": worst error " << radToDeg(worst) << " deg";
-  ::testing::Test::RecordProperty(std::string(what) + "_worst_error_deg", std::to_string(radToDeg(worst)));
+  ::testing::Test::RecordProperty(std::string(what) + "_worst_error_deg",
+                                  std::to_string(radToDeg(worst)));
 }
 
 TEST_F(OnePhalanx, StepTorqueFollowsTheAnalyticOde) {
-  compareWithOde(model_, params_, [](double) { return 0.06; }, "step");
+  compareWithOde(
+      model_, params_, [](double) { return 0.06; }, "step");
 }
 
 TEST_F(OnePhalanx, ThreeHertzPushFollowsTheAnalyticOde) {
-  compareWithOde(model_, params_,
-                 [](double t) { return 0.05 + 0.03 * std::sin(2 * kPi * 3.0 * t); }, "3 Hz push");
+  compareWithOde(
+      model_, params_, [](double t) { return 0.05 + 0.03 * std::sin(2 * kPi * 3.0 * t); },
+      "3 Hz push");
 }
 
 /// Ramps a pinch to each angle like a slow student (30 deg/s), holds it, and compares the
@@ -231,7 +242,9 @@ void quasiStatic(const HandSimConfig& config, bool every_axis) {
       if (i < kSteps - kAveraged) continue;
       const auto on_spheres = sim.contactForcesDevice();
       angles = sim.mcpAngles();
-      applied += proxy.axisTorque(sim.contactPointsDevice(), angles, {-on_spheres[0], -on_spheres[1]}) / kAveraged;
+      applied +=
+          proxy.axisTorque(sim.contactPointsDevice(), angles, {-on_spheres[0], -on_spheres[1]}) /
+          kAveraged;
       expected += -proxy.passiveTorqueNm(angles, Vec3::Zero()) / kAveraged;
     }
     EXPECT_NEAR(applied[kFlexion], expected[kFlexion], 0.01 * std::abs(expected[kFlexion]))
@@ -311,7 +324,8 @@ TEST(HandSim, SleepingFingersWakeForEveryInput) {
     sim.setMcpModel(stiffer);
     for (int i = 0; i < 1000; ++i) sim.step();
     EXPECT_GT(std::abs(sim.mcpAngles()[kFlexion] - before), degToRad(1.0));
-    EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]), radToDeg(JointModel(stiffer).restAngleRad(kFlexion)), 1.0);
+    EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]),
+                radToDeg(JointModel(stiffer).restAngleRad(kFlexion)), 1.0);
   }
   {  // the pinch: contacts reach a sleeping phalanx
     HandSim sim(model, params);
@@ -325,7 +339,6 @@ TEST(HandSim, SleepingFingersWakeForEveryInput) {
     EXPECT_NEAR(radToDeg(sim.mcpAngles()[kFlexion]), radToDeg(goal[kFlexion]), 2.0);
   }
 }
-
 
 /// Exploration ground truth: a scripted student pinches the phalanx and carries the grip to
 /// known angles in each of the six directions at 30 deg/s; the hand reaches them.
@@ -348,7 +361,8 @@ TEST(HandSim, ScriptedPinchReachesKnownAnglesInEveryDirection) {
     goal[kAbduction] = degToRad(r.abduction);
     goal[kAxial] = degToRad(r.axial);
     const Vec3 from = cur;
-    const int steps = static_cast<int>(std::ceil(radToDeg((goal - from).cwiseAbs().maxCoeff()) / 30.0 * 1000.0));
+    const int steps =
+        static_cast<int>(std::ceil(radToDeg((goal - from).cwiseAbs().maxCoeff()) / 30.0 * 1000.0));
     for (int i = 1; i <= steps + 300; ++i) {
       cur = from + (goal - from) * std::min(1.0, static_cast<double>(i) / steps);
       sim.setFingerTargets(proxy.gripFromAngles(cur, 0.008), true);
@@ -361,7 +375,6 @@ TEST(HandSim, ScriptedPinchReachesKnownAnglesInEveryDirection) {
     }
   }
 }
-
 
 /// The pads hold the phalanx by friction: the squeeze rises with the load they carry (grip
 /// follows load) and relaxes when it goes; a squeeze that may not rise lets the pads slip.

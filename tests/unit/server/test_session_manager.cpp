@@ -13,11 +13,11 @@
 #include <string>
 #include <vector>
 
-#include "telehand/server/session/session_manager.h"
-#include "telehand/server/store/sqlite_store.h"
-#include "telehand/server/sim/hand_model.h"
 #include "telehand/core/clock.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/session/session_manager.h"
+#include "telehand/server/sim/hand_model.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::server::session {
 using store::SqliteStore;
@@ -276,7 +276,8 @@ TEST_F(SessionManagerTest, HandStateComesFromTheBulletHand) {
     int touching = 0;
     for (auto it = out_.hands.end() - std::min<std::ptrdiff_t>(20, std::ssize(out_.hands));
          it != out_.hands.end(); ++it) {
-      const Vec3 fk(it->contact_force_n[k][0], it->contact_force_n[k][1], it->contact_force_n[k][2]);
+      const Vec3 fk(it->contact_force_n[k][0], it->contact_force_n[k][1],
+                    it->contact_force_n[k][2]);
       touching += fk.norm() > 0.0;
     }
     EXPECT_GE(touching, 10) << k;

@@ -1,7 +1,5 @@
 // The SQLite session store: sessions, samples (duplicates ignored), events, CSV columns,
 // the schema marker and version, migration of schema-1 (blob) files, refusal of foreign ones.
-#include "telehand/server/store/sqlite_store.h"
-
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <sqlite3.h>
@@ -21,6 +19,7 @@
 #include <vector>
 
 #include "telehand/core/error.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::server::store {
 namespace {
@@ -34,9 +33,9 @@ class SqliteStoreTest : public ::testing::Test {
   void SetUp() override {
     static std::atomic<int> counter{0};
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("telehand-store-" + std::string(info->name()) + "-" + std::to_string(::getpid()) +
-            "-" + std::to_string(counter++));
+    dir_ =
+        fs::temp_directory_path() / ("telehand-store-" + std::string(info->name()) + "-" +
+                                     std::to_string(::getpid()) + "-" + std::to_string(counter++));
     fs::remove_all(dir_);
     ASSERT_TRUE(fs::create_directories(dir_));
   }
@@ -67,7 +66,8 @@ Sample sample(uint64_t session, uint64_t seq) {
       s.fingers[k].command_n[i] = 0.5 * i - k;
     }
     s.fingers[k].orientation_q[0] = 1.0;
-    for (int i = 0; i < 4; ++i) s.fingers[k].fsr_n[i] = static_cast<float>(seq % 7) + 0.25f * static_cast<float>(i);
+    for (int i = 0; i < 4; ++i)
+      s.fingers[k].fsr_n[i] = static_cast<float>(seq % 7) + 0.25f * static_cast<float>(i);
     s.fingers[k].tangential_n = 0.5f;
     s.fingers[k].normal_n = 2.0f;
   }
@@ -170,8 +170,8 @@ TEST_F(SqliteStoreTest, DuplicateKeepsTheFirstCopy) {
 TEST_F(SqliteStoreTest, SamplesComeBackWholeInSequenceOrder) {
   SqliteStore store(dbPath());
   const uint64_t id = store.createSession(info("alice"));
-  std::vector<Sample> shuffled = {sample(id, 20), sample(id, 3), sample(id, 11),
-                                                    sample(id, 0), sample(id, 7)};
+  std::vector<Sample> shuffled = {sample(id, 20), sample(id, 3), sample(id, 11), sample(id, 0),
+                                  sample(id, 7)};
   store.appendSamples(id, shuffled, {});
   EXPECT_EQ(seqsOf(store, id), (std::vector<uint64_t>{0, 3, 7, 11, 20}));
   store.forEachSample(id, [&](const Sample& got, bool valid) {
@@ -366,8 +366,10 @@ void expectSameSample(const Sample& got, const Sample& want) {
     expectSame(g.normal_n, w.normal_n, "normal_n");
     for (int i = 0; i < 3; ++i) expectSame(g.command_n[i], w.command_n[i], "command_n");
   }
-  for (int i = 0; i < 3; ++i) expectSame(got.mcp_angles_rad[i], want.mcp_angles_rad[i], "mcp_angles_rad");
-  for (int i = 0; i < 3; ++i) expectSame(got.mcp_torque_nm[i], want.mcp_torque_nm[i], "mcp_torque_nm");
+  for (int i = 0; i < 3; ++i)
+    expectSame(got.mcp_angles_rad[i], want.mcp_angles_rad[i], "mcp_angles_rad");
+  for (int i = 0; i < 3; ++i)
+    expectSame(got.mcp_torque_nm[i], want.mcp_torque_nm[i], "mcp_torque_nm");
   expectSame(got.passivity_energy_j, want.passivity_energy_j, "passivity_energy_j");
   expectSame(got.passivity_damping, want.passivity_damping, "passivity_damping");
 }
@@ -478,8 +480,9 @@ TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) 
   std::vector<std::string> want = {"session_id"};
   for (const auto& c : sampleColumns()) want.push_back(c);
   EXPECT_EQ(raw.strings("SELECT name FROM pragma_table_info('samples') ORDER BY cid"), want);
-  EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'thumb_fsr1_n'"),
-            std::vector<std::string>{"REAL"});
+  EXPECT_EQ(
+      raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'thumb_fsr1_n'"),
+      std::vector<std::string>{"REAL"});
   EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'flags'"),
             std::vector<std::string>{"INTEGER"});
   EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
@@ -528,7 +531,8 @@ INSERT INTO meta VALUES ('sample_format', '2');
 std::vector<unsigned char> blobOf(const Sample& s, int format) {
   std::vector<unsigned char> b(format == 1 ? 288 : 296, 0);
   auto put = [&](std::size_t at, uint64_t v, int bytes) {
-    for (int i = 0; i < bytes; ++i) b[at + static_cast<std::size_t>(i)] = static_cast<unsigned char>(v >> (8 * i));
+    for (int i = 0; i < bytes; ++i)
+      b[at + static_cast<std::size_t>(i)] = static_cast<unsigned char>(v >> (8 * i));
   };
   auto f64 = [&](std::size_t at, double v) { put(at, std::bit_cast<uint64_t>(v), 8); };
   auto f32 = [&](std::size_t at, float v) { put(at, std::bit_cast<uint32_t>(v), 4); };
@@ -590,9 +594,10 @@ std::vector<std::vector<std::pair<Sample, bool>>> writeSchema1File(const std::st
   fs::create_directories(fs::path(path).parent_path());
   RawDb raw(path);
   raw.exec(kSchema1);
-  raw.exec("INSERT INTO sessions (id, user, case_name, mode, state, started_ns, ended_ns, "
-           "samples_expected) VALUES (1, 'alice', 'healthy', 'mobilization', 'closed', 10, 20, 6), "
-           "(2, 'bob', 'stiff', 'exploration', 'active', 30, 0, 0);");
+  raw.exec(
+      "INSERT INTO sessions (id, user, case_name, mode, state, started_ns, ended_ns, "
+      "samples_expected) VALUES (1, 'alice', 'healthy', 'mobilization', 'closed', 10, 20, 6), "
+      "(2, 'bob', 'stiff', 'exploration', 'active', 30, 0, 0);");
   raw.exec("INSERT INTO events VALUES (1, 15, 'mark', 'half way');");
   std::vector<std::vector<std::pair<Sample, bool>>> want(2);
   std::mt19937_64 rng(7);
@@ -724,8 +729,9 @@ TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
       FAIL() << "opened a newer schema";
     } catch (const StoreError& e) {
       EXPECT_THAT(e.what(), HasSubstr(dbPath()));
-      EXPECT_THAT(e.what(),
-                  HasSubstr("was written by a newer telehand (schema 7, this program knows up to 2)"));
+      EXPECT_THAT(
+          e.what(),
+          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 2)"));
     }
     EXPECT_EQ(fileBytes(dbPath()), before);
     if (mode == SqliteStore::Mode::kReadWrite) {
@@ -837,4 +843,4 @@ TEST(SampleCsv, RowHasOneFieldPerColumnInOrder) {
 }
 
 }  // namespace
-}  // namespace telehand::server::session
+}  // namespace telehand::server::store

@@ -120,21 +120,23 @@ struct Direction {
 void printStats(const Direction& d) {
   const auto& s = d.line.stats();
   const uint64_t delivered = s.sent - s.lost;
-  std::printf("%s: %llu packets, %llu lost (%.2f %%), %llu reordered, delay mean %.1f ms max %.1f ms, "
-              "%llu forwarded, %llu write errors\n",
-              d.name, static_cast<unsigned long long>(s.sent), static_cast<unsigned long long>(s.lost),
-              s.sent ? 100.0 * static_cast<double>(s.lost) / static_cast<double>(s.sent) : 0.0,
-              static_cast<unsigned long long>(s.reordered),
-              delivered ? s.delay_sum_ms / static_cast<double>(delivered) : 0.0, s.delay_max_ms,
-              static_cast<unsigned long long>(d.forwarded),
-              static_cast<unsigned long long>(d.write_errors));
+  std::printf(
+      "%s: %llu packets, %llu lost (%.2f %%), %llu reordered, delay mean %.1f ms max %.1f ms, "
+      "%llu forwarded, %llu write errors\n",
+      d.name, static_cast<unsigned long long>(s.sent), static_cast<unsigned long long>(s.lost),
+      s.sent ? 100.0 * static_cast<double>(s.lost) / static_cast<double>(s.sent) : 0.0,
+      static_cast<unsigned long long>(s.reordered),
+      delivered ? s.delay_sum_ms / static_cast<double>(delivered) : 0.0, s.delay_max_ms,
+      static_cast<unsigned long long>(d.forwarded),
+      static_cast<unsigned long long>(d.write_errors));
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"telehand-linkem: user-space delay line (delay, jitter, Gilbert-Elliott loss, "
-               "reordering) between two network namespaces, over a TUN interface in each"};
+  CLI::App app{
+      "telehand-linkem: user-space delay line (delay, jitter, Gilbert-Elliott loss, "
+      "reordering) between two network namespaces, over a TUN interface in each"};
   std::string ns_a, ns_b, addr_a = "10.77.0.1", addr_b = "10.77.0.2", dev = "thlink0";
   std::string profile_path;
   uint64_t seed = 1;
@@ -144,13 +146,17 @@ int main(int argc, char** argv) {
   app.add_option("--addr-a", addr_a, "address in the first namespace")->capture_default_str();
   app.add_option("--addr-b", addr_b, "address in the second namespace")->capture_default_str();
   app.add_option("--dev", dev, "TUN interface name in both namespaces")->capture_default_str();
-  app.add_option("--profile", profile_path, "link profile (deploy/links/*.toml)")->required()->check(CLI::ExistingFile);
+  app.add_option("--profile", profile_path, "link profile (deploy/links/*.toml)")
+      ->required()
+      ->check(CLI::ExistingFile);
   app.add_option("--seed", seed, "random seed of both directions")->capture_default_str();
   app.add_option("--seconds", seconds, "stop after this long (0 = until SIGTERM/SIGINT)");
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
-    if (dev.size() >= IFNAMSIZ) throw ConfigError("--dev '" + dev + "' is longer than " + std::to_string(IFNAMSIZ - 1) + " characters");
+    if (dev.size() >= IFNAMSIZ)
+      throw ConfigError("--dev '" + dev + "' is longer than " + std::to_string(IFNAMSIZ - 1) +
+                        " characters");
     const LinkProfile profile = loadLinkProfile(profile_path);
     Fd home(open("/proc/self/ns/net", O_RDONLY | O_CLOEXEC));
     if (home.get() < 0) sysFail("open /proc/self/ns/net");
@@ -159,23 +165,28 @@ int main(int argc, char** argv) {
 
     installStopSignals(/*restart_syscalls=*/false);  // no call on the TUNs resumes after one
 
-    Direction ab{"a->b", tun_a.get(), tun_b.get(), DelayLine<std::vector<uint8_t>>(profile, seed * 2 + 1)};
-    Direction ba{"b->a", tun_b.get(), tun_a.get(), DelayLine<std::vector<uint8_t>>(profile, seed * 2 + 2)};
-    std::printf("linkem ready: %s %s (%s) <-> %s %s (%s), profile '%s': RTT %.0f ms, jitter ±%.0f ms, "
-                "loss %.1f %% (bursts of %.0f), reordering %.1f %%\n",
-                ns_a.c_str(), dev.c_str(), addr_a.c_str(), ns_b.c_str(), dev.c_str(), addr_b.c_str(),
-                profile.name.c_str(), profile.rtt_ms, profile.jitter_ms, profile.loss_pct,
-                profile.loss_burst, profile.reorder_pct);
+    Direction ab{"a->b", tun_a.get(), tun_b.get(),
+                 DelayLine<std::vector<uint8_t>>(profile, seed * 2 + 1)};
+    Direction ba{"b->a", tun_b.get(), tun_a.get(),
+                 DelayLine<std::vector<uint8_t>>(profile, seed * 2 + 2)};
+    std::printf(
+        "linkem ready: %s %s (%s) <-> %s %s (%s), profile '%s': RTT %.0f ms, jitter ±%.0f ms, "
+        "loss %.1f %% (bursts of %.0f), reordering %.1f %%\n",
+        ns_a.c_str(), dev.c_str(), addr_a.c_str(), ns_b.c_str(), dev.c_str(), addr_b.c_str(),
+        profile.name.c_str(), profile.rtt_ms, profile.jitter_ms, profile.loss_pct,
+        profile.loss_burst, profile.reorder_pct);
     std::fflush(stdout);
 
     SteadyClock clock;
-    const int64_t end = seconds > 0.0 ? clock.nowNs() + static_cast<int64_t>(seconds * 1e9) : INT64_MAX;
+    const int64_t end =
+        seconds > 0.0 ? clock.nowNs() + static_cast<int64_t>(seconds * 1e9) : INT64_MAX;
     std::vector<uint8_t> buf(65536);
     pollfd fds[2] = {{tun_a.get(), POLLIN, 0}, {tun_b.get(), POLLIN, 0}};
     Direction* dirs[2] = {&ab, &ba};
     while (!g_stop_requested.load() && clock.nowNs() < end) {
       const int64_t now = clock.nowNs();
-      const int64_t next = std::min({ab.line.nextArrivalNs(), ba.line.nextArrivalNs(), now + 100 * kNsPerMs, end});
+      const int64_t next =
+          std::min({ab.line.nextArrivalNs(), ba.line.nextArrivalNs(), now + 100 * kNsPerMs, end});
       const int64_t wait = std::max<int64_t>(next - now, 0);
       timespec ts{wait / kNsPerS, wait % kNsPerS};
       const int n = ppoll(fds, 2, &ts, nullptr);

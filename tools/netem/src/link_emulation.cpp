@@ -25,10 +25,10 @@ LinkProfile parseLinkProfile(const std::string& text, const std::string& origin)
   p.reorder_pct = t.number("reorder_pct", p.reorder_pct, 0.0, 100.0);
   t.rejectUnknown();
   if (p.jitter_ms > p.rtt_ms * 0.5) {
-    config::fail(origin, "'link.jitter_ms' = " + std::to_string(p.jitter_ms) +
-                             " exceeds the one-way delay (rtt_ms / 2 = " +
-                             std::to_string(p.rtt_ms * 0.5) +
-                             "): a packet would arrive before it was sent");
+    config::fail(origin,
+                 "'link.jitter_ms' = " + std::to_string(p.jitter_ms) +
+                     " exceeds the one-way delay (rtt_ms / 2 = " + std::to_string(p.rtt_ms * 0.5) +
+                     "): a packet would arrive before it was sent");
   }
   return p;
 }
@@ -61,7 +61,8 @@ double LinkDirection::jitterNs(int64_t send_ns) {
     jitter_state_ = 0.5 * normal_(rng_);
   } else if (send_ns > jitter_ns_) {
     const double dt_ms = static_cast<double>(send_ns - jitter_ns_) * 1e-6;
-    const double a = profile_.jitter_corr_ms > 0.0 ? std::exp(-dt_ms / profile_.jitter_corr_ms) : 0.0;
+    const double a =
+        profile_.jitter_corr_ms > 0.0 ? std::exp(-dt_ms / profile_.jitter_corr_ms) : 0.0;
     jitter_state_ = a * jitter_state_ + std::sqrt(1.0 - a * a) * 0.5 * normal_(rng_);
   }
   jitter_ns_ = send_ns;

@@ -1,24 +1,23 @@
 #include "telehand/netem/teleop_harness.h"
 
+#include <spdlog/spdlog.h>
 #include <time.h>
 
 #include <chrono>
 #include <cmath>
 #include <deque>
 #include <filesystem>
-#include <optional>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <variant>
 
-#include <spdlog/spdlog.h>
-
-#include "telehand/devices/simulated_mf2.h"
-#include "telehand/server/session/session_manager.h"
-#include "telehand/server/store/sqlite_store.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
+#include "telehand/devices/simulated_mf2.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/session/session_manager.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::teleop {
 
@@ -43,7 +42,8 @@ class BenchOutbox final : public server::session::Outbox {
   std::vector<telehand_msg_JointModel> models;
   std::vector<telehand_msg_DirectForce> forces;
   uint64_t hand_states = 0;
-  std::vector<std::pair<uint64_t, Vec3>> hand_angles;  ///< the authoritative MCP angles per device seq
+  std::vector<std::pair<uint64_t, Vec3>>
+      hand_angles;  ///< the authoritative MCP angles per device seq
 };
 
 /// A directory holding the one patient case the cell uses, its recovery time shortened.
@@ -134,7 +134,8 @@ class ServoClinician final : public devices::Operator {
     // critically damped on the grip's 50 g.
     constexpr double kStiffness = 0.2, kDamping = 0.002;
     const double smooth = smoothRamp(t_s, op_.ramp_s);
-    const Vec3 target(smooth * (mid_ + amp_ * std::sin(2.0 * kPi * op_.frequency_hz * t_s)), 0.0, 0.0);
+    const Vec3 target(smooth * (mid_ + amp_ * std::sin(2.0 * kPi * op_.frequency_hz * t_s)), 0.0,
+                      0.0);
     return kStiffness * (target - angles) - kDamping * rates;
   }
 
@@ -205,8 +206,9 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   std::array<double, 4> held_applied{};  // what the server holds: last sample sent live
   double recon_err2 = 0.0, recon_ref2 = 0.0;
 
-  std::array<HighPass, 6> hp{HighPass(15.0, 1000.0), HighPass(15.0, 1000.0), HighPass(15.0, 1000.0),
-                             HighPass(15.0, 1000.0), HighPass(15.0, 1000.0), HighPass(15.0, 1000.0)};
+  std::array<HighPass, 6> hp{HighPass(15.0, 1000.0), HighPass(15.0, 1000.0),
+                             HighPass(15.0, 1000.0), HighPass(15.0, 1000.0),
+                             HighPass(15.0, 1000.0), HighPass(15.0, 1000.0)};
   double hp2 = 0.0, all2 = 0.0;
 
   const int64_t period = kNsPerMs;
@@ -237,7 +239,8 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
         const auto& f = std::get<telehand_msg_DirectForce>(d);
         client::loop::DirectForceSample s;
         s.device_seq = f.device_seq;
-        for (int k = 0; k < 2; ++k) s.force_n[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
+        for (int k = 0; k < 2; ++k)
+          s.force_n[k] = Vec3(f.force_n[k][0], f.force_n[k][1], f.force_n[k][2]);
         loop.directForces().tryPush(s);
       }
     });
@@ -247,7 +250,8 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &c0);
     loop.step();
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &c1);
-    const double us = static_cast<double>((c1.tv_sec - c0.tv_sec) * kNsPerS + (c1.tv_nsec - c0.tv_nsec)) * 1e-3;
+    const double us =
+        static_cast<double>((c1.tv_sec - c0.tv_sec) * kNsPerS + (c1.tv_nsec - c0.tv_nsec)) * 1e-3;
     r.step_max_us = std::max(r.step_max_us, us);
     if (us > 1000.0) ++r.overruns;
 
@@ -256,7 +260,8 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
     while (loop.samples().tryPop(s)) {
       std::array<float, 6> f{};
       for (int k = 0; k < 2; ++k) {
-        for (int i = 0; i < 3; ++i) f[static_cast<std::size_t>(3 * k + i)] = static_cast<float>(s.fingers[k].command_n[i]);
+        for (int i = 0; i < 3; ++i)
+          f[static_cast<std::size_t>(3 * k + i)] = static_cast<float>(s.fingers[k].command_n[i]);
       }
       r.force.push_back(f);
       proxy_angles.emplace_back(s.mcp_angles_rad[0], s.mcp_angles_rad[1], s.mcp_angles_rad[2]);

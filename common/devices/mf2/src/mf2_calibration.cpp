@@ -69,7 +69,8 @@ void Mf2ModelCalibration::toCurrents(const PerFinger<Vec3>& force_n, const proto
     if (std::abs(tau[i]) > max_nm) scale = std::min(scale, max_nm / std::abs(tau[i]));
   }
   for (int i = 0; i < proto::kActuators; ++i) {
-    const double ma = std::clamp(tau[i] * scale / motors_.nm_per_amp[i] * 1000.0, -32767.0, 32767.0);
+    const double ma =
+        std::clamp(tau[i] * scale / motors_.nm_per_amp[i] * 1000.0, -32767.0, 32767.0);
     out[i] = static_cast<int16_t>(std::lround(ma));
   }
 }

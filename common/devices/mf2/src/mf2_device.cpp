@@ -12,8 +12,8 @@ Mat3 rotX(double a) { return Eigen::AngleAxisd(a, Vec3::UnitX()).toRotationMatri
 
 /// Intersections of circle (c0, r0) and circle (c1, r1): `side` +1 picks the one to the
 /// left of c0 -> c1, -1 the one to the right. False when they do not meet.
-bool circleIntersection(const Eigen::Vector2d& c0, double r0, const Eigen::Vector2d& c1,
-                        double r1, int side, Eigen::Vector2d& out) noexcept {
+bool circleIntersection(const Eigen::Vector2d& c0, double r0, const Eigen::Vector2d& c1, double r1,
+                        int side, Eigen::Vector2d& out) noexcept {
   const Eigen::Vector2d e = c1 - c0;
   const double dist = e.norm();
   if (!(dist > 1e-12) || dist > r0 + r1 || dist < std::abs(r0 - r1)) return false;
@@ -66,18 +66,22 @@ Mf2Kinematics::Mf2Kinematics(const Mf2Description& d) : d_(d) {}
 
 JointAngles Mf2Kinematics::anglesFromCounts(const EncoderCounts& c) const noexcept {
   JointAngles q;
-  for (int i = 0; i < kActuators; ++i) q.actuators[i] = d_.actuator_encoders[i].angle(c.actuators[i]);
+  for (int i = 0; i < kActuators; ++i)
+    q.actuators[i] = d_.actuator_encoders[i].angle(c.actuators[i]);
   for (int f = 0; f < 2; ++f) {
-    for (int j = 0; j < kGimbalAxes; ++j) q.gimbal[f][j] = d_.gimbal_encoders[f][j].angle(c.gimbal[f][j]);
+    for (int j = 0; j < kGimbalAxes; ++j)
+      q.gimbal[f][j] = d_.gimbal_encoders[f][j].angle(c.gimbal[f][j]);
   }
   return q;
 }
 
 EncoderCounts Mf2Kinematics::countsFromAngles(const JointAngles& q) const noexcept {
   EncoderCounts c;
-  for (int i = 0; i < kActuators; ++i) c.actuators[i] = d_.actuator_encoders[i].counts(q.actuators[i]);
+  for (int i = 0; i < kActuators; ++i)
+    c.actuators[i] = d_.actuator_encoders[i].counts(q.actuators[i]);
   for (int f = 0; f < 2; ++f) {
-    for (int j = 0; j < kGimbalAxes; ++j) c.gimbal[f][j] = d_.gimbal_encoders[f][j].counts(q.gimbal[f][j]);
+    for (int j = 0; j < kGimbalAxes; ++j)
+      c.gimbal[f][j] = d_.gimbal_encoders[f][j].counts(q.gimbal[f][j]);
   }
   return c;
 }

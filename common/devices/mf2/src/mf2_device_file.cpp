@@ -50,7 +50,8 @@ EncoderCalibration encoder(double counts_per_rad, double zero, double min_deg, d
 Mf2Description defaultMf2() {
   Mf2Description d;
   d.name = "mf2";
-  d.source = "built-in: link lengths chosen (the MF-2's are not public); see deploy/devices/mf2.toml";
+  d.source =
+      "built-in: link lengths chosen (the MF-2's are not public); see deploy/devices/mf2.toml";
   d.base_pivot_m = Vec3(-0.13, 0.0, -0.06);
   // 4096-line encoders in quadrature (16384 counts/rev) behind a 10:1 capstan: 26076 counts/rad.
   constexpr double kActuatorCpr = 16384.0 * 10.0 / (2.0 * kPi);
@@ -68,8 +69,10 @@ Mf2Description defaultMf2() {
     // (the grip of a neutral MCP): thumb pad facing down, index pad facing up.
     l.gimbal_mount = f == kThumb ? quatFromRpyDeg({180.0, 0.0, 0.0}) : Quat::Identity();
     d.actuator_encoders[actuatorIndex(f, 0)] = encoder(kActuatorCpr, 0, -60, 60, "built-in", "yaw");
-    d.actuator_encoders[actuatorIndex(f, 1)] = encoder(kActuatorCpr, 0, -90, 200, "built-in", "crank 1");
-    d.actuator_encoders[actuatorIndex(f, 2)] = encoder(kActuatorCpr, 0, -90, 200, "built-in", "crank 2");
+    d.actuator_encoders[actuatorIndex(f, 1)] =
+        encoder(kActuatorCpr, 0, -90, 200, "built-in", "crank 1");
+    d.actuator_encoders[actuatorIndex(f, 2)] =
+        encoder(kActuatorCpr, 0, -90, 200, "built-in", "crank 2");
     for (int j = 0; j < 3; ++j) d.max_torque_nm[actuatorIndex(f, j)] = 0.6;
     d.gimbal_encoders[f][0] = encoder(kGimbalCpr, 0, -170, 170, "built-in", "gimbal 1");
     d.gimbal_encoders[f][1] = encoder(kGimbalCpr, 0, -80, 80, "built-in", "gimbal 2");
@@ -89,7 +92,8 @@ ThimbleCalibration parseThimbleCalibration(const std::string& text, const std::s
   Table th(root, "thimble", origin, true);
   c.serial = th.text("serial", "");
   c.source = th.text("source", "");
-  c.stuck_samples = static_cast<uint32_t>(th.integer("stuck_samples", c.stuck_samples, 0, 1'000'000));
+  c.stuck_samples =
+      static_cast<uint32_t>(th.integer("stuck_samples", c.stuck_samples, 0, 1'000'000));
   th.rejectUnknown();
   if (c.serial.empty()) throw ConfigError(origin + ": 'thimble.serial' must be set");
   for (int i = 0; i < kFsrPerThimble; ++i) {
@@ -124,12 +128,15 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
   Table dev(root, "device", origin, true);
   d.name = dev.text("name", "");
   d.source = dev.text("source", "");
-  const auto pivot = dev.numbers<3>("base_pivot_m", {d.base_pivot_m.x(), d.base_pivot_m.y(), d.base_pivot_m.z()}, -1.0, 1.0);
+  const auto pivot = dev.numbers<3>(
+      "base_pivot_m", {d.base_pivot_m.x(), d.base_pivot_m.y(), d.base_pivot_m.z()}, -1.0, 1.0);
   d.base_pivot_m = Vec3(pivot[0], pivot[1], pivot[2]);
-  const double base_cpr = dev.number("base_counts_per_rad", d.actuator_encoders[0].counts_per_rad, -kMaxCountsPerRad, kMaxCountsPerRad);
+  const double base_cpr = dev.number("base_counts_per_rad", d.actuator_encoders[0].counts_per_rad,
+                                     -kMaxCountsPerRad, kMaxCountsPerRad);
   const double base_zero = dev.number("base_zero_counts", 0.0, -1e12, 1e12);
   const auto base_range = dev.numbers<2>("base_range_deg", {-45.0, 45.0}, -180.0, 180.0);
-  d.actuator_encoders[0] = encoder(base_cpr, base_zero, base_range[0], base_range[1], origin, "device.base");
+  d.actuator_encoders[0] =
+      encoder(base_cpr, base_zero, base_range[0], base_range[1], origin, "device.base");
   d.max_torque_nm[0] = dev.number("base_max_torque_nm", d.max_torque_nm[0], 0.0, 10.0);
   dev.rejectUnknown();
   if (d.name.empty()) throw ConfigError(origin + ": 'device.name' must be set");
@@ -138,15 +145,18 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
     const std::string name = f == kThumb ? "thumb" : "index";
     Table t(root, name, origin, true);
     FingerLinkage& l = d.fingers[f];
-    const auto yaw = t.numbers<3>("yaw_pivot_m", {l.yaw_pivot_m.x(), l.yaw_pivot_m.y(), l.yaw_pivot_m.z()}, -1.0, 1.0);
+    const auto yaw = t.numbers<3>(
+        "yaw_pivot_m", {l.yaw_pivot_m.x(), l.yaw_pivot_m.y(), l.yaw_pivot_m.z()}, -1.0, 1.0);
     l.yaw_pivot_m = Vec3(yaw[0], yaw[1], yaw[2]);
     l.crank_half_spacing_m = t.number("crank_half_spacing_m", l.crank_half_spacing_m, 0.0, 0.5);
     const auto crank = t.numbers<2>("crank_m", l.crank_m, 0.005, 1.0);
     const auto distal = t.numbers<2>("distal_m", l.distal_m, 0.005, 1.0);
     l.crank_m = crank;
     l.distal_m = distal;
-    l.gimbal_mount = quatFromRpyDeg(t.numbers<3>("gimbal_mount_rpy_deg", {f == kThumb ? 180.0 : 0.0, 0.0, 0.0}, -360.0, 360.0));
-    const auto cpr = t.numbers<3>("counts_per_rad", {26076.0, 26076.0, 26076.0}, -kMaxCountsPerRad, kMaxCountsPerRad);
+    l.gimbal_mount = quatFromRpyDeg(
+        t.numbers<3>("gimbal_mount_rpy_deg", {f == kThumb ? 180.0 : 0.0, 0.0, 0.0}, -360.0, 360.0));
+    const auto cpr = t.numbers<3>("counts_per_rad", {26076.0, 26076.0, 26076.0}, -kMaxCountsPerRad,
+                                  kMaxCountsPerRad);
     const auto zero = t.numbers<3>("zero_counts", {0.0, 0.0, 0.0}, -1e12, 1e12);
     const auto lo = t.numbers<3>("min_deg", {-60.0, -90.0, -90.0}, -360.0, 360.0);
     const auto hi = t.numbers<3>("max_deg", {60.0, 200.0, 200.0}, -360.0, 360.0);
@@ -157,7 +167,8 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
           encoder(cpr[j], zero[j], lo[j], hi[j], origin, name + " " + joint_names[j]);
       d.max_torque_nm[actuatorIndex(f, j)] = torque[j];
     }
-    const auto gcpr = t.numbers<3>("gimbal_counts_per_rad", {651.9, 651.9, 651.9}, -kMaxCountsPerRad, kMaxCountsPerRad);
+    const auto gcpr = t.numbers<3>("gimbal_counts_per_rad", {651.9, 651.9, 651.9},
+                                   -kMaxCountsPerRad, kMaxCountsPerRad);
     const auto gzero = t.numbers<3>("gimbal_zero_counts", {0.0, 0.0, 0.0}, -1e12, 1e12);
     const auto glo = t.numbers<3>("gimbal_min_deg", {-170.0, -80.0, -170.0}, -360.0, 360.0);
     const auto ghi = t.numbers<3>("gimbal_max_deg", {170.0, 80.0, 170.0}, -360.0, 360.0);
@@ -167,7 +178,8 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
     }
     const std::string thimble = t.text("thimble", "");
     t.rejectUnknown();
-    if (thimble.empty()) throw ConfigError(origin + ": '" + name + ".thimble' (calibration file) must be set");
+    if (thimble.empty())
+      throw ConfigError(origin + ": '" + name + ".thimble' (calibration file) must be set");
     std::filesystem::path p(thimble);
     if (p.is_relative() && !base_dir.empty()) p = std::filesystem::path(base_dir) / p;
     d.thimble_files[f] = p.string();
@@ -182,8 +194,9 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
   home[kIndex].position_m = Vec3(0.01, 0.0, -0.008);
   JointAngles q;
   if (!k.inverse(home, 0.0, q) || !k.withinLimits(q)) {
-    throw ConfigError(origin + ": the linkage cannot reach the home grip (thimbles 8 mm either "
-                               "side of a point 1 cm from the device origin)");
+    throw ConfigError(origin +
+                      ": the linkage cannot reach the home grip (thimbles 8 mm either "
+                      "side of a point 1 cm from the device origin)");
   }
   return d;
 }
@@ -191,12 +204,15 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
 std::vector<NamedFile> descriptionFiles(const Mf2Description& d) {
   std::vector<NamedFile> files;
   if (d.path.empty()) {
-    files.push_back({"device/built-in.toml", "# built-in MF-2 description (mf2::defaultMf2): " + d.source + "\n"});
+    files.push_back({"device/built-in.toml",
+                     "# built-in MF-2 description (mf2::defaultMf2): " + d.source + "\n"});
     return files;
   }
-  files.push_back({"device/" + std::filesystem::path(d.path).filename().string(), readText(d.path, "device file")});
+  files.push_back({"device/" + std::filesystem::path(d.path).filename().string(),
+                   readText(d.path, "device file")});
   for (const auto& t : d.thimble_files) {
-    files.push_back({"thimble/" + std::filesystem::path(t).filename().string(), readText(t, "thimble calibration file")});
+    files.push_back({"thimble/" + std::filesystem::path(t).filename().string(),
+                     readText(t, "thimble calibration file")});
   }
   return files;
 }

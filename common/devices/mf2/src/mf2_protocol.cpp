@@ -26,9 +26,7 @@ void put32(uint8_t* p, uint32_t v) noexcept {
 void put64(uint8_t* p, uint64_t v) noexcept {
   for (int i = 0; i < 8; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
 }
-uint16_t get16(const uint8_t* p) noexcept {
-  return static_cast<uint16_t>(p[0] | (p[1] << 8));
-}
+uint16_t get16(const uint8_t* p) noexcept { return static_cast<uint16_t>(p[0] | (p[1] << 8)); }
 uint32_t get32(const uint8_t* p) noexcept {
   uint32_t v = 0;
   for (int i = 0; i < 4; ++i) v |= static_cast<uint32_t>(p[i]) << (8 * i);
@@ -83,14 +81,22 @@ DecodeError checkFrame(std::span<const uint8_t> in, std::size_t size, uint8_t ty
 
 std::string_view toString(DecodeError e) noexcept {
   switch (e) {
-    case DecodeError::kOk: return "ok";
-    case DecodeError::kShort: return "short packet";
-    case DecodeError::kLong: return "oversized packet";
-    case DecodeError::kBadMagic: return "bad magic";
-    case DecodeError::kBadVersion: return "unsupported protocol version";
-    case DecodeError::kBadType: return "wrong packet type";
-    case DecodeError::kBadCrc: return "CRC mismatch";
-    case DecodeError::kBadValue: return "value out of range";
+    case DecodeError::kOk:
+      return "ok";
+    case DecodeError::kShort:
+      return "short packet";
+    case DecodeError::kLong:
+      return "oversized packet";
+    case DecodeError::kBadMagic:
+      return "bad magic";
+    case DecodeError::kBadVersion:
+      return "unsupported protocol version";
+    case DecodeError::kBadType:
+      return "wrong packet type";
+    case DecodeError::kBadCrc:
+      return "CRC mismatch";
+    case DecodeError::kBadValue:
+      return "value out of range";
   }
   return "unknown";
 }

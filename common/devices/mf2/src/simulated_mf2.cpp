@@ -104,7 +104,8 @@ void SimulatedMf2::fsrFor(int finger, const Quat& thimble, const Vec3& force_dev
 }
 
 PerFinger<Quat> SimulatedMf2::thimbleOrientations() const noexcept {
-  return {geometry_.thimbleOrientation(kThumb, angles_), geometry_.thimbleOrientation(kIndex, angles_)};
+  return {geometry_.thimbleOrientation(kThumb, angles_),
+          geometry_.thimbleOrientation(kIndex, angles_)};
 }
 
 bool SimulatedMf2::updatePose(const PerFinger<Quat>& thimbles,
@@ -138,8 +139,8 @@ bool SimulatedMf2::read(DeviceSample& out) noexcept {
   // A flexion push then goes through the pad that faces it; side forces stay shared.
   const Vec3 n_thumb = thimbles[kThumb] * Vec3::UnitZ();
   const Vec3 n_index = thimbles[kIndex] * Vec3::UnitZ();
-  const double squeeze = std::max({0.0, -operator_force_[kThumb].dot(n_thumb),
-                                   -operator_force_[kIndex].dot(n_index)});
+  const double squeeze =
+      std::max({0.0, -operator_force_[kThumb].dot(n_thumb), -operator_force_[kIndex].dot(n_index)});
   const PerFinger<Vec3> pressed{operator_force_[kThumb] + squeeze * n_thumb,
                                 operator_force_[kIndex] + squeeze * n_index};
   for (int k = 0; k < 2; ++k) {

@@ -18,8 +18,12 @@ SweepPlan planSweep(const JointModelParams& joint, double max_force_n, double ra
     const double hi_lim = rest + range_fraction * (c.max_deg - rest);
     double lo = rest, hi = rest;
     constexpr double kStep = 0.05;
-    while (lo - kStep >= lo_lim && std::abs(m.holdingForceN(i, degToRad(lo - kStep))) <= max_force_n) lo -= kStep;
-    while (hi + kStep <= hi_lim && std::abs(m.holdingForceN(i, degToRad(hi + kStep))) <= max_force_n) hi += kStep;
+    while (lo - kStep >= lo_lim &&
+           std::abs(m.holdingForceN(i, degToRad(lo - kStep))) <= max_force_n)
+      lo -= kStep;
+    while (hi + kStep <= hi_lim &&
+           std::abs(m.holdingForceN(i, degToRad(hi + kStep))) <= max_force_n)
+      hi += kStep;
     plan.lo_deg[ax] = lo;
     plan.hi_deg[ax] = hi;
   }
@@ -49,7 +53,8 @@ Vec3 SweepOperator::target(double t_s) const noexcept {
   }
   const int axis = std::min(static_cast<int>(t / plan_.seconds_per_axis), kAxes - 1);
   t -= axis * plan_.seconds_per_axis;
-  sweep(axis, plan_.frequency_hz, smoothRamp(std::min(t, plan_.seconds_per_axis - t), plan_.ramp_s));
+  sweep(axis, plan_.frequency_hz,
+        smoothRamp(std::min(t, plan_.seconds_per_axis - t), plan_.ramp_s));
   return a;
 }
 

@@ -5,9 +5,9 @@
 
 #include "telehand/app/signals.h"
 
-#define TELEHAND_CLI_PARSE(app, argc, argv)        \
-  try {                                             \
-    (app).parse((argc), (argv));                    \
-  } catch (const CLI::ParseError& cli_error) {      \
-    return (app).exit(cli_error) == 0 ? 0 : 2;      \
+#define TELEHAND_CLI_PARSE(app, argc, argv)    \
+  try {                                        \
+    (app).parse((argc), (argv));               \
+  } catch (const CLI::ParseError& cli_error) { \
+    return (app).exit(cli_error) == 0 ? 0 : 2; \
   }

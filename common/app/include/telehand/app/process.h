@@ -16,11 +16,11 @@ struct ProcessOptions {
   std::vector<std::string> argv{};  ///< argv[0] is the program
   /// The child's environment; unset: this process's own.
   std::optional<std::vector<std::string>> env{};
-  bool search_path = false;       ///< look argv[0] up in PATH, as execvp does
-  int out_fd = -1;                ///< stdout and stderr to this descriptor (-1: inherited)
-  std::string out_path{};         ///< or to this file, truncated (when out_fd is -1)
-  bool null_stdin = false;        ///< stdin from /dev/null instead of ours
-  bool die_with_parent = false;   ///< SIGTERM when this process dies (PR_SET_PDEATHSIG)
+  bool search_path = false;      ///< look argv[0] up in PATH, as execvp does
+  int out_fd = -1;               ///< stdout and stderr to this descriptor (-1: inherited)
+  std::string out_path{};        ///< or to this file, truncated (when out_fd is -1)
+  bool null_stdin = false;       ///< stdin from /dev/null instead of ours
+  bool die_with_parent = false;  ///< SIGTERM when this process dies (PR_SET_PDEATHSIG)
 };
 
 class Process {

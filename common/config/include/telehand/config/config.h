@@ -2,10 +2,9 @@
 /// Configuration files (TOML). Every program reads the tables it knows; an unknown table or
 /// key, a wrong type or an out-of-range value is a ConfigError naming the file, the key and
 /// the value.
+#include <array>
 #include <cstdint>
 #include <string>
-
-#include <array>
 #include <vector>
 
 #include "telehand/core/joint_model.h"
@@ -15,17 +14,17 @@ namespace telehand {
 
 /// The simulated clinician/student who moves the simulated MF-2 (client/device).
 struct OperatorConfig {
-  double frequency_hz = 3.0;    ///< mobilization oscillation, 1-6 Hz (docs/facts.md)
-  double band_min_n = 12.0;     ///< target force band, reference scale (paper: 12-16 N)
+  double frequency_hz = 3.0;  ///< mobilization oscillation, 1-6 Hz (docs/facts.md)
+  double band_min_n = 12.0;   ///< target force band, reference scale (paper: 12-16 N)
   double band_max_n = 16.0;
-  double ramp_s = 1.5;          ///< time to build up to the band
-  double sensor_noise_n = 0.02; ///< FSR noise, 1 sigma
+  double ramp_s = 1.5;           ///< time to build up to the band
+  double sensor_noise_n = 0.02;  ///< FSR noise, 1 sigma
   uint64_t seed = 1;
 };
 
 struct LoopConfig {
   double rate_hz = 1000.0;
-  int rt_priority = 0;          ///< SCHED_FIFO priority; 0 = normal scheduling
+  int rt_priority = 0;  ///< SCHED_FIFO priority; 0 = normal scheduling
 };
 
 struct ClientConfig {
@@ -39,7 +38,7 @@ struct ServerConfig {
   double hand_state_hz = 100.0;  ///< decimated HandState, 60-100 Hz (docs/design.md)
   double close_grace_s = 5.0;    ///< how long a closing session waits for in-flight records
   std::string cases_dir;         ///< patient cases (*.toml); empty = the built-in healthy case only
-  std::string hand_model;        ///< URDF of the hand; empty = HandState from the shared joint model
+  std::string hand_model;  ///< URDF of the hand; empty = HandState from the shared joint model
   double hand_deadband_weber = 0.0;  ///< HandState deadband (Weber fraction); 0 = every state
   /// Fold persistent drift between the server's hand and the client's proxy into the model
   /// (server/session/drift.h). Off only to measure what it does.
@@ -58,9 +57,9 @@ ServerConfig loadServerConfig(const std::string& path);
 struct PatientCase {
   std::string name;
   std::string description;
-  std::string source;               ///< where the numbers come from
-  JointModelParams model;           ///< at the start of a session
-  bool recovers = false;            ///< the range grows with treatment time
+  std::string source;      ///< where the numbers come from
+  JointModelParams model;  ///< at the start of a session
+  bool recovers = false;   ///< the range grows with treatment time
   std::array<double, kAxes> final_min_deg{};
   std::array<double, kAxes> final_max_deg{};
   double recovery_treatment_s = 0.0;

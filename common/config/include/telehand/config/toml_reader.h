@@ -7,10 +7,10 @@
 
 #include <array>
 #include <cmath>
-#include <utility>
 #include <cstdint>
 #include <set>
 #include <string>
+#include <utility>
 
 namespace telehand::config {
 
@@ -50,8 +50,9 @@ class TomlTable {
     for (std::size_t i = 0; i < N; ++i) {
       auto v = (*a)[i].value<double>();
       if (!v || !std::isfinite(*v) || *v < lo || *v > hi) {
-        fail(n, key, "element " + std::to_string(i) + " is not a number in [" +
-                         std::to_string(lo) + ", " + std::to_string(hi) + "]");
+        fail(n, key,
+             "element " + std::to_string(i) + " is not a number in [" + std::to_string(lo) + ", " +
+                 std::to_string(hi) + "]");
       }
       out[i] = *v;
     }
@@ -102,7 +103,8 @@ class TomlTable {
     if (!a || a->size() != N) fail(n, key, "must be an array of " + std::to_string(N) + " numbers");
     for (std::size_t i = 0; i < N; ++i) {
       auto v = (*a)[i].value<double>();
-      if (!v || !std::isfinite(*v)) fail(n, key, "element " + std::to_string(i) + " is not a finite number");
+      if (!v || !std::isfinite(*v))
+        fail(n, key, "element " + std::to_string(i) + " is not a finite number");
       out[i] = *v;
     }
   }
@@ -111,7 +113,8 @@ class TomlTable {
 
  private:
   const toml::node* get(const std::string& key);
-  [[noreturn]] void fail(const toml::node* n, const std::string& key, const std::string& what) const;
+  [[noreturn]] void fail(const toml::node* n, const std::string& key,
+                         const std::string& what) const;
   static std::string typeName(const toml::node& n);
 
   std::string origin_;

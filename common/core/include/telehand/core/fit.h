@@ -10,10 +10,10 @@
 namespace telehand {
 
 struct CubicFitResult {
-  bool ok = false;                  ///< enough distinct points and a full-rank system
-  std::array<double, 4> coeffs{};   ///< c3, c2, c1, c0 in the caller's units of x
-  double extra = 0.0;               ///< coefficient of the extra regressor (0 without one)
-  double rms = 0.0;                 ///< root mean square residual
+  bool ok = false;                 ///< enough distinct points and a full-rank system
+  std::array<double, 4> coeffs{};  ///< c3, c2, c1, c0 in the caller's units of x
+  double extra = 0.0;              ///< coefficient of the extra regressor (0 without one)
+  double rms = 0.0;                ///< root mean square residual
   std::size_t n = 0;
   double x_min = 0.0, x_max = 0.0;
   double eval(double x) const noexcept {

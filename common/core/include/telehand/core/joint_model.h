@@ -59,9 +59,9 @@ Mat3 eulerAxisBasis(const Vec3& angles_rad) noexcept;
 struct JointModelParams {
   uint32_t version = 0;
   std::array<CubicCurve, kAxes> axes{};
-  double lever_arm_m = 0.01;          ///< paper: forces measured about 1 cm from the centre
-  double force_scale = 0.25;          ///< device force / reference force, paper: 1:4
-  double damping_nms_per_rad = 0.0;   ///< viscous term, reference scale
+  double lever_arm_m = 0.01;         ///< paper: forces measured about 1 cm from the centre
+  double force_scale = 0.25;         ///< device force / reference force, paper: 1:4
+  double damping_nms_per_rad = 0.0;  ///< viscous term, reference scale
   /// Half width of a zero-force band around each axis' rest angle (a lax joint), degrees.
   std::array<double, kAxes> neutral_zone_deg{};
   /// Protective spasm: the passive force grows by this factor per rad/s of movement speed.
@@ -152,7 +152,7 @@ class JointModel {
 /// What the proxy renders on one tick.
 struct ProxyOutput {
   Vec3 angles_rad = Vec3::Zero();
-  Vec3 torque_ref_nm = Vec3::Zero();          ///< passive torque, reference scale
+  Vec3 torque_ref_nm = Vec3::Zero();                           ///< passive torque, reference scale
   PerFinger<Vec3> force_device_n{Vec3::Zero(), Vec3::Zero()};  ///< before the safety gate
   bool blending = false;
   /// This tick's force change due to the model update alone (blend weight change times the

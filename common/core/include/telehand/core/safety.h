@@ -7,9 +7,9 @@
 namespace telehand {
 
 struct SafetyLimits {
-  double max_force_n = 4.0;            ///< per finger; MF-2 maximum (docs/facts.md "The paper")
-  double max_rate_n_per_s = 200.0;     ///< per finger, on the force vector
-  int64_t watchdog_ns = 5'000'000;     ///< no fresh device sample for this long -> zero force
+  double max_force_n = 4.0;         ///< per finger; MF-2 maximum (docs/facts.md "The paper")
+  double max_rate_n_per_s = 200.0;  ///< per finger, on the force vector
+  int64_t watchdog_ns = 5'000'000;  ///< no fresh device sample for this long -> zero force
 };
 
 /// Why the gate changed what was asked. Bits match the DeviceState kFlag* constants.

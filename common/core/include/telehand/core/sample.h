@@ -14,25 +14,26 @@ namespace telehand {
 
 /// One thimble of the MF-2 as the device reports it and the loop renders it.
 struct SampleFinger {
-  double position_m[3] = {0, 0, 0};          ///< thimble centre, device frame
-  double orientation_q[4] = {1, 0, 0, 0};    ///< unit quaternion w, x, y, z
-  float fsr_n[4] = {0, 0, 0, 0};             ///< FlexiForce A201 readings 1 (end) .. 4 (pad)
-  float tangential_n = 0.0f;                 ///< paper eq. 1: F2 - F3
-  float normal_n = 0.0f;                     ///< paper eq. 2: sqrt(F4^2 + F1^2)
-  double command_n[3] = {0, 0, 0};           ///< force commanded after the safety gate
+  double position_m[3] = {0, 0, 0};        ///< thimble centre, device frame
+  double orientation_q[4] = {1, 0, 0, 0};  ///< unit quaternion w, x, y, z
+  float fsr_n[4] = {0, 0, 0, 0};           ///< FlexiForce A201 readings 1 (end) .. 4 (pad)
+  float tangential_n = 0.0f;               ///< paper eq. 1: F2 - F3
+  float normal_n = 0.0f;                   ///< paper eq. 2: sqrt(F4^2 + F1^2)
+  double command_n[3] = {0, 0, 0};         ///< force commanded after the safety gate
 };
 
 struct Sample {
   uint64_t session_id = 0;
-  uint64_t seq = 0;                  ///< loop tick sequence number, 0-based, no gaps
-  int64_t source_time_ns = 0;        ///< when the sample was read from the device (wall clock)
-  uint32_t model_version = 0;        ///< JointModel version rendered
-  uint32_t flags = 0;                ///< SampleFlag bits
-  SampleFinger fingers[2];           ///< 0 = thumb, 1 = index
-  double mcp_angles_rad[3] = {0, 0, 0};  ///< proxy's alpha (flexion), beta (abduction), gamma (axial)
-  double mcp_torque_nm[3] = {0, 0, 0};   ///< proxy's passive torque per axis (reference scale)
-  float passivity_energy_j = 0.0f;   ///< passivity observer energy so far (device scale)
-  float passivity_damping = 0.0f;    ///< passivity controller damping this tick, N·s/m
+  uint64_t seq = 0;            ///< loop tick sequence number, 0-based, no gaps
+  int64_t source_time_ns = 0;  ///< when the sample was read from the device (wall clock)
+  uint32_t model_version = 0;  ///< JointModel version rendered
+  uint32_t flags = 0;          ///< SampleFlag bits
+  SampleFinger fingers[2];     ///< 0 = thumb, 1 = index
+  double mcp_angles_rad[3] = {0, 0,
+                              0};  ///< proxy's alpha (flexion), beta (abduction), gamma (axial)
+  double mcp_torque_nm[3] = {0, 0, 0};  ///< proxy's passive torque per axis (reference scale)
+  float passivity_energy_j = 0.0f;      ///< passivity observer energy so far (device scale)
+  float passivity_damping = 0.0f;       ///< passivity controller damping this tick, N·s/m
 };
 
 /// Sample::flags. The values are the wire's (idl/telehand.idl kFlag*, checked in wire.cpp).
@@ -44,9 +45,9 @@ inline constexpr uint32_t kNonFinite = 8;
 inline constexpr uint32_t kModelBlending = 16;
 inline constexpr uint32_t kCapture = 32;
 inline constexpr uint32_t kPassivityControl = 64;  ///< the passivity controller added damping
-inline constexpr uint32_t kSentLive = 128;         ///< also went out live (not withheld by the deadband)
-inline constexpr uint32_t kDirectForce = 256;      ///< rendered the server's force (direct mode)
-inline constexpr uint32_t kDeadband = 512;         ///< the live stream is deadband-coded
+inline constexpr uint32_t kSentLive = 128;  ///< also went out live (not withheld by the deadband)
+inline constexpr uint32_t kDirectForce = 256;  ///< rendered the server's force (direct mode)
+inline constexpr uint32_t kDeadband = 512;     ///< the live stream is deadband-coded
 /// Bits 16..23: an FSR flagged saturated or dead; bit 16 + 4 * finger + (sensor - 1).
 inline constexpr uint32_t kFsrFaultShift = 16;
 }  // namespace sample_flags

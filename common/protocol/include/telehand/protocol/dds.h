@@ -78,17 +78,18 @@ class Qos {
 
 /// QoS profiles, one per use, as docs/design.md's table states them.
 namespace qos {
-Qos deviceState();                  ///< best-effort, keep-last 1, volatile, 100 ms deadline
+Qos deviceState();                     ///< best-effort, keep-last 1, volatile, 100 ms deadline
 Qos deviceStateReader(int32_t depth);  ///< as deviceState but a deeper reader history
-Qos recordChunk();                  ///< reliable, keep-all: the session record's path
-Qos jointModel();                   ///< reliable, transient-local, keep-last 1 per session
-Qos handState();                    ///< best-effort, keep-last 1
-Qos handStateReader(int32_t depth); ///< as handState but a deeper reader history
-Qos sessionCommand();               ///< reliable, keep-all, volatile
-Qos sessionStatus();                ///< reliable, transient-local, keep-last 1 per session
-Qos sessionEvent(int32_t depth = 64);  ///< reliable, transient-local, keep-last N (late joiners too)
-Qos latencyProbe();                 ///< as deviceState (the probe measures that path)
-Qos directForce(int32_t depth = 1); ///< best-effort, keep-last `depth`, volatile (direct mode)
+Qos recordChunk();                     ///< reliable, keep-all: the session record's path
+Qos jointModel();                      ///< reliable, transient-local, keep-last 1 per session
+Qos handState();                       ///< best-effort, keep-last 1
+Qos handStateReader(int32_t depth);    ///< as handState but a deeper reader history
+Qos sessionCommand();                  ///< reliable, keep-all, volatile
+Qos sessionStatus();                   ///< reliable, transient-local, keep-last 1 per session
+Qos sessionEvent(
+    int32_t depth = 64);             ///< reliable, transient-local, keep-last N (late joiners too)
+Qos latencyProbe();                  ///< as deviceState (the probe measures that path)
+Qos directForce(int32_t depth = 1);  ///< best-effort, keep-last `depth`, volatile (direct mode)
 }  // namespace qos
 
 /// Topic names.
@@ -108,7 +109,7 @@ inline constexpr const char* kDirectForce = "telehand_DirectForce";
 /// Which DDS world to join.
 struct Options {
   uint32_t domain = 0;
-  std::string config;                 ///< Cyclone XML file path or inline XML; empty = default
+  std::string config;                  ///< Cyclone XML file path or inline XML; empty = default
   std::string partition = "telehand";  ///< isolates sessions, sites and tests
 };
 
@@ -131,9 +132,9 @@ class Participant {
 
 template <typename T>
 struct TopicTraits;
-#define TELEHAND_DDS_TOPIC_TYPE(T) \
-  template <>                      \
-  struct TopicTraits<T> {          \
+#define TELEHAND_DDS_TOPIC_TYPE(T)                                          \
+  template <>                                                               \
+  struct TopicTraits<T> {                                                   \
     static const dds_topic_descriptor_t* descriptor() { return &T##_desc; } \
   }
 TELEHAND_DDS_TOPIC_TYPE(telehand_msg_DeviceState);
@@ -177,15 +178,15 @@ template <typename T>
 class Writer {
  public:
   Writer(const Participant& p, const Topic<T>& t, const Qos& q)
-      : e_(check(dds_create_writer(p.publisher(), t.handle(), q.get(), nullptr), "create writer")) {}
+      : e_(check(dds_create_writer(p.publisher(), t.handle(), q.get(), nullptr), "create writer")) {
+  }
   /// Returns Cyclone's return code; callers on hot paths count failures instead of throwing.
   dds_return_t write(const T& sample) noexcept { return dds_write(e_.handle(), &sample); }
   dds_entity_t handle() const noexcept { return e_.handle(); }
   uint32_t matchedReaders() const noexcept {
     dds_publication_matched_status_t st{};
-    return dds_get_publication_matched_status(e_.handle(), &st) == DDS_RETCODE_OK
-               ? st.current_count
-               : 0;
+    return dds_get_publication_matched_status(e_.handle(), &st) == DDS_RETCODE_OK ? st.current_count
+                                                                                  : 0;
   }
 
  private:
@@ -196,7 +197,8 @@ template <typename T>
 class Reader {
  public:
   Reader(const Participant& p, const Topic<T>& t, const Qos& q)
-      : e_(check(dds_create_reader(p.subscriber(), t.handle(), q.get(), nullptr), "create reader")) {
+      : e_(check(dds_create_reader(p.subscriber(), t.handle(), q.get(), nullptr),
+                 "create reader")) {
     check(dds_set_status_mask(e_.handle(), DDS_DATA_AVAILABLE_STATUS), "reader status mask");
   }
   dds_entity_t handle() const noexcept { return e_.handle(); }

@@ -13,9 +13,9 @@
 namespace telehand {
 
 struct DeadbandConfig {
-  double weber = 0.0;            ///< fraction, e.g. 0.05; 0 = every sample goes out
-  double force_floor_n = 0.1;    ///< absolute force step always sent (device N)
-  double angle_deg = 0.5;        ///< joint angle step that is always sent
+  double weber = 0.0;                    ///< fraction, e.g. 0.05; 0 = every sample goes out
+  double force_floor_n = 0.1;            ///< absolute force step always sent (device N)
+  double angle_deg = 0.5;                ///< joint angle step that is always sent
   int64_t max_interval_ns = 50'000'000;  ///< heartbeat, under the 100 ms DeviceState deadline
   bool enabled() const noexcept { return weber > 0.0; }
 };

@@ -11,10 +11,10 @@
 #include <vector>
 
 #include "telehand/client/loop/haptic_loop.h"
-#include "telehand/server/sim/hand_model.h"
 #include "telehand/config/config.h"
-#include "telehand/protocol/deadband.h"
 #include "telehand/netem/link_emulation.h"
+#include "telehand/protocol/deadband.h"
+#include "telehand/server/sim/hand_model.h"
 
 namespace telehand::teleop {
 
@@ -26,47 +26,47 @@ namespace telehand::teleop {
 enum class Clinician { kForceBand, kServo };
 
 struct CellSpec {
-  LinkProfile link;                  ///< both directions
+  LinkProfile link;  ///< both directions
   client::loop::RenderMode render = client::loop::RenderMode::kModel;
   double seconds = 20.0;
-  double steady_from_s = 4.0;        ///< metrics over [steady_from_s, seconds]: past the ramp
+  double steady_from_s = 4.0;  ///< metrics over [steady_from_s, seconds]: past the ramp
   bool passivity_control = true;
   DeadbandConfig deadband;           ///< DeviceState (client) and HandState (server)
-  std::string case_name = "regain";   ///< tests/teleop/cases, then deploy/cases
+  std::string case_name = "regain";  ///< tests/teleop/cases, then deploy/cases
   /// Treatment time over which the recovery case regains its range: short, so that the
   /// server publishes model updates all through the run.
   double recovery_treatment_s = 20.0;
   OperatorConfig op;
   uint64_t seed = 1;
-  bool drift_correction = true;      ///< the server folds drift into the model
+  bool drift_correction = true;  ///< the server folds drift into the model
   Clinician clinician = Clinician::kForceBand;
 };
 
 struct CellResult {
   std::vector<std::array<float, 6>> force;  ///< commanded per tick (thumb xyz, index xyz), N
-  double po_min_j = 0.0;             ///< lowest passivity observer energy
+  double po_min_j = 0.0;                    ///< lowest passivity observer energy
   double po_final_j = 0.0;
-  uint64_t pc_ticks = 0;             ///< ticks the passivity controller damped
-  double oscillation = 0.0;          ///< RMS of the force above 15 Hz / RMS of the force
-  uint64_t clamped = 0;              ///< ticks the safety gate clamped to the device maximum
-  double update_step_max_n = 0.0;    ///< largest force step from a model update
-  double update_step_ratio = 0.0;    ///< ... over max(5 % of the force, 0.1 N)
+  uint64_t pc_ticks = 0;           ///< ticks the passivity controller damped
+  double oscillation = 0.0;        ///< RMS of the force above 15 Hz / RMS of the force
+  uint64_t clamped = 0;            ///< ticks the safety gate clamped to the device maximum
+  double update_step_max_n = 0.0;  ///< largest force step from a model update
+  double update_step_ratio = 0.0;  ///< ... over max(5 % of the force, 0.1 N)
   uint64_t models_applied = 0;
-  double fade_unpaid_j = 0.0;        ///< energy fades added beyond what was seen dissipated
-  double device_state_pps = 0.0;     ///< live DeviceState packets/s, client -> server
-  double up_pps = 0.0;               ///< all packets/s client -> server (live + record chunks)
-  double down_pps = 0.0;             ///< packets/s server -> client (models, direct forces)
-  double hand_state_pps = 0.0;       ///< HandState/s to remote viewers
-  double reconstruction_error = 0.0; ///< server-side applied force (held) vs true, relative RMS
-  uint64_t overruns = 0;             ///< ticks whose step() used more CPU time than the period
-  double step_max_us = 0.0;          ///< largest step() CPU time
-  uint64_t samples_recorded = 0;     ///< the server's record at the end
+  double fade_unpaid_j = 0.0;         ///< energy fades added beyond what was seen dissipated
+  double device_state_pps = 0.0;      ///< live DeviceState packets/s, client -> server
+  double up_pps = 0.0;                ///< all packets/s client -> server (live + record chunks)
+  double down_pps = 0.0;              ///< packets/s server -> client (models, direct forces)
+  double hand_state_pps = 0.0;        ///< HandState/s to remote viewers
+  double reconstruction_error = 0.0;  ///< server-side applied force (held) vs true, relative RMS
+  uint64_t overruns = 0;              ///< ticks whose step() used more CPU time than the period
+  double step_max_us = 0.0;           ///< largest step() CPU time
+  uint64_t samples_recorded = 0;      ///< the server's record at the end
   /// Drift over the steady window: the server's MCP angles (HandState) against the angles the
   /// client's proxy rendered for the same device sample, degrees, the largest axis: its mean
   /// (persistent drift) and RMS (with the hand's lag behind the moving thimbles).
   double drift_mean_deg = 0.0;
   double drift_rms_deg = 0.0;
-  uint64_t drift_corrections = 0;    ///< models the server published to correct drift
+  uint64_t drift_corrections = 0;  ///< models the server published to correct drift
   uint64_t ticks = 0;
 };
 

@@ -15,25 +15,25 @@
 #include <vector>
 
 #include "telehand/client/loop/haptic_loop.h"
-#include "telehand/protocol/dds.h"
-#include "telehand/protocol/dds_capture.h"
 #include "telehand/core/knn_model.h"
 #include "telehand/devices/mf2_device.h"
+#include "telehand/protocol/dds.h"
+#include "telehand/protocol/dds_capture.h"
 #include "telehand/protocol/deadband.h"
 
 namespace telehand::client::link {
 
 struct LinkStats {
-  std::atomic<uint64_t> samples_sent{0};       ///< DeviceState writes attempted
+  std::atomic<uint64_t> samples_sent{0};  ///< DeviceState writes attempted
   std::atomic<uint64_t> live_write_errors{0};
-  std::atomic<uint64_t> samples_chunked{0};    ///< samples handed to the reliable record path
+  std::atomic<uint64_t> samples_chunked{0};  ///< samples handed to the reliable record path
   std::atomic<uint64_t> chunks_sent{0};
   std::atomic<uint64_t> chunk_retries{0};
   std::atomic<uint64_t> models_received{0};
   std::atomic<uint64_t> models_rejected{0};
   std::atomic<uint64_t> last_seq{0};
-  std::atomic<uint64_t> live_sent{0};          ///< DeviceState packets that went out (deadband)
-  std::atomic<uint64_t> direct_forces{0};      ///< DirectForce packets received (direct mode)
+  std::atomic<uint64_t> live_sent{0};      ///< DeviceState packets that went out (deadband)
+  std::atomic<uint64_t> direct_forces{0};  ///< DirectForce packets received (direct mode)
 };
 
 struct OpenRequest {
@@ -42,14 +42,14 @@ struct OpenRequest {
   std::string user = "student";
   uint64_t follow_session = 0;  ///< render this capture session's live fit
   telehand_msg_StiffnessKind stiffness = telehand_msg_STIFFNESS_CUBIC;
-  bool direct_force = false;   ///< baseline: the server computes the force
+  bool direct_force = false;  ///< baseline: the server computes the force
 };
 
 struct CloseResult {
-  bool confirmed = false;      ///< the server reported the session closed
+  bool confirmed = false;  ///< the server reported the session closed
   uint64_t samples_recorded = 0;
   uint64_t samples_missing = 0;
-  std::string record;          ///< where the server keeps it
+  std::string record;  ///< where the server keeps it
 };
 
 class ClientLink {

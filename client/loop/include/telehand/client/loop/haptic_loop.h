@@ -7,42 +7,42 @@
 #include <memory>
 #include <thread>
 
-#include "telehand/devices/device.h"
 #include "telehand/client/loop/passivity.h"
-#include "telehand/core/sample.h"
-#include "telehand/core/clock.h"
 #include "telehand/config/config.h"
+#include "telehand/core/clock.h"
 #include "telehand/core/joint_model.h"
-#include "telehand/core/safety.h"
 #include "telehand/core/rt/spsc_ring.h"
+#include "telehand/core/safety.h"
+#include "telehand/core/sample.h"
+#include "telehand/devices/device.h"
 
 namespace telehand::client::loop {
 
 /// Counters the RT thread writes (relaxed) and any thread reads.
 struct LoopHealth {
   std::atomic<uint64_t> ticks{0};
-  std::atomic<uint64_t> overruns{0};          ///< ticks that finished after the next deadline
+  std::atomic<uint64_t> overruns{0};  ///< ticks that finished after the next deadline
   std::atomic<uint64_t> device_read_failures{0};
   std::atomic<uint64_t> device_write_failures{0};
   std::atomic<uint64_t> watchdog_trips{0};
   std::atomic<uint64_t> nonfinite{0};
   std::atomic<uint64_t> clamped{0};
   std::atomic<uint64_t> rate_limited{0};
-  std::atomic<uint64_t> samples_dropped{0};   ///< sample ring full: the link thread fell behind
+  std::atomic<uint64_t> samples_dropped{0};  ///< sample ring full: the link thread fell behind
   std::atomic<uint64_t> models_applied{0};
   std::atomic<uint32_t> model_version{0};
-  std::atomic<double> force_max_n{0.0};       ///< largest commanded per-finger force
-  std::atomic<double> last_force_n{0.0};      ///< thumb + index commanded force magnitude
-  std::atomic<double> applied_ref_n{0.0};     ///< student's applied force, reference scale
-  std::atomic<int64_t> max_lateness_ns{0};    ///< worst wake-up after a deadline
-  std::atomic<uint64_t> device_not_ok{0};     ///< ticks the device was not streaming (zero force)
+  std::atomic<double> force_max_n{0.0};     ///< largest commanded per-finger force
+  std::atomic<double> last_force_n{0.0};    ///< thumb + index commanded force magnitude
+  std::atomic<double> applied_ref_n{0.0};   ///< student's applied force, reference scale
+  std::atomic<int64_t> max_lateness_ns{0};  ///< worst wake-up after a deadline
+  std::atomic<uint64_t> device_not_ok{0};   ///< ticks the device was not streaming (zero force)
   // Teleoperation.
-  std::atomic<double> passivity_energy_j{0.0};    ///< observer energy now (device J)
-  std::atomic<double> passivity_min_energy_j{0.0};///< lowest observer energy seen
-  std::atomic<uint64_t> passivity_activations{0}; ///< ticks the controller added damping
-  std::atomic<double> update_step_max_n{0.0};     ///< largest force step from a model update
-  std::atomic<double> update_step_max_ratio{0.0}; ///< ... over max(5 % of the force, 0.1 N)
-  std::atomic<uint64_t> direct_forces{0};         ///< server forces taken (direct mode)
+  std::atomic<double> passivity_energy_j{0.0};      ///< observer energy now (device J)
+  std::atomic<double> passivity_min_energy_j{0.0};  ///< lowest observer energy seen
+  std::atomic<uint64_t> passivity_activations{0};   ///< ticks the controller added damping
+  std::atomic<double> update_step_max_n{0.0};       ///< largest force step from a model update
+  std::atomic<double> update_step_max_ratio{0.0};   ///< ... over max(5 % of the force, 0.1 N)
+  std::atomic<uint64_t> direct_forces{0};           ///< server forces taken (direct mode)
   /// Energy model fades added that the passivity observer had not seen dissipated (device J):
   /// nonzero only when a stiffer model waited out JointProxy::kEnergyWaitNs.
   std::atomic<double> fade_unpaid_energy_j{0.0};
@@ -97,11 +97,13 @@ class HapticLoop {
   /// Zero actuator output whatever the model says (capture mode).
   void setActuatorsEnabled(bool on) noexcept { actuators_.store(on, std::memory_order_release); }
 
-  SampleRing& samples() noexcept { return *samples_; }   ///< RT produces, link consumes
-  ModelRing& models() noexcept { return *models_; }      ///< link produces, RT consumes
+  SampleRing& samples() noexcept { return *samples_; }     ///< RT produces, link consumes
+  ModelRing& models() noexcept { return *models_; }        ///< link produces, RT consumes
   ForceRing& directForces() noexcept { return *forces_; }  ///< link produces, RT consumes
   /// Set before start or between ticks.
-  void setRenderMode(RenderMode m) noexcept { direct_.store(m == RenderMode::kDirect, std::memory_order_release); }
+  void setRenderMode(RenderMode m) noexcept {
+    direct_.store(m == RenderMode::kDirect, std::memory_order_release);
+  }
   RenderMode renderMode() const noexcept {
     return direct_.load(std::memory_order_acquire) ? RenderMode::kDirect : RenderMode::kModel;
   }

@@ -28,7 +28,7 @@
 namespace telehand::client::loop {
 
 struct PassivityConfig {
-  bool control = true;                  ///< false: observe only
+  bool control = true;  ///< false: observe only
   /// Damping bound, N·s/m per finger: at 1 kHz with ~50 g at the grip, well inside the
   /// discrete stability limit (m / T = 50 N·s/m).
   double max_damping_ns_per_m = 20.0;
@@ -46,7 +46,7 @@ struct PassivityConfig {
 
 struct PassivityOutput {
   PerFinger<Vec3> force_n{Vec3::Zero(), Vec3::Zero()};
-  double damping_ns_per_m = 0.0;        ///< 0 when the controller did nothing
+  double damping_ns_per_m = 0.0;  ///< 0 when the controller did nothing
 };
 
 class PassivityGuard {

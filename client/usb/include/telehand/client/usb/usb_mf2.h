@@ -19,12 +19,12 @@
 #include <thread>
 #include <vector>
 
-#include "telehand/devices/device.h"
-#include "telehand/devices/mf2_calibration.h"
-#include "telehand/devices/mf2_protocol.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/rt/spsc_ring.h"
 #include "telehand/core/rt/triple_buffer.h"
+#include "telehand/devices/device.h"
+#include "telehand/devices/mf2_calibration.h"
+#include "telehand/devices/mf2_protocol.h"
 
 struct libusb_context;
 struct libusb_device_handle;
@@ -43,23 +43,23 @@ using devices::Mf2Calibration;
 struct UsbMf2Config {
   uint16_t vendor_id = proto::kDefaultVendorId;
   uint16_t product_id = proto::kDefaultProductId;
-  std::string serial;                   ///< empty: the first MF-2 found
-  uint16_t watchdog_ms = 20;            ///< the device zeroes current after this long without a command
-  int in_timeout_ms = 100;              ///< no state packet for this long is a timeout error
+  std::string serial;         ///< empty: the first MF-2 found
+  uint16_t watchdog_ms = 20;  ///< the device zeroes current after this long without a command
+  int in_timeout_ms = 100;    ///< no state packet for this long is a timeout error
   int out_timeout_ms = 50;
   int64_t command_fresh_ns = 10'000'000;  ///< older loop output is replaced by zero force
-  int reconnect_period_ms = 200;        ///< how often to look for the device while it is absent
-  int in_flight = 2;                    ///< IN transfers queued (1..4)
+  int reconnect_period_ms = 200;          ///< how often to look for the device while it is absent
+  int in_flight = 2;                      ///< IN transfers queued (1..4)
 };
 
 /// Counters the USB thread writes and any thread reads.
 struct UsbMf2Stats {
-  std::atomic<uint64_t> packets_in{0};       ///< state packets accepted
-  std::atomic<uint64_t> commands_out{0};     ///< command packets the device took
+  std::atomic<uint64_t> packets_in{0};              ///< state packets accepted
+  std::atomic<uint64_t> commands_out{0};            ///< command packets the device took
   std::array<std::atomic<uint64_t>, 8> rejected{};  ///< by proto::DecodeError
-  std::atomic<uint64_t> stale{0};            ///< repeated seq or device time
-  std::atomic<uint64_t> out_of_order{0};     ///< seq behind the last accepted one
-  std::atomic<uint64_t> lost{0};             ///< seq gaps: packets never seen
+  std::atomic<uint64_t> stale{0};                   ///< repeated seq or device time
+  std::atomic<uint64_t> out_of_order{0};            ///< seq behind the last accepted one
+  std::atomic<uint64_t> lost{0};                    ///< seq gaps: packets never seen
   std::atomic<uint64_t> resyncs{0};          ///< device counter restarted without re-enumerating
   std::atomic<uint64_t> bad_pose{0};         ///< encoder counts the linkage cannot take: rejected
   std::atomic<uint64_t> stalls{0};           ///< endpoint halts (cleared and resumed)

@@ -17,7 +17,8 @@ class TripleBuffer {
   /// Writer side: publish a value (overwrites one the reader has not taken yet).
   void write(const T& value) noexcept {
     slots_[back_] = value;
-    back_ = middle_.exchange(static_cast<uint8_t>(back_ | kFresh), std::memory_order_acq_rel) & kIndex;
+    back_ =
+        middle_.exchange(static_cast<uint8_t>(back_ | kFresh), std::memory_order_acq_rel) & kIndex;
   }
 
   /// Reader side: the newest value if one was written since the last read.

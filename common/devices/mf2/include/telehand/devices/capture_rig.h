@@ -30,8 +30,8 @@ struct CaptureRigOptions {
   /// owned; must outlive the rig.
   const PatientJoint* patient_joint = nullptr;
   SweepPlan plan;
-  OperatorConfig op;             ///< FSR noise and seed (the band and frequency are unused)
-  double axis_noise_n = 0.0;     ///< thimble error per axis, N RMS (paper: 1.43)
+  OperatorConfig op;          ///< FSR noise and seed (the band and frequency are unused)
+  double axis_noise_n = 0.0;  ///< thimble error per axis, N RMS (paper: 1.43)
   mf2::Mf2Description device = mf2::defaultMf2();
 };
 

@@ -19,8 +19,8 @@ struct FingerSample {
 };
 
 struct DeviceSample {
-  uint64_t seq = 0;        ///< the device's own sample counter
-  int64_t time_ns = 0;     ///< when it was taken, on the loop's clock
+  uint64_t seq = 0;     ///< the device's own sample counter
+  int64_t time_ns = 0;  ///< when it was taken, on the loop's clock
   PerFinger<FingerSample> fingers{};
 };
 

@@ -9,8 +9,8 @@
 #include <cstdint>
 
 #include "telehand/devices/device.h"
-#include "telehand/devices/mf2_protocol.h"
 #include "telehand/devices/mf2_device.h"
+#include "telehand/devices/mf2_protocol.h"
 
 namespace telehand::devices {
 
@@ -35,8 +35,7 @@ class Mf2Calibration {
 /// assumptions: a 23.4 mN·m/A DC motor through the device file's 10:1 capstan is 0.234 N·m/A
 /// at the joint, and a 6 A driver limit covers the device file's largest torque (1.2 N·m).
 struct Mf2Motors {
-  std::array<double, proto::kActuators> nm_per_amp{0.234, 0.234, 0.234, 0.234,
-                                                   0.234, 0.234, 0.234};
+  std::array<double, proto::kActuators> nm_per_amp{0.234, 0.234, 0.234, 0.234, 0.234, 0.234, 0.234};
   double max_current_a = 6.0;
 };
 

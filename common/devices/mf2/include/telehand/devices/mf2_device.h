@@ -70,8 +70,8 @@ struct EncoderCalibration {
 
 /// One finger's linkage. Lengths in metres, in the frame that the base joint rotates.
 struct FingerLinkage {
-  Vec3 yaw_pivot_m = Vec3::Zero();     ///< relative to the base pivot, at q_b = 0
-  double crank_half_spacing_m = 0.015; ///< the cranks pivot at u = -/+ this
+  Vec3 yaw_pivot_m = Vec3::Zero();      ///< relative to the base pivot, at q_b = 0
+  double crank_half_spacing_m = 0.015;  ///< the cranks pivot at u = -/+ this
   std::array<double, 2> crank_m{0.10, 0.10};
   std::array<double, 2> distal_m{0.12, 0.12};
   Quat gimbal_mount = Quat::Identity();  ///< thimble frame at zero gimbal angles
@@ -110,12 +110,12 @@ struct ThimbleCalibration {
 
 /// Calibrated thimble readings.
 struct ThimbleReading {
-  FsrReadings fsr_n{};                       ///< newtons, clamped at 0 (FSRs only sense pressure)
+  FsrReadings fsr_n{};  ///< newtons, clamped at 0 (FSRs only sense pressure)
   std::array<uint8_t, kFsrPerThimble> fault{};  ///< FsrFault bits per sensor
-  ThimbleForces forces;                      ///< paper eqs. 1-2
-  bool tangential_valid = true;              ///< sensors 2 and 3 are healthy
-  bool normal_valid = true;                  ///< sensors 1 and 4 are healthy
-  uint8_t faultMask() const noexcept;        ///< bit i: sensor i+1 is flagged
+  ThimbleForces forces;                         ///< paper eqs. 1-2
+  bool tangential_valid = true;                 ///< sensors 2 and 3 are healthy
+  bool normal_valid = true;                     ///< sensors 1 and 4 are healthy
+  uint8_t faultMask() const noexcept;           ///< bit i: sensor i+1 is flagged
 };
 
 /// Per-sample calibration plus the stateful stuck-channel detector of one thimble.
@@ -140,8 +140,8 @@ ThimbleReading calibrateThimble(const ThimbleCalibration& cal,
 /// Everything a device file states.
 struct Mf2Description {
   std::string name = "mf2";
-  std::string source;                  ///< where the numbers come from
-  std::string path;                    ///< the file it was loaded from (empty: built in)
+  std::string source;  ///< where the numbers come from
+  std::string path;    ///< the file it was loaded from (empty: built in)
   Vec3 base_pivot_m{-0.16, 0.0, -0.05};
   PerFinger<FingerLinkage> fingers{};
   std::array<EncoderCalibration, kActuators> actuator_encoders{};
@@ -208,9 +208,9 @@ class Mf2Kinematics {
 
  private:
   struct FiveBar {
-    double u, w;            // gimbal centre in the plane
-    double psi;             // pitch of distal link 1
-    Eigen::Matrix2d dpdq;   // d(u, w) / d(q1, q2)
+    double u, w;           // gimbal centre in the plane
+    double psi;            // pitch of distal link 1
+    Eigen::Matrix2d dpdq;  // d(u, w) / d(q1, q2)
   };
   bool fiveBar(int finger, double q1, double q2, FiveBar& out) const noexcept;
 

@@ -24,9 +24,10 @@ constexpr uint8_t kInterfaceNumber = 0;
 constexpr uint8_t kEndpointIn = 0x81;   ///< interrupt IN, 1 ms interval: state packets
 constexpr uint8_t kEndpointOut = 0x01;  ///< interrupt OUT: command packets
 
-constexpr int kActuators = 7;   ///< 0 the shared base joint, 1-3 thumb, 4-6 index (device model order)
-constexpr int kGimbals = 6;     ///< 0-2 thumb gimbal, 3-5 index gimbal
-constexpr int kFsrs = 8;        ///< 0-3 thumb FSRs 1..4, 4-7 index FSRs 1..4
+constexpr int kActuators =
+    7;                       ///< 0 the shared base joint, 1-3 thumb, 4-6 index (device model order)
+constexpr int kGimbals = 6;  ///< 0-2 thumb gimbal, 3-5 index gimbal
+constexpr int kFsrs = 8;     ///< 0-3 thumb FSRs 1..4, 4-7 index FSRs 1..4
 constexpr uint16_t kFsrMaxRaw = 4095;  ///< 12-bit ADC
 
 constexpr std::size_t kStateSize = 96;
@@ -62,27 +63,27 @@ struct StatePacket {
   std::array<int32_t, kActuators> actuator_counts{};
   std::array<int32_t, kGimbals> gimbal_counts{};
   std::array<uint16_t, kFsrs> fsr_raw{};
-  uint16_t status = 0;             ///< StateStatus bits
-  uint16_t rx_errors = 0;          ///< command packets the device rejected (saturates)
-  uint32_t last_command_seq = 0;   ///< seq of the last command the device accepted
+  uint16_t status = 0;            ///< StateStatus bits
+  uint16_t rx_errors = 0;         ///< command packets the device rejected (saturates)
+  uint32_t last_command_seq = 0;  ///< seq of the last command the device accepted
 };
 
 struct CommandPacket {
   uint32_t seq = 0;
   std::array<int16_t, kActuators> current_ma{};  ///< signed motor currents, mA
-  uint8_t flags = 0;                              ///< CommandFlags bits
-  uint16_t watchdog_ms = 20;                      ///< zero current after this long without a command
+  uint8_t flags = 0;                             ///< CommandFlags bits
+  uint16_t watchdog_ms = 20;                     ///< zero current after this long without a command
 };
 
 enum class DecodeError : uint8_t {
   kOk = 0,
-  kShort,        ///< fewer bytes than the packet
-  kLong,         ///< more bytes than the packet
+  kShort,  ///< fewer bytes than the packet
+  kLong,   ///< more bytes than the packet
   kBadMagic,
-  kBadVersion,   ///< a protocol this codec does not speak
+  kBadVersion,  ///< a protocol this codec does not speak
   kBadType,
   kBadCrc,
-  kBadValue,     ///< well-formed but out of range (FSR above 12 bits, unknown bits, watchdog)
+  kBadValue,  ///< well-formed but out of range (FSR above 12 bits, unknown bits, watchdog)
 };
 std::string_view toString(DecodeError e) noexcept;
 
@@ -116,7 +117,7 @@ class SequenceTracker {
   void reset() noexcept { *this = SequenceTracker{}; }
 
   uint64_t accepted() const noexcept { return accepted_; }
-  uint64_t lost() const noexcept { return lost_; }        ///< seq gaps among accepted packets
+  uint64_t lost() const noexcept { return lost_; }  ///< seq gaps among accepted packets
   uint64_t stale() const noexcept { return stale_; }
   uint64_t outOfOrder() const noexcept { return out_of_order_; }
   uint64_t resyncs() const noexcept { return resyncs_; }

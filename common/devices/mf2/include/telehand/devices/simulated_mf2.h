@@ -12,21 +12,21 @@
 /// actuators' torque limits, and back to the fingertip forces those torques make.
 #include <random>
 
-#include "telehand/devices/device.h"
-#include "telehand/core/clock.h"
 #include "telehand/config/config.h"
+#include "telehand/core/clock.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/devices/device.h"
 #include "telehand/devices/mf2_device.h"
 
 namespace telehand::devices {
 
 /// What the operator's hand and the device's links feel like, in joint space at the grip.
 struct SimulatedMf2Dynamics {
-  double mass_kg = 0.05;            ///< finger + thimble + link mass moved at the grip
-  double operator_damping = 1.0;    ///< N·s/m at the grip: the operator's hand is viscous
-  double operator_stiffness = 200.0;///< N/m holding abduction and axial rotation at neutral
-  double half_width_m = 0.008;      ///< thimble centre to phalanx axis
-  double pad_angle_deg = 20.0;      ///< how the normal load splits over FSRs 1 (end) and 4 (pad)
+  double mass_kg = 0.05;              ///< finger + thimble + link mass moved at the grip
+  double operator_damping = 1.0;      ///< N·s/m at the grip: the operator's hand is viscous
+  double operator_stiffness = 200.0;  ///< N/m holding abduction and axial rotation at neutral
+  double half_width_m = 0.008;        ///< thimble centre to phalanx axis
+  double pad_angle_deg = 20.0;        ///< how the normal load splits over FSRs 1 (end) and 4 (pad)
 };
 
 /// Who holds the thimbles: the torque per MCP axis (reference scale, N·m) their fingers
@@ -82,7 +82,8 @@ class SimulatedMf2 final : public Device {
  private:
   void advanceTo(int64_t t_ns) noexcept;
   void integrate(double dt) noexcept;
-  void fsrFor(int finger, const Quat& thimble, const Vec3& force_device, FingerSample& out) noexcept;
+  void fsrFor(int finger, const Quat& thimble, const Vec3& force_device,
+              FingerSample& out) noexcept;
   PerFinger<Quat> thimbleOrientations() const noexcept;
   bool updatePose(const PerFinger<Quat>& thimbles, PerFinger<mf2::ThimblePose>& measured) noexcept;
 

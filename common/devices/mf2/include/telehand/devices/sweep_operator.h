@@ -7,21 +7,21 @@
 /// measure.
 #include <array>
 
-#include "telehand/devices/simulated_mf2.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/devices/simulated_mf2.h"
 
 namespace telehand::devices {
 
 struct SweepPlan {
-  std::array<double, kAxes> lo_deg{};    ///< sweep limits per axis
+  std::array<double, kAxes> lo_deg{};  ///< sweep limits per axis
   std::array<double, kAxes> hi_deg{};
   std::array<double, kAxes> hold_deg{};  ///< where an axis is held while another moves
   double seconds_per_axis = 20.0;
-  double frequency_hz = 0.5;             ///< slow: manipulation is < 40 N/s (paper III)
-  double ramp_s = 1.0;                   ///< into and out of each axis' sweep
-  double stiffness_nm_per_rad = 4.0;     ///< the clinician's servo at the grip
+  double frequency_hz = 0.5;          ///< slow: manipulation is < 40 N/s (paper III)
+  double ramp_s = 1.0;                ///< into and out of each axis' sweep
+  double stiffness_nm_per_rad = 4.0;  ///< the clinician's servo at the grip
   double damping_nms_per_rad = 0.006;
-  bool repeat = true;                    ///< start again with flexion after the last axis
+  bool repeat = true;  ///< start again with flexion after the last axis
   /// Instead of one axis at a time: flexion and abduction together, at frequency_hz and
   /// 3.7 times it (incommensurate: the pair covers the plane), axial rotation held. For
   /// joints whose axes are coupled.

@@ -11,9 +11,9 @@
 #include <string>
 #include <vector>
 
-#include "telehand/core/sample.h"
 #include "telehand/core/fit.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/core/sample.h"
 
 namespace telehand::server::estimate {
 
@@ -28,17 +28,17 @@ struct CapturePoint {
 /// Why samples were left out.
 struct CaptureCounts {
   uint64_t used = 0;
-  uint64_t invalid = 0;     ///< stored flagged invalid (non-finite fields)
-  uint64_t fsr_fault = 0;   ///< a thimble sensor was flagged saturated or dead
-  uint64_t not_capture = 0; ///< the actuators were on (not a capture sample)
+  uint64_t invalid = 0;      ///< stored flagged invalid (non-finite fields)
+  uint64_t fsr_fault = 0;    ///< a thimble sensor was flagged saturated or dead
+  uint64_t not_capture = 0;  ///< the actuators were on (not a capture sample)
 };
 
 struct AxisFit {
   bool ok = false;
-  CubicCurve curve;             ///< coefficients, range = the range reached
-  double rms_n = 0.0;           ///< RMS residual, N
+  CubicCurve curve;    ///< coefficients, range = the range reached
+  double rms_n = 0.0;  ///< RMS residual, N
   double damping_nms_per_rad = 0.0;
-  double neutral_min_deg = 0.0; ///< where |F| stays under the neutral-zone threshold
+  double neutral_min_deg = 0.0;  ///< where |F| stays under the neutral-zone threshold
   double neutral_max_deg = 0.0;
   std::size_t samples = 0;
 };
@@ -65,8 +65,7 @@ struct FitOptions {
 /// The per-axis force that a sample's thimbles exert at the lever arm (paper eqs. 1-2 for
 /// each thimble, τ = Σ (p − c) × F, generalized per axis, divided by the lever arm), or
 /// nullopt with the reason counted.
-std::optional<CapturePoint> capturePoint(const JointModel& geometry,
-                                         const Sample& s, bool valid,
+std::optional<CapturePoint> capturePoint(const JointModel& geometry, const Sample& s, bool valid,
                                          CaptureCounts& counts);
 
 /// Accumulates capture samples (in sequence order) and fits them.

@@ -9,8 +9,8 @@
 #include <optional>
 #include <vector>
 
-#include "telehand/server/estimate/capture_fit.h"
 #include "telehand/core/knn_model.h"
+#include "telehand/server/estimate/capture_fit.h"
 
 namespace telehand::server::estimate {
 
@@ -22,14 +22,14 @@ struct LiveRefitOptions {
   /// ...and by more than this many newtons at reference scale (an assumption: 0.5 N at the
   /// lever arm is 0.125 N at the device, near the smallest forces a fingertip resolves).
   double jnd_floor_n = 0.5;
-  std::size_t min_samples = 1000;         ///< before the first refit
-  double min_span_deg = 6.0;              ///< an axis is published once it spans this much
+  std::size_t min_samples = 1000;  ///< before the first refit
+  double min_span_deg = 6.0;       ///< an axis is published once it spans this much
   /// The published range extends the captured one by this much each way: while the capture
   /// grows, the end-of-range wall (whose stiffness adds to the curve's end slope) stays
   /// beyond where followers are, instead of jumping onto them.
   double range_margin_deg = 5.0;
-  KnnOptions knn;                         ///< for followers that render the samples
-  std::size_t knn_min_count = 3;          ///< samples a cell needs to become a kNN sample
+  KnnOptions knn;                 ///< for followers that render the samples
+  std::size_t knn_min_count = 3;  ///< samples a cell needs to become a kNN sample
 };
 
 class LiveRefit {

@@ -9,12 +9,12 @@
 #include <string>
 #include <vector>
 
+#include "telehand/core/joint_model.h"
+#include "telehand/core/sample.h"
+#include "telehand/devices/mf2_device.h"
 #include "telehand/devices/sweep_operator.h"
 #include "telehand/server/estimate/capture_fit.h"
 #include "telehand/server/store/store.h"
-#include "telehand/core/sample.h"
-#include "telehand/core/joint_model.h"
-#include "telehand/devices/mf2_device.h"
 
 namespace telehand::server::estimate {
 
@@ -22,10 +22,10 @@ struct SyntheticCaptureOptions {
   JointModelParams truth = healthyIndexMcp();
   /// Thimble error as the force each axis sees, N RMS: the paper's ±1.43 N (docs/facts.md).
   double noise_n = 1.43;
-  double sensor_noise_n = 0.02;     ///< FSR channel noise before the ADC, N
+  double sensor_noise_n = 0.02;  ///< FSR channel noise before the ADC, N
   double seconds_per_axis = 20.0;
   double frequency_hz = 0.5;
-  double max_force_n = 15.0;        ///< the clinician stops at this force (FSRs saturate ~22 N)
+  double max_force_n = 15.0;  ///< the clinician stops at this force (FSRs saturate ~22 N)
   double range_fraction = 0.9;
   uint64_t seed = 1;
   mf2::Mf2Description device = mf2::defaultMf2();
@@ -37,7 +37,7 @@ struct SyntheticCaptureOptions {
 
 struct SyntheticCapture {
   std::vector<Sample> samples;  ///< as the client's loop recorded them
-  JointModelParams geometry;                      ///< frame and lever arm, reference scale
+  JointModelParams geometry;    ///< frame and lever arm, reference scale
   devices::SweepPlan plan;
 };
 

@@ -5,9 +5,9 @@
 #include <atomic>
 #include <thread>
 
-#include "telehand/server/session/session_manager.h"
 #include "telehand/protocol/dds.h"
 #include "telehand/protocol/dds_capture.h"
+#include "telehand/server/session/session_manager.h"
 
 namespace telehand::server::link {
 

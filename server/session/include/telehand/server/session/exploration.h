@@ -6,8 +6,8 @@
 #include <string>
 #include <vector>
 
-#include "telehand/server/store/store.h"
 #include "telehand/core/math.h"
+#include "telehand/server/store/store.h"
 
 namespace telehand::server::session {
 

@@ -61,7 +61,8 @@ class HandRunner {
   /// After a live sample stepped the hand: fold persistent drift into the model.
   bool correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip, const JointModel& model,
                     telehand_msg_SessionMode mode, double dt_s, int64_t now_ns, Vec3* before);
-  void publish(SessionContext& ctx, const LiveStream& live, const JointModel& model, int64_t now_ns);
+  void publish(SessionContext& ctx, const LiveStream& live, const JointModel& model,
+               int64_t now_ns);
 
   uint64_t session_id_;
   std::unique_ptr<sim::HandSim> sim_;  // null: HandState from the shared joint model

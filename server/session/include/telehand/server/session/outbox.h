@@ -27,10 +27,10 @@ struct ManagerStats {
   uint64_t unknown_session_samples = 0;
   uint64_t bad_commands = 0;
   uint64_t store_errors = 0;
-  uint64_t live_models = 0;            ///< JointModels published by live refits (captures)
-  int64_t last_refit_latency_ns = 0;   ///< newest sample's arrival -> its model published
+  uint64_t live_models = 0;           ///< JointModels published by live refits (captures)
+  int64_t last_refit_latency_ns = 0;  ///< newest sample's arrival -> its model published
   int64_t max_refit_latency_ns = 0;
-  uint64_t drift_corrections = 0;      ///< JointModels published to correct drift (all sessions)
+  uint64_t drift_corrections = 0;  ///< JointModels published to correct drift (all sessions)
 };
 
 }  // namespace telehand::server::session

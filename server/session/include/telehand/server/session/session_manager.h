@@ -4,11 +4,14 @@
 /// and reports bad input as events without disturbing other sessions.
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
-#include <memory>
-
+#include "telehand.h"
+#include "telehand/config/config.h"
+#include "telehand/core/joint_model.h"
+#include "telehand/protocol/deadband.h"
 #include "telehand/server/estimate/live_refit.h"
 #include "telehand/server/session/drift.h"
 #include "telehand/server/session/exploration.h"
@@ -17,10 +20,6 @@
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/sim/hand_sim.h"
 #include "telehand/server/store/store.h"
-#include "telehand.h"
-#include "telehand/config/config.h"
-#include "telehand/protocol/deadband.h"
-#include "telehand/core/joint_model.h"
 
 namespace telehand::server::session {
 

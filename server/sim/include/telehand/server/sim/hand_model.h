@@ -15,8 +15,8 @@ using Pose = Eigen::Isometry3d;
 
 struct Bone {
   std::string name;
-  int parent_joint = -1;        ///< joint that moves it; -1 for the root
-  double length_m = 0.0;        ///< along the link's x axis, from the joint
+  int parent_joint = -1;  ///< joint that moves it; -1 for the root
+  double length_m = 0.0;  ///< along the link's x axis, from the joint
   double radius_m = 0.0;
   double mass_kg = 0.0;
   Vec3 inertia_kg_m2 = Vec3::Zero();  ///< principal moments about the centre of mass
@@ -35,7 +35,7 @@ struct Dof {
 /// Rotations compose in y, x, z order (flexion, axial, abduction): the Euler convention of
 /// common/joint_model.h, so the MCP's angles mean the same on the client and the server.
 struct Joint {
-  std::string name;             ///< the first URDF joint of the chain
+  std::string name;  ///< the first URDF joint of the chain
   int parent_bone = -1;
   int child_bone = -1;
   Pose frame_in_parent = Pose::Identity();

@@ -11,8 +11,8 @@
 #include <memory>
 #include <vector>
 
-#include "telehand/server/sim/hand_model.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/server/sim/hand_model.h"
 
 class btDynamicsWorld;
 
@@ -21,20 +21,21 @@ namespace telehand::server::sim {
 struct HandSimConfig {
   double dt_s = 1e-3;
   int solver_iterations = 20;
-  bool fix_metacarpals = true;           ///< the therapist stabilises the hand on the table
+  bool fix_metacarpals = true;                  ///< the therapist stabilises the hand on the table
   std::string mcp_joint = "index_mcp_flexion";  ///< the joint the shared model drives
   /// Passive tone of every other joint toward neutral (an assumption: a few N·cm/rad,
   /// linear, an order below the MCP's; docs/facts.md gives no figures for them).
   double other_stiffness_nm_per_rad = 0.01;
-  double other_damping_nms_per_rad = 0.0001;  // explicit: b·dt/I stays < 0.2 for a 15 mm distal phalanx
-  double sphere_radius_m = 0.003;        ///< + 5 mm bone radius = the 8 mm thimble half width
+  double other_damping_nms_per_rad =
+      0.0001;                      // explicit: b·dt/I stays < 0.2 for a 15 mm distal phalanx
+  double sphere_radius_m = 0.003;  ///< + 5 mm bone radius = the 8 mm thimble half width
   /// Virtual coupling. Stiff enough that 16 N shifts the sphere by 0.08 mm (0.5 deg at the
   /// 1 cm lever arm); the 1 kg sphere keeps k·dt²/m = 0.2, well inside the stable range of
   /// an explicit spring at 1 ms, and critically damped.
   double sphere_mass_kg = 1.0;
   double coupling_stiffness_n_per_m = 2.0e5;
   double coupling_damping_ns_per_m = 894.0;
-  double pinch_preload_n = 3.0;          ///< least squeeze of the pinch grip (assumption)
+  double pinch_preload_n = 3.0;  ///< least squeeze of the pinch grip (assumption)
   /// Skin friction (pad on skin, an assumption) and the tangential spring that carries it,
   /// solved implicitly: 1 N per micrometre keeps the pads' shear under 0.2 deg of axial
   /// rotation at the largest load.
@@ -49,7 +50,7 @@ struct HandSimConfig {
   double grip_rise_s = 0.03;
   double grip_fall_s = 0.3;
   double max_pinch_n = 20.0;
-  double min_pad_force_n = 1.0;          ///< the lighter pad keeps at least this contact
+  double min_pad_force_n = 1.0;  ///< the lighter pad keeps at least this contact
 };
 
 class HandSim {

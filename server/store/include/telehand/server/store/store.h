@@ -16,12 +16,12 @@ struct SessionInfo {
   std::string user;
   std::string case_name;
   std::string mode;
-  std::string state;          ///< active, closed, abandoned
-  int64_t started_ns = 0;     ///< wall clock
+  std::string state;       ///< active, closed, abandoned
+  int64_t started_ns = 0;  ///< wall clock
   int64_t ended_ns = 0;
-  uint64_t samples = 0;       ///< distinct sequence numbers stored
+  uint64_t samples = 0;           ///< distinct sequence numbers stored
   uint64_t samples_expected = 0;  ///< what the client said it sent (0 = unknown)
-  uint64_t rejected = 0;      ///< samples stored flagged invalid (non-finite fields)
+  uint64_t rejected = 0;          ///< samples stored flagged invalid (non-finite fields)
 };
 
 struct EventRecord {
@@ -43,8 +43,7 @@ class SessionStore {
   virtual uint64_t createSession(const SessionInfo& info) = 0;
   /// Store samples; a sequence number already stored is ignored. `valid` false marks a
   /// sample whose non-finite fields must not be trusted. Returns how many were new.
-  virtual uint64_t appendSamples(uint64_t session_id,
-                                 std::span<const Sample> samples,
+  virtual uint64_t appendSamples(uint64_t session_id, std::span<const Sample> samples,
                                  std::span<const uint8_t> valid) = 0;
   virtual void appendEvent(uint64_t session_id, const EventRecord& e) = 0;
   /// Exploration result: the angle reached in one direction of one axis and the force there.
@@ -52,7 +51,7 @@ class SessionStore {
     std::string phase;      ///< baseline, reassessment
     std::string direction;  ///< flexion, extension, abduction, adduction, supination, pronation
     double angle_deg = 0.0;
-    double force_n = 0.0;   ///< force holding the joint at that moment (N at the lever arm)
+    double force_n = 0.0;  ///< force holding the joint at that moment (N at the lever arm)
   };
   virtual void appendReach(uint64_t session_id, const Reach& r) = 0;
   virtual std::vector<Reach> reaches(uint64_t session_id) = 0;
