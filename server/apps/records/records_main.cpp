@@ -1,26 +1,11 @@
 // telehand-records: read session records (list, export to CSV).
-#include <fstream>
-#include <iomanip>
 #include <iostream>
 
 #include "records_fit.h"
+#include "records_read.h"
 #include "telehand/app/cli.h"
 #include "telehand/core/error.h"
 #include "telehand/server/store/sqlite_store.h"
-
-namespace {
-
-std::string formatTime(int64_t ns) {
-  if (ns <= 0) return "-";
-  const std::time_t t = static_cast<std::time_t>(ns / 1'000'000'000);
-  std::tm tm{};
-  localtime_r(&t, &tm);
-  std::ostringstream o;
-  o << std::put_time(&tm, "%Y-%m-%d %H:%M:%S");
-  return o.str();
-}
-
-}  // namespace
 
 int main(int argc, char** argv) {
   using namespace telehand::server::store;
@@ -91,90 +76,15 @@ int main(int argc, char** argv) {
       return telehand::records::runFit(fit_req);
     }
     SqliteStore store(db, SqliteStore::Mode::kReadOnly);
-    if (*list) {
-      const auto sessions = store.listSessions();
-      if (sessions.empty()) {
-        std::cout << "no sessions in " << db << "\n";
-        return 0;
-      }
-      std::cout << std::left << std::setw(6) << "id" << std::setw(14) << "user" << std::setw(14)
-                << "mode" << std::setw(10) << "case" << std::setw(12) << "state" << std::setw(21)
-                << "started" << std::right << std::setw(10) << "duration" << std::setw(10)
-                << "samples" << std::setw(10) << "missing"
-                << "\n";
-      for (const auto& s : sessions) {
-        const double dur =
-            s.ended_ns > s.started_ns ? static_cast<double>(s.ended_ns - s.started_ns) * 1e-9 : 0.0;
-        const uint64_t missing =
-            s.samples_expected > s.samples ? s.samples_expected - s.samples : 0;
-        std::ostringstream d;
-        d << std::fixed << std::setprecision(1) << dur << " s";
-        std::cout << std::left << std::setw(6) << s.id << std::setw(14) << s.user << std::setw(14)
-                  << s.mode << std::setw(10) << s.case_name << std::setw(12) << s.state
-                  << std::setw(21) << formatTime(s.started_ns) << std::right << std::setw(10)
-                  << d.str() << std::setw(10) << s.samples << std::setw(10) << missing << "\n";
-      }
-      return 0;
-    }
+    if (*list) return telehand::records::runList(store, db);
     const auto info = store.session(session_id);
-    if (info && *show) {
-      const uint64_t missing =
-          info->samples_expected > info->samples ? info->samples_expected - info->samples : 0;
-      std::cout << "session " << info->id << ": " << info->mode << " on case '" << info->case_name
-                << "' for " << info->user << ", " << info->state << ", started "
-                << formatTime(info->started_ns) << "\n  samples " << info->samples << " (missing "
-                << missing << ", flagged invalid " << info->rejected << ")\n";
-      const auto events = store.events(session_id);
-      std::cout << "events (" << events.size() << "):\n";
-      for (const auto& e : events) {
-        std::cout << "  " << formatTime(e.time_ns) << "  " << std::left << std::setw(9) << e.kind
-                  << e.text << "\n";
-      }
-      const auto reaches = store.reaches(session_id);
-      if (!reaches.empty()) {
-        std::cout << "exploration:\n  " << std::left << std::setw(14) << "phase" << std::setw(12)
-                  << "direction" << std::right << std::setw(10) << "angle" << std::setw(12)
-                  << "force\n";
-        for (const auto& r : reaches) {
-          std::cout << "  " << std::left << std::setw(14) << r.phase << std::setw(12) << r.direction
-                    << std::right << std::setw(8) << std::fixed << std::setprecision(1)
-                    << r.angle_deg << " deg" << std::setw(8) << r.force_n << " N\n";
-        }
-      }
-      return 0;
-    }
+    if (info && *show) return telehand::records::runShow(store, *info);
     if (!info) {
       std::cerr << "telehand-records: no session " << session_id << " in " << db
                 << " (run 'telehand-records --db " << db << " list')\n";
       return 2;
     }
-    std::ofstream file;
-    if (!out_path.empty()) {
-      file.open(out_path);
-      if (!file) {
-        std::cerr << "telehand-records: cannot write '" << out_path << "'\n";
-        return 2;
-      }
-    }
-    std::ostream& out = out_path.empty() ? std::cout : file;
-    const auto& cols = sampleColumns();
-    for (std::size_t i = 0; i < cols.size(); ++i) out << (i ? "," : "") << cols[i];
-    out << "\n";
-    uint64_t rows = 0;
-    store.forEachSample(session_id, [&](const telehand::Sample& s, bool valid) {
-      out << sampleCsvRow(s, valid) << "\n";
-      ++rows;
-    });
-    out.flush();
-    if (!out) {
-      std::cerr << "telehand-records: write failed after " << rows << " rows\n";
-      return 2;
-    }
-    if (!out_path.empty()) {
-      std::cerr << "exported session " << session_id << ": " << rows << " samples to " << out_path
-                << "\n";
-    }
-    return 0;
+    return telehand::records::runExport(store, session_id, out_path);
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-records: " << e.what() << "\n";
     return 2;

@@ -1,0 +1,111 @@
+#include "records_read.h"
+
+#include <ctime>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+
+namespace telehand::records {
+
+using namespace server::store;
+
+namespace {
+
+std::string formatTime(int64_t ns) {
+  if (ns <= 0) return "-";
+  const std::time_t t = static_cast<std::time_t>(ns / 1'000'000'000);
+  std::tm tm{};
+  localtime_r(&t, &tm);
+  std::ostringstream o;
+  o << std::put_time(&tm, "%Y-%m-%d %H:%M:%S");
+  return o.str();
+}
+
+}  // namespace
+
+int runList(SqliteStore& store, const std::string& db) {
+  const auto sessions = store.listSessions();
+  if (sessions.empty()) {
+    std::cout << "no sessions in " << db << "\n";
+    return 0;
+  }
+  std::cout << std::left << std::setw(6) << "id" << std::setw(14) << "user" << std::setw(14)
+            << "mode" << std::setw(10) << "case" << std::setw(12) << "state" << std::setw(21)
+            << "started" << std::right << std::setw(10) << "duration" << std::setw(10) << "samples"
+            << std::setw(10) << "missing"
+            << "\n";
+  for (const auto& s : sessions) {
+    const double dur =
+        s.ended_ns > s.started_ns ? static_cast<double>(s.ended_ns - s.started_ns) * 1e-9 : 0.0;
+    const uint64_t missing = s.samples_expected > s.samples ? s.samples_expected - s.samples : 0;
+    std::ostringstream d;
+    d << std::fixed << std::setprecision(1) << dur << " s";
+    std::cout << std::left << std::setw(6) << s.id << std::setw(14) << s.user << std::setw(14)
+              << s.mode << std::setw(10) << s.case_name << std::setw(12) << s.state << std::setw(21)
+              << formatTime(s.started_ns) << std::right << std::setw(10) << d.str() << std::setw(10)
+              << s.samples << std::setw(10) << missing << "\n";
+  }
+  return 0;
+}
+
+int runShow(SqliteStore& store, const SessionInfo& session) {
+  const SessionInfo* info = &session;
+  const uint64_t session_id = session.id;
+  const uint64_t missing =
+      info->samples_expected > info->samples ? info->samples_expected - info->samples : 0;
+  std::cout << "session " << info->id << ": " << info->mode << " on case '" << info->case_name
+            << "' for " << info->user << ", " << info->state << ", started "
+            << formatTime(info->started_ns) << "\n  samples " << info->samples << " (missing "
+            << missing << ", flagged invalid " << info->rejected << ")\n";
+  const auto events = store.events(session_id);
+  std::cout << "events (" << events.size() << "):\n";
+  for (const auto& e : events) {
+    std::cout << "  " << formatTime(e.time_ns) << "  " << std::left << std::setw(9) << e.kind
+              << e.text << "\n";
+  }
+  const auto reaches = store.reaches(session_id);
+  if (!reaches.empty()) {
+    std::cout << "exploration:\n  " << std::left << std::setw(14) << "phase" << std::setw(12)
+              << "direction" << std::right << std::setw(10) << "angle" << std::setw(12)
+              << "force\n";
+    for (const auto& r : reaches) {
+      std::cout << "  " << std::left << std::setw(14) << r.phase << std::setw(12) << r.direction
+                << std::right << std::setw(8) << std::fixed << std::setprecision(1) << r.angle_deg
+                << " deg" << std::setw(8) << r.force_n << " N\n";
+    }
+  }
+  return 0;
+}
+
+int runExport(SqliteStore& store, uint64_t session_id, const std::string& out_path) {
+  std::ofstream file;
+  if (!out_path.empty()) {
+    file.open(out_path);
+    if (!file) {
+      std::cerr << "telehand-records: cannot write '" << out_path << "'\n";
+      return 2;
+    }
+  }
+  std::ostream& out = out_path.empty() ? std::cout : file;
+  const auto& cols = sampleColumns();
+  for (std::size_t i = 0; i < cols.size(); ++i) out << (i ? "," : "") << cols[i];
+  out << "\n";
+  uint64_t rows = 0;
+  store.forEachSample(session_id, [&](const telehand::Sample& s, bool valid) {
+    out << sampleCsvRow(s, valid) << "\n";
+    ++rows;
+  });
+  out.flush();
+  if (!out) {
+    std::cerr << "telehand-records: write failed after " << rows << " rows\n";
+    return 2;
+  }
+  if (!out_path.empty()) {
+    std::cerr << "exported session " << session_id << ": " << rows << " samples to " << out_path
+              << "\n";
+  }
+  return 0;
+}
+
+}  // namespace telehand::records
