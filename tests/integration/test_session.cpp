@@ -48,7 +48,9 @@ TEST_F(SessionTest, ServerClientWatcherRecordEverySample) {
   const std::string seen = watcher.output();
   EXPECT_NE(seen.find("session=" + std::to_string(session)), std::string::npos) << seen;
   EXPECT_NE(seen.find("mode=mobilization"), std::string::npos) << seen;
-  EXPECT_NE(seen.find("model_v=1"), std::string::npos) << seen;
+  // The model is known: a version the server published (its drift corrections can take it
+  // past 1 before the supervisor joins at 1.5 s).
+  EXPECT_GE(matchNumber(seen, R"( model_v=(\d+))"), 1u) << seen;
   EXPECT_GT(matchNumber(seen, R"(hand_states=(\d+))"), 50u) << seen;
 
   // The record holds every sequence number the client sent, once.
