@@ -95,7 +95,9 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
 }
 
 namespace {
-void copyFinger(const SampleFinger& f, telehand_msg_Finger& w) noexcept {
+// Sample and DeviceState name their fields alike: one copy serves both directions.
+template <typename From, typename To>
+void copyFinger(const From& f, To& w) noexcept {
   for (int i = 0; i < 3; ++i) w.position_m[i] = f.position_m[i];
   for (int i = 0; i < 4; ++i) w.orientation_q[i] = f.orientation_q[i];
   for (int i = 0; i < 4; ++i) w.fsr_n[i] = f.fsr_n[i];
@@ -103,13 +105,21 @@ void copyFinger(const SampleFinger& f, telehand_msg_Finger& w) noexcept {
   w.normal_n = f.normal_n;
   for (int i = 0; i < 3; ++i) w.command_n[i] = f.command_n[i];
 }
-void copyFinger(const telehand_msg_Finger& w, SampleFinger& f) noexcept {
-  for (int i = 0; i < 3; ++i) f.position_m[i] = w.position_m[i];
-  for (int i = 0; i < 4; ++i) f.orientation_q[i] = w.orientation_q[i];
-  for (int i = 0; i < 4; ++i) f.fsr_n[i] = w.fsr_n[i];
-  f.tangential_n = w.tangential_n;
-  f.normal_n = w.normal_n;
-  for (int i = 0; i < 3; ++i) f.command_n[i] = w.command_n[i];
+
+template <typename From, typename To>
+void copySample(const From& s, To& out) noexcept {
+  out.session_id = s.session_id;
+  out.seq = s.seq;
+  out.source_time_ns = s.source_time_ns;
+  out.model_version = s.model_version;
+  out.flags = s.flags;
+  for (int k = 0; k < 2; ++k) copyFinger(s.fingers[k], out.fingers[k]);
+  for (int i = 0; i < 3; ++i) {
+    out.mcp_angles_rad[i] = s.mcp_angles_rad[i];
+    out.mcp_torque_nm[i] = s.mcp_torque_nm[i];
+  }
+  out.passivity_energy_j = s.passivity_energy_j;
+  out.passivity_damping = s.passivity_damping;
 }
 }  // namespace
 
@@ -126,35 +136,11 @@ static_assert(sample_flags::kSafetyClamped == telehand_msg_kFlagSafetyClamped &&
                   sample_flags::kFsrFaultShift == telehand_msg_kFlagFsrFaultShift,
               "sample flags are the wire's");
 
-void toWire(const Sample& s, telehand_msg_DeviceState& out) noexcept {
-  out.session_id = s.session_id;
-  out.seq = s.seq;
-  out.source_time_ns = s.source_time_ns;
-  out.model_version = s.model_version;
-  out.flags = s.flags;
-  for (int k = 0; k < 2; ++k) copyFinger(s.fingers[k], out.fingers[k]);
-  for (int i = 0; i < 3; ++i) {
-    out.mcp_angles_rad[i] = s.mcp_angles_rad[i];
-    out.mcp_torque_nm[i] = s.mcp_torque_nm[i];
-  }
-  out.passivity_energy_j = s.passivity_energy_j;
-  out.passivity_damping = s.passivity_damping;
-}
+void toWire(const Sample& s, telehand_msg_DeviceState& out) noexcept { copySample(s, out); }
 
 Sample fromWire(const telehand_msg_DeviceState& d) noexcept {
   Sample s;
-  s.session_id = d.session_id;
-  s.seq = d.seq;
-  s.source_time_ns = d.source_time_ns;
-  s.model_version = d.model_version;
-  s.flags = d.flags;
-  for (int k = 0; k < 2; ++k) copyFinger(d.fingers[k], s.fingers[k]);
-  for (int i = 0; i < 3; ++i) {
-    s.mcp_angles_rad[i] = d.mcp_angles_rad[i];
-    s.mcp_torque_nm[i] = d.mcp_torque_nm[i];
-  }
-  s.passivity_energy_j = d.passivity_energy_j;
-  s.passivity_damping = d.passivity_damping;
+  copySample(d, s);
   return s;
 }
 

@@ -22,6 +22,11 @@ std::string formatTime(int64_t ns) {
   return o.str();
 }
 
+/// Samples the client said it sent that the record does not hold.
+uint64_t missingSamples(const SessionInfo& s) {
+  return s.samples_expected > s.samples ? s.samples_expected - s.samples : 0;
+}
+
 }  // namespace
 
 int runList(SqliteStore& store, const std::string& db) {
@@ -38,7 +43,7 @@ int runList(SqliteStore& store, const std::string& db) {
   for (const auto& s : sessions) {
     const double dur =
         s.ended_ns > s.started_ns ? static_cast<double>(s.ended_ns - s.started_ns) * 1e-9 : 0.0;
-    const uint64_t missing = s.samples_expected > s.samples ? s.samples_expected - s.samples : 0;
+    const uint64_t missing = missingSamples(s);
     std::ostringstream d;
     d << std::fixed << std::setprecision(1) << dur << " s";
     std::cout << std::left << std::setw(6) << s.id << std::setw(14) << s.user << std::setw(14)
@@ -49,15 +54,13 @@ int runList(SqliteStore& store, const std::string& db) {
   return 0;
 }
 
-int runShow(SqliteStore& store, const SessionInfo& session) {
-  const SessionInfo* info = &session;
-  const uint64_t session_id = session.id;
-  const uint64_t missing =
-      info->samples_expected > info->samples ? info->samples_expected - info->samples : 0;
-  std::cout << "session " << info->id << ": " << info->mode << " on case '" << info->case_name
-            << "' for " << info->user << ", " << info->state << ", started "
-            << formatTime(info->started_ns) << "\n  samples " << info->samples << " (missing "
-            << missing << ", flagged invalid " << info->rejected << ")\n";
+int runShow(SqliteStore& store, const SessionInfo& info) {
+  const uint64_t session_id = info.id;
+  const uint64_t missing = missingSamples(info);
+  std::cout << "session " << info.id << ": " << info.mode << " on case '" << info.case_name
+            << "' for " << info.user << ", " << info.state << ", started "
+            << formatTime(info.started_ns) << "\n  samples " << info.samples << " (missing "
+            << missing << ", flagged invalid " << info.rejected << ")\n";
   const auto events = store.events(session_id);
   std::cout << "events (" << events.size() << "):\n";
   for (const auto& e : events) {
