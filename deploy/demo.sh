@@ -1,18 +1,21 @@
 #!/usr/bin/env bash
 # The demo: installs what is missing, builds, then runs a full session on loopback DDS:
 # telehand-server, telehand-client with the simulated MF-2 performing a 20 s MCP
-# mobilization at 3 Hz, and telehand-watch following it as a supervisor would.
-# Options: --seconds N (default 20), --frequency HZ (default 3).
+# mobilization at 3 Hz, and telehand-watch following it as a supervisor would, all under
+# DDS Security with a throw-away PKI (each program as its role: server, device, supervisor).
+# Options: --seconds N (default 20), --frequency HZ (default 3), --insecure (no DDS Security).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
 seconds=20
 frequency=3
+security=on
 while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) seconds=$2; shift 2 ;;
     --frequency) frequency=$2; shift 2 ;;
-    -h|--help) sed -n '2,5p' "$0"; exit 0 ;;
+    --insecure) security=off; shift ;;
+    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
     *) echo "demo: unknown option '$1' (try --help)" >&2; exit 2 ;;
   esac
 done
@@ -26,13 +29,25 @@ logs=$root/records/demo-logs
 mkdir -p "$logs"
 
 pids=()
+pki=""
 cleanup() {
   for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
   for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
+  [ -z "$pki" ] || rm -rf "$pki"
 }
 trap cleanup EXIT INT TERM
 
-echo "== telehand demo: server, simulated-MF-2 client (${seconds} s, ${frequency} Hz), watcher; loopback DDS"
+if [ "$security" = on ]; then
+  pki=$(mktemp -d /tmp/telehand-demo-pki-XXXXXX)
+  ./deploy/pki/make-pki.sh "$pki/pki" >/dev/null
+  dds+=(--pki "$pki/pki")
+  secured="DDS Security (throw-away PKI)"
+else
+  dds+=(--insecure)
+  secured="no DDS Security"
+fi
+
+echo "== telehand demo: server, simulated-MF-2 client (${seconds} s, ${frequency} Hz), watcher; loopback DDS, $secured"
 "$bin/server/telehand-server" --db "$db" "${dds[@]}" >"$logs/server.log" 2>&1 &
 pids+=($!)
 

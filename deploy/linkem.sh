@@ -31,6 +31,9 @@ cleanup() {
 }
 trap cleanup EXIT INT TERM
 
+# Across the delay line as across a WAN: under DDS Security, with a throw-away PKI.
+"$root/deploy/pki/make-pki.sh" "$work/pki" >/dev/null
+
 ip netns add "${tag}a"
 ip netns add "${tag}b"
 "$b/tools/telehand-linkem" --ns-a "${tag}a" --ns-b "${tag}b" --profile "$profile" >"$work/linkem.log" 2>&1 &
@@ -40,12 +43,12 @@ grep "linkem ready" "$work/linkem.log" || { cat "$work/linkem.log" >&2; exit 1; 
 
 export TELEHAND_DDS_ADDRESS=10.77.0.1 TELEHAND_DDS_PEER=10.77.0.2
 ip netns exec "${tag}a" "$b/server/telehand-server" --dds-config "$root/deploy/cyclonedds/wan.xml" \
-  --partition "$tag" --db "$work/records.db" --log-level warn >"$work/server.log" 2>&1 &
+  --pki "$work/pki" --partition "$tag" --db "$work/records.db" --log-level warn >"$work/server.log" 2>&1 &
 pids+=($!)
 export TELEHAND_DDS_ADDRESS=10.77.0.2 TELEHAND_DDS_PEER=10.77.0.1
 rc=0
 ip netns exec "${tag}b" "$b/client/telehand-client" --dds-config "$root/deploy/cyclonedds/wan.xml" \
-  --partition "$tag" --seconds "$seconds" --connect-timeout 30 -q "$@" || rc=$?
+  --pki "$work/pki" --partition "$tag" --seconds "$seconds" --connect-timeout 30 -q "$@" || rc=$?
 # The server first: Cyclone's shutdown needs its interface (the TUN) to wake its receive thread.
 for i in 1 0; do
   kill "${pids[$i]}" 2>/dev/null || true

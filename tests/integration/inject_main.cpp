@@ -6,6 +6,7 @@
 #include <thread>
 
 #include "telehand/app/cli.h"
+#include "telehand/app/dds_cli.h"
 #include "telehand/core/clock.h"
 #include "telehand/protocol/dds.h"
 #include "telehand/protocol/wire.h"
@@ -108,12 +109,12 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"close-unknown", "unknown-state", "nan"}));
   app.add_option("--session", session, "session id for close-unknown / unknown-state");
   app.add_option("--count", count, "samples to send for nan (one of them has a NaN)");
-  app.add_option("--domain", o.domain, "DDS domain");
-  app.add_option("--partition", o.partition, "DDS partition");
-  app.add_option("--dds-config", o.config, "Cyclone DDS XML config");
+  bool insecure = false;
+  app::addDdsOptions(app, o, insecure, "device");
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
+    app::resolveDdsSecurity(o, insecure, "device", "telehand-test-inject");
     Peer peer(o);
     if (!peer.awaitServer(10s)) {
       std::cerr << "inject: no server\n";

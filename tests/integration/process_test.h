@@ -35,9 +35,12 @@ class ProcessTest : public ::testing::Test {
     if (!HasFailure()) std::filesystem::remove_all(dir_);
   }
   std::vector<std::string> dds() const {
-    return {"--dds-config", dds_config_, "--partition", partition_};
+    if (!pki_.empty()) {
+      return {"--dds-config", dds_config_, "--partition", partition_, "--pki", pki_};
+    }
+    return {"--dds-config", dds_config_, "--partition", partition_, "--insecure"};
   }
-  /// `bin args... --dds-config X --partition P`
+  /// `bin args... --dds-config X --partition P (--insecure | --pki DIR)`
   std::vector<std::string> cmd(std::string bin, std::vector<std::string> args) const {
     std::vector<std::string> v{std::move(bin)};
     v.insert(v.end(), args.begin(), args.end());
@@ -49,6 +52,9 @@ class ProcessTest : public ::testing::Test {
   }
 
   std::string prefix_, dds_config_;
+  /// A PKI (deploy/pki/make-pki.sh) to run the programs under DDS Security with, each as its
+  /// role's default identity; empty: --insecure.
+  std::string pki_;
   std::string dir_;
   std::string partition_;
 };

@@ -44,7 +44,8 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   auto cmd = [&](std::string bin, std::vector<std::string> args) {
     std::vector<std::string> v{std::move(bin)};
     v.insert(v.end(), args.begin(), args.end());
-    for (const char* a : {"--dds-config", TELEHAND_LOOPBACK_XML, "--partition"}) v.push_back(a);
+    for (const char* a : {"--dds-config", TELEHAND_LOOPBACK_XML, "--insecure", "--partition"})
+      v.push_back(a);
     v.push_back(partition);
     return v;
   };

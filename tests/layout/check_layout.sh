@@ -22,7 +22,7 @@ rule() {
 }
 
 rule common/core            'telehand/core/'
-rule common/app             'telehand/app/'
+rule common/app             'telehand/(app|protocol|core)/|telehand\.h|dds/'
 rule common/config          'telehand/(core|config)/'
 rule common/devices         'telehand/(core|config|devices)/'
 rule common/protocol        'telehand/(core|protocol)/|telehand\.h|dds/'

@@ -90,8 +90,10 @@ class NetemTest : public ::testing::Test {
                                "TELEHAND_DDS_PEER=" + peer,
                                std::move(bin)};
     v.insert(v.end(), args.begin(), args.end());
-    for (const std::string& a : {std::string("--dds-config"), std::string(TELEHAND_WAN_XML),
-                                 std::string("--partition"), partition_}) {
+    // The namespaces are this test's own closed network.
+    for (const std::string& a :
+         {std::string("--dds-config"), std::string(TELEHAND_WAN_XML), std::string("--insecure"),
+          std::string("--partition"), partition_}) {
       v.push_back(a);
     }
     return v;

@@ -1,6 +1,7 @@
 #include "options.h"
 
 #include "telehand/app/cli.h"
+#include "telehand/app/dds_cli.h"
 
 namespace telehand::client::app {
 
@@ -39,9 +40,7 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   auto* bmax = app.add_option("--band-max", o.cfg.op.band_max_n,
                               "force band high end, N at reference scale");
   auto* seed = app.add_option("--seed", o.cfg.op.seed, "simulated operator seed");
-  app.add_option("--domain", o.dds.domain, "DDS domain id")->check(CLI::Range(0, 230));
-  app.add_option("--partition", o.dds.partition, "DDS partition")->capture_default_str();
-  app.add_option("--dds-config", o.dds.config, "Cyclone DDS XML config file");
+  telehand::app::addDdsOptions(app, o.dds, o.insecure, "device");
   app.add_option("--connect-timeout", o.connect_timeout, "seconds to wait for the server")
       ->capture_default_str();
   app.add_flag("-q,--quiet", o.quiet, "no progress line");
@@ -108,6 +107,10 @@ void applyConfigFile(ClientOptions& o) {
     if (o.rt_given) cfg.loop.rt_priority = rt_cli;
   }
   validate(cfg.op, "command line");
+  // Listing the USB devices joins no DDS domain.
+  if (!o.list_devices) {
+    telehand::app::resolveDdsSecurity(o.dds, o.insecure, "device", "telehand-client");
+  }
 }
 
 }  // namespace telehand::client::app

@@ -16,6 +16,7 @@ struct ClientOptions {
   double seconds = 20.0, connect_timeout = 10.0, device_timeout = 5.0;
   bool quiet = false, list_devices = false;
   dds::Options dds;
+  bool insecure = false;  ///< --insecure: no DDS Security (loopback tests)
   ClientConfig cfg;
   std::string render = "model";
   double deadband = 0.0;

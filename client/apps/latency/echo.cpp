@@ -133,6 +133,13 @@ PingResult runPinger(const Settings& s, Progress& progress) {
       argv.push_back("--dds-config");
       argv.push_back(s.dds_config);
     }
+    if (s.dds.pki.empty()) {
+      argv.push_back("--insecure");
+    } else {
+      for (const std::string& a :
+           {std::string("--pki"), s.dds.pki, std::string("--identity"), s.dds.identity})
+        argv.push_back(a);
+    }
     echo_child.emplace(app::ProcessOptions{
         .argv = argv, .env = childEnv(""), .null_stdin = true, .die_with_parent = true});
     ep.emplace(o);

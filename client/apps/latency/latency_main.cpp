@@ -17,6 +17,7 @@
 #include "echo.h"
 #include "options.h"
 #include "report.h"
+#include "telehand/app/dds_cli.h"
 #include "telehand/app/process.h"
 #include "telehand/app/signals.h"
 
@@ -34,6 +35,7 @@ int main(int argc, char** argv) {
 
   installStopSignals();
   try {
+    app::resolveDdsSecurity(s.dds, s.insecure, "engineer", "telehand-latency");
     if (s.echo_only) return runEcho(s, seconds_given);
 
     const auto samples = (s.warmup_s + s.seconds) * s.rate_hz;

@@ -1,6 +1,7 @@
 #include "options.h"
 
 #include "telehand/app/cli.h"
+#include "telehand/app/dds_cli.h"
 
 namespace telehand::latency {
 
@@ -29,10 +30,7 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
   auto* echo_only = app.add_flag("--echo-only", s.echo_only,
                                  "only echo pings (the other end of a probe) until "
                                  "SIGINT/SIGTERM or --seconds");
-  app.add_option("--domain", s.dds.domain, "DDS domain id")->check(CLI::Range(0, 230));
-  app.add_option("--partition", s.dds.partition, "DDS partition")->capture_default_str();
-  app.add_option("--dds-config", s.dds_config, "Cyclone DDS XML config file")
-      ->check(CLI::ExistingFile);
+  app::addDdsOptions(app, s.dds, s.insecure, "engineer");
   auto* compare = app.add_flag("--compare-ddsperf", s.compare,
                                "afterwards run ddsperf ping-pong at the same size and rate");
   app.add_option("--ddsperf", s.ddsperf, "ddsperf program (package cyclonedds-tools)")
@@ -47,7 +45,7 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
     return app.exit(e) == 0 ? 0 : 2;
   }
   s.echo = echo_choice;
-  s.dds.config = s.dds_config;
+  s.dds_config = s.dds.config;
   seconds_given = seconds_opt->count() > 0;
   return std::nullopt;
 }

@@ -19,6 +19,7 @@ struct Settings {
   std::string json_path;
   std::string dds_config;  // as given, for messages and the self echo's command line
   dds::Options dds;
+  bool insecure = false;  // --insecure: no DDS Security (loopback tests)
 };
 
 /// Parses the command line into `s`; returns the exit code when the program is done (--help:

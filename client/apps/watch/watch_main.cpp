@@ -16,6 +16,7 @@
 
 #include "session.h"
 #include "telehand/app/cli.h"
+#include "telehand/app/dds_cli.h"
 #include "telehand/core/error.h"
 #include "telehand/core/log.h"
 
@@ -51,9 +52,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--plain", o.plain,
                "one key=value line per refresh, no ANSI (automatic when stdout is not a terminal)");
-  app.add_option("--domain", o.dds.domain, "DDS domain id")->check(CLI::Range(0, 230));
-  app.add_option("--partition", o.dds.partition, "DDS partition")->capture_default_str();
-  app.add_option("--dds-config", o.dds.config, "Cyclone DDS XML config file");
+  bool insecure = false;
+  app::addDdsOptions(app, o.dds, insecure, "supervisor");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")
       ->capture_default_str();
   try {
@@ -64,6 +64,7 @@ int main(int argc, char** argv) {
 
   try {
     setupLogging("telehand-watch", log_level);
+    app::resolveDdsSecurity(o.dds, insecure, "supervisor", "telehand-watch");
     if (!(o.band_min_n < o.band_max_n)) {
       throw ConfigError(fmt::format("--band-min ({:g} N) must be below --band-max ({:g} N)",
                                     o.band_min_n, o.band_max_n));

@@ -1,6 +1,9 @@
 #include "telehand/protocol/dds.h"
 
+#include <cstdlib>
 #include <filesystem>
+#include <map>
+#include <mutex>
 
 namespace telehand::dds {
 
@@ -137,17 +140,83 @@ std::string configUri(const std::string& config) {
   return "file://" + path.string();
 }
 
+std::string participantConfig(const Options& options) {
+  std::string uri = configUri(options.config);
+  if (options.pki.empty()) return uri;
+#ifndef TELEHAND_DDS_SECURITY_LIBDIR
+  throw ConfigError(
+      "DDS Security was asked for (--pki) but Cyclone's security plugins "
+      "(libdds_security_auth.so) were not found when telehand was built");
+#else
+  namespace fs = std::filesystem;
+  if (options.identity.empty()) throw ConfigError("DDS Security: --pki needs an --identity");
+  const fs::path pki = fs::absolute(options.pki);
+  const fs::path id = pki / options.identity;
+  for (const fs::path& f : {pki / "ca" / "ca.pem", pki / "governance.p7s", id / "identity.pem",
+                            id / "identity.key", id / "permissions.p7s"}) {
+    std::error_code ec;
+    if (!fs::is_regular_file(f, ec)) {
+      throw ConfigError("DDS Security: '" + f.string() + "' is missing (identity '" +
+                        options.identity + "' in PKI '" + options.pki +
+                        "'; deploy/pki/make-pki.sh makes them)");
+    }
+  }
+  // Read by Cyclone when it creates the domain; programs create their participants before
+  // starting threads.
+  ::setenv("TELEHAND_PKI", pki.c_str(), 1);
+  ::setenv("TELEHAND_IDENTITY", options.identity.c_str(), 1);
+  ::setenv("TELEHAND_DDS_SECURITY_LIBDIR", TELEHAND_DDS_SECURITY_LIBDIR, 1);
+  const std::string secure = configUri(TELEHAND_SECURE_XML);
+  return uri.empty() ? secure : uri + "," + secure;
+#endif
+}
+
+namespace {
+std::mutex& domainsMutex() {
+  static std::mutex m;
+  return m;
+}
+/// The config of each domain a Participant of this process created (and still holds).
+std::map<uint32_t, std::string>& domainConfigs() {
+  static std::map<uint32_t, std::string> configs;
+  return configs;
+}
+}  // namespace
+
+Participant::~Participant() {
+  subscriber_.reset();
+  publisher_.reset();
+  participant_.reset();
+  if (domain_.handle() > 0) {
+    const std::lock_guard lock(domainsMutex());
+    domain_.reset();
+    domainConfigs().erase(options_.domain);
+  }
+}
+
 Participant::Participant(const Options& options) : options_(options) {
   if (options.domain > 230) {
     throw ConfigError("DDS domain " + std::to_string(options.domain) + " is out of range 0..230");
   }
-  if (!options.config.empty()) {
-    const std::string uri = configUri(options.config);
-    const dds_entity_t d = dds_create_domain(options.domain, uri.c_str());
+  const std::string config = participantConfig(options);
+  // A domain is created once per process, with the first config it is asked for; a second
+  // participant asking for another config (another identity) would silently get the first.
+  const std::lock_guard lock(domainsMutex());
+  auto& configs = domainConfigs();
+  if (const auto it = configs.find(options.domain);
+      !config.empty() && it != configs.end() && it->second != config) {
+    throw ConfigError("DDS domain " + std::to_string(options.domain) +
+                      " is already in use in this process with another config or identity");
+  }
+  if (!config.empty()) {
+    const dds_entity_t d = dds_create_domain(options.domain, config.c_str());
     if (d > 0) {
       domain_ = Entity(d);
+      configs[options.domain] = config;
     } else if (d != DDS_RETCODE_PRECONDITION_NOT_MET) {  // already created in this process
-      check(d, ("create domain from '" + options.config + "'").c_str());
+      check(d, ("create domain from '" + options.config + "'" +
+                (options.pki.empty() ? "" : " with identity '" + options.identity + "'"))
+                   .c_str());
     }
   }
   participant_ = Entity(check(dds_create_participant(options.domain, nullptr, nullptr),

@@ -5,6 +5,7 @@
 #include <thread>
 
 #include "telehand/app/cli.h"
+#include "telehand/app/dds_cli.h"
 #include "telehand/core/log.h"
 #include "telehand/server/link/server_link.h"
 #include "telehand/server/store/sqlite_store.h"
@@ -27,10 +28,8 @@ int main(int argc, char** argv) {
          "--hand-deadband", hand_deadband,
          "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
       ->check(CLI::Range(0.0, 0.5));
-  app.add_option("--domain", dds_opts.domain, "DDS domain id")->check(CLI::Range(0, 230));
-  app.add_option("--partition", dds_opts.partition, "DDS partition")->capture_default_str();
-  app.add_option("--dds-config", dds_opts.config,
-                 "Cyclone DDS XML config file (e.g. deploy/cyclonedds/loopback.xml)");
+  bool insecure = false;
+  app::addDdsOptions(app, dds_opts, insecure, "server");
   std::string hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
   std::string cases = std::string(TELEHAND_DEPLOY_DIR) + "/cases";
   bool list_dofs = false;
@@ -49,6 +48,7 @@ int main(int argc, char** argv) {
   try {
     setupLogging("telehand-server", log_level);
     ServerConfig cfg = config_path.empty() ? ServerConfig{} : loadServerConfig(config_path);
+    app::resolveDdsSecurity(dds_opts, insecure, "server", "telehand-server");
     if (!db.empty()) cfg.db_path = db;
     if (hand_hz > 0.0) cfg.hand_state_hz = hand_hz;
     if (hand_deadband >= 0.0) cfg.hand_deadband_weber = hand_deadband;

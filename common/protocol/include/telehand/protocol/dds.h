@@ -111,12 +111,28 @@ struct Options {
   uint32_t domain = 0;
   std::string config;                  ///< Cyclone XML file path or inline XML; empty = default
   std::string partition = "telehand";  ///< isolates sessions, sites and tests
+  /// DDS Security (docs/security.md): the directory deploy/pki/make-pki.sh made, and the
+  /// identity in it (a subdirectory: server, device, supervisor, engineer...) this
+  /// participant authenticates as. Empty `pki`: unsecured.
+  std::string pki;
+  std::string identity;
 };
+
+/// The Cyclone config a participant with these options is created with: `config` as
+/// configUri gives it, followed, when `pki` is set, by deploy/cyclonedds/secure.xml, whose
+/// variables (TELEHAND_PKI, TELEHAND_IDENTITY, TELEHAND_DDS_SECURITY_LIBDIR) this sets in
+/// the environment. Throws ConfigError naming the first missing PKI file, or when Cyclone's
+/// security plugins were not found at build time.
+std::string participantConfig(const Options& options);
 
 /// A participant with one publisher and one subscriber in the configured partition.
 class Participant {
  public:
+  /// Throws ConfigError when this process already holds the domain with another config.
   explicit Participant(const Options& options);
+  ~Participant();
+  Participant(const Participant&) = delete;
+  Participant& operator=(const Participant&) = delete;
   dds_entity_t handle() const noexcept { return participant_.handle(); }
   dds_entity_t publisher() const noexcept { return publisher_.handle(); }
   dds_entity_t subscriber() const noexcept { return subscriber_.handle(); }
