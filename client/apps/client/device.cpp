@@ -44,6 +44,21 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
     sim_ = std::make_unique<devices::SimulatedMf2>(initial, o.cfg.op, clock,
                                                    devices::SimulatedMf2Dynamics{}, description);
     device_ = sim_.get();
+    if (mode == telehand_msg_MODE_EXPLORATION) {
+      // The clinician explores the case's range: its rest angles and ranges from the case
+      // file when this machine has it (the server's copy rules what is rendered).
+      JointModelParams joint = initial;
+      try {
+        joint = loadPatientCaseByName(o.cases_dir, o.case_name).model;
+      } catch (const ConfigError&) {
+      }
+      devices::ExplorationPlan plan = devices::planExploration(joint, o.cfg.op.band_max_n);
+      plan.force_scale = initial.force_scale;
+      plan.lever_arm_m = initial.lever_arm_m;
+      plan.seed = o.cfg.op.seed;
+      explorer_ = std::make_unique<devices::ExplorationOperator>(plan);
+      sim_->setOperator(explorer_.get());
+    }
   }
 }
 
