@@ -42,6 +42,10 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
   op.frequency_hz = freq_hz;
   op.seed = seed;
   devices::SimulatedMf2 dev(patient, op, clock);
+  // The clinician places the finger at its rest pose (a stiff joint rests flexed).
+  const JointModel model(patient);
+  dev.setPose(Vec3(model.restAngleRad(kFlexion), model.restAngleRad(kAbduction),
+                   model.restAngleRad(kAxial)));
   devices::ExplorationPlan plan = devices::planExploration(patient, op.band_max_n);
   plan.seed = seed;
   devices::ExplorationOperator explorer(plan);

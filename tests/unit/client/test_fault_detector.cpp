@@ -14,7 +14,7 @@ namespace {
 using loop::HapticLoop;
 using loop::LoopFault;
 
-struct Run {
+struct FaultRun {
   LoopFault fault = LoopFault::kNone;
   double fault_s = 0.0;
   uint64_t clamps = 0;
@@ -24,7 +24,7 @@ struct Run {
 
 /// Mobilizes `model` (3 Hz, 12-16 N) for up to `seconds`; `direct_n` > 0 renders that
 /// constant force per finger instead of the model (direct mode, no server).
-Run mobilize(const JointModelParams& model, double seconds, loop::TeleopOptions teleop,
+FaultRun mobilize(const JointModelParams& model, double seconds, loop::TeleopOptions teleop,
              double direct_n = -1.0) {
   ManualClock clock(kNsPerS);
   devices::SimulatedMf2 dev(model, OperatorConfig{}, clock);
@@ -35,7 +35,7 @@ Run mobilize(const JointModelParams& model, double seconds, loop::TeleopOptions 
     f.force_n = {Vec3(0, 0, direct_n), Vec3(0, 0, -direct_n)};
     hl.directForces().tryPush(f);
   }
-  Run r;
+  FaultRun r;
   Sample s;
   int after = -1;
   for (int i = 0; i < static_cast<int>(seconds * 1000); ++i) {
@@ -66,7 +66,7 @@ TEST(FaultDetector, ADivergingRenderingIsAClampStorm) {
   }
   loop::TeleopOptions teleop;
   teleop.passivity.control = false;
-  const Run r = mobilize(stiff, 10.0, teleop);
+  const FaultRun r = mobilize(stiff, 10.0, teleop);
   EXPECT_TRUE(r.fault == LoopFault::kClampStorm || r.fault == LoopFault::kSustainedClamp)
       << loop::faultName(r.fault);
   EXPECT_GT(r.clamps, 0u);
@@ -77,7 +77,7 @@ TEST(FaultDetector, ADivergingRenderingIsAClampStorm) {
 
 TEST(FaultDetector, AForceHeldAtTheClampIsASustainedClamp) {
   // 10 N per finger asked for and held: clamped once, and for good.
-  const Run r = mobilize(healthyIndexMcp(), 2.0, {}, 10.0);
+  const FaultRun r = mobilize(healthyIndexMcp(), 2.0, {}, 10.0);
   EXPECT_EQ(r.fault, LoopFault::kSustainedClamp) << loop::faultName(r.fault);
   EXPECT_NEAR(r.fault_s, 0.25, 0.01);
   EXPECT_GE(r.clamps, 250u);
@@ -90,7 +90,7 @@ TEST(FaultDetector, AJointPushedFarPastItsRangeIsARunaway) {
   // model's short flexion range and on.
   JointModelParams shortRange = healthyIndexMcp();
   shortRange.axes[kFlexion].max_deg = 20.0;
-  const Run r = mobilize(shortRange, 5.0, {}, 0.0);
+  const FaultRun r = mobilize(shortRange, 5.0, {}, 0.0);
   EXPECT_EQ(r.fault, LoopFault::kRangeRunaway) << loop::faultName(r.fault);
   EXPECT_EQ(r.clamps, 0u);
 }
@@ -107,7 +107,7 @@ TEST(FaultDetector, ANormalSessionDoesNotTripIt) {
 TEST(FaultDetector, DisabledItNeverTrips) {
   loop::TeleopOptions teleop;
   teleop.fault.enabled = false;
-  const Run r = mobilize(healthyIndexMcp(), 1.0, teleop, 10.0);
+  const FaultRun r = mobilize(healthyIndexMcp(), 1.0, teleop, 10.0);
   EXPECT_EQ(r.fault, LoopFault::kNone);
 }
 
