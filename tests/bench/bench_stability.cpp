@@ -83,7 +83,8 @@ int dampingSweep() {
       if (i > 2000) {
         lo = std::min(lo, radToDeg(sim.angles()[kFlexion]));
         hi = std::max(hi, radToDeg(sim.angles()[kFlexion]));
-        peak = std::max(peak, std::max(sim.renderedForce()[0].norm(), sim.renderedForce()[1].norm()));
+        peak =
+            std::max(peak, std::max(sim.renderedForce()[0].norm(), sim.renderedForce()[1].norm()));
       }
     }
     const bool stable = finite && peak < 10.0 && hi - lo < 30.0;
@@ -99,9 +100,12 @@ int main(int argc, char** argv) {
   int randoms = 20;
   double seconds = 30.0;
   for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--random") && i + 1 < argc) randoms = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--damping-sweep")) return dampingSweep();
+    if (!std::strcmp(argv[i], "--random") && i + 1 < argc)
+      randoms = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc)
+      seconds = std::atof(argv[++i]);
+    else if (!std::strcmp(argv[i], "--damping-sweep"))
+      return dampingSweep();
     else {
       std::fprintf(stderr, "usage: %s [--random N] [--seconds S] [--damping-sweep]\n", argv[0]);
       return 2;

@@ -33,10 +33,10 @@ double leastSlope(const CubicCurve& c) {
 
 PatientCase randomPatientCase(uint64_t seed, const RandomCaseRanges& r) {
   std::mt19937_64 rng(seed);
-  auto uniform = [&rng](const double (&range)[2]) {
+  auto uniform = [&rng](const double(&range)[2]) {
     return std::uniform_real_distribution<double>(range[0], range[1])(rng);
   };
-  auto logUniform = [&rng](const double (&range)[2]) {
+  auto logUniform = [&rng](const double(&range)[2]) {
     return std::exp(
         std::uniform_real_distribution<double>(std::log(range[0]), std::log(range[1]))(rng));
   };

@@ -20,8 +20,9 @@ std::vector<std::string> shippedCases() { return listPatientCases(TELEHAND_DEPLO
 void expectStable(const JointModelParams& m, Motion motion, double hz, uint64_t seed) {
   const stability::RunResult r = stability::runStability(m, motion, hz, 30.0, seed);
   EXPECT_EQ(stability::failures(r), "")
-      << m.case_name.data() << (motion == Motion::kMobilization ? " mobilization " : " exploration ")
-      << hz << " Hz: range excess " << r.range_excess_deg << " deg, request " << r.request_max_n
+      << m.case_name.data()
+      << (motion == Motion::kMobilization ? " mobilization " : " exploration ") << hz
+      << " Hz: range excess " << r.range_excess_deg << " deg, request " << r.request_max_n
       << " N, lowest energy " << r.min_energy_j << " J, " << r.clamps << " clamps, fault "
       << loop::faultName(r.fault);
 }

@@ -265,7 +265,9 @@ TEST(PatientCases, SpasmResistsFastMovementMoreAndEqualsHealthyAtRest) {
         }
         const double slow = torqueAt(spasm, axis, deg, stretch * 0.05) - torqueAt(spasm, axis, deg);
         const double fast = torqueAt(spasm, axis, deg, stretch * rate) - torqueAt(spasm, axis, deg);
-        if (rate > 0.05) EXPECT_GT(std::abs(fast), std::abs(slow) * rate / 0.05 * 0.999) << deg;
+        if (rate > 0.05) {
+          EXPECT_GT(std::abs(fast), std::abs(slow) * rate / 0.05 * 0.999) << deg;
+        }
         const double healthy_extra =
             torqueAt(healthy, axis, deg, stretch * rate) - torqueAt(healthy, axis, deg);
         EXPECT_GT(std::abs(fast), std::abs(healthy_extra)) << deg;

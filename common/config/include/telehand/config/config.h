@@ -74,7 +74,7 @@ std::vector<std::string> listPatientCases(const std::string& dir);
 
 /// The ranges randomPatientCase draws from (docs/facts.md "Random patient cases").
 struct RandomCaseRanges {
-  double flexion_max_deg[2] = {85.0, 100.0};  ///< MCP flexion 0-90 deg, to about 100
+  double flexion_max_deg[2] = {85.0, 100.0};   ///< MCP flexion 0-90 deg, to about 100
   double flexion_min_deg[2] = {-60.0, -15.0};  ///< hyperextension up to 45 deg, more when lax
   double abduction_deg[2] = {15.0, 25.0};      ///< each side
   double axial_min_deg[2] = {-12.0, -6.0};     ///< pronation (assumption)

@@ -47,7 +47,7 @@ struct LoopHealth {
   /// nonzero only when a stiffer model waited out JointProxy::kEnergyWaitNs.
   std::atomic<double> fade_unpaid_energy_j{0.0};
   // Faults (FaultLimits): the first one latches and the loop renders nothing from then on.
-  std::atomic<double> request_max_n{0.0};  ///< largest per-finger force asked of the gate
+  std::atomic<double> request_max_n{0.0};         ///< largest per-finger force asked of the gate
   std::atomic<double> range_excess_max_deg{0.0};  ///< furthest the proxy went past a range end
   std::atomic<uint32_t> fault{0};                 ///< a LoopFault; 0 = none
   std::atomic<int64_t> fault_time_ns{0};          ///< when, from the first tick

@@ -23,12 +23,12 @@ struct ExplorationPlan {
   std::array<double, kAxes> rest_deg{};  ///< where each axis is held (the joint's rest)
   std::array<double, kAxes> min_deg{};   ///< range of motion: a push stops rising here
   std::array<double, kAxes> max_deg{};
-  double reach_n = 16.0;     ///< largest push, reference scale (the band's top)
-  double push_s = 1.6;       ///< rise from 0 to reach_n
-  double hold_s = 1.0;       ///< at the reached force
-  double release_s = 1.6;    ///< back to 0
-  double settle_s = 0.8;     ///< back at rest before the next direction
-  double force_scale = 0.25; ///< device force / reference force (the rendering's 1:4)
+  double reach_n = 16.0;      ///< largest push, reference scale (the band's top)
+  double push_s = 1.6;        ///< rise from 0 to reach_n
+  double hold_s = 1.0;        ///< at the reached force
+  double release_s = 1.6;     ///< back to 0
+  double settle_s = 0.8;      ///< back at rest before the next direction
+  double force_scale = 0.25;  ///< device force / reference force (the rendering's 1:4)
   double lever_arm_m = 0.01;
   /// The hand's hold of the axes at rest, N/m at the grip (the simulated MF-2's operator
   /// stiffness), i.e. 200 N/m · lever² in joint space.
@@ -65,15 +65,15 @@ class ExplorationOperator final : public Operator {
   struct Phase {
     int direction = 0;
     uint64_t cycle = 0;
-    double t = 0.0;   ///< seconds into this direction
-    double k = 1.0;   ///< duration scale
+    double t = 0.0;  ///< seconds into this direction
+    double k = 1.0;  ///< duration scale
     bool done = false;
   };
   Phase phaseAt(double t_s) const noexcept;
 
   ExplorationPlan plan_;
-  double push_n_ = 0.0;       // what the hand pushes with
-  double stopped_n_ = -1.0;   // the force where the range end stopped the rise (-1: not stopped)
+  double push_n_ = 0.0;      // what the hand pushes with
+  double stopped_n_ = -1.0;  // the force where the range end stopped the rise (-1: not stopped)
   int stopped_dir_ = -1;
   uint64_t stopped_cycle_ = 0;
 };
