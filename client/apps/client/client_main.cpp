@@ -85,8 +85,13 @@ int main(int argc, char** argv) {
 
     const RunTotals totals = runSession(o, loop, link, mf2.usb());
     const auto closed = link.close(15s);
-    return printSummary(o, session, capture, initial.force_scale, totals, loop.health(), link,
-                        mf2.usb(), closed);
+    const int code = printSummary(o, session, capture, initial.force_scale, totals, loop.health(),
+                                  link, mf2.usb(), closed);
+    if (const auto fault = faultMessage(loop.health(), cfg.safety)) {
+      std::cerr << "telehand-client: " << *fault << "\n";
+      return kExitRenderingFault;
+    }
+    return code;
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-client: " << e.what() << "\n";
     return 2;

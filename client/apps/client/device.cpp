@@ -44,6 +44,25 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
     sim_ = std::make_unique<devices::SimulatedMf2>(initial, o.cfg.op, clock,
                                                    devices::SimulatedMf2Dynamics{}, description);
     device_ = sim_.get();
+    // The clinician places the finger at the case's rest pose and, exploring, plans against
+    // its ranges: from the case file when this machine has it (the server's copy rules what
+    // is rendered), else the healthy joint.
+    JointModelParams joint = initial;
+    try {
+      joint = loadPatientCaseByName(o.cases_dir, o.case_name).model;
+    } catch (const ConfigError&) {
+    }
+    const JointModel rest(joint);
+    sim_->setPose(Vec3(rest.restAngleRad(kFlexion), rest.restAngleRad(kAbduction),
+                       rest.restAngleRad(kAxial)));
+    if (mode == telehand_msg_MODE_EXPLORATION) {
+      devices::ExplorationPlan plan = devices::planExploration(joint, o.cfg.op.band_max_n);
+      plan.force_scale = initial.force_scale;
+      plan.lever_arm_m = initial.lever_arm_m;
+      plan.seed = o.cfg.op.seed;
+      explorer_ = std::make_unique<devices::ExplorationOperator>(plan);
+      sim_->setOperator(explorer_.get());
+    }
   }
 }
 

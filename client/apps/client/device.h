@@ -1,12 +1,14 @@
 #pragma once
-// The MF-2 the session runs on: over USB, the simulated one held by a virtual clinician, or
-// in capture mode the simulated one on the capture rig (a patient's finger in the grip).
+// The MF-2 the session runs on: over USB, the simulated one held by a virtual clinician
+// (mobilizing, or exploring the six directions in exploration mode), or in capture mode the
+// simulated one on the capture rig (a patient's finger in the grip).
 #include <memory>
 
 #include "options.h"
 #include "telehand/client/usb/usb_mf2.h"
 #include "telehand/core/clock.h"
 #include "telehand/devices/capture_rig.h"
+#include "telehand/devices/exploration_operator.h"
 #include "telehand/devices/mf2_device.h"
 #include "telehand/protocol/wire.h"
 
@@ -30,6 +32,7 @@ class ClientDevice {
   std::unique_ptr<usb::UsbMf2> usb_;
   std::unique_ptr<devices::CaptureRig> rig_;
   std::unique_ptr<devices::SimulatedMf2> sim_;
+  std::unique_ptr<devices::ExplorationOperator> explorer_;  // --mode exploration, simulated
   devices::Device* device_ = nullptr;
 };
 

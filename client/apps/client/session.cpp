@@ -49,6 +49,8 @@ RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::Clien
       for (const auto& m : usb->takeMessages()) std::cerr << "device: " << m << "\n";
     }
     if (t >= o.seconds) break;
+    // A rendering fault ends the session (the loop already commands zero force).
+    if (loop.fault() != loop::LoopFault::kNone) break;
     if (!o.quiet && now >= next_print) {
       next_print += 1s;
       const uint64_t live = link.stats().live_sent.load();
@@ -71,6 +73,18 @@ RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::Clien
   link.stop();
   if (!o.quiet && tty) std::cout << "\n";
   return r;
+}
+
+std::optional<std::string> faultMessage(const loop::LoopHealth& h, const SafetyLimits& limits) {
+  const auto f = static_cast<loop::LoopFault>(h.fault.load());
+  if (f == loop::LoopFault::kNone) return std::nullopt;
+  return fmt::format(
+      "rendering fault ({}) at t={:.3f} s after {} clamps: peak requested force {:.2f} N per "
+      "finger (limit {:.1f} N), rendered angles up to {:.1f} deg past the range; the session was "
+      "ended and the force set to zero",
+      loop::faultName(f), static_cast<double>(h.fault_time_ns.load()) * 1e-9,
+      static_cast<unsigned long long>(h.fault_clamps.load()), h.fault_peak_force_n.load(),
+      limits.max_force_n, h.range_excess_max_deg.load());
 }
 
 int printSummary(const ClientOptions& o, uint64_t session, bool capture, double force_scale,

@@ -2,6 +2,8 @@
 // The running session: the loop and the link until --seconds or Ctrl-C, with a progress
 // line once a second; then its summary.
 #include <cstdint>
+#include <optional>
+#include <string>
 
 #include "options.h"
 #include "telehand/client/link/client_link.h"
@@ -19,6 +21,13 @@ struct RunTotals {
 /// Starts the link and the loop, runs them and stops them (the session stays open).
 RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::ClientLink& link,
                      usb::UsbMf2* usb);
+
+/// What went wrong when the loop latched a rendering fault (which, when, the clamps and the
+/// peak force), or nothing.
+std::optional<std::string> faultMessage(const loop::LoopHealth& h, const SafetyLimits& limits);
+
+/// Exit code of a session that ended on a rendering fault (docs/manual.md "Exit codes").
+constexpr int kExitRenderingFault = 4;
 
 /// Prints the summary; returns the exit code (0: every sample recorded, 3: the record is not
 /// confirmed complete).

@@ -15,7 +15,24 @@ namespace telehand::client::loop {
 
 namespace {
 void bump(std::atomic<uint64_t>& c) noexcept { c.fetch_add(1, std::memory_order_relaxed); }
+void raise(std::atomic<double>& v, double x) noexcept {
+  if (x > v.load(std::memory_order_relaxed)) v.store(x, std::memory_order_relaxed);
+}
 }  // namespace
+
+const char* faultName(LoopFault f) noexcept {
+  switch (f) {
+    case LoopFault::kNone:
+      return "none";
+    case LoopFault::kSustainedClamp:
+      return "sustained clamp";
+    case LoopFault::kClampStorm:
+      return "clamp storm";
+    case LoopFault::kRangeRunaway:
+      return "range runaway";
+  }
+  return "unknown";
+}
 
 HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
                        const JointModelParams& initial_model, const SafetyLimits& limits,
@@ -29,7 +46,8 @@ HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
       models_(std::make_unique<ModelRing>()),
       forces_(std::make_unique<ForceRing>()),
       passivity_(teleop.passivity),
-      direct_(teleop.render == RenderMode::kDirect) {
+      direct_(teleop.render == RenderMode::kDirect),
+      fault_limits_(teleop.fault) {
   health_.model_version.store(initial_model.version, std::memory_order_relaxed);
   wall_offset_ns_ = wallNs() - clock_.nowNs();
 }
@@ -38,6 +56,7 @@ HapticLoop::~HapticLoop() { stop(); }
 
 StepStatus HapticLoop::step() noexcept {
   const int64_t now = clock_.nowNs();
+  if (health_.ticks.load(std::memory_order_relaxed) == 0) first_tick_ns_ = now;
   JointModelParams next;
   while (models_->tryPop(next)) {
     proxy_.setModel(next);
@@ -75,9 +94,14 @@ StepStatus HapticLoop::step() noexcept {
     bump(health_.direct_forces);
   }
   const PerFinger<Vec3>& request = direct ? direct_force_.force_n : rendered.force_device_n;
-  const PassivityOutput guarded = passivity_.control(request);
+  PassivityOutput guarded = passivity_.control(request);
+  // After a fault nothing is rendered: zero, still through the gate (its rate limit).
+  const bool faulted = health_.fault.load(std::memory_order_relaxed) != 0;
+  if (faulted) guarded = PassivityOutput{};
+  raise(health_.request_max_n, std::max(guarded.force_n[0].norm(), guarded.force_n[1].norm()));
   // Capture (actuators off): the gate zeroes every output and flags it.
-  gate_.setCapture(!actuators_.load(std::memory_order_relaxed));
+  const bool actuators = actuators_.load(std::memory_order_relaxed);
+  gate_.setCapture(!actuators);
   const SafetyOutput safe = gate_.apply(guarded.force_n, now, last_sample_time_ns_);
   last_command_ = safe.force_n;
   if (guarded.damping_ns_per_m > 0.0) bump(health_.passivity_activations);
@@ -106,6 +130,12 @@ StepStatus HapticLoop::step() noexcept {
   if (safe.flags & kSafetyClamped) bump(health_.clamped);
   if (safe.flags & kSafetyRateLimited) bump(health_.rate_limited);
   if (safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) status = StepStatus::kSafetyFault;
+  // Capture renders nothing, and a device that is not streaming has no angles to judge.
+  if (!faulted && actuators && fault_limits_.enabled && !(safe.flags & kSafetyWatchdog) &&
+      detectFault(now, (safe.flags & kSafetyClamped) != 0, rendered.angles_rad)) {
+    status = StepStatus::kSafetyFault;
+  }
+  if (faulted) status = StepStatus::kSafetyFault;
 
   devices::ForceCommand cmd;
   cmd.force_n = safe.force_n;
@@ -139,6 +169,47 @@ StepStatus HapticLoop::step() noexcept {
   }
   bump(health_.ticks);
   return status;
+}
+
+bool HapticLoop::detectFault(int64_t now, bool clamped, const Vec3& angles) noexcept {
+  const FaultLimits& lim = fault_limits_;
+  LoopFault fault = LoopFault::kNone;
+  // Clamp onsets in a leaky bucket that drains storm_onsets per second.
+  const double dt = bucket_ns_ == 0 ? 0.0 : static_cast<double>(now - bucket_ns_) * 1e-9;
+  bucket_ns_ = now;
+  onset_bucket_ = std::max(onset_bucket_ - lim.storm_onsets * std::max(dt, 0.0), 0.0);
+  if (clamped && !was_clamped_) {
+    onset_bucket_ += 1.0;
+    clamped_since_ns_ = now;
+  }
+  was_clamped_ = clamped;
+  if (onset_bucket_ >= lim.storm_onsets) fault = LoopFault::kClampStorm;
+  if (clamped && now - clamped_since_ns_ >= lim.sustained_clamp_ns) {
+    fault = LoopFault::kSustainedClamp;
+  }
+  // How far the rendered angles are past the model's range.
+  const JointModelParams& m = proxy_.model().params();
+  double excess = 0.0;
+  bool finite = true;
+  for (int i = 0; i < kAxes; ++i) {
+    const CubicCurve& c = m.axes[static_cast<std::size_t>(i)];
+    const double deg = radToDeg(angles[i]);
+    if (!std::isfinite(deg)) finite = false;
+    excess = std::max({excess, c.min_deg - deg, deg - c.max_deg});
+  }
+  raise(health_.range_excess_max_deg, finite ? excess : 1e9);
+  const bool outside = !finite || excess > lim.range_margin_deg;
+  if (outside && !outside_) outside_since_ns_ = now;
+  outside_ = outside;
+  if (outside && now - outside_since_ns_ >= lim.runaway_ns) fault = LoopFault::kRangeRunaway;
+  if (fault == LoopFault::kNone) return false;
+  health_.fault_time_ns.store(now - first_tick_ns_, std::memory_order_relaxed);
+  health_.fault_clamps.store(health_.clamped.load(std::memory_order_relaxed),
+                             std::memory_order_relaxed);
+  health_.fault_peak_force_n.store(health_.request_max_n.load(std::memory_order_relaxed),
+                                   std::memory_order_relaxed);
+  health_.fault.store(static_cast<uint32_t>(fault), std::memory_order_release);
+  return true;
 }
 
 void HapticLoop::start() {

@@ -64,6 +64,23 @@ double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
   return c.eval(shifted) + (c.slope(shifted) + kWallNPerDeg) * excess;
 }
 
+double JointModel::maxDampingNmsPerRad() const noexcept {
+  // Device damping B = force_scale · c / lever² for a joint damping c (force at the lever,
+  // speed at the lever).
+  const double lever = p_.lever_arm_m;
+  if (!(lever > 0.0) || !(p_.force_scale > 0.0)) return 0.0;
+  return kMaxDeviceDampingNsPerM * lever * lever / p_.force_scale;
+}
+
+double JointModel::viscousTorqueNm(double elastic_nm, double rate) const noexcept {
+  // Stretching: moving the way the elastic torque resists (the stretched tissue lengthens).
+  const bool stretching = elastic_nm * rate < 0.0;
+  const double reflex =
+      stretching ? p_.speed_gain_s_per_rad * std::abs(elastic_nm) : 0.0;  // N·m·s/rad
+  const double c = std::min(p_.damping_nms_per_rad + reflex, maxDampingNmsPerRad());
+  return -std::max(c, 0.0) * rate;
+}
+
 Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept {
   Vec3 tau;
   if (p_.knn) {
@@ -77,15 +94,14 @@ Vec3 JointModel::passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s
     }
     const Vec3 knn = p_.knn->torqueNm(in);
     for (int i = 0; i < kAxes; ++i) {
-      tau[i] = knn[i] - kWallNPerDeg * excess_deg[i] * p_.lever_arm_m -
-               p_.damping_nms_per_rad * rates_rad_s[i];
+      const double elastic = knn[i] - kWallNPerDeg * excess_deg[i] * p_.lever_arm_m;
+      tau[i] = elastic + viscousTorqueNm(elastic, rates_rad_s[i]);
     }
     return tau;
   }
   for (int i = 0; i < kAxes; ++i) {
-    const double spasm = 1.0 + p_.speed_gain_s_per_rad * std::abs(rates_rad_s[i]);
-    tau[i] = -holdingForceN(i, angles_rad[i]) * p_.lever_arm_m * spasm -
-             p_.damping_nms_per_rad * rates_rad_s[i];
+    const double elastic = -holdingForceN(i, angles_rad[i]) * p_.lever_arm_m;
+    tau[i] = elastic + viscousTorqueNm(elastic, rates_rad_s[i]);
   }
   return tau;
 }
@@ -187,7 +203,25 @@ PerFinger<Vec3> JointModel::fingertipForces(const PerFinger<Vec3>& p, const Vec3
   // thimbles), the couple's moment also has a part across the axis that this cancels.
   const Vec3 rest = tau - 2.0 * s.cross(couple);
   const Vec3 f_net = rest.cross(r) / r2;  // r × f_net = rest across r
-  return {0.5 * f_net - couple, 0.5 * f_net + couple};
+  // Along the pinch line (index to thumb, dorsal), the load goes to the finger whose pad it
+  // presses: the thumb's share t of the along-line force x blends from x/2 at x = 0 to all
+  // of x, and neither finger takes more than kFingerLoadN of it while the other can.
+  const double sn = std::sqrt(s.squaredNorm());
+  Vec3 squeeze = Vec3::Zero();
+  if (sn > 1e-9) {
+    const Vec3 e = -s / sn;  // index -> thumb
+    const double x = f_net.dot(e);
+    double t = 0.5 * x * (1.0 + x / std::sqrt(x * x + kSplitBlendN * kSplitBlendN));
+    if (std::abs(x) <= 2.0 * kFingerLoadN) {
+      t = std::clamp(t, std::max(x - kFingerLoadN, -kFingerLoadN),
+                     std::min(x + kFingerLoadN, kFingerLoadN));
+    } else {
+      t = 0.5 * x;
+    }
+    // Equal and opposite forces on the line through both pads: no net force, no moment.
+    squeeze = (t - 0.5 * x) * e;
+  }
+  return {0.5 * f_net - couple + squeeze, 0.5 * f_net + couple - squeeze};
 }
 
 Vec3 JointModel::axisTorque(const PerFinger<Vec3>& p, const Vec3& angles_rad,

@@ -170,7 +170,10 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
     } else if (in_fault) {
       EXPECT_EQ(statuses[i], StepStatus::kNoSample) << i;
     } else {
-      EXPECT_EQ(statuses[i], StepStatus::kOk) << i;
+      EXPECT_EQ(statuses[i], StepStatus::kOk)
+          << i << " " << loop::faultName(hl.fault()) << " clamps " << hl.health().clamped.load()
+          << " at " << hl.health().fault_time_ns.load() << " peak "
+          << hl.health().request_max_n.load();
     }
     if (i > kModelAt && i < kModelAt + 150) {
       EXPECT_TRUE(s.flags & sample_flags::kModelBlending) << i;

@@ -159,11 +159,12 @@ TEST(PassivityInTheLoop, MobilizationWithTheSimulatedMf2IsNotRateLimited) {
 
 TEST(PassivityInTheLoop, LateStartRateLimitsOnlyTheJointSwitchingOn) {
   // The device runs 0.3 s before the loop: the clinician's push has moved the finger freely
-  // to 38° of flexion, where the joint holds 0.6 N per thimble. Switching the joint on there
-  // is a real step the gate ramps (0.2 N per tick); nothing after it is rate limited.
+  // to 38° of flexion, where the joint holds 1.2 N, all on the thumb (the pushing finger,
+  // docs/facts.md "Force split"). Switching the joint on there is a real step the gate ramps
+  // (0.2 N per tick); nothing after it is rate limited.
   const MobilizationRun r = mobilize(300 * kNsPerMs, 4.0);
   EXPECT_GE(r.rate_limited, 3u);
-  EXPECT_LE(r.rate_limited, 6u);
+  EXPECT_LE(r.rate_limited, 10u);
   EXPECT_LT(r.last_rate_limited_s, 0.010) << "s";
   EXPECT_LT(r.lowest_energy_j, 0.0) << "the joint gave back what it never took in";
   EXPECT_GT(r.lowest_energy_j, -1e-3) << "J, the teleoperation benchmark's passivity bound";

@@ -362,6 +362,51 @@ TEST(JointModel, FingertipForcesReproduceTheTorqueForAMeasuredSkewedGrip) {
   }
 }
 
+TEST(JointModel, FingertipForcesPutTheLoadOnThePushingFinger) {
+  // Through the band (12-16 N reference, 3-4 N at the device) and its mirror: the finger whose
+  // pad the force presses carries it up to kFingerLoadN, the other the rest; exact torque.
+  for (const JointModelParams& p : {healthyIndexMcp(), offsetJoint()}) {
+    const JointModel m(p);
+    const Vec3 a(degToRad(30.0), degToRad(4.0), degToRad(-3.0));
+    const PerFinger<Vec3> pos = m.gripFromAngles(a, 0.008);
+    const Vec3 dorsal = (pos[kThumb] - pos[kIndex]).normalized();
+    for (double ref_n : {12.0, 14.0, 16.0}) {
+      for (double sign : {-1.0, 1.0}) {
+        // The joint resisting a flexion push (sign -1: torque toward extension) or an
+        // extension push, at device scale.
+        const Vec3 tau(sign * ref_n * p.lever_arm_m * p.force_scale, 0.0, 0.0);
+        const PerFinger<Vec3> f = m.fingertipForces(pos, a, tau);
+        EXPECT_LT((m.axisTorque(pos, a, f) - tau).cwiseAbs().maxCoeff(), 1e-12);
+        const int pusher = sign < 0.0 ? kThumb : kIndex;  // the force points dorsally: thumb
+        const double net = (f[0] + f[1]).norm();
+        EXPECT_NEAR(net, ref_n * p.force_scale, 1e-6);
+        EXPECT_NEAR(f[pusher].norm(), std::min(net, kFingerLoadN), 0.01) << ref_n;
+        EXPECT_NEAR(f[1 - pusher].norm(), std::max(net - kFingerLoadN, 0.0), 0.01) << ref_n;
+        EXPECT_GT(f[pusher].dot(pusher == kThumb ? dorsal : Vec3(-dorsal)), 0.0)
+            << "the pad is pressed, not pulled";
+        EXPECT_LE(f[pusher].norm(), 4.0);
+      }
+    }
+  }
+}
+
+TEST(JointModel, FingertipForcesStayContinuousThroughAReversal) {
+  // The flexion torque sweeps through zero in small steps: no finger's force steps.
+  const JointModel m(healthyIndexMcp());
+  const Vec3 a(degToRad(10.0), 0.0, 0.0);
+  const PerFinger<Vec3> pos = m.gripFromAngles(a, 0.008);
+  constexpr double kStep = 1e-6;  // N·m: 0.1 mN of net force at the lever
+  PerFinger<Vec3> last = m.fingertipForces(pos, a, Vec3(-0.02, 0.0, 0.0));
+  double worst = 0.0;
+  for (double t = -0.02 + kStep; t <= 0.02; t += kStep) {
+    const PerFinger<Vec3> f = m.fingertipForces(pos, a, Vec3(t, 0.0, 0.0));
+    for (int k = 0; k < 2; ++k) worst = std::max(worst, (f[k] - last[k]).norm());
+    last = f;
+  }
+  // Net force changes by kStep / lever per step; a finger by at most ~1.2 times that.
+  EXPECT_LT(worst, 1.25 * kStep / 0.01);
+}
+
 TEST(JointModel, FingertipForcesAreZeroForADegenerateGrip) {
   const JointModelParams p = offsetJoint();
   const JointModel m(p);

@@ -60,7 +60,10 @@ void SimulatedMf2::integrate(double dt) noexcept {
   if (axis_noise_n_ > 0.0) {
     for (int i = 0; i < kAxes; ++i) tau_seen[i] += axis_noise_n_ * lever * noise_(rng_);
   }
-  operator_force_ = geometry_.fingertipForces(p, angles_, tau_seen);
+  // fingertipForces gives the forces the phalanx exerts on the fingers; the fingers press
+  // the opposite of those for the opposite torque (so the finger whose pad pushes carries it).
+  const PerFinger<Vec3> reaction = geometry_.fingertipForces(p, angles_, -tau_seen);
+  operator_force_ = {-reaction[kThumb], -reaction[kIndex]};
   const Vec3 tau_render = geometry_.axisTorque(p, angles_, rendered_);
   const Vec3 tau_patient = custom_patient_ ? custom_patient_->passiveTorqueNm(angles_, rates_)
                            : has_patient_  ? patient_.passiveTorqueNm(angles_, rates_)

@@ -72,6 +72,27 @@ PatientCase loadPatientCase(const std::string& path);
 PatientCase loadPatientCaseByName(const std::string& dir, const std::string& name);
 std::vector<std::string> listPatientCases(const std::string& dir);
 
+/// The ranges randomPatientCase draws from (docs/facts.md "Random patient cases").
+struct RandomCaseRanges {
+  double flexion_max_deg[2] = {85.0, 100.0};   ///< MCP flexion 0-90 deg, to about 100
+  double flexion_min_deg[2] = {-60.0, -15.0};  ///< hyperextension up to 45 deg, more when lax
+  double abduction_deg[2] = {15.0, 25.0};      ///< each side
+  double axial_min_deg[2] = {-12.0, -6.0};     ///< pronation (assumption)
+  double axial_max_deg[2] = {10.0, 18.0};      ///< supination (assumption)
+  double stiffness_scale[2] = {0.7, 3.0};      ///< times eqs. 3-5, drawn log-uniform
+  double flexion_shift_deg[2] = {0.0, 20.0};   ///< rest angle moved toward flexion
+  std::array<double, kAxes> neutral_zone_max_deg = {10.0, 5.0, 4.0};  ///< the lax case's
+  double damping_nms_per_rad[2] = {0.001, 0.01};  ///< the shipped cases', log-uniform
+  double spasm_probability = 1.0 / 3.0;
+  double speed_gain_s_per_rad[2] = {0.5, 3.0};
+};
+
+/// A patient drawn at random within published ranges: the paper's eqs. 3-5 scaled (and the
+/// flexion curve shifted toward flexion), ranges of motion, neutral zones, damping and (for
+/// some) a protective spasm. The holding curves always rise across their ranges (the same
+/// check the case files pass). The same seed gives the same case; named "random-<seed>".
+PatientCase randomPatientCase(uint64_t seed, const RandomCaseRanges& ranges = {});
+
 /// Range checks shared by the file loaders and the command-line options.
 void validate(const OperatorConfig& c, const std::string& origin);
 void validate(const SafetyLimits& c, const std::string& origin);

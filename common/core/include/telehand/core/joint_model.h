@@ -47,6 +47,19 @@ struct CubicCurve {
 /// loop renders stably (docs/facts.md "Stable wall").
 constexpr double kWallNPerDeg = 1.0;
 
+/// Largest damping the joint model puts on the device, N·s/m per unit lever speed: half the
+/// discrete stability limit of a damper rendered on ~50 g at 1 kHz (m / T = 50 N·s/m), so
+/// that the passivity controller's own bound (20 N·s/m) still fits under the limit on top of
+/// it (docs/facts.md "Damping cap"). With the 1 cm lever and the 1:4 scale: 0.01 N·m·s/rad.
+constexpr double kMaxDeviceDampingNsPerM = 25.0;
+
+/// Fingertip force split (JointModel::fingertipForces): the load along the pinch line goes to
+/// the finger whose pad faces against it, blended over kSplitBlendN so that the forces stay
+/// continuous when it reverses; the other finger takes only what exceeds kFingerLoadN
+/// (docs/facts.md "Force split").
+constexpr double kSplitBlendN = 0.25;
+constexpr double kFingerLoadN = 3.6;
+
 /// The MCP Euler convention as free functions (joint frame, no joint model needed):
 /// R = Ry(angles[kFlexion]) · Rx(angles[kAxial]) · Rz(angles[kAbduction]).
 Mat3 eulerToRotation(const Vec3& angles_rad) noexcept;
@@ -64,7 +77,10 @@ struct JointModelParams {
   double damping_nms_per_rad = 0.0;  ///< viscous term, reference scale
   /// Half width of a zero-force band around each axis' rest angle (a lax joint), degrees.
   std::array<double, kAxes> neutral_zone_deg{};
-  /// Protective spasm: the passive force grows by this factor per rad/s of movement speed.
+  /// Protective spasm (velocity-dependent tone): while the joint is being stretched (moved
+  /// the way its holding force resists), it resists with an added damping of speed_gain ·
+  /// |elastic torque| N·m·s/rad: the resistance to stretch grows with the speed and with how
+  /// far the joint is stretched, and never pushes (see passiveTorqueNm).
   double speed_gain_s_per_rad = 0.0;
   Vec3 joint_origin_m = Vec3::Zero();
   Quat joint_orientation = Quat::Identity();
@@ -100,9 +116,18 @@ class JointModel {
   /// with the neutral zone cut out around the rest angle. Speed-independent.
   double holdingForceN(int axis, double angle_rad) const noexcept;
 
-  /// Passive (restoring) torque per axis at reference scale:
-  /// −F(angle)·lever·(1 + speed_gain·|rate|) − b·rate.
+  /// Passive torque per axis at reference scale: the elastic part −F(angle)·lever (the
+  /// restoring torque, speed-independent) plus a viscous part −c·rate that only ever resists
+  /// the motion (its power −c·rate² is never positive), with
+  ///   c = min(b + [stretching] · speed_gain · |F(angle)|·lever, maxDampingNmsPerRad()),
+  /// where "stretching" means the rate points the way the elastic torque resists (the spasm's
+  /// stretch reflex: Lance 1980, docs/facts.md "Spasm"). So the spasm's extra resistance grows
+  /// linearly with speed, as a damper does, and is bounded by what the device renders stably.
   Vec3 passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept;
+
+  /// The largest joint damping (N·m·s/rad, reference scale) this model renders: the one that
+  /// puts kMaxDeviceDampingNsPerM at the device through the lever arm and the force scale.
+  double maxDampingNmsPerRad() const noexcept;
 
   /// MCP angles from the two thimble positions (device frame).
   Vec3 anglesFromGrip(const PerFinger<Vec3>& p_device_finger) const noexcept;
@@ -118,8 +143,16 @@ class JointModel {
   /// Thimble orientation: z = pad normal (into the phalanx), x = the phalanx axis.
   Quat thimbleOrientation(int finger, const Vec3& angles_rad) const noexcept;
 
-  /// Fingertip forces (device frame) that together exert `axis_torque` on the joint: the net
-  /// force shared equally, the axial component as an equal and opposite couple.
+  /// Fingertip forces (device frame) that together exert `axis_torque` on the joint (forces on
+  /// the fingers, as the phalanx would push them). The axial component is an equal and
+  /// opposite couple; the net force across the pinch line is shared equally; the net force
+  /// along the pinch line (flexion and extension) goes to the finger it presses into its pad:
+  /// the thumb (dorsal side) when it points dorsally, the index (palmar side) when it points
+  /// palmarly. Only what exceeds kFingerLoadN goes to the other finger, and the split blends
+  /// to equal shares within ±kSplitBlendN of zero so that the forces stay continuous (their
+  /// change is at most ~1.2 times that of the net force). Moving load along the pinch line
+  /// is a pair of equal and opposite forces on the line between the pads: it has no moment,
+  /// so the torque is exact whatever the split.
   PerFinger<Vec3> fingertipForces(const PerFinger<Vec3>& p_device_finger, const Vec3& angles_rad,
                                   const Vec3& axis_torque_nm) const noexcept;
 
@@ -145,6 +178,9 @@ class JointModel {
   double potentialEnergyJ(const Vec3& angles_rad) const noexcept;
 
  private:
+  /// The viscous part for one axis given its elastic torque (see passiveTorqueNm).
+  double viscousTorqueNm(double elastic_nm, double rate_rad_s) const noexcept;
+
   JointModelParams p_;
   std::array<double, kAxes> rest_deg_{};  // of the cubic alone, where the neutral zone centres
 };

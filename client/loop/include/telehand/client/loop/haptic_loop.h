@@ -46,6 +46,46 @@ struct LoopHealth {
   /// Energy model fades added that the passivity observer had not seen dissipated (device J):
   /// nonzero only when a stiffer model waited out JointProxy::kEnergyWaitNs.
   std::atomic<double> fade_unpaid_energy_j{0.0};
+  // Faults (FaultLimits): the first one latches and the loop renders nothing from then on.
+  std::atomic<double> request_max_n{0.0};         ///< largest per-finger force asked of the gate
+  std::atomic<double> range_excess_max_deg{0.0};  ///< furthest the proxy went past a range end
+  std::atomic<uint32_t> fault{0};                 ///< a LoopFault; 0 = none
+  std::atomic<int64_t> fault_time_ns{0};          ///< when, from the first tick
+  std::atomic<uint64_t> fault_clamps{0};          ///< clamps counted up to the fault
+  std::atomic<double> fault_peak_force_n{0.0};    ///< request_max_n at the fault
+};
+
+/// Why the loop stopped rendering. The thresholds are FaultLimits'.
+enum class LoopFault : uint32_t {
+  kNone = 0,
+  kSustainedClamp = 1,  ///< the gate clamped the force on every tick for sustained_clamp_ns
+  kClampStorm = 2,      ///< the force ran in and out of the clamp (clamp onsets) too often
+  kRangeRunaway = 3,    ///< the rendered angles left the model's range by range_margin_deg
+};
+/// "sustained clamp", "clamp storm", "range runaway" ("none").
+const char* faultName(LoopFault f) noexcept;
+
+/// When the loop declares a rendering fault (docs/manual.md "Exit codes"). A stable
+/// rendering never clamps (the stability suite checks 0 clamps for every shipped case and
+/// random ones), so these only have to stay clear of a student deliberately pushing into
+/// the device's limit: a push held beyond what the device renders clamps once and stays
+/// clamped, an unstable rendering oscillates in and out of the clamp at tens to hundreds of
+/// Hz, and a stable one never goes far past the end-of-range wall.
+struct FaultLimits {
+  bool enabled = true;
+  /// A clamp held this long: the device cannot render what the model asks (a quarter second
+  /// is a deliberate push, not a transient).
+  int64_t sustained_clamp_ns = 250'000'000;
+  /// Clamp onsets (a tick clamped after one that was not) counted in a leaky bucket that
+  /// drains `storm_onsets` per second: the fault trips at `storm_onsets` onsets in a burst, or
+  /// at a sustained rate above `storm_onsets` per second. A 1-6 Hz mobilization pushed past
+  /// the limit makes at most 6 onsets per second; a diverging loop makes one per oscillation.
+  double storm_onsets = 20.0;
+  /// Rendered angles this far past a range end (or not finite) for runaway_ns. The end-of-range
+  /// wall (1 N/deg at reference scale) asks 25 N more than the curve's end there: more than
+  /// the device renders (16 N reference), so only a runaway gets there.
+  double range_margin_deg = 25.0;
+  int64_t runaway_ns = 20'000'000;
 };
 
 /// A force the server computed for the device sample `device_seq` (direct mode).
@@ -62,6 +102,7 @@ struct TeleopOptions {
   RenderMode render = RenderMode::kModel;
   PassivityConfig passivity;
   int64_t blend_ns = 200'000'000;  ///< nominal model fade
+  FaultLimits fault;
 };
 
 enum class StepStatus { kOk, kNoSample, kSafetyFault };
@@ -108,10 +149,17 @@ class HapticLoop {
     return direct_.load(std::memory_order_acquire) ? RenderMode::kDirect : RenderMode::kModel;
   }
   const LoopHealth& health() const noexcept { return health_; }
+  /// The latched fault (kNone while rendering normally). After a fault the loop commands zero
+  /// force (through the gate's rate limit) until it is destroyed.
+  LoopFault fault() const noexcept {
+    return static_cast<LoopFault>(health_.fault.load(std::memory_order_acquire));
+  }
   uint64_t nextSeq() const noexcept { return next_seq_.load(std::memory_order_acquire); }
 
  private:
   void run();
+  /// Updates the fault detector with this tick; true when a fault has latched.
+  bool detectFault(int64_t now, bool clamped, const Vec3& angles) noexcept;
 
   devices::Device& device_;
   const Clock& clock_;
@@ -136,6 +184,15 @@ class HapticLoop {
   devices::DeviceSample sample_{};
   int64_t wall_offset_ns_ = 0;  // wall clock minus the loop clock, fixed at construction
   int64_t last_sample_time_ns_ = INT64_MIN / 2;
+  // Fault detector state (RT thread only).
+  FaultLimits fault_limits_;
+  int64_t first_tick_ns_ = 0;
+  bool was_clamped_ = false;
+  int64_t clamped_since_ns_ = 0;
+  double onset_bucket_ = 0.0;
+  int64_t bucket_ns_ = 0;
+  bool outside_ = false;
+  int64_t outside_since_ns_ = 0;
 };
 
 }  // namespace telehand::client::loop

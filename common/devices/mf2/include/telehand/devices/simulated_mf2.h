@@ -56,6 +56,12 @@ class SimulatedMf2 final : public Device {
   void setPatient(const JointModelParams& truth);
   /// As above with any joint; not owned, must outlive the device.
   void setPatient(const PatientJoint* joint) noexcept { custom_patient_ = joint; }
+  /// Where the phalanx starts (MCP angles, at rest): e.g. a patient's resting posture instead
+  /// of the neutral pose. Call before the first read.
+  void setPose(const Vec3& angles_rad) noexcept {
+    angles_ = angles_rad;
+    rates_.setZero();
+  }
   /// Replace the built-in mobilization (flexion force band, other axes held) by a script.
   /// The operator must outlive the device.
   void setOperator(Operator* op) noexcept { script_ = op; }

@@ -1,0 +1,145 @@
+// The stability sweep (docs/manual.md "Tests"): every shipped patient case and N random ones
+// (randomPatientCase, seeds 1..N), 30 s of mobilization at 1, 3 and 6 Hz and 30 s of
+// exploration each, through the client's loop on the simulated MF-2, offline. Prints one
+// line per run and a summary; exits 1 if any run fails the suite's criteria.
+//
+//   telehand_bench_stability [--random N] [--seconds S] [--damping-sweep]
+//
+// --damping-sweep: instead, renders a plain virtual damper B (N·s/m per finger, one tick late,
+// velocity low-passed at 5 ms like the proxy's) on the simulated MF-2 during a mobilization
+// and reports where it stops being stable: the measurement behind the damping cap
+// (docs/facts.md "Damping cap").
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+
+#include "../stability/stability_run.h"
+
+using namespace telehand;
+
+namespace {
+
+/// Adds −B·v to every command (v from the device's positions, 5 ms low-pass).
+class DampedDevice final : public devices::Device {
+ public:
+  DampedDevice(devices::Device& inner, double b) : inner_(inner), b_(b) {}
+  bool read(devices::DeviceSample& out) noexcept override {
+    if (!inner_.read(out)) return false;
+    for (int k = 0; k < 2; ++k) {
+      if (have_ && out.time_ns > last_ns_) {
+        const double dt = static_cast<double>(out.time_ns - last_ns_) * 1e-9;
+        const Vec3 raw = (out.fingers[k].position_m - last_p_[k]) / dt;
+        v_[k] += (dt / (0.005 + dt)) * (raw - v_[k]);
+      }
+      last_p_[k] = out.fingers[k].position_m;
+    }
+    have_ = true;
+    last_ns_ = out.time_ns;
+    return true;
+  }
+  bool write(const devices::ForceCommand& cmd) noexcept override {
+    devices::ForceCommand c = cmd;
+    for (int k = 0; k < 2; ++k) c.force_n[k] -= b_ * v_[k];
+    return inner_.write(c);
+  }
+  devices::DeviceStatus status() const noexcept override { return inner_.status(); }
+  std::string_view name() const noexcept override { return "damped"; }
+
+ private:
+  devices::Device& inner_;
+  double b_;
+  bool have_ = false;
+  int64_t last_ns_ = 0;
+  PerFinger<Vec3> last_p_{Vec3::Zero(), Vec3::Zero()}, v_{Vec3::Zero(), Vec3::Zero()};
+};
+
+int dampingSweep() {
+  std::printf("%8s %10s %12s %12s\n", "B N.s/m", "flex range", "peak cmd N", "verdict");
+  for (double b : {10.0, 20.0, 25.0, 30.0, 40.0, 50.0, 60.0, 80.0, 100.0, 150.0, 200.0, 400.0}) {
+    ManualClock clock(kNsPerS);
+    const JointModelParams m = healthyIndexMcp();
+    devices::SimulatedMf2 sim(m, OperatorConfig{}, clock);
+    DampedDevice dev(sim, b);
+    client::loop::TeleopOptions teleop;
+    teleop.passivity.control = false;
+    teleop.fault.enabled = false;
+    SafetyLimits lim;
+    lim.max_force_n = 1e6;  // see the damper itself, not the gate
+    lim.max_rate_n_per_s = 1e9;
+    client::loop::HapticLoop hl(dev, clock, m, lim, LoopConfig{}, teleop);
+    Sample s;
+    double lo = 1e9, hi = -1e9, peak = 0.0;
+    bool finite = true;
+    for (int i = 0; i < 6000; ++i) {
+      clock.advance(kNsPerMs);
+      hl.step();
+      while (hl.samples().tryPop(s)) {
+      }
+      if (!allFinite(sim.angles())) {
+        finite = false;
+        break;
+      }
+      if (i > 2000) {
+        lo = std::min(lo, radToDeg(sim.angles()[kFlexion]));
+        hi = std::max(hi, radToDeg(sim.angles()[kFlexion]));
+        peak =
+            std::max(peak, std::max(sim.renderedForce()[0].norm(), sim.renderedForce()[1].norm()));
+      }
+    }
+    const bool stable = finite && peak < 10.0 && hi - lo < 30.0;
+    std::printf("%8.0f %10.1f %12.2f %12s\n", b, finite ? hi - lo : -1.0, peak,
+                stable ? "stable" : "UNSTABLE");
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int randoms = 20;
+  double seconds = 30.0;
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--random") && i + 1 < argc)
+      randoms = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc)
+      seconds = std::atof(argv[++i]);
+    else if (!std::strcmp(argv[i], "--damping-sweep"))
+      return dampingSweep();
+    else {
+      std::fprintf(stderr, "usage: %s [--random N] [--seconds S] [--damping-sweep]\n", argv[0]);
+      return 2;
+    }
+  }
+  std::vector<JointModelParams> cases;
+  for (const auto& name : listPatientCases(TELEHAND_DEPLOY_DIR "/cases")) {
+    cases.push_back(loadPatientCaseByName(TELEHAND_DEPLOY_DIR "/cases", name).model);
+  }
+  for (int seed = 1; seed <= randoms; ++seed) {
+    cases.push_back(randomPatientCase(static_cast<uint64_t>(seed)).model);
+  }
+  std::printf("%-12s %-6s %4s %8s %8s %8s %10s %6s %6s %6s %6s  %s\n", "case", "motion", "Hz",
+              "excess", "req N", "push N", "min E J", "hold N", "clamps", "PC", "fault", "result");
+  int runs = 0, failed = 0;
+  for (const auto& m : cases) {
+    for (int j = 0; j < 4; ++j) {
+      const bool explore = j == 3;
+      const double hz = explore ? 0.0 : (j == 0 ? 1.0 : j == 1 ? 3.0 : 6.0);
+      const auto r = stability::runStability(
+          m, explore ? stability::Motion::kExploration : stability::Motion::kMobilization,
+          explore ? 3.0 : hz, seconds, 1);
+      const std::string why = stability::failures(r);
+      ++runs;
+      failed += why.empty() ? 0 : 1;
+      std::printf("%-12s %-6s %4.0f %8.2f %8.3f %8.3f %10.2e %6.3f %6llu %6llu %6s  %s\n",
+                  m.case_name.data(), explore ? "explor" : "mobil", hz, r.range_excess_deg,
+                  r.request_max_n, r.pusher_max_n, r.min_energy_j, r.holder_max_n,
+                  static_cast<unsigned long long>(r.clamps),
+                  static_cast<unsigned long long>(r.pc_ticks),
+                  r.fault == client::loop::LoopFault::kNone ? "-" : "FAULT",
+                  why.empty() ? "ok" : why.c_str());
+    }
+  }
+  std::printf("%d runs, %d failed\n", runs, failed);
+  return failed ? 1 : 0;
+}

@@ -1,0 +1,113 @@
+#pragma once
+// One offline stability run: a patient case rendered by the real client pieces (HapticLoop:
+// JointProxy, passivity controller, safety gate, fault detector) on the simulated MF-2, held
+// by the simulated clinician mobilizing (the paper's 12-16 N band at a set frequency) or
+// exploring the six directions, on a simulated clock (no DDS, faster than real time).
+// Shared by the ctest suite (tests/unit/client/test_stability.cpp) and the sweep program
+// (tests/bench/bench_stability.cpp).
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "telehand/client/loop/haptic_loop.h"
+#include "telehand/config/config.h"
+#include "telehand/core/clock.h"
+#include "telehand/devices/exploration_operator.h"
+#include "telehand/devices/simulated_mf2.h"
+
+namespace telehand::stability {
+
+enum class Motion { kMobilization, kExploration };
+
+struct RunResult {
+  double range_excess_deg = 0.0;  ///< furthest the phalanx went past a range end
+  double force_max_n = 0.0;       ///< largest per-finger force commanded (after the gate)
+  double request_max_n = 0.0;     ///< largest per-finger force asked of the gate
+  double min_energy_j = 0.0;      ///< lowest passivity observer energy
+  uint64_t clamps = 0, rate_limited = 0, nonfinite = 0, pc_ticks = 0;
+  client::loop::LoopFault fault = client::loop::LoopFault::kNone;
+  bool finite = true;
+  /// Per-finger force while the clinician pushes in the band (mobilization after the ramp):
+  /// the larger and the smaller finger's force, device N.
+  double pusher_max_n = 0.0, holder_max_n = 0.0;
+  double flexion_min_deg = 1e9, flexion_max_deg = -1e9;
+};
+
+/// `patient` is rendered and is what the clinician plans against; `seconds` of 1 kHz ticks.
+inline RunResult runStability(const JointModelParams& patient, Motion motion, double freq_hz,
+                              double seconds, uint64_t seed,
+                              const client::loop::TeleopOptions& teleop = {}) {
+  ManualClock clock(kNsPerS);
+  OperatorConfig op;
+  op.frequency_hz = freq_hz;
+  op.seed = seed;
+  devices::SimulatedMf2 dev(patient, op, clock);
+  // The clinician places the finger at its rest pose (a stiff joint rests flexed).
+  const JointModel model(patient);
+  dev.setPose(Vec3(model.restAngleRad(kFlexion), model.restAngleRad(kAbduction),
+                   model.restAngleRad(kAxial)));
+  devices::ExplorationPlan plan = devices::planExploration(patient, op.band_max_n);
+  plan.seed = seed;
+  devices::ExplorationOperator explorer(plan);
+  if (motion == Motion::kExploration) dev.setOperator(&explorer);
+  client::loop::HapticLoop hl(dev, clock, patient, SafetyLimits{}, LoopConfig{}, teleop);
+
+  RunResult r;
+  Sample s;
+  const int ticks = static_cast<int>(std::lround(seconds * 1000.0));
+  for (int i = 0; i < ticks; ++i) {
+    clock.advance(kNsPerMs);
+    hl.step();
+    while (hl.samples().tryPop(s)) {
+    }
+    const Vec3& a = dev.angles();
+    if (!allFinite(a)) {
+      r.finite = false;
+      break;
+    }
+    for (int k = 0; k < kAxes; ++k) {
+      const CubicCurve& c = patient.axes[static_cast<std::size_t>(k)];
+      const double deg = radToDeg(a[k]);
+      r.range_excess_deg = std::max({r.range_excess_deg, c.min_deg - deg, deg - c.max_deg});
+    }
+    const double t = i * 1e-3;
+    if (motion == Motion::kMobilization && t > op.ramp_s + 0.5) {
+      const double f0 = dev.renderedForce()[0].norm(), f1 = dev.renderedForce()[1].norm();
+      r.pusher_max_n = std::max(r.pusher_max_n, std::max(f0, f1));
+      r.holder_max_n = std::max(r.holder_max_n, std::min(f0, f1));
+      r.flexion_min_deg = std::min(r.flexion_min_deg, radToDeg(a[kFlexion]));
+      r.flexion_max_deg = std::max(r.flexion_max_deg, radToDeg(a[kFlexion]));
+    }
+  }
+  const auto& h = hl.health();
+  r.force_max_n = h.force_max_n.load();
+  r.request_max_n = h.request_max_n.load();
+  r.min_energy_j = h.passivity_min_energy_j.load();
+  r.clamps = h.clamped.load();
+  r.rate_limited = h.rate_limited.load();
+  r.nonfinite = h.nonfinite.load();
+  r.pc_ticks = h.passivity_activations.load();
+  r.fault = hl.fault();
+  return r;
+}
+
+/// The checks every run must pass, and a line saying which failed ("" when none).
+struct Criteria {
+  double range_margin_deg = 20.0;  ///< past a range end (a weak joint pushed into its wall)
+  double energy_epsilon_j = 1e-3;  ///< the observer's energy may dip this far below zero
+  double force_limit_n = 4.0;      ///< per finger, what the device renders
+};
+
+inline std::string failures(const RunResult& r, const Criteria& c = {}) {
+  std::string why;
+  if (!r.finite) why += " non-finite angles;";
+  if (r.range_excess_deg > c.range_margin_deg) why += " left the range;";
+  if (r.request_max_n > c.force_limit_n) why += " force beyond the limit;";
+  if (r.min_energy_j < -c.energy_epsilon_j) why += " not passive;";
+  if (r.clamps != 0) why += " clamped;";
+  if (r.nonfinite != 0) why += " non-finite force;";
+  if (r.fault != client::loop::LoopFault::kNone) why += " fault;";
+  return why;
+}
+
+}  // namespace telehand::stability
