@@ -313,3 +313,115 @@ TEST(CaptureFit, KnnBeatsCubicsOnACoupledJoint) {
 
 }  // namespace
 }  // namespace telehand::server::estimate
+
+namespace telehand::server::estimate {
+namespace {
+
+/// Fitted against true holding force, as the joint model renders both (neutral zone, walls).
+struct TruthCheck {
+  double inner_n = 0.0;  ///< over the range the capture could reach, off the zone edges and walls
+  double edges_n = 0.0;  ///< the same plus the zone edges and 2° into each wall it reached
+  double inner_at = 0.0, edges_at = 0.0;
+};
+
+/// The part of the truth's range a clinician reaches under `max_force_n`.
+std::pair<double, double> reachable(const JointModel& m, int axis, double max_force_n) {
+  const CubicCurve& c = m.params().axes[static_cast<std::size_t>(axis)];
+  const double rest = radToDeg(m.restAngleRad(axis));
+  double lo = rest, hi = rest;
+  while (lo - 0.05 >= c.min_deg && std::abs(m.holdingForceN(axis, degToRad(lo - 0.05))) <= max_force_n)
+    lo -= 0.05;
+  while (hi + 0.05 <= c.max_deg && std::abs(m.holdingForceN(axis, degToRad(hi + 0.05))) <= max_force_n)
+    hi += 0.05;
+  return {lo, hi};
+}
+
+std::array<TruthCheck, kAxes> compareWithTruth(const JointModelParams& truth_p,
+                                               const JointModelParams& fitted_p,
+                                               double max_force_n) {
+  const JointModel truth(truth_p), fitted(fitted_p);
+  std::array<TruthCheck, kAxes> out{};
+  for (int i = 0; i < kAxes; ++i) {
+    const auto ax = static_cast<std::size_t>(i);
+    const CubicCurve& c = truth_p.axes[ax];
+    const auto [lo, hi] = reachable(truth, i, max_force_n);
+    const bool wall_lo = lo <= c.min_deg + 0.05, wall_hi = hi >= c.max_deg - 0.05;
+    const double rest = radToDeg(truth.restAngleRad(i));
+    const double zone = truth_p.neutral_zone_deg[ax];
+    auto nearEdge = [&](double d) {
+      if (wall_lo && d < c.min_deg + 1.0) return true;
+      if (wall_hi && d > c.max_deg - 1.0) return true;
+      return zone > 0.0 && (std::abs(d - (rest - zone)) < 1.5 || std::abs(d - (rest + zone)) < 1.5);
+    };
+    const double from = wall_lo ? c.min_deg - 2.0 : lo, to = wall_hi ? c.max_deg + 2.0 : hi;
+    for (double d = from; d <= to + 1e-9; d += 0.05) {
+      const double err = std::abs(fitted.holdingForceN(i, degToRad(d)) -
+                                  truth.holdingForceN(i, degToRad(d)));
+      auto& o = out[ax];
+      if (err > o.edges_n) {
+        o.edges_n = err;
+        o.edges_at = d;
+      }
+      if (d >= lo && d <= hi && !nearEdge(d) && err > o.inner_n) {
+        o.inner_n = err;
+        o.inner_at = d;
+      }
+    }
+  }
+  return out;
+}
+
+struct CaseRun {
+  CaptureFit fit;
+  std::array<TruthCheck, kAxes> check;
+};
+
+CaseRun runCase(const JointModelParams& truth, double hz, uint64_t seed,
+                double noise_n = kPaperNoiseN) {
+  SyntheticCaptureOptions o;  // the default length: 10 s per axis, as telehand-client
+  o.truth = truth;
+  o.noise_n = noise_n;
+  o.frequency_hz = hz;
+  o.seed = seed;
+  const SyntheticCapture cap = synthesizeCapture(o);
+  CaptureFitter fitter(cap.geometry);
+  for (const auto& s : cap.samples) fitter.add(s, true);
+  CaseRun r;
+  r.fit = fitter.fit();
+  EXPECT_TRUE(r.fit.ok());
+  r.check = compareWithTruth(truth, r.fit.model(truth), o.max_force_n);
+  return r;
+}
+
+void expectWithin(const JointModelParams& truth, const CaseRun& r, const std::string& what) {
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    const auto& c = r.check[i];
+    const auto& a = r.fit.axes[i];
+    std::printf(
+        "%-28s %-9s inner %.3f N (at %6.1f)  edges+walls %.3f N (at %6.1f)  range %6.1f..%5.1f "
+        "walls %d%d zone %.1f/%.1f  inertia %.2e±%.1e  dyn %.2f N  hyst %.2f N\n",
+        what.c_str(), kAxisNames[i].data(), c.inner_n, c.inner_at, c.edges_n, c.edges_at,
+        a.curve.min_deg, a.curve.max_deg, a.wall_min, a.wall_max, a.zone_deg,
+        truth.neutral_zone_deg[i], a.inertia_kgm2, a.inertia_se_kgm2, a.dynamic_n,
+        a.hysteresis_n);
+    EXPECT_LT(c.inner_n, 0.3) << what << " " << kAxisNames[i];
+    EXPECT_LT(c.edges_n, 0.5) << what << " " << kAxisNames[i];
+  }
+}
+
+JointModelParams shippedCase(const std::string& name) {
+  return loadPatientCase(std::string(TELEHAND_DEPLOY_DIR) + "/cases/" + name + ".toml").model;
+}
+
+TEST(CaptureFitTruth, Explore) {
+  for (const char* name : {"healthy", "stiff", "lax", "recovery"}) {
+    for (double hz : {0.5, 3.0, 6.0}) {
+      const JointModelParams truth = shippedCase(name);
+      const CaseRun r = runCase(truth, hz, 7);
+      expectWithin(truth, r, std::string(name) + " " + std::to_string(hz).substr(0, 3) + " Hz");
+    }
+  }
+}
+
+}  // namespace
+}  // namespace telehand::server::estimate
