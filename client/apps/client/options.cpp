@@ -27,8 +27,8 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   auto* seconds = app.add_option("--seconds", o.seconds,
                                  "session length (Ctrl-C ends it early); capture mode with the "
                                  "simulated MF-2: 3 × --sweep-seconds + 2, every axis swept")
-      ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+                      ->capture_default_str()
+                      ->check(CLI::PositiveNumber);
   app.add_option("--mode", o.mode_name, "session mode")
       ->check(CLI::IsMember({"mobilization", "exploration", "capture"}))
       ->capture_default_str();

@@ -87,7 +87,7 @@ constexpr int kMaxCols = 8;
 
 /// Samples pooled per angle bin: what every trial of the nonlinear parameters needs.
 struct Pooled {
-  int m = 0;  // extra regressors
+  int m = 0;                           // extra regressors
   std::vector<double> x, cnt, sy, se;  // se: m per bin
   double ee[kMaxCols][kMaxCols] = {};
   double ey[kMaxCols] = {};
@@ -147,13 +147,16 @@ Trial solve(const Pooled& d, const Shape& sh, double wall) {
       // The wall's own stiffness is known: it moves to the left-hand side.
       yy += -2.0 * wall * e * sy + wall * wall * e * e * c;
       sy -= wall * e * c;
-      for (int j = 0; j < d.m; ++j) rhs[p + j] -= wall * e * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
+      for (int j = 0; j < d.m; ++j)
+        rhs[p + j] -=
+            wall * e * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
     }
     for (int i = 0; i < p; ++i) {
       rhs[i] += phi[i] * sy;
       for (int j = i; j < p; ++j) mm[i][j] += c * phi[i] * phi[j];
       for (int j = 0; j < d.m; ++j)
-        mm[i][p + j] += phi[i] * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
+        mm[i][p + j] +=
+            phi[i] * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
     }
   }
   for (int i = 0; i < d.m; ++i)

@@ -91,7 +91,7 @@ std::vector<Vec3> CaptureFitter::rates() const {
 std::vector<Vec3> CaptureFitter::accelerations() const {
   const std::size_t n = points_.size();
   std::vector<Vec3> out(n, Vec3::Zero());
-  const auto h = static_cast<std::size_t>(std::max(options_.rate_half_window, 1));
+  const auto h = static_cast<std::size_t>(std::max(options_.acc_half_window, 1));
   for (std::size_t i = h; i + h < n; ++i) {
     const double dt1 = static_cast<double>(points_[i].t_ns - points_[i - h].t_ns) * 1e-9;
     const double dt2 = static_cast<double>(points_[i + h].t_ns - points_[i].t_ns) * 1e-9;
@@ -202,7 +202,7 @@ AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>&
   d.v.reserve(n);
   d.w.reserve(n);
   for (std::size_t i = k + 1; i < n; ++i) {
-    const std::size_t a = i - k, b = i - k - 1;  // interpolate between a (later) and b
+    const std::size_t a = i - k, b = i - k - 1;      // interpolate between a (later) and b
     if (pts[i].seq - pts[b].seq != k + 1) continue;  // samples left out in between
     auto mix = [&](double later, double earlier) { return (1.0 - f) * later + f * earlier; };
     d.x.push_back(radToDeg(mix(pts[a].angles_rad[axis], pts[b].angles_rad[axis])));
@@ -234,7 +234,8 @@ double CaptureFitter::delaySamples() const {
       rss[static_cast<std::size_t>(k)] += r.rms * r.rms;
     }
   }
-  const auto best = static_cast<std::size_t>(std::min_element(rss.begin(), rss.end()) - rss.begin());
+  const auto best =
+      static_cast<std::size_t>(std::min_element(rss.begin(), rss.end()) - rss.begin());
   if (best == 0 || best == rss.size() - 1) return static_cast<double>(best);
   const double l = rss[best - 1], c = rss[best], r = rss[best + 1];
   const double den = l - 2.0 * c + r;

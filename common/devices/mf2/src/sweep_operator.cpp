@@ -62,7 +62,8 @@ Vec3 SweepOperator::torqueNm(double t_s, const Vec3& angles, const Vec3& rates) 
   Vec3 tau =
       plan_.stiffness_nm_per_rad * (target(t_s) - angles) - plan_.damping_nms_per_rad * rates;
   if (plan_.max_torque_nm > 0.0) {
-    for (int i = 0; i < kAxes; ++i) tau[i] = std::clamp(tau[i], -plan_.max_torque_nm, plan_.max_torque_nm);
+    for (int i = 0; i < kAxes; ++i)
+      tau[i] = std::clamp(tau[i], -plan_.max_torque_nm, plan_.max_torque_nm);
   }
   return tau;
 }

@@ -6,7 +6,8 @@
 /// and an inertial term (the phalanx, thimbles and links accelerated by the clinician), so
 /// that mobilizing at speed does not bend the curve. Reported with the RMS residual, the
 /// range reached, and two checks the residual alone does not show: how far the curve moves
-/// when the dynamic terms are left out, and the up- against down-sweep hysteresis. The same code serves the live refit in the server and `telehand-records fit`.
+/// when the dynamic terms are left out, and the up- against down-sweep hysteresis. The same code
+/// serves the live refit in the server and `telehand-records fit`.
 #include <array>
 #include <cstdint>
 #include <functional>
@@ -81,6 +82,9 @@ struct FitOptions {
   double neutral_force_n = 1.0;
   /// Central difference half window for angular rates, samples (1 kHz: ±5 ms).
   int rate_half_window = 5;
+  /// The same for accelerations (second differences). Narrower windows let encoder
+  /// quantization into the acceleration and bias the inertia toward zero (±1 ms: by half).
+  int acc_half_window = 5;
   /// Samples an axis needs spread over at least this many degrees to be fitted.
   double min_span_deg = 5.0;
   std::size_t min_samples = 200;

@@ -22,7 +22,7 @@ struct SyntheticCaptureOptions {
   JointModelParams truth = healthyIndexMcp();
   /// Thimble error as the force each axis sees, N RMS: the paper's ±1.43 N (docs/facts.md).
   double noise_n = 1.43;
-  double sensor_noise_n = 0.02;  ///< FSR channel noise before the ADC, N
+  double sensor_noise_n = 0.02;    ///< FSR channel noise before the ADC, N
   double seconds_per_axis = 10.0;  ///< as telehand-client --sweep-seconds
   double frequency_hz = 0.5;
   /// The clinician goes no further than this force (the FSRs saturate at about 22 N)...
