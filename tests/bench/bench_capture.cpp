@@ -5,7 +5,11 @@
 //  2. live refit latency in the server: from the arrival of a capture's newest sample to
 //     the JointModel fitted from it being published, with the capture streamed in real
 //     time as the client's 100-sample record chunks; and the refit's compute time.
-// Usage: telehand_bench_capture [--quick]
+//  3. (--fit-table) fitted holding force against the truth: the shipped cases at the default
+//     capture length (10 s per axis), 0.5, 3 and 6 Hz, the paper's 1.43 N thimble noise,
+//     three seeds each; the largest error over the reachable range off the zone edges and
+//     walls, and including them (the walls to 2 deg beyond each end reached).
+// Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]]
 #include <spdlog/spdlog.h>
 #include <time.h>
 #include <unistd.h>
@@ -16,6 +20,7 @@
 #include <filesystem>
 #include <vector>
 
+#include "telehand/config/config.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/knn_model.h"
 #include "telehand/protocol/wire.h"
@@ -64,7 +69,69 @@ class Recorder final : public server::session::Outbox {
 
 }  // namespace
 
+/// The fitted and true holding force, worst over the reachable range (inner: off the zone
+/// edges and 1 deg from the walls; edges: including them and 2 deg into each wall reached).
+std::pair<double, double> fitErrors(const JointModelParams& truth_p, const JointModelParams& fit_p,
+                                    int i, double max_force_n) {
+  const JointModel truth(truth_p), fitted(fit_p);
+  const CubicCurve& c = truth_p.axes[static_cast<std::size_t>(i)];
+  const double rest = radToDeg(truth.restAngleRad(i));
+  auto f = [&](double d) { return truth.holdingForceN(i, degToRad(d)); };
+  double lo = rest, hi = rest;
+  while (lo - 0.05 >= c.min_deg && std::abs(f(lo - 0.05)) <= max_force_n) lo -= 0.05;
+  while (hi + 0.05 <= c.max_deg && std::abs(f(hi + 0.05)) <= max_force_n) hi += 0.05;
+  const bool wlo = lo <= c.min_deg + 0.05, whi = hi >= c.max_deg - 0.05;
+  const double zone = truth_p.neutral_zone_deg[static_cast<std::size_t>(i)];
+  double inner = 0.0, edges = 0.0;
+  for (double d = wlo ? c.min_deg - 2.0 : lo; d <= (whi ? c.max_deg + 2.0 : hi); d += 0.05) {
+    const double e = std::abs(fitted.holdingForceN(i, degToRad(d)) - f(d));
+    edges = std::max(edges, e);
+    const bool near =
+        (wlo && d < c.min_deg + 1.0) || (whi && d > c.max_deg - 1.0) ||
+        (zone > 0.0 && (std::abs(d - rest + zone) < 1.5 || std::abs(d - rest - zone) < 1.5));
+    if (d >= lo && d <= hi && !near) inner = std::max(inner, e);
+  }
+  return {inner, edges};
+}
+
+int fitTable(const std::string& cases_dir) {
+  std::printf(
+      "case      Hz   | flexion inner/edges | abduction inner/edges | axial inner/edges "
+      "(N, worst of 3 seeds)\n");
+  for (const char* name : {"healthy", "stiff", "lax", "recovery", "spasm"}) {
+    const JointModelParams truth = loadPatientCase(cases_dir + "/" + name + ".toml").model;
+    for (const double hz : {0.5, 3.0, 6.0}) {
+      std::array<std::pair<double, double>, kAxes> worst{};
+      bool all_ok = true;
+      for (uint64_t seed = 1; seed <= 3; ++seed) {
+        server::estimate::SyntheticCaptureOptions o;
+        o.truth = truth;
+        o.frequency_hz = hz;
+        o.seed = seed;
+        const auto cap = server::estimate::synthesizeCapture(o);
+        server::estimate::CaptureFitter fitter(cap.geometry);
+        for (const auto& smp : cap.samples) fitter.add(smp, true);
+        const auto fit = fitter.fit();
+        all_ok = all_ok && fit.ok();
+        JointModelParams static_truth = truth;
+        static_truth.speed_gain_s_per_rad = 0.0;
+        for (int i = 0; i < kAxes; ++i) {
+          const auto e = fitErrors(static_truth, fit.model(truth), i, o.max_force_n);
+          auto& w = worst[static_cast<std::size_t>(i)];
+          w = {std::max(w.first, e.first), std::max(w.second, e.second)};
+        }
+      }
+      std::printf("%-9s %-4.1f | %6.2f / %-6.2f     | %6.2f / %-6.2f       | %6.2f / %-6.2f %s\n",
+                  name, hz, worst[0].first, worst[0].second, worst[1].first, worst[1].second,
+                  worst[2].first, worst[2].second, all_ok ? "" : "(an axis not fitted)");
+    }
+  }
+  return 0;
+}
+
 int main(int argc, char** argv) {
+  if (argc > 1 && std::strcmp(argv[1], "--fit-table") == 0)
+    return fitTable(argc > 2 ? argv[2] : "deploy/cases");
   const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
   spdlog::set_level(spdlog::level::warn);
   // 1. k-nearest neighbours per tick.

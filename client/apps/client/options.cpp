@@ -25,9 +25,11 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   app.add_option("--device-timeout", o.device_timeout, "seconds to wait for the USB MF-2 to stream")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
-  app.add_option("--seconds", o.seconds, "session length (Ctrl-C ends it early)")
-      ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+  auto* seconds = app.add_option("--seconds", o.seconds,
+                                 "session length (Ctrl-C ends it early); capture mode with the "
+                                 "simulated MF-2: 3 × --sweep-seconds + 2, every axis swept")
+                      ->capture_default_str()
+                      ->check(CLI::PositiveNumber);
   app.add_option("--mode", o.mode_name, "session mode")
       ->check(CLI::IsMember({"mobilization", "exploration", "capture"}))
       ->capture_default_str();
@@ -90,6 +92,9 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   o.band_max_given = static_cast<bool>(*bmax);
   o.seed_given = static_cast<bool>(*seed);
   o.rt_given = static_cast<bool>(*rt);
+  // A capture is fitted only when every axis was swept: by default it lasts the three
+  // sweeps and a little for the session to open.
+  if (o.mode_name == "capture" && !*seconds) o.seconds = 3.0 * o.sweep_seconds + 2.0;
   return std::nullopt;
 }
 

@@ -66,3 +66,281 @@ CubicFitResult fitCubic(std::span<const double> x, std::span<const double> y,
 }
 
 }  // namespace telehand
+
+namespace telehand {
+
+double PiecewiseCubic::eval(double x) const noexcept {
+  const double in = std::clamp(x, min_deg, max_deg);
+  double s = in;
+  if (zone_deg > 0.0) {
+    const double off = in - rest_deg;
+    s = std::abs(off) <= zone_deg ? rest_deg : in - std::copysign(zone_deg, off);
+  }
+  const double excess = x - in;
+  if (excess == 0.0) return poly(s);
+  return poly(s) + (polySlope(s) + wall_n_per_deg) * excess;
+}
+
+namespace {
+
+constexpr int kMaxCols = 8;
+
+/// Samples pooled per angle bin: what every trial of the nonlinear parameters needs.
+struct Pooled {
+  int m = 0;                           // extra regressors
+  std::vector<double> x, cnt, sy, se;  // se: m per bin
+  double ee[kMaxCols][kMaxCols] = {};
+  double ey[kMaxCols] = {};
+  double yy = 0.0;
+  double n = 0.0;
+  double centre = 0.0, scale = 1.0;  // of the polynomial's variable
+};
+
+struct Shape {
+  double lo = 0.0, hi = 0.0, zone = 0.0, rest = 0.0;
+};
+
+struct Trial {
+  bool ok = false;
+  double rss = 1e300;
+  int p = 4;  // polynomial columns
+  std::array<double, kMaxCols> theta{};
+  std::array<double, kMaxCols> var{};  // diagonal of the inverse normal matrix
+};
+
+Trial solve(const Pooled& d, const Shape& sh, double wall) {
+  Trial t;
+  const bool zone = sh.zone > 0.0;
+  t.p = zone ? 3 : 4;
+  const int p = t.p, k = p + d.m;
+  double mm[kMaxCols][kMaxCols] = {};
+  double rhs[kMaxCols] = {};
+  double yy = d.yy;
+  const double tr = (sh.rest - d.centre) / d.scale;
+  const double tr2 = tr * tr, tr3 = tr2 * tr;
+  for (int j = 0; j < d.m; ++j) rhs[p + j] = d.ey[j];
+  const std::size_t nb = d.x.size();
+  for (std::size_t b = 0; b < nb; ++b) {
+    const double x = d.x[b], c = d.cnt[b];
+    const double in = std::clamp(x, sh.lo, sh.hi);
+    double s = in;
+    if (zone) {
+      const double off = in - sh.rest;
+      s = std::abs(off) <= sh.zone ? sh.rest : in - std::copysign(sh.zone, off);
+    }
+    const double e = x - in;
+    const double u = (s - d.centre) / d.scale, u2 = u * u;
+    const double de = e / d.scale;  // d(u)/d(x) times the excess
+    double phi[4];
+    if (zone) {
+      phi[0] = u - tr + de;
+      phi[1] = u2 - tr2 + 2.0 * u * de;
+      phi[2] = u2 * u - tr3 + 3.0 * u2 * de;
+    } else {
+      phi[0] = 1.0;
+      phi[1] = u + de;
+      phi[2] = u2 + 2.0 * u * de;
+      phi[3] = u2 * u + 3.0 * u2 * de;
+    }
+    double sy = d.sy[b];
+    if (e != 0.0) {
+      // The wall's own stiffness is known: it moves to the left-hand side.
+      yy += -2.0 * wall * e * sy + wall * wall * e * e * c;
+      sy -= wall * e * c;
+      for (int j = 0; j < d.m; ++j)
+        rhs[p + j] -=
+            wall * e * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
+    }
+    for (int i = 0; i < p; ++i) {
+      rhs[i] += phi[i] * sy;
+      for (int j = i; j < p; ++j) mm[i][j] += c * phi[i] * phi[j];
+      for (int j = 0; j < d.m; ++j)
+        mm[i][p + j] +=
+            phi[i] * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
+    }
+  }
+  for (int i = 0; i < d.m; ++i)
+    for (int j = i; j < d.m; ++j) mm[p + i][p + j] = d.ee[i][j];
+  Eigen::MatrixXd a(k, k);
+  Eigen::VectorXd r(k), dg(k);
+  for (int i = 0; i < k; ++i) dg(i) = mm[i][i] > 0.0 ? 1.0 / std::sqrt(mm[i][i]) : 1.0;
+  for (int i = 0; i < k; ++i) {
+    r(i) = rhs[i] * dg(i);
+    for (int j = i; j < k; ++j) a(i, j) = a(j, i) = mm[i][j] * dg(i) * dg(j);
+  }
+  const Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(a);
+  if (qr.rank() < k) return t;
+  const Eigen::VectorXd sol = qr.solve(r);
+  if (!sol.allFinite()) return t;
+  const Eigen::MatrixXd inv = qr.inverse();
+  double fit_dot = 0.0;
+  for (int i = 0; i < k; ++i) {
+    t.theta[static_cast<std::size_t>(i)] = sol(i) * dg(i);
+    t.var[static_cast<std::size_t>(i)] = inv(i, i) * dg(i) * dg(i);
+    fit_dot += t.theta[static_cast<std::size_t>(i)] * rhs[i];
+  }
+  t.rss = std::max(yy - fit_dot, 0.0);
+  t.ok = true;
+  return t;
+}
+
+/// P's coefficients (highest power first, in x) from a trial.
+std::array<double, 4> polyOf(const Pooled& d, const Shape& sh, const Trial& t) {
+  std::array<double, 4> b{};
+  if (t.p == 3) {
+    const double tr = (sh.rest - d.centre) / d.scale;
+    b = {-(t.theta[0] * tr + t.theta[1] * tr * tr + t.theta[2] * tr * tr * tr), t.theta[0],
+         t.theta[1], t.theta[2]};
+  } else {
+    b = {t.theta[0], t.theta[1], t.theta[2], t.theta[3]};
+  }
+  return expandScaledCubic(b, d.centre, d.scale);
+}
+
+/// P's zero in [lo, hi] (the rest angle), by a scan and bisection; NaN if none.
+double rootIn(const std::array<double, 4>& c, double lo, double hi) {
+  auto f = [&](double x) { return ((c[0] * x + c[1]) * x + c[2]) * x + c[3]; };
+  constexpr double kStep = 0.25;
+  for (double a = lo; a < hi; a += kStep) {
+    double l = a, h = std::min(a + kStep, hi);
+    if ((f(l) <= 0.0) == (f(h) <= 0.0)) continue;
+    for (int i = 0; i < 50; ++i) {
+      const double m = 0.5 * (l + h);
+      ((f(m) <= 0.0) == (f(l) <= 0.0) ? l : h) = m;
+    }
+    return 0.5 * (l + h);
+  }
+  return std::nan("");
+}
+
+}  // namespace
+
+PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const double> y,
+                                     std::span<const std::span<const double>> extras,
+                                     const PiecewiseFitOptions& o) {
+  PiecewiseFitResult out;
+  const std::size_t n = std::min(x.size(), y.size());
+  out.n = n;
+  Pooled d;
+  d.m = static_cast<int>(std::min<std::size_t>(extras.size(), kMaxCols - 4));
+  for (int j = 0; j < d.m; ++j) {
+    if (extras[static_cast<std::size_t>(j)].size() < n) return out;
+  }
+  if (n < 10) return out;
+  const auto [lo_it, hi_it] =
+      std::minmax_element(x.begin(), x.begin() + static_cast<std::ptrdiff_t>(n));
+  const double x0 = *lo_it, x1 = *hi_it;
+  out.x_min = x0;
+  out.x_max = x1;
+  if (!(x1 > x0) || !std::isfinite(x1 - x0)) return out;
+  d.centre = 0.5 * (x0 + x1);
+  d.scale = 0.5 * (x1 - x0);
+  const double bin = o.bin_deg > 0.0 ? o.bin_deg : 0.05;
+  const auto nbins = static_cast<std::size_t>((x1 - x0) / bin) + 1;
+  std::vector<double> sx(nbins, 0.0), cnt(nbins, 0.0), sy(nbins, 0.0),
+      se(nbins * static_cast<std::size_t>(d.m), 0.0);
+  const auto m = static_cast<std::size_t>(d.m);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto b = std::min(static_cast<std::size_t>((x[i] - x0) / bin), nbins - 1);
+    sx[b] += x[i];
+    cnt[b] += 1.0;
+    sy[b] += y[i];
+    d.yy += y[i] * y[i];
+    for (std::size_t j = 0; j < m; ++j) {
+      const double ej = extras[j][i];
+      se[b * m + j] += ej;
+      d.ey[j] += ej * y[i];
+      for (std::size_t l = j; l < m; ++l) d.ee[j][l] += ej * extras[l][i];
+    }
+  }
+  d.n = static_cast<double>(n);
+  for (std::size_t b = 0; b < nbins; ++b) {
+    if (cnt[b] == 0.0) continue;
+    d.x.push_back(sx[b] / cnt[b]);
+    d.cnt.push_back(cnt[b]);
+    d.sy.push_back(sy[b]);
+    for (std::size_t j = 0; j < m; ++j) d.se.push_back(se[b * m + j]);
+  }
+  if (d.x.size() < 5) return out;
+
+  const double wall = o.wall_n_per_deg;
+  Shape best{x0, x1, 0.0, 0.0};
+  if (o.fixed_shape) {
+    const PiecewiseCubic& f = *o.fixed_shape;
+    best = Shape{f.min_deg, f.max_deg, f.zone_deg, f.rest_deg};
+  }
+  Trial bt = solve(d, best, wall);
+  if (!bt.ok) return out;
+  const double span = x1 - x0;
+  // Try each candidate for one parameter, keep the best; then refine around it.
+  auto search = [&](double Shape::*param, double from, double to, double step) {
+    auto tryAt = [&](double v) {
+      Shape s = best;
+      s.*param = v;
+      if (s.hi <= s.lo || s.zone < 0.0) return;
+      if (s.zone > 0.0 && (s.rest - s.zone < s.lo || s.rest + s.zone > s.hi)) return;
+      const Trial t = solve(d, s, wall);
+      if (t.ok && t.rss < bt.rss) {
+        bt = t;
+        best = s;
+      }
+    };
+    for (double v = from; v <= to + 1e-9; v += step) tryAt(v);
+    const double c = best.*param;
+    for (double v = c - step; v <= c + step + 1e-9; v += step / 10.0) tryAt(v);
+  };
+  for (int round = 0; round < 3 && !o.fixed_shape; ++round) {
+    const Shape before = best;
+    if (o.find_walls) {
+      search(&Shape::hi, x1 - 0.4 * span, x1, 0.25);
+      search(&Shape::lo, x0, x0 + 0.4 * span, 0.25);
+    }
+    if (o.find_zone) {
+      if (best.zone <= 0.0) {
+        const double r = rootIn(polyOf(d, best, bt), best.lo, best.hi);
+        if (std::isnan(r)) break;
+        best.rest = r;
+      }
+      search(&Shape::zone, 0.0, std::min(0.3 * span, 30.0), 0.25);
+      if (best.zone > 0.0) search(&Shape::rest, best.rest - 3.0, best.rest + 3.0, 0.1);
+    }
+    if (best.lo == before.lo && best.hi == before.hi && best.zone == before.zone &&
+        best.rest == before.rest)
+      break;
+  }
+  // Keep each part only when it pays for itself.
+  const double pen = o.fixed_shape ? 0.0 : o.penalty * (bt.rss / d.n) * std::log(d.n);
+  auto without = [&](Shape s) {
+    const Trial t = solve(d, s, wall);
+    if (t.ok && t.rss - bt.rss < pen) {
+      best = s;
+      bt = t;
+    }
+  };
+  if (o.fixed_shape) {
+    // as given
+  } else if (best.zone > 0.0) {
+    without(Shape{best.lo, best.hi, 0.0, best.rest});
+  }
+  if (!o.fixed_shape && best.hi < x1) without(Shape{best.lo, x1, best.zone, best.rest});
+  if (!o.fixed_shape && best.lo > x0) without(Shape{x0, best.hi, best.zone, best.rest});
+
+  out.curve.coeffs = polyOf(d, best, bt);
+  out.curve.min_deg = best.lo;
+  out.curve.max_deg = best.hi;
+  out.curve.zone_deg = best.zone;
+  out.curve.rest_deg = best.zone > 0.0 ? best.rest : 0.0;
+  out.curve.wall_n_per_deg = wall;
+  out.wall_lo = best.lo > x0 && best.lo < x1;
+  out.wall_hi = best.hi < x1 && best.hi > x0;
+  const double sigma2 = bt.rss / std::max(d.n - bt.p - d.m - 4.0, 1.0);
+  for (std::size_t j = 0; j < m; ++j) {
+    out.extra.push_back(bt.theta[static_cast<std::size_t>(bt.p) + j]);
+    out.extra_se.push_back(std::sqrt(sigma2 * bt.var[static_cast<std::size_t>(bt.p) + j]));
+  }
+  out.rms = std::sqrt(bt.rss / d.n);
+  out.ok = true;
+  return out;
+}
+
+}  // namespace telehand

@@ -35,9 +35,10 @@ JointModelParams sessionGeometry(const std::string& cases_dir, const std::string
 
 /// One plot per axis like the paper's Fig. 3b: the captured force against the angle with
 /// the fitted cubic, and the residual below. Drawn by gnuplot (Debian gnuplot-nox).
-bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates, const CaptureFit& fit,
-              double lever_m, int axis, const fs::path& out, const std::string& format,
-              const std::string& title, std::string& error) {
+bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates,
+              const std::vector<Vec3>& accs, const CaptureFit& fit, double lever_m, int axis,
+              const fs::path& out, const std::string& format, const std::string& title,
+              std::string& error) {
   const auto ax = static_cast<std::size_t>(axis);
   const auto& a = fit.axes[ax];
   const auto& pts = fitter.points();
@@ -55,9 +56,15 @@ bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates, const
   for (std::size_t i = 0; i < pts.size(); i += stride) {
     const double deg = radToDeg(pts[i].angles_rad[axis]);
     const double f = pts[i].axis_force_n[axis];
-    const double viscous = a.damping_nms_per_rad * rates[i][axis] / lever_m;
-    std::fprintf(gp, "%.5f %.5f %.5f\n", deg, f, f - a.curve.eval(deg) - viscous);
+    const double dynamic =
+        (a.damping_nms_per_rad * rates[i][axis] + a.inertia_kgm2 * accs[i][axis]) / lever_m;
+    std::fprintf(gp, "%.5f %.5f %.5f\n", deg, f, f - a.holdingForceN(deg) - dynamic);
   }
+  std::fprintf(gp, "EOD\n");
+  // The fitted holding force as the joint model renders it (neutral zone, walls).
+  std::fprintf(gp, "$model << EOD\n");
+  for (double d = a.reached_min_deg; d <= a.reached_max_deg; d += 0.25)
+    std::fprintf(gp, "%.3f %.5f\n", d, a.holdingForceN(d));
   std::fprintf(gp, "EOD\n");
   const auto& c = a.curve.coeffs;
   std::fprintf(gp, "f(x) = ((%.12g*x + %.12g)*x + %.12g)*x + %.12g\n", c[0], c[1], c[2], c[3]);
@@ -71,13 +78,13 @@ bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates, const
                "set size 1,0.65\nset origin 0,0.35\n"
                "set ylabel 'force at the lever arm (N)'\nunset xlabel\n"
                "plot $data using 1:2 with points pt 7 ps 0.2 lc rgb '#7799bb' title 'captured', "
-               "f(x) with lines lw 2.5 lc rgb '#cc2222' title '%s'\n"
+               "$model using 1:2 with lines lw 2.5 lc rgb '#cc2222' title '%s'\n"
                "set size 1,0.35\nset origin 0,0\n"
                "set xlabel '%s angle (deg)'\nset ylabel 'residual (N)'\n"
                "plot $data using 1:3 with points pt 7 ps 0.2 lc rgb '#555555' title '%s', 0 with "
                "lines lc rgb '#cc2222' notitle\n"
                "unset multiplot\n",
-               title.c_str(), a.curve.min_deg, a.curve.max_deg, curve_title,
+               title.c_str(), a.reached_min_deg, a.reached_max_deg, curve_title,
                std::string(kAxisNames[ax]).c_str(), rms_title);
   const int status = pclose(gp);
   if (status != 0) {
@@ -168,7 +175,29 @@ int runFit(const FitRequest& r) {
         a.neutral_max_deg, a.curve.coeffs[0], a.curve.coeffs[1], a.curve.coeffs[2],
         a.curve.coeffs[3]);
   }
-  std::printf("  damping %.4f N m s/rad\n", model.damping_nms_per_rad);
+  std::printf("  damping %.4f N m s/rad; force channel lag %.2f samples\n",
+              model.damping_nms_per_rad, fit.delay_samples);
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    const auto& a = fit.axes[i];
+    std::printf(
+        "  %-9s walls %s/%s   neutral zone ±%.1f deg   inertia %.2e ± %.1e kg m^2   "
+        "dynamic share %.2f N   up/down hysteresis %.2f N\n",
+        kAxisNames[i].data(), a.wall_min ? "felt" : "not reached",
+        a.wall_max ? "felt" : "not reached", a.zone_deg, a.inertia_kgm2, a.inertia_se_kgm2,
+        a.dynamic_n, a.hysteresis_n);
+    if (a.dynamic_n > 0.3) {
+      std::printf(
+          "  %-9s note: the curve moves %.2f N with the viscous and inertial terms; a "
+          "slower mobilization measures it more directly\n",
+          kAxisNames[i].data(), a.dynamic_n);
+    }
+    if (a.hysteresis_n > 0.6) {
+      std::printf(
+          "  %-9s note: up and down sweeps differ by %.2f N: a speed-dependent force "
+          "(spasm?) the model does not hold\n",
+          kAxisNames[i].data(), a.hysteresis_n);
+    }
+  }
   {
     std::error_code ec;
     if (!output.parent_path().empty()) fs::create_directories(output.parent_path(), ec);
@@ -184,11 +213,12 @@ int runFit(const FitRequest& r) {
   std::error_code ec;
   if (!plots.empty()) fs::create_directories(plots, ec);
   const std::vector<Vec3> rates = fitter.rates();
+  const std::vector<Vec3> accs = fitter.accelerations();
   for (int i = 0; i < kAxes; ++i) {
     const fs::path p = plots / (name + "-" + std::string(kAxisNames[static_cast<std::size_t>(i)]) +
                                 "." + r.plot_format);
     std::string error;
-    if (!plotAxis(fitter, rates, fit, geometry.lever_arm_m, i, p, r.plot_format,
+    if (!plotAxis(fitter, rates, accs, fit, geometry.lever_arm_m, i, p, r.plot_format,
                   "session " + std::to_string(r.session) + ": " +
                       std::string(kAxisNames[static_cast<std::size_t>(i)]),
                   error)) {

@@ -23,9 +23,9 @@ struct SynthRequest {
   std::string cases_dir;
   std::string device_file;  ///< empty: the built-in MF-2 description
   double noise_n = 1.43;
-  double seconds_per_axis = 20.0;
+  double seconds_per_axis = 10.0;
   double frequency_hz = 0.5;
-  double max_force_n = 15.0;
+  double max_force_n = 18.0;
   uint64_t seed = 1;
   bool quiet = false;
 };

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <span>
 #include <sstream>
 
 #include "telehand/core/thimble.h"
@@ -87,56 +88,214 @@ std::vector<Vec3> CaptureFitter::rates() const {
   return out;
 }
 
+std::vector<Vec3> CaptureFitter::accelerations() const {
+  const std::size_t n = points_.size();
+  std::vector<Vec3> out(n, Vec3::Zero());
+  const auto h = static_cast<std::size_t>(std::max(options_.acc_half_window, 1));
+  for (std::size_t i = h; i + h < n; ++i) {
+    const double dt1 = static_cast<double>(points_[i].t_ns - points_[i - h].t_ns) * 1e-9;
+    const double dt2 = static_cast<double>(points_[i + h].t_ns - points_[i].t_ns) * 1e-9;
+    // Across a gap (samples left out) the difference would not be an acceleration.
+    const double most = 1.5e-3 * static_cast<double>(h);
+    if (!(dt1 > 0.0) || !(dt2 > 0.0) || dt1 > most || dt2 > most) continue;
+    out[i] = ((points_[i + h].angles_rad - points_[i].angles_rad) / dt2 -
+              (points_[i].angles_rad - points_[i - h].angles_rad) / dt1) /
+             (0.5 * (dt1 + dt2));
+  }
+  return out;
+}
+
 namespace {
 
-/// The band around rest where the curve stays within ±threshold.
-void neutralZone(const CubicCurve& c, double threshold, double& lo, double& hi) {
+/// The band around rest where the fitted force stays within ±threshold.
+void neutralZone(const AxisFit& a, double threshold, double& lo, double& hi) {
+  const CubicCurve& c = a.curve;
   // Rest: the zero crossing in range, else the range end nearest to zero force.
-  double rest = std::abs(c.eval(c.min_deg)) < std::abs(c.eval(c.max_deg)) ? c.min_deg : c.max_deg;
+  auto f = [&](double d) { return a.holdingForceN(d); };
+  double rest = std::abs(f(c.min_deg)) < std::abs(f(c.max_deg)) ? c.min_deg : c.max_deg;
   constexpr double kStep = 0.05;
-  for (double a = c.min_deg; a + kStep <= c.max_deg; a += kStep) {
-    if ((c.eval(a) <= 0.0) != (c.eval(a + kStep) <= 0.0)) {
-      rest = a + kStep * c.eval(a) / (c.eval(a) - c.eval(a + kStep));
-      break;
+  if (a.zone_deg > 0.0) {
+    rest = a.rest_deg;
+  } else {
+    for (double x = c.min_deg; x + kStep <= c.max_deg; x += kStep) {
+      if ((f(x) <= 0.0) != (f(x + kStep) <= 0.0)) {
+        rest = x + kStep * f(x) / (f(x) - f(x + kStep));
+        break;
+      }
     }
   }
   lo = hi = rest;
-  if (std::abs(c.eval(rest)) > threshold) return;
-  while (lo - kStep >= c.min_deg && std::abs(c.eval(lo - kStep)) <= threshold) lo -= kStep;
-  while (hi + kStep <= c.max_deg && std::abs(c.eval(hi + kStep)) <= threshold) hi += kStep;
+  if (std::abs(f(rest)) > threshold) return;
+  while (lo - kStep >= c.min_deg && std::abs(f(lo - kStep)) <= threshold) lo -= kStep;
+  while (hi + kStep <= c.max_deg && std::abs(f(hi + kStep)) <= threshold) hi += kStep;
+}
+
+/// Largest difference of the mean residual between rising and falling angle, per 5° bin.
+double hysteresis(std::span<const double> x, std::span<const double> res,
+                  std::span<const double> rate) {
+  constexpr double kBin = 5.0, kMinRate = 0.05;  // rad/s: moving, not held
+  constexpr std::size_t kMinCount = 200;
+  const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
+  if (lo == x.end()) return 0.0;
+  const auto nb = static_cast<std::size_t>((*hi - *lo) / kBin) + 1;
+  std::vector<double> sum_up(nb, 0.0), sum_dn(nb, 0.0);
+  std::vector<std::size_t> n_up(nb, 0), n_dn(nb, 0);
+  for (std::size_t i = 0; i < x.size(); ++i) {
+    const auto b = std::min(static_cast<std::size_t>((x[i] - *lo) / kBin), nb - 1);
+    if (rate[i] > kMinRate) {
+      sum_up[b] += res[i];
+      ++n_up[b];
+    } else if (rate[i] < -kMinRate) {
+      sum_dn[b] += res[i];
+      ++n_dn[b];
+    }
+  }
+  double worst = 0.0;
+  for (std::size_t b = 0; b < nb; ++b) {
+    if (n_up[b] < kMinCount || n_dn[b] < kMinCount) continue;
+    worst = std::max(worst, std::abs(sum_up[b] / static_cast<double>(n_up[b]) -
+                                     sum_dn[b] / static_cast<double>(n_dn[b])));
+  }
+  return worst;
 }
 
 }  // namespace
+
+double AxisFit::holdingForceN(double deg) const noexcept {
+  PiecewiseCubic p;
+  p.coeffs = curve.coeffs;
+  p.min_deg = curve.min_deg;
+  p.max_deg = curve.max_deg;
+  p.zone_deg = zone_deg;
+  p.rest_deg = rest_deg;
+  p.wall_n_per_deg = kWallNPerDeg;
+  return p.eval(deg);
+}
+
+bool risesOverRange(const CubicCurve& c) noexcept {
+  // The slope is a quadratic: its least value is at a range end or at its vertex.
+  double least = std::min(c.slope(c.min_deg), c.slope(c.max_deg));
+  if (c.coeffs[0] != 0.0) {
+    const double vertex = -c.coeffs[1] / (3.0 * c.coeffs[0]);
+    if (vertex > c.min_deg && vertex < c.max_deg) least = std::min(least, c.slope(vertex));
+  }
+  return least > 0.0 && std::isfinite(least);
+}
+
+namespace {
+
+/// Per axis, the samples as fitted: the force of each sample against the motion `delay`
+/// samples earlier (linearly interpolated), so that a lag between the force and position
+/// channels does not show as a speed-dependent force.
+struct AxisData {
+  std::vector<double> x, y, v, w;
+};
+
+AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>& rate,
+                  const std::vector<Vec3>& acc, int axis, double delay) {
+  AxisData d;
+  const std::size_t n = pts.size();
+  const auto k = static_cast<std::size_t>(std::floor(delay));
+  const double f = delay - static_cast<double>(k);
+  d.x.reserve(n);
+  d.y.reserve(n);
+  d.v.reserve(n);
+  d.w.reserve(n);
+  for (std::size_t i = k + 1; i < n; ++i) {
+    const std::size_t a = i - k, b = i - k - 1;      // interpolate between a (later) and b
+    if (pts[i].seq - pts[b].seq != k + 1) continue;  // samples left out in between
+    auto mix = [&](double later, double earlier) { return (1.0 - f) * later + f * earlier; };
+    d.x.push_back(radToDeg(mix(pts[a].angles_rad[axis], pts[b].angles_rad[axis])));
+    d.y.push_back(pts[i].axis_force_n[axis]);
+    d.v.push_back(mix(rate[a][axis], rate[b][axis]));
+    d.w.push_back(mix(acc[a][axis], acc[b][axis]));
+  }
+  return d;
+}
+
+}  // namespace
+
+double CaptureFitter::delaySamples() const {
+  const std::vector<Vec3> rate = rates();
+  const std::vector<Vec3> acc = accelerations();
+  // The residual of a plain cubic with the dynamic terms, summed over the axes, for each
+  // whole-sample delay; a parabola through the best and its neighbours gives the fraction.
+  const int most = std::max(options_.max_delay_samples, 0);
+  if (most == 0 || points_.size() < options_.min_samples) return 0.0;
+  std::vector<double> rss(static_cast<std::size_t>(most) + 1, 0.0);
+  PiecewiseFitOptions plain;
+  plain.find_walls = plain.find_zone = false;
+  for (int k = 0; k <= most; ++k) {
+    for (int axis = 0; axis < kAxes; ++axis) {
+      const AxisData d = axisData(points_, rate, acc, axis, k);
+      const std::array<std::span<const double>, 2> extras = {d.v, d.w};
+      const PiecewiseFitResult r = fitPiecewiseCubic(d.x, d.y, extras, plain);
+      if (!r.ok) return 0.0;
+      rss[static_cast<std::size_t>(k)] += r.rms * r.rms;
+    }
+  }
+  const auto best =
+      static_cast<std::size_t>(std::min_element(rss.begin(), rss.end()) - rss.begin());
+  if (best == 0 || best == rss.size() - 1) return static_cast<double>(best);
+  const double l = rss[best - 1], c = rss[best], r = rss[best + 1];
+  const double den = l - 2.0 * c + r;
+  const double off = den > 0.0 ? std::clamp(0.5 * (l - r) / den, -0.5, 0.5) : 0.0;
+  return static_cast<double>(best) + off;
+}
 
 CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) const {
   CaptureFit out;
   out.counts = counts_;
   const std::vector<Vec3> rate = rates();
+  const std::vector<Vec3> acc = accelerations();
   const std::size_t n = points_.size();
-  std::vector<double> x(n), y(n), v(n);
+  const double lever = geometry_.params().lever_arm_m;
+  out.delay_samples = delaySamples();
   for (int axis = 0; axis < kAxes; ++axis) {
     if (progress) progress(axis, 0.0);
-    for (std::size_t i = 0; i < n; ++i) {
-      x[i] = radToDeg(points_[i].angles_rad[axis]);
-      y[i] = points_[i].axis_force_n[axis];
-      v[i] = rate[i][axis];
-    }
     AxisFit& a = out.axes[static_cast<std::size_t>(axis)];
     a.samples = n;
     if (n < options_.min_samples) continue;
+    const AxisData d = axisData(points_, rate, acc, axis, out.delay_samples);
+    const auto& x = d.x;
+    const auto& y = d.y;
+    if (x.size() < options_.min_samples) continue;
     const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
     if (*hi - *lo < options_.min_span_deg) continue;
-    const CubicFitResult r = fitCubic(x, y, v);
+    const std::array<std::span<const double>, 2> extras = {d.v, d.w};
+    const PiecewiseFitResult r = fitPiecewiseCubic(x, y, extras);
     if (progress) progress(axis, 1.0);
     if (!r.ok) continue;
     a.ok = true;
-    a.curve.coeffs = r.coeffs;
-    a.curve.min_deg = r.x_min;
-    a.curve.max_deg = r.x_max;
+    a.curve.coeffs = r.curve.coeffs;
+    a.curve.min_deg = r.curve.min_deg;
+    a.curve.max_deg = r.curve.max_deg;
+    a.wall_min = r.wall_lo;
+    a.wall_max = r.wall_hi;
+    a.reached_min_deg = r.x_min;
+    a.reached_max_deg = r.x_max;
+    a.zone_deg = r.curve.zone_deg;
+    a.rest_deg = r.curve.rest_deg;
     a.rms_n = r.rms;
-    // F = ... + d * rate at the lever arm: torque d * lever per rad/s.
-    a.damping_nms_per_rad = r.extra * geometry_.params().lever_arm_m;
-    neutralZone(a.curve, options_.neutral_force_n, a.neutral_min_deg, a.neutral_max_deg);
+    // F = ... + d * rate + j * acceleration at the lever arm: torque d * lever per rad/s,
+    // inertia j * lever per rad/s².
+    a.damping_nms_per_rad = r.extra[0] * lever;
+    a.inertia_kgm2 = r.extra[1] * lever;
+    a.inertia_se_kgm2 = r.extra_se[1] * lever;
+    std::vector<double> res(x.size());
+    for (std::size_t i = 0; i < x.size(); ++i)
+      res[i] = y[i] - a.holdingForceN(x[i]) - r.extra[0] * d.v[i] - r.extra[1] * d.w[i];
+    a.hysteresis_n = hysteresis(x, res, d.v);
+    // The same shape fitted without the dynamic terms: how much the curve rests on them.
+    PiecewiseFitOptions fixed;
+    fixed.fixed_shape = &r.curve;
+    const PiecewiseFitResult s = fitPiecewiseCubic(x, y, {}, fixed);
+    if (s.ok) {
+      for (double deg = r.x_min; deg <= r.x_max; deg += 0.5) {
+        a.dynamic_n = std::max(a.dynamic_n, std::abs(s.curve.eval(deg) - r.curve.eval(deg)));
+      }
+    }
+    neutralZone(a, options_.neutral_force_n, a.neutral_min_deg, a.neutral_max_deg);
   }
   return out;
 }
@@ -148,7 +307,7 @@ JointModelParams CaptureFit::model(const JointModelParams& base) const {
   for (std::size_t i = 0; i < kAxes; ++i) {
     if (!axes[i].ok) continue;
     p.axes[i] = axes[i].curve;
-    p.neutral_zone_deg[i] = 0.0;  // the cubic carries the lax zone itself
+    p.neutral_zone_deg[i] = axes[i].zone_deg;
     damping += axes[i].damping_nms_per_rad;
     ++fitted;
   }

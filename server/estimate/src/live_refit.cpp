@@ -53,11 +53,25 @@ std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
   if (!any_axis) return std::nullopt;
   u.params = u.fit.model(published_);
   u.params.knn = nullptr;
+  bool rising = false;
   for (std::size_t i = 0; i < kAxes; ++i) {
     if (!u.fit.axes[i].ok) continue;
-    u.params.axes[i].min_deg -= options_.range_margin_deg;
-    u.params.axes[i].max_deg += options_.range_margin_deg;
+    CubicCurve& c = u.params.axes[i];
+    // A wall the capture felt stays where it is; a range end that is only as far as the
+    // capture has gone yet moves out by the margin.
+    if (!u.fit.axes[i].wall_min) c.min_deg -= options_.range_margin_deg;
+    if (!u.fit.axes[i].wall_max) c.max_deg += options_.range_margin_deg;
+    // A joint resists being moved: a curve that falls anywhere in the published range (a
+    // cubic fitted to too little, noisy data, or extended by the margin) is not published;
+    // the axis keeps what followers have now. The offline fit refuses such a curve too.
+    if (!risesOverRange(c)) {
+      u.params.axes[i] = published_.axes[i];
+      u.params.neutral_zone_deg[i] = published_.neutral_zone_deg[i];
+      continue;
+    }
+    rising = true;
   }
+  if (!rising) return std::nullopt;
   bool felt = false;
   u.max_change_n =
       maxForceChange(u.params, published_, options_.jnd_fraction, options_.jnd_floor_n, &felt);

@@ -10,7 +10,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
                                    const std::function<void(double)>& progress) {
   SyntheticCapture out;
   out.geometry = captureGeometry(o.truth);
-  out.plan = devices::planSweep(o.truth, o.max_force_n, o.range_fraction);
+  out.plan = devices::planSweep(o.truth, o.max_force_n, o.wall_deg);
   out.plan.seconds_per_axis = o.seconds_per_axis;
   out.plan.frequency_hz = o.frequency_hz;
   out.plan.repeat = false;

@@ -10,6 +10,7 @@
 #include "telehand/core/fit.h"
 #include "telehand/core/knn_model.h"
 #include "telehand/server/estimate/capture_fit.h"
+#include "telehand/server/estimate/live_refit.h"
 #include "telehand/server/estimate/synthetic_capture.h"
 #include "telehand/server/store/sqlite_store.h"
 
@@ -91,10 +92,10 @@ std::array<AxisCheck, kAxes> fitAndCompare(const JointModelParams& truth, uint64
     out[ax].rms_n = a.rms_n;
     // The range reached covers what the clinician planned (the servo lags by a few degrees
     // where the joint is stiff).
-    EXPECT_LT(a.curve.min_deg, cap.plan.lo_deg[ax] + 3.0) << kAxisNames[ax];
-    EXPECT_GT(a.curve.max_deg, cap.plan.hi_deg[ax] - 3.0) << kAxisNames[ax];
-    for (double d = a.curve.min_deg; d <= a.curve.max_deg; d += 0.1) {
-      const double err = std::abs(a.curve.eval(d) - m.holdingForceN(i, degToRad(d)));
+    EXPECT_LT(a.reached_min_deg, cap.plan.lo_deg[ax] + 3.0) << kAxisNames[ax];
+    EXPECT_GT(a.reached_max_deg, cap.plan.hi_deg[ax] - 3.0) << kAxisNames[ax];
+    for (double d = a.reached_min_deg; d <= a.reached_max_deg; d += 0.1) {
+      const double err = std::abs(a.holdingForceN(d) - m.holdingForceN(i, degToRad(d)));
       out[ax].max_error_n = std::max(out[ax].max_error_n, err);
     }
     // The lax zone holds the rest angle.
@@ -309,6 +310,203 @@ TEST(CaptureFit, KnnBeatsCubicsOnACoupledJoint) {
   RecordProperty("cubic_rms_n", std::to_string(rms_cubic));
   RecordProperty("knn_rms_n", std::to_string(rms_knn));
   EXPECT_LT(rms_knn, 0.6 * rms_cubic);
+}
+
+}  // namespace
+}  // namespace telehand::server::estimate
+
+namespace telehand::server::estimate {
+namespace {
+
+/// Fitted against true holding force, as the joint model renders both (neutral zone, walls).
+struct TruthCheck {
+  double inner_n = 0.0;  ///< over the range the capture could reach, off the zone edges and walls
+  double edges_n = 0.0;  ///< the same plus the zone edges and 2° into each wall it reached
+  double inner_at = 0.0, edges_at = 0.0;
+};
+
+/// The part of the truth's range a clinician reaches under `max_force_n`.
+std::pair<double, double> reachable(const JointModel& m, int axis, double max_force_n) {
+  const CubicCurve& c = m.params().axes[static_cast<std::size_t>(axis)];
+  const double rest = radToDeg(m.restAngleRad(axis));
+  double lo = rest, hi = rest;
+  while (lo - 0.05 >= c.min_deg &&
+         std::abs(m.holdingForceN(axis, degToRad(lo - 0.05))) <= max_force_n)
+    lo -= 0.05;
+  while (hi + 0.05 <= c.max_deg &&
+         std::abs(m.holdingForceN(axis, degToRad(hi + 0.05))) <= max_force_n)
+    hi += 0.05;
+  return {lo, hi};
+}
+
+std::array<TruthCheck, kAxes> compareWithTruth(const JointModelParams& truth_p,
+                                               const JointModelParams& fitted_p,
+                                               double max_force_n) {
+  const JointModel truth(truth_p), fitted(fitted_p);
+  std::array<TruthCheck, kAxes> out{};
+  for (int i = 0; i < kAxes; ++i) {
+    const auto ax = static_cast<std::size_t>(i);
+    const CubicCurve& c = truth_p.axes[ax];
+    const auto [lo, hi] = reachable(truth, i, max_force_n);
+    const bool wall_lo = lo <= c.min_deg + 0.05, wall_hi = hi >= c.max_deg - 0.05;
+    const double rest = radToDeg(truth.restAngleRad(i));
+    const double zone = truth_p.neutral_zone_deg[ax];
+    auto nearEdge = [&](double d) {
+      if (wall_lo && d < c.min_deg + 1.0) return true;
+      if (wall_hi && d > c.max_deg - 1.0) return true;
+      return zone > 0.0 && (std::abs(d - (rest - zone)) < 1.5 || std::abs(d - (rest + zone)) < 1.5);
+    };
+    const double from = wall_lo ? c.min_deg - 2.0 : lo, to = wall_hi ? c.max_deg + 2.0 : hi;
+    for (double d = from; d <= to + 1e-9; d += 0.05) {
+      const double err =
+          std::abs(fitted.holdingForceN(i, degToRad(d)) - truth.holdingForceN(i, degToRad(d)));
+      auto& o = out[ax];
+      if (err > o.edges_n) {
+        o.edges_n = err;
+        o.edges_at = d;
+      }
+      if (d >= lo && d <= hi && !nearEdge(d) && err > o.inner_n) {
+        o.inner_n = err;
+        o.inner_at = d;
+      }
+    }
+  }
+  return out;
+}
+
+struct CaseRun {
+  CaptureFit fit;
+  std::array<TruthCheck, kAxes> check;
+};
+
+CaseRun runCase(const JointModelParams& truth, double hz, uint64_t seed,
+                double noise_n = kPaperNoiseN) {
+  SyntheticCaptureOptions o;  // the default length: 10 s per axis, as telehand-client
+  o.truth = truth;
+  o.noise_n = noise_n;
+  o.frequency_hz = hz;
+  o.seed = seed;
+  const SyntheticCapture cap = synthesizeCapture(o);
+  CaptureFitter fitter(cap.geometry);
+  for (const auto& s : cap.samples) fitter.add(s, true);
+  CaseRun r;
+  r.fit = fitter.fit();
+  EXPECT_TRUE(r.fit.ok());
+  r.check = compareWithTruth(truth, r.fit.model(truth), o.max_force_n);
+  return r;
+}
+
+void expectWithin(const JointModelParams& truth, const CaseRun& r, const std::string& what,
+                  double inner_n, double edges_n) {
+  for (std::size_t i = 0; i < kAxes; ++i) {
+    const auto& c = r.check[i];
+    const auto& a = r.fit.axes[i];
+    std::printf(
+        "%-28s %-9s inner %.3f N (at %6.1f)  edges+walls %.3f N (at %6.1f)  range %6.1f..%5.1f "
+        "walls %d%d zone %.1f/%.1f  inertia %.2e±%.1e  dyn %.2f N  hyst %.2f N  delay %.2f\n",
+        what.c_str(), kAxisNames[i].data(), c.inner_n, c.inner_at, c.edges_n, c.edges_at,
+        a.curve.min_deg, a.curve.max_deg, a.wall_min, a.wall_max, a.zone_deg,
+        truth.neutral_zone_deg[i], a.inertia_kgm2, a.inertia_se_kgm2, a.dynamic_n, a.hysteresis_n,
+        r.fit.delay_samples);
+    EXPECT_LT(c.inner_n, inner_n) << what << " " << kAxisNames[i];
+    EXPECT_LT(c.edges_n, edges_n) << what << " " << kAxisNames[i];
+  }
+}
+
+JointModelParams shippedCase(const std::string& name) {
+  return loadPatientCase(std::string(TELEHAND_DEPLOY_DIR) + "/cases/" + name + ".toml").model;
+}
+
+/// The shipped cases (deploy/cases) at the default capture length, at the paper's slow
+/// mobilization and at the clinician's 3 Hz. The 3 Hz bound is wider than 0.5 Hz's: the
+/// inertial term's estimate leaves up to about 0.45 N at the range ends, and a wall missed
+/// where the end slope is steep up to 0.65 N (docs/capture.md).
+/// spasm is not here: its speed gain makes the force depend on speed, which the fitted
+/// model does not hold (docs/capture.md).
+TEST(CaptureFitTruth, ShippedCasesAtDefaultLength) {
+  uint64_t seed = 11;
+  for (const char* name : {"healthy", "stiff", "lax", "recovery"}) {
+    for (const double hz : {0.5, 3.0}) {
+      const JointModelParams truth = shippedCase(name);
+      const CaseRun r = runCase(truth, hz, ++seed);
+      expectWithin(truth, r, std::string(name) + " " + std::to_string(hz).substr(0, 3) + " Hz",
+                   hz < 1.0 ? 0.3 : 0.5, hz < 1.0 ? 0.5 : 0.7);
+    }
+  }
+}
+
+/// Joints nobody tuned the fit to: the shipped curves scaled, shifted and given other
+/// ranges and zones.
+TEST(CaptureFitTruth, PerturbedJoints) {
+  JointModelParams a = shippedCase("healthy");
+  for (auto& c : a.axes) {
+    for (auto& k : c.coeffs) k *= 1.4;
+    c.coeffs[3] += 0.6;
+    c.min_deg *= 0.8;
+    c.max_deg *= 0.85;
+  }
+  JointModelParams b = shippedCase("lax");
+  b.neutral_zone_deg = {7.0, 3.0, 2.5};
+  for (auto& c : b.axes) c.coeffs[2] *= 0.7;
+  b.axes[kFlexion].min_deg = -55.0;
+  JointModelParams c = shippedCase("stiff");
+  c.axes[kAbduction].min_deg = -14.0;
+  c.axes[kAbduction].max_deg = 6.0;
+  int k = 0;
+  for (const JointModelParams* truth : {&a, &b, &c}) {
+    for (const double hz : {0.5, 3.0}) {
+      const CaseRun r = runCase(*truth, hz, 100 + static_cast<uint64_t>(k));
+      expectWithin(*truth, r,
+                   "perturbed " + std::to_string(k) + " " + std::to_string(hz).substr(0, 3) + " Hz",
+                   hz < 1.0 ? 0.3 : 0.5, hz < 1.0 ? 0.5 : 0.7);
+    }
+    ++k;
+  }
+}
+
+/// A fast capture leans on the dynamic terms, a slow one hardly: the fit reports how much.
+TEST(CaptureFitTruth, DynamicTermsAreReported) {
+  const JointModelParams truth = shippedCase("healthy");
+  const CaseRun slow = runCase(truth, 0.5, 5), fast = runCase(truth, 3.0, 5);
+  EXPECT_LT(slow.fit.axes[kFlexion].dynamic_n, 0.3);
+  EXPECT_GT(fast.fit.axes[kFlexion].dynamic_n, 0.5);
+  // The moving mass: the phalanx (2.1e-5 kg·m²) and the grip's 0.05 kg at 1 cm (0.5e-5).
+  EXPECT_NEAR(fast.fit.axes[kFlexion].inertia_kgm2, 2.6e-5, 1.0e-5);
+}
+
+/// Every curve the live refit publishes rises over its range, while a noisy fast capture
+/// arrives chunk by chunk.
+TEST(LiveRefitTruth, NeverPublishesAFallingCurve) {
+  for (const char* name : {"lax"}) {
+    SyntheticCaptureOptions o;
+    o.truth = shippedCase(name);
+    o.frequency_hz = 3.0;
+    o.seed = 21;
+    const SyntheticCapture cap = synthesizeCapture(o);
+    LiveRefit live(cap.geometry, o.truth);
+    int64_t now = 0;
+    int published = 0;
+    for (std::size_t i = 0; i < cap.samples.size(); ++i) {
+      live.add(cap.samples[i], true, now);
+      if (i % 100 != 99) continue;
+      now += 100 * kNsPerMs;
+      const auto u = live.poll(now);
+      if (!u) continue;
+      ++published;
+      const JointModel m(u->params);
+      for (int ax = 0; ax < kAxes; ++ax) {
+        const CubicCurve& c = u->params.axes[static_cast<std::size_t>(ax)];
+        EXPECT_TRUE(risesOverRange(c)) << name << " " << kAxisNames[static_cast<std::size_t>(ax)];
+        double last = -1e9;
+        for (double d = c.min_deg - 3.0; d <= c.max_deg + 3.0; d += 0.1) {
+          const double f = m.holdingForceN(ax, degToRad(d));
+          EXPECT_GE(f, last - 1e-9) << name << " at " << d;
+          last = f;
+        }
+      }
+    }
+    EXPECT_GT(published, 2) << name;
+  }
 }
 
 }  // namespace

@@ -5,27 +5,27 @@
 
 namespace telehand::devices {
 
-SweepPlan planSweep(const JointModelParams& joint, double max_force_n, double range_fraction) {
+SweepPlan planSweep(const JointModelParams& joint, double max_force_n, double wall_deg) {
   SweepPlan plan;
   const JointModel m(joint);
+  const double lever = joint.lever_arm_m;
+  plan.max_torque_nm = 1.2 * max_force_n * lever;
   for (int i = 0; i < kAxes; ++i) {
     const auto ax = static_cast<std::size_t>(i);
     const CubicCurve& c = joint.axes[ax];
     const double rest = radToDeg(m.restAngleRad(i));
     plan.hold_deg[ax] = rest;
-    // Walk out from rest until the force or the range fraction is reached.
-    const double lo_lim = rest + range_fraction * (c.min_deg - rest);
-    const double hi_lim = rest + range_fraction * (c.max_deg - rest);
+    auto force = [&](double deg) { return m.holdingForceN(i, degToRad(deg)); };
+    // Walk out from rest to the range end and into the end stop, or until the force.
     double lo = rest, hi = rest;
     constexpr double kStep = 0.05;
-    while (lo - kStep >= lo_lim &&
-           std::abs(m.holdingForceN(i, degToRad(lo - kStep))) <= max_force_n)
+    while (lo - kStep >= c.min_deg - wall_deg && std::abs(force(lo - kStep)) <= max_force_n)
       lo -= kStep;
-    while (hi + kStep <= hi_lim &&
-           std::abs(m.holdingForceN(i, degToRad(hi + kStep))) <= max_force_n)
+    while (hi + kStep <= c.max_deg + wall_deg && std::abs(force(hi + kStep)) <= max_force_n)
       hi += kStep;
-    plan.lo_deg[ax] = lo;
-    plan.hi_deg[ax] = hi;
+    // The servo holds the phalanx short of its target by force / stiffness: aim past it.
+    plan.lo_deg[ax] = lo + radToDeg(force(lo) * lever / plan.stiffness_nm_per_rad);
+    plan.hi_deg[ax] = hi + radToDeg(force(hi) * lever / plan.stiffness_nm_per_rad);
   }
   return plan;
 }
@@ -59,7 +59,13 @@ Vec3 SweepOperator::target(double t_s) const noexcept {
 }
 
 Vec3 SweepOperator::torqueNm(double t_s, const Vec3& angles, const Vec3& rates) noexcept {
-  return plan_.stiffness_nm_per_rad * (target(t_s) - angles) - plan_.damping_nms_per_rad * rates;
+  Vec3 tau =
+      plan_.stiffness_nm_per_rad * (target(t_s) - angles) - plan_.damping_nms_per_rad * rates;
+  if (plan_.max_torque_nm > 0.0) {
+    for (int i = 0; i < kAxes; ++i)
+      tau[i] = std::clamp(tau[i], -plan_.max_torque_nm, plan_.max_torque_nm);
+  }
+  return tau;
 }
 
 }  // namespace telehand::devices

@@ -6,6 +6,7 @@
 #include <array>
 #include <cstddef>
 #include <span>
+#include <vector>
 
 namespace telehand {
 
@@ -28,5 +29,56 @@ CubicFitResult fitCubic(std::span<const double> x, std::span<const double> y,
 /// Coefficients (highest power first) of p((x - centre) / scale) expanded in x.
 std::array<double, 4> expandScaledCubic(const std::array<double, 4>& b_low_first, double centre,
                                         double scale) noexcept;
+
+/// A joint axis' holding force as telehand's joint model renders it (joint_model.h,
+/// JointModel::holdingForceN): a cubic P; a free band of half width `zone_deg` around
+/// `rest_deg` (P's zero) where the force stays P(rest_deg); beyond `min_deg`/`max_deg` an
+/// end-of-range wall whose stiffness adds to P's end slope.
+struct PiecewiseCubic {
+  std::array<double, 4> coeffs{};  ///< c3, c2, c1, c0 of P in the caller's units of x
+  double min_deg = 0.0, max_deg = 0.0;
+  double zone_deg = 0.0, rest_deg = 0.0;
+  double wall_n_per_deg = 1.0;
+  double poly(double x) const noexcept {
+    return ((coeffs[0] * x + coeffs[1]) * x + coeffs[2]) * x + coeffs[3];
+  }
+  double polySlope(double x) const noexcept {
+    return (3.0 * coeffs[0] * x + 2.0 * coeffs[1]) * x + coeffs[2];
+  }
+  /// The holding force at x (the same expression as JointModel::holdingForceN).
+  double eval(double x) const noexcept;
+};
+
+struct PiecewiseFitOptions {
+  double wall_n_per_deg = 1.0;  ///< the joint model's kWallNPerDeg
+  double bin_deg = 0.05;        ///< samples are pooled in angle bins this wide
+  bool find_zone = true;
+  bool find_walls = true;
+  /// A zone or wall is kept only when it lowers the residual sum of squares by more than
+  /// this many times σ² ln n (a Bayesian-information-style penalty against fitting noise).
+  double penalty = 2.0;
+  /// Fit only the linear part, with this shape's walls, zone and rest (no search).
+  const PiecewiseCubic* fixed_shape = nullptr;
+};
+
+struct PiecewiseFitResult {
+  bool ok = false;
+  PiecewiseCubic curve;  ///< min/max_deg: the walls found, else the data's extent
+  bool wall_lo = false, wall_hi = false;
+  std::vector<double> extra;     ///< coefficients of the extra regressors
+  std::vector<double> extra_se;  ///< their standard errors
+  double rms = 0.0;
+  std::size_t n = 0;
+  double x_min = 0.0, x_max = 0.0;
+};
+
+/// y ≈ piecewise(x) + Σ extra_j · extras[j] (each as long as x), least squares: the cubic and
+/// the extras' coefficients are linear; the zone (half width, centre), and the wall angles
+/// are searched (coordinate descent on grids, then refined), each kept only when it pays
+/// for itself (options.penalty). Samples are pooled in narrow angle bins, so each trial
+/// costs the number of bins, not of samples.
+PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const double> y,
+                                     std::span<const std::span<const double>> extras,
+                                     const PiecewiseFitOptions& options = {});
 
 }  // namespace telehand

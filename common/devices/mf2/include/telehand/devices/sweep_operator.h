@@ -1,10 +1,11 @@
 #pragma once
 /// A clinician capturing a joint (paper section IV.B) as a simulated operator: the
 /// actuators are off and the clinician moves the phalanx through each axis in turn, out to
-/// the angle where it takes `max_force_n` (or a fraction of the range of motion) in each
-/// direction, holding the other axes still. The hand is a position servo (a stiff,
-/// damped spring toward the planned angle), so every torque it makes is what the thimbles
-/// measure.
+/// the end of its range and a little into the end stop (the end-feel, as a clinician
+/// explores it), or to the angle where it takes `max_force_n` if that comes first (the
+/// thimbles' FSRs saturate at about 22 N), holding the other axes still. The hand is a
+/// position servo (a stiff, damped spring toward the planned angle, its torque bounded),
+/// so every torque it makes is what the thimbles measure.
 #include <array>
 
 #include "telehand/core/joint_model.h"
@@ -21,6 +22,8 @@ struct SweepPlan {
   double ramp_s = 1.0;                ///< into and out of each axis' sweep
   double stiffness_nm_per_rad = 4.0;  ///< the clinician's servo at the grip
   double damping_nms_per_rad = 0.006;
+  /// The servo's torque is bounded per axis (0: unbounded), N·m at the grip.
+  double max_torque_nm = 0.0;
   bool repeat = true;  ///< start again with flexion after the last axis
   /// Instead of one axis at a time: flexion and abduction together, at frequency_hz and
   /// 3.7 times it (incommensurate: the pair covers the plane), axial rotation held. For
@@ -30,11 +33,13 @@ struct SweepPlan {
   double durationS() const noexcept { return kAxes * seconds_per_axis; }
 };
 
-/// Sweep limits for a joint: in each direction, the angle where the holding force reaches
-/// `max_force_n`, or `range_fraction` of the range of motion, whichever comes first. Axes
-/// are held at their rest angle.
-SweepPlan planSweep(const JointModelParams& joint, double max_force_n = 15.0,
-                    double range_fraction = 0.9);
+/// Sweep limits for a joint: in each direction, `wall_deg` past the end of the range (into
+/// the end stop), or the angle where the holding force reaches `max_force_n`, whichever
+/// comes first; the planned angle leads that by the servo's lag under the holding force
+/// there. The servo's torque is bounded at 1.2 × max_force_n at the lever arm. Axes are held
+/// at their rest angle.
+SweepPlan planSweep(const JointModelParams& joint, double max_force_n = 18.0,
+                    double wall_deg = 3.0);
 
 class SweepOperator final : public Operator {
  public:

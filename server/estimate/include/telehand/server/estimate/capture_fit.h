@@ -1,9 +1,13 @@
 #pragma once
 /// Fitting a joint model from a capture (paper section IV.B): per MCP axis, the force at the
-/// lever arm that the thimbles measured against the angle the encoders measured, a
-/// least-squares cubic (plus a viscous term, so that mobilizing at speed does not bend the
-/// curve), its RMS residual, the angular range reached in each direction and the neutral
-/// zone. The same code serves the live refit in the server and `telehand-records fit`.
+/// lever arm that the thimbles measured against the angle the encoders measured, fitted by
+/// least squares as the joint model renders it: a cubic, a free neutral zone around rest
+/// and end-of-range walls where the clinician felt them (fitPiecewiseCubic), plus a viscous
+/// and an inertial term (the phalanx, thimbles and links accelerated by the clinician), so
+/// that mobilizing at speed does not bend the curve. Reported with the RMS residual, the
+/// range reached, and two checks the residual alone does not show: how far the curve moves
+/// when the dynamic terms are left out, and the up- against down-sweep hysteresis. The same code
+/// serves the live refit in the server and `telehand-records fit`.
 #include <array>
 #include <cstdint>
 #include <functional>
@@ -35,21 +39,42 @@ struct CaptureCounts {
 
 struct AxisFit {
   bool ok = false;
-  CubicCurve curve;    ///< coefficients, range = the range reached
-  double rms_n = 0.0;  ///< RMS residual, N
+  /// Coefficients; range = the walls found, else the range reached.
+  CubicCurve curve;
+  bool wall_min = false, wall_max = false;  ///< the range end is a wall the capture felt
+  double reached_min_deg = 0.0, reached_max_deg = 0.0;
+  double zone_deg = 0.0;  ///< free neutral zone, half width (0: none found)
+  double rest_deg = 0.0;  ///< its centre
+  double rms_n = 0.0;     ///< RMS residual, N
   double damping_nms_per_rad = 0.0;
+  double inertia_kgm2 = 0.0;     ///< the moving mass as seen at the joint (phalanx + device)
+  double inertia_se_kgm2 = 0.0;  ///< its standard error
+  /// Largest change of the holding force over the range when the fit leaves the viscous and
+  /// inertial terms out: what a purely static fit would get wrong (N). Above a few tenths
+  /// of a newton, the curve rests on the dynamic terms: mobilize slower.
+  double dynamic_n = 0.0;
+  /// Largest difference of the mean residual between up and down sweeps at the same angle
+  /// (5° bins), N: a speed-dependent force the model does not hold (e.g. spasm) shows here.
+  double hysteresis_n = 0.0;
   double neutral_min_deg = 0.0;  ///< where |F| stays under the neutral-zone threshold
   double neutral_max_deg = 0.0;
   std::size_t samples = 0;
+  /// The fitted holding force at `deg` (JointModel::holdingForceN semantics).
+  double holdingForceN(double deg) const noexcept;
 };
 
 struct CaptureFit {
   std::array<AxisFit, kAxes> axes{};
   CaptureCounts counts;
+  double delay_samples = 0.0;  ///< the force channel's lag behind the positions, samples
   bool ok() const noexcept { return axes[0].ok && axes[1].ok && axes[2].ok; }
   /// `base` with the fitted curves, ranges and damping (lever arm, scale, frame, name kept).
   JointModelParams model(const JointModelParams& base) const;
 };
+
+/// Whether the curve's force rises everywhere in [min_deg, max_deg] (what a patient case
+/// must do; config.cpp refuses a falling one).
+bool risesOverRange(const CubicCurve& c) noexcept;
 
 struct FitOptions {
   /// Force below which the joint counts as lax (the neutral zone), N. About a force JND
@@ -57,9 +82,15 @@ struct FitOptions {
   double neutral_force_n = 1.0;
   /// Central difference half window for angular rates, samples (1 kHz: ±5 ms).
   int rate_half_window = 5;
+  /// The same for accelerations (second differences). Narrower windows let encoder
+  /// quantization into the acceleration and bias the inertia toward zero (±1 ms: by half).
+  int acc_half_window = 5;
   /// Samples an axis needs spread over at least this many degrees to be fitted.
   double min_span_deg = 5.0;
   std::size_t min_samples = 200;
+  /// The force channel may lag the position channel (FSR conditioning, sampling order):
+  /// the fit finds the lag, up to this many samples, that explains the data best.
+  int max_delay_samples = 4;
 };
 
 /// The per-axis force that a sample's thimbles exert at the lever arm (paper eqs. 1-2 for
@@ -79,6 +110,10 @@ class CaptureFitter {
   const std::vector<CapturePoint>& points() const noexcept { return points_; }
   /// Angular rates of every point (central differences), rad/s.
   std::vector<Vec3> rates() const;
+  /// Angular accelerations of every point (second central differences), rad/s².
+  std::vector<Vec3> accelerations() const;
+  /// The force channel's lag behind the position channel, in samples (fractional).
+  double delaySamples() const;
   /// `progress(axis, fraction)` is called as the fit advances (long captures).
   CaptureFit fit(const std::function<void(int, double)>& progress = {}) const;
 

@@ -22,11 +22,12 @@ struct SyntheticCaptureOptions {
   JointModelParams truth = healthyIndexMcp();
   /// Thimble error as the force each axis sees, N RMS: the paper's ±1.43 N (docs/facts.md).
   double noise_n = 1.43;
-  double sensor_noise_n = 0.02;  ///< FSR channel noise before the ADC, N
-  double seconds_per_axis = 20.0;
+  double sensor_noise_n = 0.02;    ///< FSR channel noise before the ADC, N
+  double seconds_per_axis = 10.0;  ///< as telehand-client --sweep-seconds
   double frequency_hz = 0.5;
-  double max_force_n = 15.0;  ///< the clinician stops at this force (FSRs saturate ~22 N)
-  double range_fraction = 0.9;
+  /// The clinician goes no further than this force (the FSRs saturate at about 22 N)...
+  double max_force_n = 18.0;
+  double wall_deg = 3.0;  ///< ...and this far into the end stop (planSweep)
   uint64_t seed = 1;
   mf2::Mf2Description device = mf2::defaultMf2();
   /// A joint the cubics cannot express (coupled axes): moves the finger instead of `truth`,
