@@ -398,7 +398,9 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
     tick(rec);
     force = forceOf(rec);
   }
-  EXPECT_GT(force, 0.2);
+  EXPECT_GT(force, 0.2) << "fault: " << client::loop::faultName(loop.fault()) << " after "
+                        << loop.health().fault_clamps.load() << " clamps, peak "
+                        << loop.health().fault_peak_force_n.load() << " N";
   const std::string log = joined(dev.takeMessages());
   EXPECT_NE(log.find("disconnected (unplugged)"), std::string::npos) << log;
   EXPECT_NE(log.find("MF-2 streaming from bus 1 address 1"), std::string::npos) << log;
