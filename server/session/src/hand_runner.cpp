@@ -64,6 +64,19 @@ bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Samp
     // (each catch-up would fall further behind): past kMaxCatchUpSteps the hand skips time
     // and the gap shows in HandState.device_lost. A deadband-coded stream withholds samples
     // on purpose: those steps run on the last state received.
+    if (!live.have()) {
+      // The first sample: the student takes hold of the finger where their fingers are. The
+      // hand's MCP starts there (inside its range), not at the model's neutral pose: pads
+      // closing on a phalanx that is still swinging from neutral to rest (or flexed 45 deg
+      // away, for a stiff joint) grip it off the thimbles' line, and the hand would stay
+      // that far from the script (3.4 deg of abduction measured on the healthy joint).
+      Vec3 start = model.anglesFromGrip(grip);
+      for (int i = 0; i < kAxes; ++i) {
+        const CubicCurve& c = model.params().axes[static_cast<std::size_t>(i)];
+        start[i] = std::clamp(start[i], degToRad(c.min_deg), degToRad(c.max_deg));
+      }
+      if (allFinite(start)) sim_->resetMcp(start);
+    }
     const uint64_t gap = live.ticksTo(d);
     const uint64_t steps = std::min<uint64_t>(
         gap, coded ? SessionManager::kMaxHeldSteps : SessionManager::kMaxCatchUpSteps);
