@@ -1,10 +1,12 @@
 #include "records_read.h"
 
+#include <algorithm>
 #include <ctime>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
+#include <vector>
 
 namespace telehand::records {
 
@@ -69,13 +71,45 @@ int runShow(SqliteStore& store, const SessionInfo& info) {
   }
   const auto reaches = store.reaches(session_id);
   if (!reaches.empty()) {
+    // Each phase in the order recorded, its six directions in the order exploration names
+    // them (server/session exploration.h): a direction the phase never took the joint into
+    // has no row and shows as not reached, never as a 0 deg reach.
+    static constexpr const char* kDirections[] = {"flexion",   "extension",  "abduction",
+                                                  "adduction", "supination", "pronation"};
+    std::vector<std::string> phases;
+    for (const auto& r : reaches) {
+      if (std::find(phases.begin(), phases.end(), r.phase) == phases.end()) {
+        phases.push_back(r.phase);
+      }
+    }
     std::cout << "exploration:\n  " << std::left << std::setw(14) << "phase" << std::setw(12)
               << "direction" << std::right << std::setw(10) << "angle" << std::setw(12)
               << "force\n";
-    for (const auto& r : reaches) {
+    auto row = [](const SessionStore::Reach& r) {
       std::cout << "  " << std::left << std::setw(14) << r.phase << std::setw(12) << r.direction
                 << std::right << std::setw(8) << std::fixed << std::setprecision(1) << r.angle_deg
                 << " deg" << std::setw(8) << r.force_n << " N\n";
+    };
+    for (const auto& phase : phases) {
+      for (const char* dir : kDirections) {
+        const auto it = std::find_if(reaches.begin(), reaches.end(), [&](const auto& r) {
+          return r.phase == phase && r.direction == dir;
+        });
+        if (it != reaches.end()) {
+          row(*it);
+        } else {
+          std::cout << "  " << std::left << std::setw(14) << phase << std::setw(12) << dir
+                    << std::right << std::setw(14) << "not reached"
+                    << "\n";
+        }
+      }
+      for (const auto& r : reaches) {  // a direction this version does not know
+        if (r.phase == phase && std::find_if(std::begin(kDirections), std::end(kDirections),
+                                             [&](const char* d) { return r.direction == d; }) ==
+                                    std::end(kDirections)) {
+          row(r);
+        }
+      }
     }
   }
   return 0;

@@ -22,18 +22,34 @@ HandRunner::HandRunner(uint64_t session_id, const sim::HandModel* hand,
   if (hand) sim_ = std::make_unique<sim::HandSim>(*hand, params, hand_config);
 }
 
+namespace {
+/// The joint's rest angle on each axis, where exploration's directions start.
+Vec3 restAngles(const JointModel& model) {
+  return {model.restAngleRad(kFlexion), model.restAngleRad(kAbduction), model.restAngleRad(kAxial)};
+}
+}  // namespace
+
+void observeHand(Exploration& exploration, const sim::HandSim& hand, const JointModel& model,
+                 double min_grip_n) {
+  if (!exploration.active()) return;
+  const auto f = hand.contactForcesDevice();
+  const Vec3 angles = hand.mcpAngles();
+  // The force at the reach is what holds the joint there: the joint torque the pads exert on
+  // each axis (the generalized torque conjugate to that angle, which the joint model's curves
+  // give per axis) as a force at the lever arm. The squeeze cancels out, and the other axes'
+  // torques are no part of this direction's force.
+  const Vec3 axis_force_n =
+      model.axisTorque(hand.contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}) /
+      model.params().lever_arm_m;
+  // Held: both pads press the phalanx (a finger the pads let go swings to rest by itself).
+  const bool held = f[0].norm() >= min_grip_n && f[1].norm() >= min_grip_n;
+  exploration.observe(angles, restAngles(model), axis_force_n, held);
+}
+
 void HandRunner::step(const JointModel& model) {
   sim_->step();
+  observeHand(exploration_, *sim_, model, drift_.options().min_grip_n);
   const auto f = sim_->contactForcesDevice();
-  if (exploration_.active()) {
-    const Vec3 angles = sim_->mcpAngles();
-    // The force at the reach is what holds the joint there: the pads' torque about it as a
-    // force at the lever arm, as the paper's curves give it (the squeeze cancels out).
-    const double holding_n =
-        model.axisTorque(sim_->contactPointsDevice(), angles, {Vec3(-f[0]), Vec3(-f[1])}).norm() /
-        model.params().lever_arm_m;
-    exploration_.observe(angles, holding_n);
-  }
   if (f[0].norm() + f[1].norm() > 1.0) treatment_s_ += 1e-3;
 }
 
@@ -48,6 +64,19 @@ bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Samp
     // (each catch-up would fall further behind): past kMaxCatchUpSteps the hand skips time
     // and the gap shows in HandState.device_lost. A deadband-coded stream withholds samples
     // on purpose: those steps run on the last state received.
+    if (!live.have()) {
+      // The first sample: the student takes hold of the finger where their fingers are. The
+      // hand's MCP starts there (inside its range), not at the model's neutral pose: pads
+      // closing on a phalanx that is still swinging from neutral to rest (or flexed 45 deg
+      // away, for a stiff joint) grip it off the thimbles' line, and the hand would stay
+      // that far from the script (3.4 deg of abduction measured on the healthy joint).
+      Vec3 start = model.anglesFromGrip(grip);
+      for (int i = 0; i < kAxes; ++i) {
+        const CubicCurve& c = model.params().axes[static_cast<std::size_t>(i)];
+        start[i] = std::clamp(start[i], degToRad(c.min_deg), degToRad(c.max_deg));
+      }
+      if (allFinite(start)) sim_->resetMcp(start);
+    }
     const uint64_t gap = live.ticksTo(d);
     const uint64_t steps = std::min<uint64_t>(
         gap, coded ? SessionManager::kMaxHeldSteps : SessionManager::kMaxCatchUpSteps);
@@ -65,7 +94,13 @@ bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Samp
     step(model);
     return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, now_ns, before);
   }
-  if (!sim_ && exploration_.active()) exploration_.observe(model.anglesFromGrip(grip), 0.0);
+  if (!sim_ && exploration_.active()) {
+    // No hand: the thimbles set the angles and the joint model gives the force holding them.
+    const Vec3 angles = model.anglesFromGrip(grip);
+    Vec3 holding_n;
+    for (int i = 0; i < kAxes; ++i) holding_n[i] = model.holdingForceN(i, angles[i]);
+    exploration_.observe(angles, restAngles(model), holding_n, true);
+  }
   return false;
 }
 
@@ -183,8 +218,9 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
 void HandRunner::endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns) {
   if (!exploration_.active()) return;
   const std::string phase = exploration_.phase();
+  // Only the directions reached are stored: one never explored has no row (not a 0 deg reach)
+  // and the score says it was not reached.
   const auto reached = exploration_.finish();
-  if (reached.empty()) return;
   for (const auto& r : reached) {
     try {
       ctx.store.appendReach(session_id_, r);

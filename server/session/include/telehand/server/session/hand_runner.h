@@ -19,6 +19,12 @@
 
 namespace telehand::server::session {
 
+/// Observe one step of `hand` for `exploration` (if a phase is under way): the MCP angles, the
+/// pads' joint torque per axis as a force at the lever arm, held when both pads press the
+/// phalanx with at least `min_grip_n`.
+void observeHand(Exploration& exploration, const sim::HandSim& hand, const JointModel& model,
+                 double min_grip_n);
+
 class HandRunner {
  public:
   /// With `hand`, the Bullet hand runs on `params`; without, HandState comes from the shared
