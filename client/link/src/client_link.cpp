@@ -67,9 +67,11 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
   dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
 
   while (std::chrono::steady_clock::now() < deadline) {
-    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
+    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t& info) {
       if (st.client_id == client_id_ && st.request_seq == cmd.request_seq) {
         session_id_ = st.session_id;
+        // From now on the session's models and status come from this server only.
+        server_ = senders_.of(status_reader_.handle(), info.publication_handle).participant;
       }
     });
     pollEvents();
@@ -175,15 +177,17 @@ void ClientLink::flushChunk(bool retry_only) {
 }
 
 void ClientLink::pollModels() {
-  knn_reader_.take([&](const telehand_msg_KnnModel& k, const dds_sample_info_t&) {
-    if (k.session_id != session_id_ || (knn_samples_ && k.version <= knn_samples_->version)) return;
+  knn_reader_.take([&](const telehand_msg_KnnModel& k, const dds_sample_info_t& info) {
+    if (k.session_id != session_id_ || !fromServer(knn_reader_.handle(), info)) return;
+    if (knn_samples_ && k.version <= knn_samples_->version) return;
     KnnReceived r;
     r.version = k.version;
     r.model = fromWire(k, &r.why);  // built here, on the link thread, never in the loop
     knn_samples_ = std::move(r);
   });
-  model_reader_.take([&](const telehand_msg_JointModel& m, const dds_sample_info_t&) {
-    if (m.session_id != session_id_ || m.version <= model_version_) return;
+  model_reader_.take([&](const telehand_msg_JointModel& m, const dds_sample_info_t& info) {
+    if (m.session_id != session_id_ || !fromServer(model_reader_.handle(), info)) return;
+    if (m.version <= model_version_) return;
     std::string why;
     auto params = fromWire(m, &why);
     if (!params) {
@@ -231,14 +235,21 @@ void ClientLink::sendFiles(const std::vector<mf2::NamedFile>& files) {
 }
 
 void ClientLink::pollDirectForces() {
-  direct_reader_.take([&](const telehand_msg_DirectForce& f, const dds_sample_info_t&) {
-    if (f.session_id != session_id_) return;
+  direct_reader_.take([&](const telehand_msg_DirectForce& f, const dds_sample_info_t& info) {
+    if (f.session_id != session_id_ || !fromServer(direct_reader_.handle(), info)) return;
     loop::DirectForceSample d;
     d.device_seq = f.device_seq;
     d.force_n = forcesFromWire(f);
     stats_.direct_forces.fetch_add(1, std::memory_order_relaxed);
     loop_.directForces().tryPush(d);  // full: the loop holds the last one it took
   });
+}
+
+bool ClientLink::fromServer(dds_entity_t reader, const dds_sample_info_t& info) {
+  if (server_ == 0) return true;
+  if (senders_.of(reader, info.publication_handle).participant == server_) return true;
+  stats_.foreign_refused.fetch_add(1, std::memory_order_relaxed);
+  return false;
 }
 
 void ClientLink::pollEvents() {
@@ -281,8 +292,9 @@ CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
   if (command_writer_.write(cmd) < 0) return r;
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   while (!r.confirmed && std::chrono::steady_clock::now() < deadline) {
-    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
-      if (st.session_id == session_id_ && st.state == telehand_msg_SESSION_CLOSED) {
+    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t& info) {
+      if (st.session_id == session_id_ && st.state == telehand_msg_SESSION_CLOSED &&
+          fromServer(status_reader_.handle(), info)) {
         r.confirmed = true;
         r.samples_recorded = st.samples_recorded;
         r.samples_missing = st.samples_missing;

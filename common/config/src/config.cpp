@@ -93,17 +93,33 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
   sv.read("hand_model", c.hand_model);
   sv.read("hand_deadband_weber", c.hand_deadband_weber);
   sv.read("drift_correction", c.drift_correction);
+  sv.read("max_sessions", c.max_sessions);
+  sv.read("max_sessions_per_participant", c.max_sessions_per_participant);
+  sv.read("max_file_bytes", c.max_file_bytes);
+  sv.read("max_files_per_session", c.max_files_per_session);
+  sv.read("status_keep_s", c.status_keep_s);
   sv.rejectUnknown();
+  validateServerConfig(c, origin);
+  return c;
+}
+
+void validateServerConfig(const ServerConfig& c, const std::string& origin) {
   requireRange(origin, "server.hand_deadband_weber", c.hand_deadband_weber, 0.0, 0.5);
   if (c.db_path.empty()) fail(origin, "'server.db' must not be empty");
   requireRange(origin, "server.hand_state_hz", c.hand_state_hz, 1.0, 1000.0);
   requireRange(origin, "server.close_grace_s", c.close_grace_s, 0.0, 600.0);
-  return c;
+  requireRange(origin, "server.max_sessions", c.max_sessions, 1, 4096);
+  requireRange(origin, "server.max_sessions_per_participant", c.max_sessions_per_participant, 1,
+               4096);
+  requireRange(origin, "server.max_file_bytes", c.max_file_bytes, 0, 64 * 1024 * 1024);
+  requireRange(origin, "server.max_files_per_session", c.max_files_per_session, 0, 1024);
+  requireRange(origin, "server.status_keep_s", c.status_keep_s, 0.0, 86400.0);
 }
 
 ClientConfig loadClientConfig(const std::string& path) {
   return parseClientConfig(readFile(path), path);
 }
+
 ServerConfig loadServerConfig(const std::string& path) {
   return parseServerConfig(readFile(path), path);
 }

@@ -1,6 +1,7 @@
 #include "telehand/core/sample.h"
 
 #include <cmath>
+#include <cstdio>
 
 namespace telehand {
 
@@ -24,6 +25,51 @@ std::optional<std::string> firstNonFinite(const Sample& s) {
   for (int i = 0; i < 3; ++i) {
     if (!std::isfinite(s.mcp_angles_rad[i])) return "mcp_angles_rad[" + std::to_string(i) + "]";
     if (!std::isfinite(s.mcp_torque_nm[i])) return "mcp_torque_nm[" + std::to_string(i) + "]";
+  }
+  return std::nullopt;
+}
+
+std::optional<std::string> firstInvalid(const Sample& s) {
+  if (auto bad = firstNonFinite(s)) return "non-finite " + *bad;
+  namespace b = sample_bounds;
+  const auto out = [](const std::string& field, double v) {
+    char buf[48];
+    std::snprintf(buf, sizeof buf, " = %.6g", v);
+    return "implausible " + field + buf;
+  };
+  if (s.seq >= b::kMaxSeq) return out("seq", static_cast<double>(s.seq));
+  for (int k = 0; k < 2; ++k) {
+    const auto& f = s.fingers[k];
+    const std::string finger = k == 0 ? "fingers[0] (thumb)" : "fingers[1] (index)";
+    double q2 = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      if (std::abs(f.position_m[i]) > b::kPositionM) {
+        return out(finger + ".position_m[" + std::to_string(i) + "]", f.position_m[i]);
+      }
+      if (std::abs(f.command_n[i]) > b::kCommandN) {
+        return out(finger + ".command_n[" + std::to_string(i) + "]", f.command_n[i]);
+      }
+    }
+    for (int i = 0; i < 4; ++i) {
+      q2 += f.orientation_q[i] * f.orientation_q[i];
+      if (std::abs(f.fsr_n[i]) > b::kFsrN) {
+        return out(finger + ".fsr_n[" + std::to_string(i) + "]", f.fsr_n[i]);
+      }
+    }
+    if (std::abs(std::sqrt(q2) - 1.0) > b::kQuatNormTolerance) {
+      return out(finger + ".orientation_q norm", std::sqrt(q2));
+    }
+    if (std::abs(f.tangential_n) > b::kThimbleForceN)
+      return out(finger + ".tangential_n", f.tangential_n);
+    if (std::abs(f.normal_n) > b::kThimbleForceN) return out(finger + ".normal_n", f.normal_n);
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (std::abs(s.mcp_angles_rad[i]) > b::kAngleRad) {
+      return out("mcp_angles_rad[" + std::to_string(i) + "]", s.mcp_angles_rad[i]);
+    }
+    if (std::abs(s.mcp_torque_nm[i]) > b::kTorqueNm) {
+      return out("mcp_torque_nm[" + std::to_string(i) + "]", s.mcp_torque_nm[i]);
+    }
   }
   return std::nullopt;
 }

@@ -1,5 +1,6 @@
 #include "telehand/protocol/dds.h"
 
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <map>
@@ -138,6 +139,24 @@ std::string configUri(const std::string& config) {
     throw ConfigError("DDS config file '" + config + "' does not exist or is not a file");
   }
   return "file://" + path.string();
+}
+
+const Sender& SenderCache::of(dds_entity_t reader, dds_instance_handle_t publication) {
+  if (auto it = known_.find(publication); it != known_.end()) return it->second;
+  dds_builtintopic_endpoint_t* ep = dds_get_matched_publication_data(reader, publication);
+  if (!ep) return unknown_;
+  Sender s;
+  s.participant = ep->participant_instance_handle;
+  char hex[40];
+  const uint8_t* g = ep->participant_key.v;
+  std::snprintf(hex, sizeof hex,
+                "%02x%02x%02x%02x%02x%02x%02x%02x:%02x%02x%02x%02x:%02x%02x%02x%02x", g[0], g[1],
+                g[2], g[3], g[4], g[5], g[6], g[7], g[8], g[9], g[10], g[11], g[12], g[13], g[14],
+                g[15]);
+  s.guid = hex;
+  dds_builtintopic_free_endpoint(ep);
+  if (known_.size() >= capacity_) known_.clear();
+  return known_.emplace(publication, std::move(s)).first->second;
 }
 
 std::string participantConfig(const Options& options) {

@@ -22,7 +22,8 @@ int main(int argc, char** argv) {
   app.add_option("-c,--config", config_path, "TOML file with a [server] table")
       ->check(CLI::ExistingFile);
   app.add_option("--db", db, "record database (overrides server.db; default records/telehand.db)");
-  app.add_option("--hand-rate", hand_hz, "HandState rate in Hz (60-100 recommended)");
+  auto* hand_rate =
+      app.add_option("--hand-rate", hand_hz, "HandState rate in Hz (1-1000; 60-100 recommended)");
   double hand_deadband = -1.0;
   app.add_option(
          "--hand-deadband", hand_deadband,
@@ -50,8 +51,11 @@ int main(int argc, char** argv) {
     ServerConfig cfg = config_path.empty() ? ServerConfig{} : loadServerConfig(config_path);
     app::resolveDdsSecurity(dds_opts, insecure, "server", "telehand-server");
     if (!db.empty()) cfg.db_path = db;
-    if (hand_hz > 0.0) cfg.hand_state_hz = hand_hz;
+    if (*hand_rate) cfg.hand_state_hz = hand_hz;
     if (hand_deadband >= 0.0) cfg.hand_deadband_weber = hand_deadband;
+    // The flags lie in the ranges of the config keys they stand for.
+    validateServerConfig(
+        cfg, config_path.empty() ? std::string("command line") : "command line and " + config_path);
     if (cfg.hand_model.empty()) cfg.hand_model = hand == "none" ? "" : hand;
     if (cfg.cases_dir.empty()) cfg.cases_dir = cases;
     std::optional<server::sim::HandModel> hand_model;

@@ -69,6 +69,23 @@ void ServerLink::publish(const telehand_msg_SessionEvent& e) {
   if (event_writer_.write(e) < 0) counters_.publish_errors.fetch_add(1);
 }
 
+void ServerLink::retire(uint64_t session_id) {
+  telehand_msg_SessionStatus st{};
+  st.session_id = session_id;
+  status_writer_.unregister(st);
+  telehand_msg_JointModel m{};
+  m.session_id = session_id;
+  model_writer_.unregister(m);
+  telehand_msg_KnnModel k{};
+  k.session_id = session_id;
+  knn_writer_.unregister(k);
+}
+
+session::Origin ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
+  const dds::Sender& s = senders_.of(reader, info.publication_handle);
+  return {s.participant, s.guid};
+}
+
 void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>& stop,
                        std::chrono::nanoseconds tick) {
   SteadyClock clock;
@@ -77,20 +94,21 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
     wake_.clear();
     const int64_t now = clock.nowNs();
     // Commands first so that an OPEN is known before its first samples are handled.
-    counters_.commands +=
-        command_reader_.take([&](const telehand_msg_SessionCommand& c, const dds_sample_info_t&) {
-          manager.onCommand(c, now);
+    counters_.commands += command_reader_.take(
+        [&](const telehand_msg_SessionCommand& c, const dds_sample_info_t& info) {
+          manager.onCommand(c, now, origin(command_reader_.handle(), info));
         });
-    file_reader_.take([&](const telehand_msg_SessionFile& f, const dds_sample_info_t&) {
-      manager.onFile(f, now);
+    file_reader_.take([&](const telehand_msg_SessionFile& f, const dds_sample_info_t& info) {
+      manager.onFile(f, now, origin(file_reader_.handle(), info));
     });
-    counters_.chunks +=
-        chunk_reader_.take([&](const telehand_msg_RecordChunk& c,
-                               const dds_sample_info_t&) { manager.onChunk(c, now); },
-                           1024);
+    counters_.chunks += chunk_reader_.take(
+        [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t& info) {
+          manager.onChunk(c, now, origin(chunk_reader_.handle(), info));
+        },
+        1024);
     counters_.device_states += device_reader_.take(
-        [&](const telehand_msg_DeviceState& d, const dds_sample_info_t&) {
-          manager.onDeviceState(d, now);
+        [&](const telehand_msg_DeviceState& d, const dds_sample_info_t& info) {
+          manager.onDeviceState(d, now, origin(device_reader_.handle(), info));
         },
         256);  // then tick: HandState and closing sessions wait at most one batch
     manager.tick(clock.nowNs());
@@ -98,7 +116,9 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
   // Whatever is still in the readers belongs in the record.
   const int64_t now = clock.nowNs();
   chunk_reader_.take(
-      [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t&) { manager.onChunk(c, now); },
+      [&](const telehand_msg_RecordChunk& c, const dds_sample_info_t& info) {
+        manager.onChunk(c, now, origin(chunk_reader_.handle(), info));
+      },
       SIZE_MAX);
   manager.closeAll(now);
 }

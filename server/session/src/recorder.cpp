@@ -25,14 +25,14 @@ void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
   }
 }
 
-void Recorder::nonFinite(SessionContext& ctx, uint64_t client_id, const Sample& d,
-                         const std::string& field, int64_t now_ns) {
+void Recorder::invalidSample(SessionContext& ctx, uint64_t client_id, const Sample& d,
+                             const std::string& field, int64_t now_ns) {
   ++ctx.stats.nonfinite_samples;
   ++nonfinite_;
   if (now_ns - nonfinite_reported_ns_ <= 5 * kNsPerS) return;
   nonfinite_reported_ns_ = now_ns;
   ctx.event(session_id_, client_id, telehand_msg_EVENT_ERROR,
-            "DeviceState seq " + std::to_string(d.seq) + " has a non-finite " + field +
+            "DeviceState seq " + std::to_string(d.seq) + " has a " + field +
                 "; not used for the hand state (" + std::to_string(nonfinite_) + " so far)",
             now_ns);
 }

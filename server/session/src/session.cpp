@@ -94,8 +94,8 @@ void Session::publishStatus(telehand_msg_SessionState state) {
 
 void Session::onLive(const Sample& d, int64_t now_ns) {
   live.touch(now_ns);
-  if (auto bad = firstNonFinite(d)) {
-    recorder.nonFinite(ctx, client_id, d, *bad, now_ns);
+  if (auto bad = firstInvalid(d)) {
+    recorder.invalidSample(ctx, client_id, d, *bad, now_ns);
     return;
   }
   ++ctx.stats.live_samples;

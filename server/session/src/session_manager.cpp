@@ -2,6 +2,9 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <cstring>
+
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
@@ -68,10 +71,45 @@ void SessionManager::unknownSession(uint64_t session_id, const std::string& what
         what + " for unknown session " + std::to_string(session_id) + " dropped", now_ns);
 }
 
-void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
+void SessionManager::refuse(uint64_t session_id, uint64_t client_id, const std::string& what,
+                            uint64_t count, int64_t now_ns) {
+  stats_.refused += count;
+  if (refused_reported_ns_.size() >= kMaxUnknownIds && !refused_reported_ns_.count(session_id)) {
+    std::erase_if(refused_reported_ns_,
+                  [&](const auto& kv) { return now_ns - kv.second >= 5 * kNsPerS; });
+    if (refused_reported_ns_.size() >= kMaxUnknownIds) return;
+  }
+  auto [it, fresh] = refused_reported_ns_.try_emplace(session_id, now_ns);
+  if (!fresh && now_ns - it->second < 5 * kNsPerS) return;
+  it->second = now_ns;
+  event(session_id, client_id, telehand_msg_EVENT_ERROR,
+        "security: refused " + what + " (" + std::to_string(stats_.refused) +
+            " refused by this server so far)",
+        now_ns);
+}
+
+bool SessionManager::owns(Session& s, const Origin& from, const char* what, uint64_t count,
+                          int64_t now_ns) {
+  if (from.participant == 0 || s.owner == 0 || from.participant == s.owner) return true;
+  refuse(s.info.id, s.client_id,
+         std::string(what) + " from participant " + (from.guid.empty() ? "?" : from.guid) +
+             ": session " + std::to_string(s.info.id) + " belongs to " + s.info.owner,
+         count, now_ns);
+  return false;
+}
+
+void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
+                               const Origin& from) {
+  if (cmd.kind != telehand_msg_CMD_OPEN) {
+    if (Session* s = find(cmd.session_id)) {
+      if (!owns(*s, from, cmd.kind == telehand_msg_CMD_CLOSE ? "a CLOSE" : "a MARK", 1, now_ns)) {
+        return;
+      }
+    }
+  }
   switch (cmd.kind) {
     case telehand_msg_CMD_OPEN:
-      open(cmd, now_ns);
+      open(cmd, now_ns, from);
       return;
     case telehand_msg_CMD_CLOSE:
       requestClose(cmd, now_ns);
@@ -97,7 +135,29 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
         "unknown command kind " + std::to_string(static_cast<int>(cmd.kind)), now_ns);
 }
 
-void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
+void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
+                          const Origin& from) {
+  // Bounds: a flood of OPENs must not take the server's memory (each session holds a hand).
+  if (sessions_.size() >= static_cast<std::size_t>(config_.max_sessions)) {
+    refuse(0, cmd.client_id,
+           "an OPEN from participant " + (from.guid.empty() ? std::string("?") : from.guid) + ": " +
+               std::to_string(sessions_.size()) + " sessions open, the server's limit " +
+               "(server.max_sessions)",
+           1, now_ns);
+    return;
+  }
+  if (from.participant != 0) {
+    const auto mine = std::count_if(sessions_.begin(), sessions_.end(), [&](const auto& kv) {
+      return kv.second.owner == from.participant;
+    });
+    if (mine >= config_.max_sessions_per_participant) {
+      refuse(0, cmd.client_id,
+             "an OPEN from participant " + from.guid + ": it has " + std::to_string(mine) +
+                 " sessions open, the limit per participant (server.max_sessions_per_participant)",
+             1, now_ns);
+      return;
+    }
+  }
   std::string case_name = cmd.case_name;
   PatientCase patient;
   Session* capture = nullptr;
@@ -145,6 +205,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   info.mode = std::string(modeName(cmd.mode));
   info.state = "active";
   info.started_ns = wallNs();
+  info.owner = from.guid;
   try {
     info.id = store_.createSession(info);
   } catch (const StoreError& e) {
@@ -155,6 +216,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   }
   Session& s = sessions_.try_emplace(info.id, ctx_, info, cmd, patient, hand_, hand_config_, now_ns)
                    .first->second;
+  s.owner = from.participant;
   const bool wants_knn = cmd.stiffness == telehand_msg_STIFFNESS_KNN;
   if (capture) {
     s.capture.follow(cmd.follow_session, wants_knn);
@@ -188,29 +250,85 @@ void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_
   s->publishStatus(telehand_msg_SESSION_CLOSING);
 }
 
-void SessionManager::onDeviceState(const telehand_msg_DeviceState& wire, int64_t now_ns) {
-  onSample(fromWire(wire), now_ns);
+void SessionManager::onDeviceState(const telehand_msg_DeviceState& wire, int64_t now_ns,
+                                   const Origin& from) {
+  onSample(fromWire(wire), now_ns, from);
 }
 
-void SessionManager::onSample(const Sample& d, int64_t now_ns) {
+namespace {
+/// Whether `seq` lies within the window of the session's highest sequence number so far
+/// (and advances it); the first sample of a session sets it.
+bool inSeqWindow(Session& s, uint64_t seq) {
+  if (seq >= sample_bounds::kMaxSeq) return false;
+  if (s.have_seq) {
+    const uint64_t lo =
+        s.seq_high > SessionManager::kSeqWindow ? s.seq_high - SessionManager::kSeqWindow : 0;
+    if (seq < lo || seq > s.seq_high + SessionManager::kSeqWindow) return false;
+  }
+  if (!s.have_seq || seq > s.seq_high) s.seq_high = seq;
+  s.have_seq = true;
+  return true;
+}
+}  // namespace
+
+void SessionManager::onSample(const Sample& d, int64_t now_ns, const Origin& from) {
   Session* s = find(d.session_id);
   if (!s) {
     ++stats_.unknown_session_samples;
     unknownSession(d.session_id, "DeviceState", now_ns);
     return;
   }
+  if (!owns(*s, from, "DeviceState", 1, now_ns)) return;
+  if (!inSeqWindow(*s, d.seq)) {
+    refuse(s->info.id, s->client_id,
+           "DeviceState seq " + std::to_string(d.seq) + ", outside the sequence window (" +
+               std::to_string(kSeqWindow) + " of " + std::to_string(s->seq_high) + ")",
+           1, now_ns);
+    return;
+  }
   s->onLive(d, now_ns);
 }
 
-void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns) {
-  std::vector<Sample> samples = samplesFromWire(c);
-  std::vector<uint8_t> valid(samples.size(), 1);
-  for (std::size_t i = 0; i < samples.size(); ++i) {
-    valid[i] = !firstNonFinite(samples[i]).has_value() && samples[i].session_id == c.session_id;
-  }
+void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
+                             const Origin& from) {
   Session* s = find(c.session_id);
+  if (s && !owns(*s, from, "a RecordChunk", c.samples._length, now_ns)) return;
+  std::vector<Sample> samples = samplesFromWire(c);
+  // A sample no device could have sent is stored flagged invalid (the record keeps what
+  // arrived); one outside the sequence window is not stored at all.
+  std::vector<uint8_t> valid(samples.size(), 1);
+  uint64_t outside = 0;
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    if (s && !inSeqWindow(*s, samples[i].seq)) {
+      ++outside;
+      continue;
+    }
+    if (!s && samples[i].seq >= sample_bounds::kMaxSeq) {
+      ++outside;
+      continue;
+    }
+    valid[kept] = !firstInvalid(samples[i]).has_value() && samples[i].session_id == c.session_id;
+    samples[kept++] = samples[i];
+  }
+  samples.resize(kept);
+  valid.resize(kept);
+  if (outside > 0) {
+    refuse(c.session_id, s ? s->client_id : 0,
+           std::to_string(outside) + " RecordChunk samples outside the sequence window", outside,
+           now_ns);
+  }
   if (!s) {
-    // A late chunk for a session that already closed still belongs in its record.
+    // A late chunk for a session that already closed still belongs in its record, if it
+    // comes from the session's owner.
+    if (const auto owner = ended_owners_.find(c.session_id);
+        from.participant != 0 && owner != ended_owners_.end() && owner->second != from.guid) {
+      refuse(c.session_id, 0,
+             "a late RecordChunk from participant " + from.guid + ": session " +
+                 std::to_string(c.session_id) + " belonged to " + owner->second,
+             c.samples._length, now_ns);
+      return;
+    }
     try {
       if (store_.session(c.session_id)) {
         const uint64_t added = store_.appendSamples(c.session_id, samples, valid);
@@ -229,13 +347,31 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns) 
   s->onRecord(std::move(samples), std::move(valid), now_ns);
 }
 
-void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns) {
+void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns, const Origin& from) {
   Session* s = find(f.session_id);
   if (!s) {
     unknownSession(f.session_id, "SessionFile", now_ns);
     return;
   }
+  if (!owns(*s, from, "a SessionFile", 1, now_ns)) return;
   const std::string name = f.name;
+  const std::size_t bytes = f.content ? std::strlen(f.content) : 0;
+  // Files belong to captures (the device and calibration they were made with), a few kB.
+  if (s->mode != telehand_msg_MODE_CAPTURE ||
+      bytes > static_cast<std::size_t>(config_.max_file_bytes) ||
+      s->files >= config_.max_files_per_session) {
+    refuse(
+        f.session_id, s->client_id,
+        "SessionFile '" + name + "' (" + std::to_string(bytes) + " bytes): " +
+            (s->mode != telehand_msg_MODE_CAPTURE ? std::string("only capture sessions keep files")
+             : s->files >= config_.max_files_per_session
+                 ? "the session already keeps " + std::to_string(s->files) +
+                       " files (server.max_files_per_session)"
+                 : "larger than server.max_file_bytes = " + std::to_string(config_.max_file_bytes)),
+        1, now_ns);
+    return;
+  }
+  ++s->files;
   const std::string content = f.content ? f.content : "";
   try {
     store_.appendFile(f.session_id, {name, content});
@@ -251,6 +387,14 @@ void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns) {
 }
 
 void SessionManager::tick(int64_t now_ns) {
+  // Ended sessions leave the transient-local topics once late joiners had their chance.
+  std::size_t due = 0;
+  while (due < retiring_.size() && retiring_[due].first <= now_ns) {
+    out_.retire(retiring_[due].second);
+    ++stats_.retired_sessions;
+    ++due;
+  }
+  retiring_.erase(retiring_.begin(), retiring_.begin() + static_cast<std::ptrdiff_t>(due));
   const auto lookup = [this](uint64_t id) { return find(id); };
   std::vector<uint64_t> done;
   for (auto& [id, s] : sessions_) {
@@ -289,6 +433,12 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
     if (Session* f = find(id)) f->capture.unfollow();  // keeps the last model it got
   }
   s.close(state, now_ns);
+  if (!s.info.owner.empty()) {
+    if (ended_owners_.size() >= kMaxEndedOwners) ended_owners_.erase(ended_owners_.begin());
+    ended_owners_[s.info.id] = s.info.owner;
+  }
+  refused_reported_ns_.erase(s.info.id);
+  retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), s.info.id);
 }
 
 void SessionManager::closeAll(int64_t now_ns) {

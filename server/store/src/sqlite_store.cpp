@@ -23,19 +23,22 @@ namespace {
 // The file says what it is in its SQLite header: application_id is kApplicationId and
 // user_version the schema number. Schema 1 (no marker in the header, user_version 0) kept each
 // sample as a BLOB of the C struct's memory next to a few query columns; schema 2 keeps every
-// field of the sample in a column of its own, named as in the CSV export (sampleColumns()).
+// field of the sample in a column of its own, named as in the CSV export (sampleColumns());
+// schema 3 adds the session's owner (the DDS participant that opened it, docs/security.md).
 constexpr int32_t kApplicationId = 0x54484E44;  // "THND"
-constexpr int kSchemaVersion = 2;
+constexpr int kSchemaVersion = 3;
+constexpr int kColumnSchemaVersion = 2;
 constexpr int kBlobSchemaVersion = 1;
 
-// Tables other than samples; the same in schema 1 (session_files came late in it) and 2.
+// Tables other than samples; the same in schemas 1 (session_files came late in it), 2 and 3
+// but for sessions.owner (addOwnerColumn() brings an older sessions table up to date).
 constexpr const char* kOtherTables = R"sql(
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS sessions (
   id INTEGER PRIMARY KEY,
   user TEXT NOT NULL, case_name TEXT NOT NULL, mode TEXT NOT NULL,
   state TEXT NOT NULL, started_ns INTEGER NOT NULL, ended_ns INTEGER NOT NULL DEFAULT 0,
-  samples_expected INTEGER NOT NULL DEFAULT 0);
+  samples_expected INTEGER NOT NULL DEFAULT 0, owner TEXT NOT NULL DEFAULT '');
 CREATE TABLE IF NOT EXISTS events (
   session_id INTEGER NOT NULL,
   time_ns INTEGER NOT NULL,
@@ -289,6 +292,9 @@ SqliteStore::Layout SqliteStore::inspect() {
                        std::to_string(version) + ", this program knows up to " +
                        std::to_string(kSchemaVersion) + "); it was left untouched");
     }
+    if (version == kColumnSchemaVersion && has("samples") && has("sessions")) {
+      return Layout::kColumns;
+    }
     if (version != kSchemaVersion || !has("samples")) {
       throw StoreError("'" + path_ + "' carries the telehand marker but schema " +
                        std::to_string(version) +
@@ -364,6 +370,9 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
           exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
         } else if (layout == Layout::kBlob) {
           migrateFromBlobs();
+          addOwnerColumn();
+        } else if (layout == Layout::kColumns) {
+          addOwnerColumn();
         }
         exec("COMMIT");
       } catch (...) {
@@ -379,6 +388,20 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
     sqlite3_close(db_);
     throw;
   }
+}
+
+bool SqliteStore::hasOwnerColumn() {
+  Statement st(db_, "SELECT name FROM pragma_table_info('sessions') WHERE name = 'owner'");
+  return st.step();
+}
+
+/// Schema 2 -> 3 inside the caller's transaction: sessions gain their owner ('' for the
+/// sessions recorded before owners were).
+void SqliteStore::addOwnerColumn() {
+  if (!hasOwnerColumn()) exec("ALTER TABLE sessions ADD COLUMN owner TEXT NOT NULL DEFAULT '';");
+  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  spdlog::info("record database '{}': schema {} -> {} (sessions record their owner)", path_,
+               kColumnSchemaVersion, kSchemaVersion);
 }
 
 /// Schema 1 -> 2 inside the caller's transaction: every blob decoded into the columns, the
@@ -452,13 +475,15 @@ sqlite3_stmt* SqliteStore::prepare(const char* sql) {
 }
 
 uint64_t SqliteStore::createSession(const SessionInfo& info) {
-  Statement st(
-      db_, "INSERT INTO sessions (user, case_name, mode, state, started_ns) VALUES (?,?,?,?,?)");
+  Statement st(db_,
+               "INSERT INTO sessions (user, case_name, mode, state, started_ns, owner) "
+               "VALUES (?,?,?,?,?,?)");
   sqlite3_bind_text(st.get(), 1, info.user.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_text(st.get(), 2, info.case_name.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_text(st.get(), 3, info.mode.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_text(st.get(), 4, "active", -1, SQLITE_STATIC);
   sqlite3_bind_int64(st.get(), 5, info.started_ns);
+  sqlite3_bind_text(st.get(), 6, info.owner.c_str(), -1, SQLITE_TRANSIENT);
   st.step();
   return static_cast<uint64_t>(sqlite3_last_insert_rowid(db_));
 }
@@ -535,10 +560,14 @@ void SqliteStore::closeSession(uint64_t session_id, int64_t ended_ns, uint64_t s
 }
 
 namespace {
-constexpr const char* kSessionSelect =
-    "SELECT s.id, s.user, s.case_name, s.mode, s.state, s.started_ns, s.ended_ns, "
-    "s.samples_expected, (SELECT count(*) FROM samples WHERE session_id = s.id), "
-    "(SELECT count(*) FROM samples WHERE session_id = s.id AND valid = 0) FROM sessions s ";
+/// Read-only files of schemas 1 and 2 have no owner column: they read as ''.
+std::string sessionSelect(bool has_owner) {
+  return std::string(
+             "SELECT s.id, s.user, s.case_name, s.mode, s.state, s.started_ns, s.ended_ns, "
+             "s.samples_expected, (SELECT count(*) FROM samples WHERE session_id = s.id), "
+             "(SELECT count(*) FROM samples WHERE session_id = s.id AND valid = 0), ") +
+         (has_owner ? "s.owner" : "''") + " FROM sessions s ";
+}
 
 SessionInfo readSession(const Statement& st) {
   SessionInfo i;
@@ -552,19 +581,20 @@ SessionInfo readSession(const Statement& st) {
   i.samples_expected = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 7));
   i.samples = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 8));
   i.rejected = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 9));
+  i.owner = st.text(10);
   return i;
 }
 }  // namespace
 
 std::vector<SessionInfo> SqliteStore::listSessions() {
-  Statement st(db_, (std::string(kSessionSelect) + "ORDER BY s.id").c_str());
+  Statement st(db_, (sessionSelect(hasOwnerColumn()) + "ORDER BY s.id").c_str());
   std::vector<SessionInfo> out;
   while (st.step()) out.push_back(readSession(st));
   return out;
 }
 
 std::optional<SessionInfo> SqliteStore::session(uint64_t session_id) {
-  Statement st(db_, (std::string(kSessionSelect) + "WHERE s.id = ?").c_str());
+  Statement st(db_, (sessionSelect(hasOwnerColumn()) + "WHERE s.id = ?").c_str());
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   if (!st.step()) return std::nullopt;
   return readSession(st);

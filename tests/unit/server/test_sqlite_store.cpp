@@ -486,7 +486,7 @@ TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) 
   EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'flags'"),
             std::vector<std::string>{"INTEGER"});
   EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 2);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
 }
 
 // ---- Schema 1: one blob per sample, the C struct's bytes (x86-64, little-endian) ----------
@@ -672,7 +672,7 @@ TEST_F(SqliteStoreTest, MigratesASchema1BlobFileInPlace) {
   }
   {
     RawDb raw(dbPath());
-    EXPECT_EQ(raw.integer("PRAGMA user_version"), 2);
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
     EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
     EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name LIKE 'samples_%'"), 0)
         << "old table dropped";
@@ -683,7 +683,7 @@ TEST_F(SqliteStoreTest, MigratesASchema1BlobFileInPlace) {
     EXPECT_EQ(raw.integer("SELECT count(*) FROM meta WHERE key = 'sample_format'"), 0);
     EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name = 'session_files'"), 1);
   }
-  // Opening again finds schema 2: nothing more to do.
+  // Opening again finds schema 3: nothing more to do.
   SqliteStore again(dbPath());
   expectSessionsRead(again, want);
   EXPECT_EQ(again.session(3)->samples, 3u);
@@ -731,7 +731,7 @@ TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
       EXPECT_THAT(e.what(), HasSubstr(dbPath()));
       EXPECT_THAT(
           e.what(),
-          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 2)"));
+          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 3)"));
     }
     EXPECT_EQ(fileBytes(dbPath()), before);
     if (mode == SqliteStore::Mode::kReadWrite) {
@@ -774,6 +774,40 @@ TEST_F(SqliteStoreTest, RefusesAForeignSqliteFileAndLeavesItUntouched) {
   EXPECT_EQ(raw.integer("PRAGMA user_version"), 0);
 }
 
+TEST_F(SqliteStoreTest, SessionsKeepTheirOwnerAndSchemaTwoFilesGainTheColumn) {
+  {
+    SqliteStore store(dbPath());
+    SessionInfo a = info("alice");
+    a.owner = "0110ab12cd34ef56:0000001c:00000001 (device)";
+    EXPECT_EQ(store.createSession(a), 1u);
+    EXPECT_EQ(store.session(1)->owner, a.owner);
+    store.createSession(info("bob"));
+    EXPECT_EQ(store.session(2)->owner, "");
+  }
+  {
+    // What schema 2 wrote: no owner column.
+    RawDb raw(dbPath());
+    raw.exec("ALTER TABLE sessions DROP COLUMN owner; PRAGMA user_version = 2;");
+  }
+  {
+    SqliteStore reader(dbPath(), SqliteStore::Mode::kReadOnly);  // reads it as it is
+    EXPECT_EQ(reader.session(1)->user, "alice");
+    EXPECT_EQ(reader.session(1)->owner, "");
+    RawDb raw(dbPath());
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 2) << "a reader changes nothing";
+  }
+  {
+    SqliteStore writer(dbPath());  // migrates
+    EXPECT_EQ(writer.listSessions().size(), 2u);
+    SessionInfo c = info("carol");
+    c.owner = "carol's participant";
+    EXPECT_EQ(writer.session(writer.createSession(c))->owner, "carol's participant");
+  }
+  RawDb raw(dbPath());
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
+  EXPECT_EQ(raw.integer("SELECT count(*) FROM sessions WHERE owner = ''"), 2);
+}
+
 TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
   fs::create_directories(fs::path(dbPath()).parent_path());
   std::ofstream(dbPath()).close();  // zero bytes
@@ -783,7 +817,7 @@ TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
     EXPECT_EQ(store.appendSamples(id, samples(id, 0, 2), {}), 2u);
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 2);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
 }
 
 // ---- CSV ----------------------------------------------------------------------------------

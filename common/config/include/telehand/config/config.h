@@ -43,7 +43,20 @@ struct ServerConfig {
   /// Fold persistent drift between the server's hand and the client's proxy into the model
   /// (server/session/drift.h). Off only to measure what it does.
   bool drift_correction = true;
+  /// Bounds on what participants can make the server hold (docs/security.md "Bounds"):
+  /// sessions open at once, in all and per participant; the largest SessionFile kept (a
+  /// capture's device and calibration files are a few kB) and how many per session.
+  int max_sessions = 64;
+  int max_sessions_per_participant = 4;
+  int max_file_bytes = 256 * 1024;
+  int max_files_per_session = 8;
+  /// How long an ended session's status stays published for late joiners, seconds.
+  double status_keep_s = 60.0;
 };
+
+/// The ranges server config keys and their command-line flags must lie in (one table for
+/// both): throws ConfigError naming `what` (the key or the flag) and the range.
+void validateServerConfig(const ServerConfig& c, const std::string& origin);
 
 /// Load from TOML text; `origin` names the source in error messages.
 ClientConfig parseClientConfig(const std::string& text, const std::string& origin);

@@ -55,6 +55,26 @@ inline constexpr uint32_t kFsrFaultShift = 16;
 /// Names the first field of a sample that is not finite, or nullopt when all are.
 std::optional<std::string> firstNonFinite(const Sample& s);
 
+/// What an MF-2 can physically report, generously: a sample outside these is not a reading
+/// but a fault or a forgery (docs/security.md "Bounds"). Thimbles within 1 m of the device
+/// origin, unit quaternions to 10 %, FSR readings within ±50 N (the sensors saturate near
+/// 22 N), thimble forces within ±100 N, commanded forces within ±20 N per axis (the device
+/// renders 4 N), MCP angles within ±2π, torques within ±10 N·m, sequence numbers below 2^63.
+namespace sample_bounds {
+inline constexpr double kPositionM = 1.0;
+inline constexpr double kQuatNormTolerance = 0.1;
+inline constexpr double kFsrN = 50.0;
+inline constexpr double kThimbleForceN = 100.0;
+inline constexpr double kCommandN = 20.0;
+inline constexpr double kAngleRad = 6.283185307179586;
+inline constexpr double kTorqueNm = 10.0;
+inline constexpr uint64_t kMaxSeq = uint64_t{1} << 63;
+}  // namespace sample_bounds
+
+/// Names the first field that is not finite or out of sample_bounds (with its value), or
+/// nullopt when the sample is one a device could have sent.
+std::optional<std::string> firstInvalid(const Sample& s);
+
 /// Thimble positions of a sample.
 PerFinger<Vec3> thimblePositions(const Sample& s) noexcept;
 

@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <map>
 #include <string>
 #include <utility>
 #include <vector>
@@ -106,6 +107,29 @@ inline constexpr const char* kLatencyPong = "telehand_LatencyPong";
 inline constexpr const char* kDirectForce = "telehand_DirectForce";
 }  // namespace topic
 
+/// The participant behind a matched writer: its instance handle in this process and its
+/// GUID as hex ("0110a1b2c3d4e5f6:00000007:000001c1"). Under DDS Security the GUID prefix is
+/// derived from the participant's authenticated certificate.
+struct Sender {
+  dds_instance_handle_t participant = 0;
+  std::string guid;
+};
+
+/// Finds senders from samples' publication handles, remembering up to `capacity` writers
+/// (then starting over): one Cyclone lookup per writer, not per sample.
+class SenderCache {
+ public:
+  explicit SenderCache(std::size_t capacity = 4096) : capacity_(capacity) {}
+  /// The sender of a sample `reader` took; participant 0 if Cyclone no longer knows the
+  /// writer.
+  const Sender& of(dds_entity_t reader, dds_instance_handle_t publication);
+
+ private:
+  std::size_t capacity_;
+  std::map<dds_instance_handle_t, Sender> known_;
+  Sender unknown_;
+};
+
 /// Which DDS world to join.
 struct Options {
   uint32_t domain = 0;
@@ -198,6 +222,11 @@ class Writer {
   }
   /// Returns Cyclone's return code; callers on hot paths count failures instead of throwing.
   dds_return_t write(const T& sample) noexcept { return dds_write(e_.handle(), &sample); }
+  /// Ends the instance `key_sample`'s key names (disposed, then freed by the writer and the
+  /// readers): a transient-local writer stops handing it to late joiners.
+  dds_return_t unregister(const T& key_sample) noexcept {
+    return dds_unregister_instance(e_.handle(), &key_sample);
+  }
   dds_entity_t handle() const noexcept { return e_.handle(); }
   uint32_t matchedReaders() const noexcept {
     dds_publication_matched_status_t st{};

@@ -31,6 +31,9 @@ struct LinkStats {
   std::atomic<uint64_t> chunk_retries{0};
   std::atomic<uint64_t> models_received{0};
   std::atomic<uint64_t> models_rejected{0};
+  /// Models, statuses and forces for this session from a participant other than the server
+  /// that acknowledged the OPEN: ignored.
+  std::atomic<uint64_t> foreign_refused{0};
   std::atomic<uint64_t> last_seq{0};
   std::atomic<uint64_t> live_sent{0};      ///< DeviceState packets that went out (deadband)
   std::atomic<uint64_t> direct_forces{0};  ///< DirectForce packets received (direct mode)
@@ -83,6 +86,10 @@ class ClientLink {
   std::vector<std::string> takeMessages();
 
  private:
+  /// True when the sample comes from the server that acknowledged the OPEN (or none yet).
+  bool fromServer(dds_entity_t reader, const dds_sample_info_t& info);
+  dds::SenderCache senders_{64};
+  dds_instance_handle_t server_ = 0;
   void run();
   /// A command from this client for its session, with the next request number.
   telehand_msg_SessionCommand command(telehand_msg_CommandKind kind);

@@ -30,6 +30,7 @@ class ServerLink final : public session::Outbox {
   void publish(const telehand_msg_SessionEvent& e) override;
   void publish(const telehand_msg_KnnModel& k) override;
   void publish(const telehand_msg_DirectForce& f) override;
+  void retire(uint64_t session_id) override;
 
   /// Serve until `stop` becomes true; ticks the manager at least every `tick`.
   void serve(session::SessionManager& manager, const std::atomic<bool>& stop,
@@ -41,6 +42,8 @@ class ServerLink final : public session::Outbox {
 
  private:
   void echoLoop();
+  /// The manager's view of who wrote a sample a reader took.
+  session::Origin origin(dds_entity_t reader, const dds_sample_info_t& info);
 
   dds::Participant participant_;
   dds::Topics topics_;
@@ -64,6 +67,7 @@ class ServerLink final : public session::Outbox {
   dds::CaptureTopics capture_topics_;
   dds::Reader<telehand_msg_SessionFile> file_reader_;
   dds::Writer<telehand_msg_KnnModel> knn_writer_;
+  dds::SenderCache senders_;
 };
 
 }  // namespace telehand::server::link

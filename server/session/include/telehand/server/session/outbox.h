@@ -18,6 +18,9 @@ class Outbox {
   virtual void publish(const telehand_msg_KnnModel& k) { (void)k; }
   /// Direct mode only (the baseline design).
   virtual void publish(const telehand_msg_DirectForce& f) { (void)f; }
+  /// An ended session leaves the transient-local topics (SessionStatus, JointModel,
+  /// KnnModel): late joiners no longer receive it and the writers free its instance.
+  virtual void retire(uint64_t session_id) { (void)session_id; }
 };
 
 struct ManagerStats {
@@ -31,6 +34,10 @@ struct ManagerStats {
   int64_t last_refit_latency_ns = 0;  ///< newest sample's arrival -> its model published
   int64_t max_refit_latency_ns = 0;
   uint64_t drift_corrections = 0;  ///< JointModels published to correct drift (all sessions)
+  /// Messages refused because their sender does not own the session, or outside a bound
+  /// (sequence window, file limits, session limits): each is also a security event.
+  uint64_t refused = 0;
+  uint64_t retired_sessions = 0;  ///< ended sessions taken off the transient-local topics
 };
 
 }  // namespace telehand::server::session

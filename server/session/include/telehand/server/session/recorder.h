@@ -23,9 +23,10 @@ class Recorder {
   bool drained() const noexcept { return pending_.empty(); }
   uint64_t recorded() const noexcept { return recorded_; }
 
-  /// A live sample with a non-finite `field`: counted, reported at most once per 5 s.
-  void nonFinite(SessionContext& ctx, uint64_t client_id, const Sample& d, const std::string& field,
-                 int64_t now_ns);
+  /// A live sample no device could have sent (`why`: firstInvalid's description): counted,
+  /// reported at most once per 5 s.
+  void invalidSample(SessionContext& ctx, uint64_t client_id, const Sample& d,
+                     const std::string& why, int64_t now_ns);
   uint64_t nonfinite() const noexcept { return nonfinite_; }
 
  private:

@@ -50,6 +50,10 @@ class Session {
   store::SessionInfo info;
   uint64_t client_id = 0;
   uint32_t request_seq = 0;  // the OPEN this session answers
+  uint64_t owner = 0;        // the participant that opened it (Origin::participant), 0: unknown
+  uint64_t seq_high = 0;     // highest sequence number taken, live or recorded
+  bool have_seq = false;
+  int files = 0;  // SessionFiles kept
   telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
   PatientCase patient;
   JointModelParams params;

@@ -30,6 +30,15 @@ using store::SessionFile;
 using store::SessionInfo;
 using store::SessionStore;
 
+/// Who sent a message: the DDS participant behind the writer. ServerLink finds it from the
+/// sample's publication handle; under DDS Security the GUID is bound to the participant's
+/// authenticated certificate. `participant` 0: not known (callers without DDS, e.g. tests),
+/// which no ownership check refuses.
+struct Origin {
+  uint64_t participant = 0;  ///< the participant's instance handle in this process
+  std::string guid;          ///< its GUID, hex, as the record keeps it
+};
+
 class SessionManager {
  public:
   /// With `hand`, every session runs the Bullet hand (server/sim) and HandState comes from
@@ -38,15 +47,20 @@ class SessionManager {
                  const sim::HandModel* hand = nullptr);
   ~SessionManager();
 
-  void onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  /// A session belongs to the participant that opened it: its CLOSE, MARK, samples, chunks
+  /// and files are taken from that participant only; anyone else's are refused, counted
+  /// (ManagerStats::refused) and reported as a security event at most once per 5 s per
+  /// session.
+  void onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from = {});
   /// Live stream: feeds HandState and link health.
-  void onDeviceState(const telehand_msg_DeviceState& s, int64_t now_ns);
+  void onDeviceState(const telehand_msg_DeviceState& s, int64_t now_ns, const Origin& from = {});
   /// The same, already decoded.
-  void onSample(const Sample& s, int64_t now_ns);
-  /// Record stream: every sample is stored once (and feeds a capture's live fit).
-  void onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns);
-  /// A capture's device or calibration file: kept with the record.
-  void onFile(const telehand_msg_SessionFile& f, int64_t now_ns);
+  void onSample(const Sample& s, int64_t now_ns, const Origin& from = {});
+  /// Record stream: every sample is stored once (and feeds a capture's live fit). Samples
+  /// outside the sequence window (kSeqWindow of the session's highest) are refused.
+  void onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns, const Origin& from = {});
+  /// A capture's device or calibration file: kept with the record, within the file limits.
+  void onFile(const telehand_msg_SessionFile& f, int64_t now_ns, const Origin& from = {});
   /// Publish due HandStates, finish closing sessions, retry unstored samples.
   void tick(int64_t now_ns);
   /// Close every open session (server shutdown): nothing received is left unstored.
@@ -71,10 +85,20 @@ class SessionManager {
   static constexpr std::size_t kMaxUnknownIds = 1024;
   /// A drift correction this large (any axis, degrees) is reported as a SessionEvent.
   static constexpr double kDriftEventDeg = 1.0;
+  /// Samples more than this many sequence numbers (10 min at 1 kHz) from the highest the
+  /// session has taken are refused: a client's stream does not jump, a forgery might.
+  static constexpr uint64_t kSeqWindow = 600'000;
+  /// Owners of ended sessions remembered, for their late chunks (oldest forgotten first).
+  static constexpr std::size_t kMaxEndedOwners = 4096;
 
  private:
-  void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from);
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  /// True when `from` may act on session `s`; otherwise counts and reports the refusal.
+  bool owns(Session& s, const Origin& from, const char* what, uint64_t count, int64_t now_ns);
+  /// Refuse `what` for a session: counted, one security event per session per 5 s.
+  void refuse(uint64_t session_id, uint64_t client_id, const std::string& what, uint64_t count,
+              int64_t now_ns);
   /// End a session: score its exploration, part it from its capture or followers, close it.
   void finish(Session& s, int64_t now_ns, const std::string& state);
   void event(uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
@@ -89,6 +113,9 @@ class SessionManager {
   const sim::HandModel* hand_;
   std::map<uint64_t, Session> sessions_;
   std::map<uint64_t, int64_t> unknown_reported_ns_;
+  std::map<uint64_t, int64_t> refused_reported_ns_;     // per session id, bounded like unknown ids
+  std::map<uint64_t, std::string> ended_owners_;        // session id -> owner GUID, bounded
+  std::vector<std::pair<int64_t, uint64_t>> retiring_;  // (when, session id), in time order
   uint64_t event_seq_ = 0;
   ManagerStats stats_;
   estimate::LiveRefitOptions refit_options_;

@@ -41,9 +41,11 @@ class SqliteStore final : public SessionStore {
   std::string location() const override { return path_; }
 
  private:
-  enum class Layout { kEmpty, kBlob, kCurrent };
+  enum class Layout { kEmpty, kBlob, kColumns, kCurrent };
   Layout inspect();
   void migrateFromBlobs();
+  void addOwnerColumn();
+  bool hasOwnerColumn();
   void exec(const char* sql);
   sqlite3_stmt* prepare(const char* sql);
 

@@ -22,6 +22,9 @@ struct SessionInfo {
   uint64_t samples = 0;           ///< distinct sequence numbers stored
   uint64_t samples_expected = 0;  ///< what the client said it sent (0 = unknown)
   uint64_t rejected = 0;          ///< samples stored flagged invalid (non-finite fields)
+  /// Who opened it: the DDS participant's GUID (under DDS Security, derived from its
+  /// authenticated certificate), and the identity's name where known. '' before schema 3.
+  std::string owner;
 };
 
 struct EventRecord {
