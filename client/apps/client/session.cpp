@@ -110,6 +110,13 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
       static_cast<unsigned long long>(h.clamped.load()),
       static_cast<unsigned long long>(h.rate_limited.load()),
       static_cast<unsigned long long>(h.samples_dropped.load()));
+  if (h.clamp_holds.load() > 0) {
+    std::printf(
+        "  warning: %llu pushes held beyond the device's limit (force clamped >= 250 ms, "
+        "longest %.2f s)\n",
+        static_cast<unsigned long long>(h.clamp_holds.load()),
+        static_cast<double>(h.clamp_hold_max_ns.load()) * 1e-9);
+  }
   if (capture) {
     // The loop scales what the thimbles measure by the rendering scale; a capture has none.
     const double scale = force_scale;

@@ -65,7 +65,8 @@ StepStatus HapticLoop::step() noexcept {
   }
 
   StepStatus status = StepStatus::kOk;
-  if (device_.read(sample_)) {
+  const bool fresh = device_.read(sample_);
+  if (fresh) {
     last_sample_time_ns_ = sample_.time_ns;
   } else {
     bump(health_.device_read_failures);
@@ -73,10 +74,22 @@ StepStatus HapticLoop::step() noexcept {
   }
   // A device that reports itself unplugged, faulted or not streaming is stale now: the gate
   // zeroes the force on this tick instead of after the watchdog period.
-  if (device_.status() != devices::DeviceStatus::kOk) {
+  const bool device_ok = device_.status() == devices::DeviceStatus::kOk;
+  if (!device_ok) {
     bump(health_.device_not_ok);
     last_sample_time_ns_ = std::min(last_sample_time_ns_, now - gate_.limits().watchdog_ns - 1);
   }
+  // An outage: nothing is rendered (the gate's watchdog) or the device is not streaming. The
+  // fault detector's windows restart with it, and the first fresh sample after it restarts
+  // the passivity controller's velocity windows: the finger moved while nothing was
+  // rendered, and that is neither a speed to damp nor a divergence.
+  const bool outage = !device_ok || now - last_sample_time_ns_ > gate_.limits().watchdog_ns;
+  if (outage && !in_outage_) restartFaultWindows();
+  if (!outage && in_outage_ && health_.ticks.load(std::memory_order_relaxed) > 0) {
+    passivity_.restart();
+    bump(health_.outages);
+  }
+  in_outage_ = outage;
 
   PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};
   // The energy the last tick's force exchanged with the operator.
@@ -85,7 +98,9 @@ StepStatus HapticLoop::step() noexcept {
   // A model fade may only add what the rendered joint has dissipated so far: the observed
   // energy minus what the joint stores now.
   proxy_.setEnergyBudget(energy - stored_energy_j_);
-  const ProxyOutput rendered = proxy_.render(p, now);
+  // On the sample's clock: the rates difference positions over the time between them (a
+  // repeated sample is not a still finger, a resumed one not a jump within one tick).
+  const ProxyOutput rendered = proxy_.render(p, sample_.time_ns);
   stored_energy_j_ = rendered.potential_j;
   const bool direct = direct_.load(std::memory_order_relaxed);
   DirectForceSample df;
@@ -130,8 +145,10 @@ StepStatus HapticLoop::step() noexcept {
   if (safe.flags & kSafetyClamped) bump(health_.clamped);
   if (safe.flags & kSafetyRateLimited) bump(health_.rate_limited);
   if (safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) status = StepStatus::kSafetyFault;
-  // Capture renders nothing, and a device that is not streaming has no angles to judge.
-  if (!faulted && actuators && fault_limits_.enabled && !(safe.flags & kSafetyWatchdog) &&
+  // Only ticks that rendered a force on a fresh sample are judged: capture renders nothing,
+  // and a device that is not streaming has no angles to judge.
+  if (!faulted && actuators && fault_limits_.enabled && fresh && !outage &&
+      !(safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) &&
       detectFault(now, (safe.flags & kSafetyClamped) != 0, rendered.angles_rad)) {
     status = StepStatus::kSafetyFault;
   }
@@ -181,11 +198,22 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, const Vec3& angles) noex
   if (clamped && !was_clamped_) {
     onset_bucket_ += 1.0;
     clamped_since_ns_ = now;
+    hold_counted_ = false;
   }
   was_clamped_ = clamped;
   if (onset_bucket_ >= lim.storm_onsets) fault = LoopFault::kClampStorm;
-  if (clamped && now - clamped_since_ns_ >= lim.sustained_clamp_ns) {
-    fault = LoopFault::kSustainedClamp;
+  if (clamped) {
+    const int64_t held = now - clamped_since_ns_;
+    if (held > health_.clamp_hold_max_ns.load(std::memory_order_relaxed)) {
+      health_.clamp_hold_max_ns.store(held, std::memory_order_relaxed);
+    }
+    if (!hold_counted_ && held >= lim.clamp_hold_ns) {
+      hold_counted_ = true;
+      bump(health_.clamp_holds);
+    }
+    if (lim.sustained_clamp_ns > 0 && held >= lim.sustained_clamp_ns) {
+      fault = LoopFault::kSustainedClamp;
+    }
   }
   // How far the rendered angles are past the model's range.
   const JointModelParams& m = proxy_.model().params();
@@ -210,6 +238,14 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, const Vec3& angles) noex
                                    std::memory_order_relaxed);
   health_.fault.store(static_cast<uint32_t>(fault), std::memory_order_release);
   return true;
+}
+
+void HapticLoop::restartFaultWindows() noexcept {
+  was_clamped_ = false;
+  hold_counted_ = false;
+  onset_bucket_ = 0.0;
+  bucket_ns_ = 0;
+  outside_ = false;
 }
 
 void HapticLoop::start() {

@@ -40,6 +40,15 @@ void PassivityGuard::observe(const PerFinger<Vec3>& p, const PerFinger<Vec3>& la
   last_p_ = p;
 }
 
+void PassivityGuard::restart() noexcept {
+  have_last_ = false;
+  for (int k = 0; k < 2; ++k) {
+    vel_[k].reset();
+    vc_[k].setZero();
+  }
+  alpha_ = 0.0;
+}
+
 PassivityOutput PassivityGuard::control(const PerFinger<Vec3>& request) noexcept {
   PassivityOutput out;
   out.force_n = request;

@@ -75,14 +75,90 @@ TEST(FaultDetector, ADivergingRenderingIsDetected) {
   EXPECT_LT(r.force_after_n, 1e-9) << "after the fault the loop renders nothing";
 }
 
-TEST(FaultDetector, AForceHeldAtTheClampIsASustainedClamp) {
-  // 10 N per finger asked for and held: clamped once, and for good.
-  const FaultRun r = mobilize(healthyIndexMcp(), 2.0, {}, 10.0);
+TEST(FaultDetector, AForceHeldAtTheClampIsAWarningThenASustainedClamp) {
+  // 10 N per finger asked for and held: clamped once, and for good. For 2 s that is a
+  // counted clamp hold, not a fault; held for 5 s it is a sustained clamp.
+  {
+    ManualClock clock(kNsPerS);
+    devices::SimulatedMf2 dev(healthyIndexMcp(), OperatorConfig{}, clock);
+    loop::TeleopOptions teleop;
+    teleop.render = loop::RenderMode::kDirect;
+    HapticLoop hl(dev, clock, healthyIndexMcp(), SafetyLimits{}, LoopConfig{}, teleop);
+    loop::DirectForceSample f;
+    f.force_n = {Vec3(0, 0, 10.0), Vec3(0, 0, -10.0)};
+    hl.directForces().tryPush(f);
+    Sample s;
+    for (int i = 0; i < 2000; ++i) {
+      clock.advance(kNsPerMs);
+      hl.step();
+      while (hl.samples().tryPop(s)) {
+      }
+    }
+    EXPECT_EQ(hl.fault(), LoopFault::kNone) << loop::faultName(hl.fault());
+    EXPECT_EQ(hl.health().clamp_holds.load(), 1u);
+    EXPECT_GT(hl.health().clamp_hold_max_ns.load(), 1'900'000'000);
+  }
+  const FaultRun r = mobilize(healthyIndexMcp(), 8.0, {}, 10.0);
   EXPECT_EQ(r.fault, LoopFault::kSustainedClamp) << loop::faultName(r.fault);
-  EXPECT_NEAR(r.fault_s, 0.25, 0.01);
-  EXPECT_GE(r.clamps, 250u);
+  EXPECT_NEAR(r.fault_s, 5.0, 0.01);
+  EXPECT_GE(r.clamps, 5000u);
   EXPECT_NEAR(r.peak_n, 10.0, 0.1) << "asked 10 N (plus the passivity controller's damping)";
   EXPECT_LT(r.force_after_n, 1e-9);
+}
+
+/// A student pushing flexion toward `target_deg` (far past the range) with a hand as stiff
+/// as `stiffness_n_per_deg` (reference N at the lever per degree short of the target),
+/// abduction and axial rotation held at neutral. Torques at device scale (1:4), as the
+/// simulated MF-2's own operator.
+class PushingStudent final : public devices::Operator {
+ public:
+  PushingStudent(double target_deg, double stiffness_n_per_deg)
+      : target_deg_(target_deg), k_(stiffness_n_per_deg) {}
+  Vec3 torqueNm(double t_s, const Vec3& a, const Vec3& rates) noexcept override {
+    const double lever = 0.01;
+    const double ramp = std::min(t_s / 0.5, 1.0);
+    Vec3 tau;
+    tau[kFlexion] = ramp * k_ * (target_deg_ - radToDeg(a[kFlexion])) * 0.25 * lever;
+    tau[kAbduction] = -0.02 * a[kAbduction] - 1e-4 * rates[kAbduction];
+    tau[kAxial] = -0.02 * a[kAxial] - 1e-4 * rates[kAxial];
+    return tau;
+  }
+
+ private:
+  double target_deg_;
+  double k_;
+};
+
+TEST(FaultDetector, AStudentPushingPastTheDeviceLimitIsNotAFault) {
+  // Flexion pushed toward 130 deg (the range ends at 90) with 1 N/deg: the student presses
+  // some 30 N at the lever, beyond the 16 N per finger the device renders at reference
+  // scale, and holds it for 2 s (after a 0.5 s ramp). The force clamps and stays clamped; the
+  // session goes on.
+  const JointModelParams model = healthyIndexMcp();
+  ManualClock clock(kNsPerS);
+  devices::SimulatedMf2 dev(model, OperatorConfig{}, clock);
+  PushingStudent student(130.0, 1.0);
+  dev.setOperator(&student);
+  HapticLoop hl(dev, clock, model, SafetyLimits{});
+  Sample s;
+  uint64_t clamped_last_2s = 0;
+  for (int i = 0; i < 2500; ++i) {
+    clock.advance(kNsPerMs);
+    hl.step();
+    while (hl.samples().tryPop(s)) {
+      if (i >= 500 && (s.flags & kSafetyClamped)) ++clamped_last_2s;
+    }
+  }
+  const auto& h = hl.health();
+  EXPECT_EQ(hl.fault(), LoopFault::kNone)
+      << loop::faultName(hl.fault()) << " at " << static_cast<double>(h.fault_time_ns.load()) * 1e-9
+      << " s";
+  EXPECT_GT(clamped_last_2s, 1900u) << "the push is held beyond the device's limit";
+  EXPECT_EQ(h.clamp_holds.load(), 1u) << "one push, one counted clamp hold";
+  EXPECT_GT(h.request_max_n.load(), 4.0);
+  EXPECT_LT(h.range_excess_max_deg.load(), 25.0) << "the wall holds the joint near its end";
+  EXPECT_GT(radToDeg(dev.angles()[kFlexion]), 85.0) << "the joint is at its end of range";
+  EXPECT_GT(h.applied_ref_n.load(), 16.0) << "the student pushes beyond the device's limit";
 }
 
 TEST(FaultDetector, AJointPushedFarPastItsRangeIsARunaway) {

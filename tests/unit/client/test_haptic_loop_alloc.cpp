@@ -25,7 +25,8 @@ using loop::StepStatus;
 using test::AllocationGuard;
 using test::escape;
 
-/// Forwards to a device, but can fail reads (a stalled USB link) or allocate in read() (the
+/// Forwards to a device, but can stall (a stalled USB link: reads fail and writes do not reach
+/// the device, which keeps rendering its last accepted command) or allocate in read() (the
 /// bug the guard must catch).
 class TestDevice final : public devices::Device {
  public:
@@ -39,7 +40,10 @@ class TestDevice final : public devices::Device {
     if (fail_reads) return false;
     return inner_.read(out);
   }
-  bool write(const ForceCommand& cmd) noexcept override { return inner_.write(cmd); }
+  bool write(const ForceCommand& cmd) noexcept override {
+    if (fail_reads) return false;
+    return inner_.write(cmd);
+  }
   devices::DeviceStatus status() const noexcept override { return inner_.status(); }
   std::string_view name() const noexcept override { return "test"; }
 
@@ -107,6 +111,11 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
     if (i == kModelAt) {
       ASSERT_TRUE(hl.models().tryPush(stiffer));  // the link thread's side
     }
+    // The link stalls for 50 ms. (Were only the reads to fail, the zero force of the watchdog
+    // would reach the simulated device, which integrates the 50 ms it was not read in one go:
+    // its operator, a 3-4 N force source on 50 g, flings the phalanx more than a turn around
+    // the joint, 12 000 deg/s, before the loop sees a sample again; no rendering within 4 N and
+    // 200 N/s stops that, and the clamp storm that follows is rightly a fault.)
     dev.fail_reads = i >= kFaultFrom && i < kFaultFrom + kFaultTicks;
     StepStatus st;
     {
@@ -133,6 +142,11 @@ TEST(HapticLoopAlloc, StepAllocatesNothingThroughModelUpdateAndWatchdog) {
   EXPECT_EQ(h.device_read_failures.load(), static_cast<uint64_t>(kFaultTicks));
   EXPECT_GT(h.watchdog_trips.load(), 0u);
   EXPECT_EQ(h.samples_dropped.load(), 0u);
+  // The outage and the stiffer model leave the rendering stable: no clamp, no fault, and the
+  // loop counted the outage it resumed from.
+  EXPECT_EQ(h.clamped.load(), 0u) << "peak request " << h.request_max_n.load() << " N";
+  EXPECT_EQ(hl.fault(), loop::LoopFault::kNone) << loop::faultName(hl.fault());
+  EXPECT_EQ(h.outages.load(), 1u);
 
   // Every tick produced one sample, in order, with a gated force.
   ASSERT_EQ(samples.size(), static_cast<std::size_t>(kTicks));

@@ -53,6 +53,11 @@ struct LoopHealth {
   std::atomic<int64_t> fault_time_ns{0};          ///< when, from the first tick
   std::atomic<uint64_t> fault_clamps{0};          ///< clamps counted up to the fault
   std::atomic<double> fault_peak_force_n{0.0};    ///< request_max_n at the fault
+  /// Clamps held for FaultLimits::clamp_hold_ns (a push beyond what the device renders): a
+  /// warning the client reports, not a fault.
+  std::atomic<uint64_t> clamp_holds{0};
+  std::atomic<int64_t> clamp_hold_max_ns{0};  ///< longest clamp held (ns)
+  std::atomic<uint64_t> outages{0};           ///< device outages the loop resumed from
 };
 
 /// Why the loop stopped rendering. The thresholds are FaultLimits'.
@@ -71,15 +76,23 @@ const char* faultName(LoopFault f) noexcept;
 /// the device's limit: a push held beyond what the device renders clamps once and stays
 /// clamped, an unstable rendering oscillates in and out of the clamp at tens to hundreds of
 /// Hz, and a stable one never goes far past the end-of-range wall.
+///
+/// The detector judges only ticks on which the device streamed a fresh sample and the force
+/// was rendered: a device outage (watchdog, a device that is not OK, a replug) restarts its
+/// windows (clamp run, onset bucket, runaway timer), so that the outage's transient (the
+/// finger moved while nothing was rendered) is not taken for a divergence.
 struct FaultLimits {
   bool enabled = true;
-  /// A clamp held this long: the device cannot render what the model asks (a quarter second
-  /// is a deliberate push, not a transient).
-  int64_t sustained_clamp_ns = 250'000'000;
-  /// Clamp onsets (a tick clamped after one that was not) counted in a leaky bucket that
-  /// drains `storm_onsets` per second: the fault trips at `storm_onsets` onsets in a burst, or
-  /// at a sustained rate above `storm_onsets` per second. A 1-6 Hz mobilization pushed past
-  /// the limit makes at most 6 onsets per second; a diverging loop makes one per oscillation.
+  /// A clamp held this long is counted as a warning (LoopHealth::clamp_holds, the client's
+  /// summary), not a fault: a student who pushes the joint beyond what the device renders
+  /// (more than 16 N per finger at reference scale) is pushing, not diverging, and ending the
+  /// session would be wrong for teaching. A diverging rendering shows itself as a clamp storm
+  /// or a range runaway, which stay faults.
+  int64_t clamp_hold_ns = 250'000'000;
+  /// A clamp held this long, with no outage in between, is a sustained-clamp fault: a
+  /// push on the end-feel lasts a second or two, a rendering that asks more than the device
+  /// renders wherever the finger goes for this long is stuck (0 = never).
+  int64_t sustained_clamp_ns = 5'000'000'000;
   double storm_onsets = 20.0;
   /// Rendered angles this far past a range end (or not finite) for runaway_ns. The end-of-range
   /// wall (1 N/deg at reference scale) asks 25 N more than the curve's end there: more than
@@ -160,6 +173,8 @@ class HapticLoop {
   void run();
   /// Updates the fault detector with this tick; true when a fault has latched.
   bool detectFault(int64_t now, bool clamped, const Vec3& angles) noexcept;
+  /// Restart the detector's windows (after a device outage).
+  void restartFaultWindows() noexcept;
 
   devices::Device& device_;
   const Clock& clock_;
@@ -193,6 +208,8 @@ class HapticLoop {
   int64_t bucket_ns_ = 0;
   bool outside_ = false;
   int64_t outside_since_ns_ = 0;
+  bool hold_counted_ = false;  // this clamp run already counted as a clamp hold
+  bool in_outage_ = false;     // the device is not streaming (nothing rendered)
 };
 
 }  // namespace telehand::client::loop

@@ -62,6 +62,11 @@ class PassivityGuard {
   /// tick, after observe (the damping moves from its last value).
   PassivityOutput control(const PerFinger<Vec3>& request) noexcept;
 
+  /// After a device outage: forget the positions and velocity windows (the next sample
+  /// starts them afresh, so the gap's displacement is neither differenced into a speed nor
+  /// counted against a force that was not rendered) and the damping; the energy is kept.
+  void restart() noexcept;
+
   /// Energy the rendering side has absorbed from the operator so far, J (device scale).
   double energyJ() const noexcept { return energy_j_; }
   /// Thimble velocities as the controller damps them (adaptive window, less its
