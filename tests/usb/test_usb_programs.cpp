@@ -95,8 +95,12 @@ TEST_F(UsbProgramsTest, SessionWithTheUsbDeviceIsRecorded) {
   const std::string db = path("records.db");
   Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "60", "--hand", "none"}),
                  path("server.log"));
-  Process client(cmd(TELEHAND_CLIENT_BIN, {"--device", "usb", "--seconds", "4", "-q"}),
-                 path("client.log"));
+  // The emulator's operator swings the thumb's crank with no finger on a joint between the
+  // thimbles: the rendered angles go wherever it throws them, which the fault detector would
+  // rightly call a runaway. This test is about the link and the record.
+  Process client(
+      cmd(TELEHAND_CLIENT_BIN, {"--device", "usb", "--seconds", "4", "-q", "--no-fault-stop"}),
+      path("client.log"));
   const auto rc = client.wait(60s);
   ASSERT_TRUE(rc.has_value()) << "client did not finish\n" << client.output();
   EXPECT_EQ(*rc, 0) << client.output();

@@ -48,6 +48,7 @@ int main(int argc, char** argv) {
     teleop.render =
         o.render == "direct" ? client::loop::RenderMode::kDirect : client::loop::RenderMode::kModel;
     teleop.passivity.control = !o.no_pc;
+    teleop.fault.enabled = !o.no_fault_stop;
     client::loop::HapticLoop loop(device, clock, initial, cfg.safety, cfg.loop, teleop);
     client::link::ClientLink link(o.dds, loop);
     link.setDeadband(DeadbandConfig{o.deadband});

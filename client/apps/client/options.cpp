@@ -61,6 +61,10 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
       ->check(CLI::Range(0.0, 0.5))
       ->capture_default_str();
   app.add_flag("--no-passivity-control", o.no_pc, "passivity observer only, no added damping");
+  app.add_flag("--no-fault-stop", o.no_fault_stop,
+               "keep rendering after a rendering fault (clamp storm, range runaway) instead of "
+               "ending the session: for bench tests of the device link with no finger in the "
+               "thimbles; the safety gate still bounds every force");
   app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off")
       ->capture_default_str();
   o.cases_dir = TELEHAND_DEPLOY_DIR "/cases";

@@ -21,6 +21,7 @@ struct ClientOptions {
   std::string render = "model";
   double deadband = 0.0;
   bool no_pc = false;
+  bool no_fault_stop = false;  ///< --no-fault-stop: the loop's fault detector is off
   uint64_t follow = 0;
   std::string stiffness = "cubic", patient_name = "healthy", cases_dir;
   double thimble_noise = 1.43, sweep_seconds = 10.0;

@@ -146,8 +146,10 @@ StepStatus HapticLoop::step() noexcept {
   if (safe.flags & kSafetyRateLimited) bump(health_.rate_limited);
   if (safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) status = StepStatus::kSafetyFault;
   // Only ticks that rendered a force on a fresh sample are judged: capture renders nothing,
-  // and a device that is not streaming has no angles to judge.
-  if (!faulted && actuators && fault_limits_.enabled && fresh && !outage &&
+  // a device that is not streaming has no angles to judge, and in direct mode nothing is
+  // rendered until the server's first force arrives (a round trip after the start).
+  const bool rendering = !direct || health_.direct_forces.load(std::memory_order_relaxed) > 0;
+  if (!faulted && actuators && fault_limits_.enabled && fresh && !outage && rendering &&
       !(safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) &&
       detectFault(now, (safe.flags & kSafetyClamped) != 0, rendered.angles_rad)) {
     status = StepStatus::kSafetyFault;
@@ -227,9 +229,14 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, const Vec3& angles) noex
   }
   raise(health_.range_excess_max_deg, finite ? excess : 1e9);
   const bool outside = !finite || excess > lim.range_margin_deg;
+  // A finger that starts (or resumes) away from the joint, before the grip is on it, is not
+  // running away: the timer arms once the rendered angles have been within the margin.
+  if (!outside) in_range_seen_ = true;
   if (outside && !outside_) outside_since_ns_ = now;
   outside_ = outside;
-  if (outside && now - outside_since_ns_ >= lim.runaway_ns) fault = LoopFault::kRangeRunaway;
+  if (outside && in_range_seen_ && now - outside_since_ns_ >= lim.runaway_ns) {
+    fault = LoopFault::kRangeRunaway;
+  }
   if (fault == LoopFault::kNone) return false;
   health_.fault_time_ns.store(now - first_tick_ns_, std::memory_order_relaxed);
   health_.fault_clamps.store(health_.clamped.load(std::memory_order_relaxed),
@@ -246,6 +253,7 @@ void HapticLoop::restartFaultWindows() noexcept {
   onset_bucket_ = 0.0;
   bucket_ns_ = 0;
   outside_ = false;
+  in_range_seen_ = false;
 }
 
 void HapticLoop::start() {

@@ -94,7 +94,9 @@ struct FaultLimits {
   /// renders wherever the finger goes for this long is stuck (0 = never).
   int64_t sustained_clamp_ns = 5'000'000'000;
   double storm_onsets = 20.0;
-  /// Rendered angles this far past a range end (or not finite) for runaway_ns. The end-of-range
+  /// Rendered angles this far past a range end (or not finite) for runaway_ns, once they have
+  /// been within it since the start or the last outage (a finger not yet on the joint is
+  /// not a runaway). The end-of-range
   /// wall (1 N/deg at reference scale) asks 25 N more than the curve's end there: more than
   /// the device renders (16 N reference), so only a runaway gets there.
   double range_margin_deg = 25.0;
@@ -207,6 +209,7 @@ class HapticLoop {
   double onset_bucket_ = 0.0;
   int64_t bucket_ns_ = 0;
   bool outside_ = false;
+  bool in_range_seen_ = false;  // since the detector (re)started
   int64_t outside_since_ns_ = 0;
   bool hold_counted_ = false;  // this clamp run already counted as a clamp hold
   bool in_outage_ = false;     // the device is not streaming (nothing rendered)
