@@ -16,7 +16,6 @@
 
 #include <algorithm>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <vector>
@@ -109,20 +108,10 @@ int fitTable(const std::string& cases_dir) {
         o.truth = truth;
         o.frequency_hz = hz;
         o.seed = seed;
-        if (const char* e = std::getenv("XNOISE")) o.noise_n = std::atof(e);
-        if (const char* e = std::getenv("XSPREAD")) o.frequency_spread = std::atof(e);
         const auto cap = server::estimate::synthesizeCapture(o);
-        server::estimate::FitOptions fo;
-        if (const char* e = std::getenv("XCOL")) fo.max_inertia_collinearity = std::atof(e);
-        server::estimate::CaptureFitter fitter(cap.geometry, fo);
+        server::estimate::CaptureFitter fitter(cap.geometry);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
-        if (std::getenv("XV"))
-          for (const auto& a : fit.axes)
-            std::printf("   J %.2e est %d fitted %.2e±%.1e col %.4f reach %.1f..%.1f\n",
-                        a.inertia_kgm2, a.inertia_estimated, a.inertia_fitted_kgm2,
-                        a.inertia_se_kgm2, a.inertia_collinearity, a.reached_min_deg,
-                        a.reached_max_deg);
         all_ok = all_ok && fit.ok();
         JointModelParams static_truth = truth;
         static_truth.speed_gain_s_per_rad = 0.0;
