@@ -180,11 +180,13 @@ int runFit(const FitRequest& r) {
   for (std::size_t i = 0; i < kAxes; ++i) {
     const auto& a = fit.axes[i];
     std::printf(
-        "  %-9s walls %s/%s   neutral zone ±%.1f deg   inertia %.2e ± %.1e kg m^2   "
-        "dynamic share %.2f N   up/down hysteresis %.2f N\n",
+        "  %-9s walls %s/%s   neutral zone ±%.1f deg   inertia %.2e kg m^2 (%s; free estimate "
+        "%.2e ± %.1e, acceleration/angle correlation %.2f)   dynamic share %.2f N   up/down "
+        "hysteresis %.2f N\n",
         kAxisNames[i].data(), a.wall_min ? "felt" : "not reached",
-        a.wall_max ? "felt" : "not reached", a.zone_deg, a.inertia_kgm2, a.inertia_se_kgm2,
-        a.dynamic_n, a.hysteresis_n);
+        a.wall_max ? "felt" : "not reached", a.zone_deg, a.inertia_kgm2,
+        a.inertia_estimated ? "estimated" : "known", a.inertia_fitted_kgm2, a.inertia_se_kgm2,
+        a.inertia_collinearity, a.dynamic_n, a.hysteresis_n);
     if (a.dynamic_n > 0.3) {
       std::printf(
           "  %-9s note: the curve moves %.2f N with the viscous and inertial terms; a "

@@ -213,11 +213,78 @@ AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>&
   return d;
 }
 
+/// Correlation of the acceleration with its least-squares fit by a cubic in the angle and
+/// the rate (1 when it cannot be fitted at all).
+double accelerationCollinearity(const AxisData& d) {
+  const CubicFitResult r = fitCubic(d.x, d.w, d.v);
+  if (!r.ok || d.w.empty()) return 1.0;
+  double mean = 0.0;
+  for (const double w : d.w) mean += w;
+  mean /= static_cast<double>(d.w.size());
+  double var = 0.0;
+  for (const double w : d.w) var += (w - mean) * (w - mean);
+  var /= static_cast<double>(d.w.size());
+  if (!(var > 0.0)) return 1.0;
+  return std::sqrt(std::clamp(1.0 - r.rms * r.rms / var, 0.0, 1.0));
+}
+
+/// y ≈ piecewise(x) + b·v + j·w, with j estimated (`known_j` NaN) or known (moved to the
+/// left-hand side). Returns the fit; b, j and j's standard error through the references.
+PiecewiseFitResult fitAxis(const AxisData& d, double known_j, const PiecewiseFitOptions& o,
+                           double& b, double& j, double& j_se) {
+  if (std::isnan(known_j)) {
+    const std::array<std::span<const double>, 2> extras = {d.v, d.w};
+    PiecewiseFitResult r = fitPiecewiseCubic(d.x, d.y, extras, o);
+    if (r.ok) {
+      b = r.extra[0];
+      j = r.extra[1];
+      j_se = r.extra_se[1];
+    }
+    return r;
+  }
+  std::vector<double> y(d.y.size());
+  for (std::size_t i = 0; i < y.size(); ++i) y[i] = d.y[i] - known_j * d.w[i];
+  const std::array<std::span<const double>, 1> extras = {d.v};
+  PiecewiseFitResult r = fitPiecewiseCubic(d.x, y, extras, o);
+  if (r.ok) {
+    b = r.extra[0];
+    j = known_j;
+    j_se = 0.0;
+  }
+  return r;
+}
+
 }  // namespace
+
+std::array<double, kAxes> CaptureFitter::inertiaChoice(
+    const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
+    std::array<std::array<double, 3>, kAxes>* info) const {
+  std::array<double, kAxes> known{};
+  const double lever = geometry_.params().lever_arm_m;
+  PiecewiseFitOptions plain;
+  plain.find_walls = plain.find_zone = false;
+  for (int axis = 0; axis < kAxes; ++axis) {
+    const auto ax = static_cast<std::size_t>(axis);
+    const AxisData d = axisData(points_, rate, acc, axis, 0.0);
+    const double c = accelerationCollinearity(d);
+    double b = 0.0, j = 0.0, se = 1e300;
+    if (c < options_.max_inertia_collinearity) fitAxis(d, std::nan(""), plain, b, j, se);
+    const bool estimate = c < options_.max_inertia_collinearity &&
+                          se * lever < options_.max_inertia_rel_se * options_.inertia_kgm2;
+    known[ax] = estimate ? std::nan("") : options_.inertia_kgm2 / lever;
+    if (info) (*info)[ax] = {c, j * lever, se * lever};
+  }
+  return known;
+}
 
 double CaptureFitter::delaySamples() const {
   const std::vector<Vec3> rate = rates();
   const std::vector<Vec3> acc = accelerations();
+  return delaySamples(rate, acc, inertiaChoice(rate, acc));
+}
+
+double CaptureFitter::delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
+                                   const std::array<double, kAxes>& known_j) const {
   // The residual of a plain cubic with the dynamic terms, summed over the axes, for each
   // whole-sample delay; a parabola through the best and its neighbours gives the fraction.
   const int most = std::max(options_.max_delay_samples, 0);
@@ -228,8 +295,9 @@ double CaptureFitter::delaySamples() const {
   for (int k = 0; k <= most; ++k) {
     for (int axis = 0; axis < kAxes; ++axis) {
       const AxisData d = axisData(points_, rate, acc, axis, k);
-      const std::array<std::span<const double>, 2> extras = {d.v, d.w};
-      const PiecewiseFitResult r = fitPiecewiseCubic(d.x, d.y, extras, plain);
+      double b = 0.0, j = 0.0, se = 0.0;
+      const PiecewiseFitResult r =
+          fitAxis(d, known_j[static_cast<std::size_t>(axis)], plain, b, j, se);
       if (!r.ok) return 0.0;
       rss[static_cast<std::size_t>(k)] += r.rms * r.rms;
     }
@@ -250,7 +318,9 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   const std::vector<Vec3> acc = accelerations();
   const std::size_t n = points_.size();
   const double lever = geometry_.params().lever_arm_m;
-  out.delay_samples = delaySamples();
+  std::array<std::array<double, 3>, kAxes> inertia_info{};
+  const std::array<double, kAxes> known_j = inertiaChoice(rate, acc, &inertia_info);
+  out.delay_samples = delaySamples(rate, acc, known_j);
   for (int axis = 0; axis < kAxes; ++axis) {
     if (progress) progress(axis, 0.0);
     AxisFit& a = out.axes[static_cast<std::size_t>(axis)];
@@ -262,8 +332,9 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     if (x.size() < options_.min_samples) continue;
     const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
     if (*hi - *lo < options_.min_span_deg) continue;
-    const std::array<std::span<const double>, 2> extras = {d.v, d.w};
-    const PiecewiseFitResult r = fitPiecewiseCubic(x, y, extras);
+    double b = 0.0, j = 0.0, j_se = 0.0;
+    const PiecewiseFitResult r =
+        fitAxis(d, known_j[static_cast<std::size_t>(axis)], PiecewiseFitOptions{}, b, j, j_se);
     if (progress) progress(axis, 1.0);
     if (!r.ok) continue;
     a.ok = true;
@@ -279,12 +350,25 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     a.rms_n = r.rms;
     // F = ... + d * rate + j * acceleration at the lever arm: torque d * lever per rad/s,
     // inertia j * lever per rad/s².
-    a.damping_nms_per_rad = r.extra[0] * lever;
-    a.inertia_kgm2 = r.extra[1] * lever;
-    a.inertia_se_kgm2 = r.extra_se[1] * lever;
+    a.damping_nms_per_rad = b * lever;
+    a.inertia_kgm2 = j * lever;
+    a.inertia_estimated = std::isnan(known_j[static_cast<std::size_t>(axis)]);
+    // The free estimate, for the report: this fit's when it was used, else one beside it.
+    a.inertia_collinearity = inertia_info[static_cast<std::size_t>(axis)][0];
+    a.inertia_fitted_kgm2 = j * lever;
+    a.inertia_se_kgm2 = j_se * lever;
+    if (!a.inertia_estimated) {
+      double fb = 0.0, fj = 0.0, fse = 0.0;
+      PiecewiseFitOptions same;
+      same.fixed_shape = &r.curve;
+      if (fitAxis(d, std::nan(""), same, fb, fj, fse).ok) {
+        a.inertia_fitted_kgm2 = fj * lever;
+        a.inertia_se_kgm2 = fse * lever;
+      }
+    }
     std::vector<double> res(x.size());
     for (std::size_t i = 0; i < x.size(); ++i)
-      res[i] = y[i] - a.holdingForceN(x[i]) - r.extra[0] * d.v[i] - r.extra[1] * d.w[i];
+      res[i] = y[i] - a.holdingForceN(x[i]) - b * d.v[i] - j * d.w[i];
     a.hysteresis_n = hysteresis(x, res, d.v);
     // The same shape fitted without the dynamic terms: how much the curve rests on them.
     PiecewiseFitOptions fixed;

@@ -13,6 +13,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
   out.plan = devices::planSweep(o.truth, o.max_force_n, o.wall_deg);
   out.plan.seconds_per_axis = o.seconds_per_axis;
   out.plan.frequency_hz = o.frequency_hz;
+  out.plan.frequency_spread = o.frequency_spread;
   out.plan.repeat = false;
   out.plan.combined = o.combined_sweep;
 

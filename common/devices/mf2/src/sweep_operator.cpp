@@ -38,11 +38,19 @@ Vec3 SweepOperator::target(double t_s) const noexcept {
   double t = plan_.repeat ? std::fmod(t_s, total) : std::min(t_s, total);
   // One axis swept at `freq` between its limits, eased in and out of its hold angle by `w`
   // (no step in the planned angle).
-  auto sweep = [&](int axis, double freq, double w) {
+  auto sweep = [&](int axis, double freq, double w, double spread = 1.0) {
     const auto ax = static_cast<std::size_t>(axis);
     const double centre = 0.5 * (plan_.lo_deg[ax] + plan_.hi_deg[ax]);
     const double amp = 0.5 * (plan_.hi_deg[ax] - plan_.lo_deg[ax]);
-    const double deg = centre + amp * std::sin(2.0 * kPi * freq * t);
+    // The phase of a frequency f(t) = freq · (m + h cos(2π t / T)), m ± h = 1 and `spread`:
+    // its integral, so that the planned angle stays smooth.
+    const double mid = 0.5 * (1.0 + spread), half = 0.5 * (1.0 - spread);
+    double cycles = mid * freq * t;
+    if (half > 0.0 && plan_.spread_cycles > 0.0 && freq > 0.0) {
+      const double period = plan_.spread_cycles / freq;
+      cycles += half * freq * period / (2.0 * kPi) * std::sin(2.0 * kPi * t / period);
+    }
+    const double deg = centre + amp * std::sin(2.0 * kPi * cycles);
     a[axis] = degToRad(plan_.hold_deg[ax] + w * (deg - plan_.hold_deg[ax]));
   };
   if (plan_.combined) {
@@ -53,8 +61,8 @@ Vec3 SweepOperator::target(double t_s) const noexcept {
   }
   const int axis = std::min(static_cast<int>(t / plan_.seconds_per_axis), kAxes - 1);
   t -= axis * plan_.seconds_per_axis;
-  sweep(axis, plan_.frequency_hz,
-        smoothRamp(std::min(t, plan_.seconds_per_axis - t), plan_.ramp_s));
+  sweep(axis, plan_.frequency_hz, smoothRamp(std::min(t, plan_.seconds_per_axis - t), plan_.ramp_s),
+        std::clamp(plan_.frequency_spread, 0.0, 1.0));
   return a;
 }
 

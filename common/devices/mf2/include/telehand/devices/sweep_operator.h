@@ -18,7 +18,14 @@ struct SweepPlan {
   std::array<double, kAxes> hi_deg{};
   std::array<double, kAxes> hold_deg{};  ///< where an axis is held while another moves
   double seconds_per_axis = 20.0;
-  double frequency_hz = 0.5;          ///< slow: manipulation is < 40 N/s (paper III)
+  double frequency_hz = 0.5;  ///< slow: manipulation is < 40 N/s (paper III)
+  /// A clinician does not mobilize at one exact frequency: within each axis' sweep the
+  /// frequency swings smoothly between frequency_hz and this fraction of it (1: a pure
+  /// sinusoid), once every `spread_cycles` cycles at frequency_hz. Then the acceleration at
+  /// an angle varies from cycle to cycle, and the fit can tell the moving mass from the
+  /// stiffness (in a pure sinusoid the acceleration is −ω²·(angle − centre)).
+  double frequency_spread = 0.5;
+  double spread_cycles = 4.0;
   double ramp_s = 1.0;                ///< into and out of each axis' sweep
   double stiffness_nm_per_rad = 4.0;  ///< the clinician's servo at the grip
   double damping_nms_per_rad = 0.006;

@@ -47,8 +47,19 @@ struct AxisFit {
   double rest_deg = 0.0;  ///< its centre
   double rms_n = 0.0;     ///< RMS residual, N
   double damping_nms_per_rad = 0.0;
-  double inertia_kgm2 = 0.0;     ///< the moving mass as seen at the joint (phalanx + device)
-  double inertia_se_kgm2 = 0.0;  ///< its standard error
+  double inertia_kgm2 = 0.0;  ///< the moving mass as seen at the joint (phalanx + device)
+  /// Whether inertia_kgm2 was estimated from the capture (true) or is the known value
+  /// FitOptions::inertia_kgm2, used because the capture did not excite the inertia apart
+  /// from the stiffness (see inertia_collinearity, inertia_fitted_kgm2).
+  bool inertia_estimated = false;
+  /// The inertia as a free coefficient of the least squares, and its standard error,
+  /// whether used or not.
+  double inertia_fitted_kgm2 = 0.0;
+  double inertia_se_kgm2 = 0.0;
+  /// Correlation of the angular acceleration with its best fit by a cubic in the angle and
+  /// the rate: near 1 in a sweep at one frequency (acceleration ≈ −ω²·(angle − centre)),
+  /// where inertia and stiffness cannot be told apart.
+  double inertia_collinearity = 0.0;
   /// Largest change of the holding force over the range when the fit leaves the viscous and
   /// inertial terms out: what a purely static fit would get wrong (N). Above a few tenths
   /// of a newton, the curve rests on the dynamic terms: mobilize slower.
@@ -91,6 +102,18 @@ struct FitOptions {
   /// The force channel may lag the position channel (FSR conditioning, sampling order):
   /// the fit finds the lag, up to this many samples, that explains the data best.
   int max_delay_samples = 4;
+  /// The moving mass about the MCP, kg·m²: the proximal phalanx (2.1e-5, docs/facts.md
+  /// "Ground truth") and the grip's thimbles and links (the simulated MF-2's 0.05 kg at the
+  /// 1 cm lever arm, 0.5e-5). Used when the capture cannot separate inertia from stiffness.
+  double inertia_kgm2 = 2.6e-5;
+  /// The inertia is estimated from the capture only when the capture excites it apart from
+  /// the stiffness: the acceleration's correlation with a cubic in the angle and the rate
+  /// (AxisFit::inertia_collinearity) below this, and the estimate's standard error below
+  /// max_inertia_rel_se of inertia_kgm2; else the known value is used. A correlation r
+  /// amplifies any small misfit of the curve into the inertia by 1 / (1 − r²): at r = 0.8,
+  /// measured, the estimate is still 10-30 % off. 0 always uses the known value.
+  double max_inertia_collinearity = 0.5;
+  double max_inertia_rel_se = 0.1;
 };
 
 /// The per-axis force that a sample's thimbles exert at the lever arm (paper eqs. 1-2 for
@@ -118,6 +141,16 @@ class CaptureFitter {
   CaptureFit fit(const std::function<void(int, double)>& progress = {}) const;
 
  private:
+  /// Per axis, the known inertial coefficient (N per rad/s²) to use, or NaN where the
+  /// capture excites the inertia apart from the stiffness and it is estimated; per axis
+  /// the acceleration's collinearity, the free estimate and its standard error (kg·m²)
+  /// through `info` (3 each).
+  std::array<double, kAxes> inertiaChoice(
+      const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
+      std::array<std::array<double, 3>, kAxes>* info = nullptr) const;
+  double delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
+                      const std::array<double, kAxes>& known_j) const;
+
   JointModel geometry_;
   FitOptions options_;
   std::vector<CapturePoint> points_;

@@ -25,6 +25,8 @@ struct SyntheticCaptureOptions {
   double sensor_noise_n = 0.02;    ///< FSR channel noise before the ADC, N
   double seconds_per_axis = 10.0;  ///< as telehand-client --sweep-seconds
   double frequency_hz = 0.5;
+  /// The sweep's slowest frequency as a fraction of frequency_hz (SweepPlan::frequency_spread).
+  double frequency_spread = devices::SweepPlan{}.frequency_spread;
   /// The clinician goes no further than this force (the FSRs saturate at about 22 N)...
   double max_force_n = 18.0;
   double wall_deg = 3.0;  ///< ...and this far into the end stop (planSweep)
