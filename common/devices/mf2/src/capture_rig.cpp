@@ -30,6 +30,9 @@ CaptureRig::CaptureRig(const CaptureRigOptions& o, const Clock& clock)
   if (o.patient_joint) device_->setPatient(o.patient_joint);
   device_->setOperator(&clinician_);
   device_->setAxisForceNoise(o.axis_noise_n);
+  // The clinician has the finger in the grip, held where the sweep starts, before the
+  // capture begins: no start-up transient from the device's own neutral pose in the record.
+  device_->setPose(clinician_.target(0.0));
 }
 
 bool CaptureRig::step(uint64_t seq, Sample& s) noexcept {
