@@ -162,11 +162,11 @@ TEST(FaultDetector, AStudentPushingPastTheDeviceLimitIsNotAFault) {
 }
 
 TEST(FaultDetector, AJointPushedFarPastItsRangeIsARunaway) {
-  // Nothing rendered (direct mode, no server force): the push takes the phalanx through the
-  // model's short flexion range and on.
+  // Next to nothing rendered (direct mode, the server's forces a micronewton): the push takes
+  // the phalanx through the model's short flexion range and on.
   JointModelParams shortRange = healthyIndexMcp();
   shortRange.axes[kFlexion].max_deg = 20.0;
-  const FaultRun r = mobilize(shortRange, 5.0, {}, 0.0);
+  const FaultRun r = mobilize(shortRange, 5.0, {}, 1e-6);
   EXPECT_EQ(r.fault, LoopFault::kRangeRunaway) << loop::faultName(r.fault);
   EXPECT_EQ(r.clamps, 0u);
 }
