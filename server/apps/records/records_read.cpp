@@ -63,6 +63,7 @@ int runShow(SqliteStore& store, const SessionInfo& info) {
             << "' for " << info.user << ", " << info.state << ", started "
             << formatTime(info.started_ns) << "\n  samples " << info.samples << " (missing "
             << missing << ", flagged invalid " << info.rejected << ")\n";
+  if (!info.owner.empty()) std::cout << "  opened by participant " << info.owner << "\n";
   const auto events = store.events(session_id);
   std::cout << "events (" << events.size() << "):\n";
   for (const auto& e : events) {

@@ -100,10 +100,10 @@ int main(int argc, char** argv) {
     const auto& st = manager.stats();
     const auto& lc = link.counters();
     spdlog::info(
-        "stopped: {} samples recorded, {} live, {} non-finite, {} for unknown sessions, "
-        "{} bad commands, {} store errors, {} echoes",
+        "stopped: {} samples recorded, {} live, {} invalid, {} for unknown sessions, "
+        "{} bad commands, {} refused (security), {} store errors, {} echoes",
         st.recorded_samples, st.live_samples, st.nonfinite_samples, st.unknown_session_samples,
-        st.bad_commands, st.store_errors, lc.echoes.load());
+        st.bad_commands, st.refused, st.store_errors, lc.echoes.load());
     return 0;
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-server: " << e.what() << "\n";

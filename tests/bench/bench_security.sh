@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# What DDS Security costs (docs/security.md "Cost"): the same runs with and without it,
+# alternated so that both see the same machine load.
+#   - DeviceState latency: telehand-latency (DeviceState-sized pings at 1 kHz through a
+#     self echo), one-way p50/p99;
+#   - the haptic loop: a telehand-server + telehand-client session on loopback, the
+#     client's overruns and worst wake-up.
+# Usage: tests/bench/bench_security.sh [ROUNDS (default 3)] [SECONDS per run (default 8)]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+rounds=${1:-3}
+seconds=${2:-8}
+bin=build/release
+work=$(mktemp -d /tmp/telehand-bench-security-XXXXXX)
+trap 'kill $(jobs -p) 2>/dev/null || true; wait 2>/dev/null || true; rm -rf "$work"' EXIT
+deploy/pki/make-pki.sh "$work/pki" >/dev/null
+net=(--dds-config deploy/cyclonedds/loopback.xml)
+
+latency() {  # mode -> "p50 p99" in us
+  local sec=() tag=$1
+  [ "$tag" = secure ] && sec=(--pki "$work/pki") || sec=(--insecure)
+  "$bin/client/telehand-latency" "${net[@]}" "${sec[@]}" --partition "bs-$$-$tag-$RANDOM" \
+    --echo self --seconds "$seconds" --rate 1000 --quiet --json "$work/lat.json" >/dev/null 2>&1
+  python3 -c "
+import json; p = json.load(open('$work/lat.json'))['telehand']['pooled']
+print(round(p['p50_us'], 1), round(p['p99_us'], 1))" 2>/dev/null || echo "? ?"
+}
+
+session() {  # mode -> "overruns worst_us"
+  local sec=() tag=$1 part="bs-$$-$1-$RANDOM"
+  [ "$tag" = secure ] && sec=(--pki "$work/pki") || sec=(--insecure)
+  "$bin/server/telehand-server" "${net[@]}" "${sec[@]}" --partition "$part" \
+    --db "$work/r-$tag.db" --log-level warn >/dev/null 2>&1 &
+  local server=$!
+  "$bin/client/telehand-client" "${net[@]}" "${sec[@]}" --partition "$part" \
+    --seconds "$seconds" -q >"$work/client.log" 2>&1 || true
+  kill "$server" 2>/dev/null || true
+  wait "$server" 2>/dev/null || true
+  sed -n 's/.*loop: \([0-9]*\) overruns, worst wake-up \([0-9]*\) us late.*/\1 \2/p' "$work/client.log"
+}
+
+printf '%-6s %-9s %12s %12s %10s %14s\n' round mode "p50 us" "p99 us" overruns "worst wake us"
+for r in $(seq "$rounds"); do
+  for mode in insecure secure; do
+    read -r p50 p99 < <(latency "$mode")
+    read -r over worst < <(session "$mode")
+    printf '%-6s %-9s %12s %12s %10s %14s\n' "$r" "$mode" "$p50" "$p99" "$over" "$worst"
+  done
+done
