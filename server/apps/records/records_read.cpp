@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <ctime>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
@@ -117,27 +118,55 @@ int runShow(SqliteStore& store, const SessionInfo& info) {
 }
 
 int runExport(SqliteStore& store, uint64_t session_id, const std::string& out_path) {
+  // A file is written beside its destination and renamed over it only when complete: an
+  // error half way (a full disk, a read error in the record) leaves no partial CSV behind.
+  // Something that is not a regular file (a pipe, a terminal, a device) is written directly.
+  std::error_code kind_ec;
+  const bool special = !out_path.empty() && std::filesystem::exists(out_path, kind_ec) &&
+                       !std::filesystem::is_regular_file(out_path, kind_ec);
+  const std::string tmp_path = out_path.empty() || special ? "" : out_path + ".partial";
   std::ofstream file;
   if (!out_path.empty()) {
-    file.open(out_path);
+    const std::string& open_path = special ? out_path : tmp_path;
+    file.open(open_path, std::ios::trunc);
     if (!file) {
-      std::cerr << "telehand-records: cannot write '" << out_path << "'\n";
+      std::cerr << "telehand-records: cannot write '" << open_path << "'\n";
       return 2;
     }
   }
   std::ostream& out = out_path.empty() ? std::cout : file;
+  const auto fail = [&](const std::string& why) {
+    std::cerr << "telehand-records: " << why << "\n";
+    if (!tmp_path.empty()) {
+      file.close();
+      std::error_code ec;
+      std::filesystem::remove(tmp_path, ec);
+    }
+    return 2;
+  };
   const auto& cols = sampleColumns();
   for (std::size_t i = 0; i < cols.size(); ++i) out << (i ? "," : "") << cols[i];
   out << "\n";
   uint64_t rows = 0;
-  store.forEachSample(session_id, [&](const telehand::Sample& s, bool valid) {
-    out << sampleCsvRow(s, valid) << "\n";
-    ++rows;
-  });
+  try {
+    store.forEachSample(session_id, [&](const telehand::Sample& s, bool valid) {
+      out << sampleCsvRow(s, valid) << "\n";
+      ++rows;
+    });
+  } catch (const std::exception& e) {
+    return fail(std::string(e.what()) + " (after " + std::to_string(rows) +
+                " rows; nothing was written to '" + out_path + "')");
+  }
   out.flush();
   if (!out) {
-    std::cerr << "telehand-records: write failed after " << rows << " rows\n";
-    return 2;
+    return fail("write failed after " + std::to_string(rows) + " rows" +
+                (tmp_path.empty() ? "" : "; nothing was written to '" + out_path + "'"));
+  }
+  if (!tmp_path.empty()) {
+    file.close();
+    std::error_code ec;
+    std::filesystem::rename(tmp_path, out_path, ec);
+    if (ec) return fail("cannot rename '" + tmp_path + "' to '" + out_path + "': " + ec.message());
   }
   if (!out_path.empty()) {
     std::cerr << "exported session " << session_id << ": " << rows << " samples to " << out_path
