@@ -32,7 +32,9 @@ struct Peer {
         device(participant, topics.device_state, dds::qos::deviceState()),
         chunk(participant, topics.record_chunk, dds::qos::recordChunk()),
         command(participant, topics.session_command, dds::qos::sessionCommand()),
-        status(participant, topics.session_status, dds::qos::sessionStatus()),
+        // Deeper than the topic's 1 per session: other writers (forgeries of another
+        // inject) must not push the server's status out before it is read.
+        status(participant, topics.session_status, dds::qos::sessionStatus().keepLast(256)),
         events(participant, topics.session_event, dds::qos::sessionEvent()),
         live(participant, topics.device_state, dds::qos::deviceState()),
         models(participant, topics.joint_model, dds::qos::jointModel()) {}
@@ -122,8 +124,9 @@ std::pair<uint64_t, uint64_t> findVictim(Peer& peer, uint64_t session,
   std::pair<uint64_t, uint64_t> found{0, 0};
   while (found.first == 0 && std::chrono::steady_clock::now() < deadline) {
     peer.status.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
-      if (found.first == 0 && st.state == telehand_msg_SESSION_ACTIVE &&
-          st.client_id != peer.client_id && (session == 0 || st.session_id == session)) {
+      const bool wanted =
+          session == 0 ? st.state == telehand_msg_SESSION_ACTIVE : st.session_id == session;
+      if (found.first == 0 && wanted && st.client_id != peer.client_id) {
         found = {st.session_id, st.client_id};
       }
     });
@@ -279,6 +282,7 @@ int main(int argc, char** argv) {
   int participants = 1;
   int wait_s = 5;
   int hold_s = 2;
+  int period_ms = 50;
   const std::vector<std::string> modes{"close-unknown", "unknown-state", "nan",
                                        "chunk-ahead",   "close",         "forge-status",
                                        "forge-model",   "file",          "open-flood"};
@@ -295,6 +299,8 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 64));
   app.add_option("--wait", wait_s,
                  "attacks: seconds to keep forging and to listen for refusals afterwards");
+  app.add_option("--period-ms", period_ms, "forge-status, forge-model: ms between forgeries")
+      ->check(CLI::Range(0, 10000));
   app.add_option("--hold", hold_s, "open-flood: seconds to hold the sessions opened");
   bool insecure = false;
   app::addDdsOptions(app, o, insecure, "device");
@@ -362,7 +368,7 @@ int main(int argc, char** argv) {
              std::chrono::steady_clock::now() < until; ++written) {
           st.source_time_ns = wallNs();
           dds::check(w->write(st), "write SessionStatus");
-          std::this_thread::sleep_for(50ms);
+          std::this_thread::sleep_for(std::chrono::milliseconds(period_ms));
         }
         std::cout << "forged " << written << " SessionStatus CLOSED\n" << std::flush;
         return 0;
@@ -390,7 +396,7 @@ int main(int argc, char** argv) {
              std::chrono::steady_clock::now() < stop; ++written) {
           model->source_time_ns = wallNs();
           dds::check(w->write(*model), "write JointModel");
-          std::this_thread::sleep_for(50ms);
+          std::this_thread::sleep_for(std::chrono::milliseconds(period_ms));
         }
         std::cout << "forged " << written << " JointModel v" << kForgedVersion << "\n"
                   << std::flush;
