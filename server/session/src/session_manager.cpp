@@ -1,6 +1,9 @@
 #include "telehand/server/session/session_manager.h"
 
 #include <spdlog/spdlog.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include <algorithm>
 #include <cstring>
@@ -422,6 +425,12 @@ void SessionManager::tick(int64_t now_ns) {
     if (s.closing) finish(s, now_ns, s.recorder.recorded() >= s.expected ? "closed" : "incomplete");
     sessions_.erase(it);
   }
+#if defined(__GLIBC__)
+  // A session's hand is megabytes of small blocks: glibc keeps freed ones in its heap, so
+  // without this a burst of sessions (a flood of OPENs up to server.max_sessions) would
+  // hold the server's RSS at its peak after they ended.
+  if (!done.empty()) malloc_trim(0);
+#endif
 }
 
 void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state) {

@@ -37,6 +37,7 @@ class RecordingOutbox : public Outbox {
   void publish(const telehand_msg_JointModel& m) override { models.push_back(m); }
   void publish(const telehand_msg_HandState& h) override { hands.push_back(h); }
   void publish(const telehand_msg_SessionEvent& e) override { events.push_back(e); }
+  void retire(uint64_t session_id) override { retired.push_back(session_id); }
 
   std::vector<const telehand_msg_SessionEvent*> eventsOf(telehand_msg_EventKind kind) const {
     std::vector<const telehand_msg_SessionEvent*> out;
@@ -50,6 +51,7 @@ class RecordingOutbox : public Outbox {
   std::vector<telehand_msg_JointModel> models;
   std::vector<telehand_msg_HandState> hands;
   std::vector<telehand_msg_SessionEvent> events;
+  std::vector<uint64_t> retired;
 };
 
 /// The 24-DoF hand, loaded once for the whole program.
@@ -105,7 +107,7 @@ class SessionManagerTest : public ::testing::Test {
     copyString(c.case_name, case_name);
     copyString(c.user, "student");
     const std::size_t before = out_.statuses.size();
-    manager_->onCommand(c, now_ns_);
+    manager_->onCommand(c, now_ns_, from_);
     if (out_.statuses.size() == before) return 0;
     session_ = out_.statuses.back().session_id;
     const auto params = fromWire(out_.models.back(), nullptr);
@@ -131,7 +133,7 @@ class SessionManagerTest : public ::testing::Test {
       for (int i = 0; i < 4; ++i) d.fingers[k].orientation_q[i] = qv[i];
     }
     for (int i = 0; i < 3; ++i) d.mcp_angles_rad[i] = angles[i];
-    manager_->onDeviceState(d, now_ns_);
+    manager_->onDeviceState(d, now_ns_, from_);
     now_ns_ += 1'000'000;
     if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
     angles_ = angles;
@@ -161,15 +163,19 @@ class SessionManagerTest : public ::testing::Test {
     hold(300);
   }
 
+  static telehand_msg_SessionCommand commandFor(telehand_msg_CommandKind kind, uint64_t id) {
+    return command(kind, id);
+  }
+
   void mark(const std::string& text) {
     auto c = command(telehand_msg_CMD_MARK, session_);
     copyString(c.text, text);
-    manager_->onCommand(c, now_ns_);
+    manager_->onCommand(c, now_ns_, from_);
   }
   void close() {
     auto c = command(telehand_msg_CMD_CLOSE, session_);
     c.samples_sent = 0;  // nothing on the record stream: the session may close at once
-    manager_->onCommand(c, now_ns_);
+    manager_->onCommand(c, now_ns_, from_);
     now_ns_ += 10'000'000;
     manager_->tick(now_ns_);
   }
@@ -187,6 +193,8 @@ class SessionManagerTest : public ::testing::Test {
   RecordingOutbox out_;
   std::unique_ptr<SqliteStore> store_;
   std::unique_ptr<SessionManager> manager_;
+  /// Who open(), sample(), mark() and close() speak as (default: not known).
+  Origin from_;
   uint64_t session_ = 0;
   uint64_t seq_ = 1;
   int64_t now_ns_ = 1'000'000'000;
@@ -638,6 +646,440 @@ TEST_F(DriftTest, OffByConfigurationNothingIsCorrected) {
   renderTo(Vec3(degToRad(20.0), 0.0, degToRad(12.0)), 2000);
   EXPECT_EQ(manager_->stats().drift_corrections, 0u);
   EXPECT_EQ(latestOffsetDeg(), Vec3::Zero());
+}
+
+// --- Ownership and bounds ---------------------------------------------------------------------
+
+/// Two participants: A opens the session, B (a rogue on the same partition) tries to act on it.
+class OwnershipTest : public SessionManagerTest {
+ protected:
+  void SetUp() override {
+    SessionManagerTest::SetUp();
+    from_ = kA;
+  }
+
+  /// A plausible sample of `session` (thimbles 16 mm apart, unit quaternions).
+  static telehand_msg_DeviceState wireSample(uint64_t session, uint64_t seq,
+                                             uint32_t model_version = 1) {
+    telehand_msg_DeviceState s{};
+    s.session_id = session;
+    s.seq = seq;
+    s.source_time_ns = 1;
+    s.model_version = model_version;
+    for (int k = 0; k < 2; ++k) {
+      s.fingers[k].position_m[0] = 0.01;
+      s.fingers[k].position_m[2] = k == 0 ? 0.008 : -0.008;
+      s.fingers[k].orientation_q[0] = 1.0;
+    }
+    return s;
+  }
+
+  /// One RecordChunk of `samples` for `session`, as `from` sends it.
+  void sendChunk(uint64_t session, std::vector<telehand_msg_DeviceState> samples,
+                 const Origin& from) {
+    telehand_msg_RecordChunk c{};
+    c.session_id = session;
+    c.chunk_seq = chunk_seq_++;
+    c.samples._buffer = samples.data();
+    c.samples._length = c.samples._maximum = static_cast<uint32_t>(samples.size());
+    c.samples._release = false;
+    manager_->onChunk(c, now_ns_, from);
+  }
+  /// Sequence numbers [first, first + n) of `session` with `model_version`, in chunks of 200.
+  void sendRange(uint64_t session, uint64_t first, uint64_t n, const Origin& from,
+                 uint32_t model_version = 1) {
+    for (uint64_t at = first; at < first + n; at += 200) {
+      std::vector<telehand_msg_DeviceState> v;
+      for (uint64_t q = at; q < std::min(first + n, at + 200); ++q)
+        v.push_back(wireSample(session, q, model_version));
+      sendChunk(session, std::move(v), from);
+    }
+  }
+
+  void command(telehand_msg_CommandKind kind, const Origin& from, uint64_t samples_sent = 0,
+               const std::string& text = "") {
+    auto c = SessionManagerTest::commandFor(kind, session_);
+    c.samples_sent = samples_sent;
+    copyString(c.text, text);
+    manager_->onCommand(c, now_ns_, from);
+  }
+  void file(const Origin& from, const std::string& name, std::size_t bytes) {
+    std::string content(bytes, 'x');
+    telehand_msg_SessionFile f{};
+    f.session_id = session_;
+    copyString(f.name, name);
+    f.content = content.data();
+    manager_->onFile(f, now_ns_, from);
+  }
+  void tickFor(int64_t ns) {
+    const int64_t until = now_ns_ + ns;
+    while (now_ns_ < until) {
+      now_ns_ += 10'000'000;
+      manager_->tick(now_ns_);
+    }
+  }
+
+  /// The security events published so far.
+  std::vector<std::string> securityEvents() const {
+    std::vector<std::string> out;
+    for (const auto* e : out_.eventsOf(telehand_msg_EVENT_ERROR)) {
+      if (std::string(e->text).starts_with("security: refused")) out.emplace_back(e->text);
+    }
+    return out;
+  }
+  struct Stored {
+    uint64_t rows = 0, invalid = 0, from_rogue = 0, lowest = UINT64_MAX, highest = 0;
+  };
+  Stored stored(uint64_t session) {
+    Stored r;
+    store_->forEachSample(session, [&](const Sample& s, bool valid) {
+      ++r.rows;
+      r.invalid += !valid;
+      r.from_rogue += s.model_version == kRogueVersion;
+      r.lowest = std::min(r.lowest, s.seq);
+      r.highest = std::max(r.highest, s.seq);
+    });
+    return r;
+  }
+
+  static constexpr uint32_t kRogueVersion = 999;
+  const Origin kA{11, "0110a0a0a0a0a0a0a0a0a0a0000001c1"};
+  const Origin kB{22, "0110b0b0b0b0b0b0b0b0b0b0000001c1"};
+  uint64_t chunk_seq_ = 0;
+};
+
+TEST_F(OwnershipTest, AnotherParticipantIsRefusedEverythingAndTheOwnerIsServed) {
+  ASSERT_NE(open("healthy", telehand_msg_MODE_CAPTURE), 0u);
+  EXPECT_EQ(store_->session(session_)->owner, kA.guid);
+  moveToDeg(10.0);  // A's live stream
+  const uint64_t a_sent = seq_ - 1;
+  const std::size_t statuses = out_.statuses.size();
+  const std::size_t hands = out_.hands.size();
+
+  // B: a live sample, a chunk over A's sequence numbers, a file, a MARK and a CLOSE.
+  manager_->onDeviceState(wireSample(session_, seq_, kRogueVersion), now_ns_, kB);
+  sendRange(session_, 1, 150, kB, kRogueVersion);
+  file(kB, "rogue.toml", 100);
+  command(telehand_msg_CMD_MARK, kB, 0, "reassessment");
+  command(telehand_msg_CMD_CLOSE, kB, 0);
+  tickFor(100'000'000);
+
+  EXPECT_EQ(manager_->stats().refused, 1u + 150u + 1u + 1u + 1u);
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+  for (std::size_t i = statuses; i < out_.statuses.size(); ++i)
+    EXPECT_EQ(out_.statuses[i].state, telehand_msg_SESSION_ACTIVE);
+  EXPECT_EQ(stored(session_).rows, 0u);
+  EXPECT_TRUE(store_->files(session_).empty());
+  EXPECT_TRUE(out_.eventsOf(telehand_msg_EVENT_MARK).empty());
+  // The hand took nothing of B's: no new HandState names B's sequence number.
+  for (std::size_t i = hands; i < out_.hands.size(); ++i) EXPECT_LT(out_.hands[i].device_seq, seq_);
+  // One event for the lot (at most one per 5 s per session), naming the first refusal, the
+  // sender and the owner; it is in the session's record too.
+  auto refused = securityEvents();
+  ASSERT_EQ(refused.size(), 1u);
+  EXPECT_THAT(refused[0],
+              AllOf(HasSubstr("DeviceState from participant " + kB.guid),
+                    HasSubstr("session " + std::to_string(session_) + " belongs to " + kA.guid)));
+  bool in_record = false;
+  for (const auto& e : store_->events(session_))
+    in_record = in_record || e.text.find("security: refused") != std::string::npos;
+  EXPECT_TRUE(in_record);
+  // 5 s later the next refusal is reported again, naming what it was.
+  now_ns_ += 5'000'000'000;
+  command(telehand_msg_CMD_CLOSE, kB, 0);
+  refused = securityEvents();
+  ASSERT_EQ(refused.size(), 2u);
+  EXPECT_THAT(refused[1], HasSubstr("a CLOSE from participant " + kB.guid));
+  now_ns_ += 5'000'000'000;
+  file(kB, "rogue.toml", 100);
+  now_ns_ += 5'000'000'000;
+  sendRange(session_, 1, 10, kB, kRogueVersion);
+  now_ns_ += 5'000'000'000;
+  command(telehand_msg_CMD_MARK, kB, 0, "x");
+  refused = securityEvents();
+  ASSERT_EQ(refused.size(), 5u);
+  EXPECT_THAT(refused[2], HasSubstr("a SessionFile from participant " + kB.guid));
+  EXPECT_THAT(refused[3], HasSubstr("a RecordChunk from participant " + kB.guid));
+  EXPECT_THAT(refused[4], HasSubstr("a MARK from participant " + kB.guid));
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+
+  // A's own are taken: its record, its file, its mark, its CLOSE.
+  sample(angles_);
+  sendRange(session_, 1, a_sent + 1, kA);
+  file(kA, "device.toml", 100);
+  command(telehand_msg_CMD_MARK, kA, 0, "mid-point");
+  command(telehand_msg_CMD_CLOSE, kA, a_sent + 1);
+  tickFor(100'000'000);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_CLOSED);
+  EXPECT_EQ(out_.statuses.back().samples_missing, 0u);
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples, a_sent + 1);
+  const Stored s = stored(session_);
+  EXPECT_EQ(s.rows, a_sent + 1);
+  EXPECT_EQ(s.from_rogue, 0u);
+  EXPECT_EQ(s.invalid, 0u);
+  ASSERT_EQ(store_->files(session_).size(), 1u);
+  EXPECT_EQ(store_->files(session_)[0].name, "device.toml");
+  EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), 1u);
+  EXPECT_EQ(manager_->stats().refused, 154u + 1u + 1u + 10u + 1u);
+}
+
+TEST_F(OwnershipTest, AnUnknownSenderIsNotRefused) {
+  // Callers without DDS (participant 0) act on anyone's session, as before ownership.
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  const Origin nobody{};
+  manager_->onDeviceState(wireSample(session_, seq_), now_ns_, nobody);
+  sendRange(session_, 1, sent + 1, nobody);
+  command(telehand_msg_CMD_MARK, nobody, 0, "note");
+  command(telehand_msg_CMD_CLOSE, nobody, sent + 1);
+  tickFor(50'000'000);
+  EXPECT_EQ(manager_->stats().refused, 0u);
+  EXPECT_TRUE(securityEvents().empty());
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->session(session_)->state, "closed");
+  EXPECT_EQ(stored(session_).rows, sent + 1);
+  // And a session whose opener is not known takes anyone's.
+  from_ = nobody;
+  ASSERT_NE(open("healthy"), 0u);
+  EXPECT_EQ(store_->session(session_)->owner, "");
+  sendRange(session_, 1, 100, kB);
+  command(telehand_msg_CMD_CLOSE, kB, 100);
+  tickFor(50'000'000);
+  EXPECT_EQ(manager_->stats().refused, 0u);
+  EXPECT_EQ(store_->session(session_)->state, "closed");
+  EXPECT_EQ(stored(session_).rows, 100u);
+}
+
+TEST_F(OwnershipTest, OpensBeyondTheLimitsAreRefusedAndTheOpenSessionsGoOn) {
+  config_.max_sessions = 3;
+  config_.max_sessions_per_participant = 2;
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  const uint64_t a1 = open("healthy");
+  ASSERT_NE(a1, 0u);
+  ASSERT_NE(open("stiff"), 0u);
+  // A's third: over the limit per participant.
+  EXPECT_EQ(open("healthy"), 0u);
+  EXPECT_EQ(manager_->stats().refused, 1u);
+  auto refused = securityEvents();
+  ASSERT_EQ(refused.size(), 1u);
+  EXPECT_THAT(refused[0], AllOf(HasSubstr("an OPEN from participant " + kA.guid),
+                                HasSubstr("it has 2 sessions open"),
+                                HasSubstr("max_sessions_per_participant")));
+  // B may still open one; then the server is full, for B and for callers without DDS.
+  from_ = kB;
+  ASSERT_NE(open("healthy"), 0u);
+  EXPECT_EQ(manager_->activeSessions(), 3u);
+  now_ns_ += 6'000'000'000;
+  EXPECT_EQ(open("healthy"), 0u);
+  from_ = Origin{};
+  EXPECT_EQ(open("healthy"), 0u);
+  EXPECT_EQ(manager_->stats().refused, 3u);
+  refused = securityEvents();
+  ASSERT_EQ(refused.size(), 2u) << "refusals within 5 s are counted, not each reported";
+  EXPECT_THAT(refused[1], AllOf(HasSubstr("an OPEN from participant " + kB.guid),
+                                HasSubstr("3 sessions open"), HasSubstr("(server.max_sessions)")));
+  EXPECT_EQ(store_->listSessions().size(), 3u);
+  EXPECT_EQ(manager_->activeSessions(), 3u);
+  // A flood of refused OPENs leaves the open sessions working: A's first still runs its hand.
+  from_ = kB;
+  for (int i = 0; i < 2000; ++i) open("healthy");
+  EXPECT_EQ(manager_->stats().refused, 2003u);
+  EXPECT_EQ(securityEvents().size(), 2u);
+  session_ = a1;
+  from_ = kA;
+  const std::size_t hands = out_.hands.size();
+  moveToDeg(15.0);
+  std::size_t a1_hands = 0;
+  for (std::size_t i = hands; i < out_.hands.size(); ++i)
+    a1_hands += out_.hands[i].session_id == a1;
+  EXPECT_GT(a1_hands, 50u);
+  // Once a session ends, its owner may open again.
+  close();
+  ASSERT_NE(open("healthy"), 0u);
+}
+
+TEST_F(OwnershipTest, FilesAreKeptOnlyForCapturesWithinTheirLimits) {
+  config_.max_file_bytes = 4096;
+  config_.max_files_per_session = 2;
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  ASSERT_NE(open("healthy"), 0u);  // mobilization
+  file(kA, "device.toml", 100);
+  EXPECT_TRUE(store_->files(session_).empty());
+  EXPECT_EQ(manager_->stats().refused, 1u);
+  ASSERT_EQ(securityEvents().size(), 1u);
+  EXPECT_THAT(securityEvents()[0], HasSubstr("only capture sessions keep files"));
+
+  ASSERT_NE(open("healthy", telehand_msg_MODE_CAPTURE), 0u);
+  file(kA, "huge.bin", 4097);
+  EXPECT_EQ(manager_->stats().refused, 2u);
+  ASSERT_EQ(securityEvents().size(), 2u);
+  EXPECT_THAT(securityEvents()[1], AllOf(HasSubstr("'huge.bin' (4097 bytes)"),
+                                         HasSubstr("larger than server.max_file_bytes = 4096")));
+  file(kA, "device.toml", 4096);
+  file(kA, "thimbles.toml", 10);
+  file(kA, "third.toml", 10);
+  EXPECT_EQ(manager_->stats().refused, 3u);
+  now_ns_ += 6'000'000'000;
+  file(kA, "fourth.toml", 10);
+  EXPECT_EQ(manager_->stats().refused, 4u);
+  ASSERT_EQ(securityEvents().size(), 3u);
+  EXPECT_THAT(securityEvents()[2],
+              AllOf(HasSubstr("'fourth.toml'"), HasSubstr("already keeps 2 files")));
+  const auto files = store_->files(session_);
+  ASSERT_EQ(files.size(), 2u);
+  std::vector<std::string> names{files[0].name, files[1].name};
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"device.toml", "thimbles.toml"}));
+  for (const auto& f : files) EXPECT_EQ(f.content.size(), f.name == "device.toml" ? 4096u : 10u);
+}
+
+TEST_F(OwnershipTest, SamplesOutsideTheSequenceWindowAreRefusedAndNotStored) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t high = seq_ - 1;  // the client's highest so far
+  sendRange(session_, 1, high, kA);
+  EXPECT_EQ(manager_->stats().refused, 0u);
+  // 1,000 samples just ahead of the client: within the window, taken.
+  sendRange(session_, high + 1, 1000, kA);
+  EXPECT_EQ(manager_->stats().refused, 0u);
+  uint64_t top = high + 1000;
+  EXPECT_EQ(stored(session_).highest, top);
+  // One beyond the window of the new highest: refused, not stored.
+  sendChunk(session_, {wireSample(session_, top + SessionManager::kSeqWindow + 1)}, kA);
+  EXPECT_EQ(manager_->stats().refused, 1u);
+  EXPECT_EQ(stored(session_).highest, top);
+  // The window's edge is still in.
+  sendChunk(session_, {wireSample(session_, top + SessionManager::kSeqWindow)}, kA);
+  EXPECT_EQ(manager_->stats().refused, 1u);
+  top += SessionManager::kSeqWindow;
+  EXPECT_EQ(stored(session_).highest, top);
+  // Now the client's first samples lie behind the window.
+  sendChunk(session_, {wireSample(session_, top - SessionManager::kSeqWindow - 1)}, kA);
+  EXPECT_EQ(manager_->stats().refused, 2u);
+  // Sequence numbers from 2^63 on are never taken, live or recorded, whatever the window.
+  const uint64_t huge = sample_bounds::kMaxSeq;
+  sendChunk(session_, {wireSample(session_, huge), wireSample(session_, UINT64_MAX)}, kA);
+  manager_->onDeviceState(wireSample(session_, huge), now_ns_, kA);
+  EXPECT_EQ(manager_->stats().refused, 5u);
+  const Stored s = stored(session_);
+  EXPECT_EQ(s.rows, high + 1000 + 1);
+  EXPECT_EQ(s.highest, top);
+  const auto refused = securityEvents();
+  ASSERT_EQ(refused.size(), 1u);
+  EXPECT_THAT(refused[0], HasSubstr("1 RecordChunk samples outside the sequence window"));
+  // A fresh session: 2^63 as the very first sample does not set its window.
+  ASSERT_NE(open("healthy"), 0u);
+  sendChunk(session_, {wireSample(session_, huge)}, kA);
+  EXPECT_EQ(manager_->stats().refused, 6u);
+  sendRange(session_, 0, 10, kA);
+  EXPECT_EQ(manager_->stats().refused, 6u);
+  EXPECT_EQ(stored(session_).rows, 10u);
+}
+
+TEST_F(OwnershipTest, ImplausibleSamplesAreStoredFlaggedAndKeptFromTheHand) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(10.0);
+  auto huge_position = wireSample(session_, seq_);
+  huge_position.fingers[0].position_m[1] = 1e308;
+  auto long_quaternion = wireSample(session_, seq_ + 1);
+  long_quaternion.fingers[1].orientation_q[0] = 5.0;
+  auto fsr = wireSample(session_, seq_ + 2);
+  fsr.fingers[1].fsr_n[2] = 1e6f;
+  const uint64_t bad_first = seq_;
+  std::vector<telehand_msg_DeviceState> chunk;
+  for (uint64_t q = 1; q < seq_; ++q) chunk.push_back(wireSample(session_, q));
+  for (const auto& bad : {huge_position, long_quaternion, fsr}) {
+    manager_->onDeviceState(bad, now_ns_, kA);
+    chunk.push_back(bad);
+  }
+  seq_ += 3;
+  const std::size_t hands = out_.hands.size();
+  const Vec3 before(out_.hands.back().mcp_angles_rad[0], out_.hands.back().mcp_angles_rad[1],
+                    out_.hands.back().mcp_angles_rad[2]);
+  for (std::size_t at = 0; at < chunk.size(); at += 200) {
+    sendChunk(session_,
+              {chunk.begin() + static_cast<std::ptrdiff_t>(at),
+               chunk.begin() + static_cast<std::ptrdiff_t>(std::min(chunk.size(), at + 200))},
+              kA);
+  }
+  EXPECT_EQ(manager_->stats().nonfinite_samples, 3u);
+  EXPECT_EQ(manager_->stats().refused, 0u) << "implausible is not refused: it is kept, flagged";
+  // The hand goes on with the next good samples and never took the bad ones.
+  moveToDeg(20.0);
+  ASSERT_GT(out_.hands.size(), hands + 50);
+  for (std::size_t i = hands; i < out_.hands.size(); ++i) {
+    const auto& h = out_.hands[i];
+    EXPECT_TRUE(h.device_seq < bad_first || h.device_seq >= bad_first + 3) << h.device_seq;
+    for (int k = 0; k < 2; ++k) {
+      for (int j = 0; j < 3; ++j) EXPECT_LT(std::abs(h.sphere_m[k][j]), 0.5);
+    }
+  }
+  EXPECT_NEAR(radToDeg(before[kFlexion]), 10.0, 1.0);
+  EXPECT_NEAR(radToDeg(out_.hands.back().mcp_angles_rad[kFlexion]), 20.0, 1.0);
+  // Stored as they came, flagged invalid, and named.
+  const Stored s = stored(session_);
+  EXPECT_EQ(s.rows, bad_first + 2);
+  EXPECT_EQ(s.invalid, 3u);
+  EXPECT_EQ(store_->session(session_)->rejected, 3u);
+  std::string named;
+  for (const auto* e : out_.eventsOf(telehand_msg_EVENT_ERROR))
+    named += std::string(e->text) + "\n";
+  EXPECT_THAT(named, HasSubstr("implausible fingers[0] (thumb).position_m[1] = 1e+308"));
+}
+
+TEST_F(OwnershipTest, EndedSessionsAreRetiredAfterStatusKeep) {
+  config_.status_keep_s = 2.0;
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  const uint64_t first = open("healthy");
+  ASSERT_NE(first, 0u);
+  const uint64_t second = open("stiff");
+  ASSERT_NE(second, 0u);
+  session_ = first;
+  close();
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+  tickFor(1'900'000'000);
+  EXPECT_TRUE(out_.retired.empty()) << "late joiners still see how it ended";
+  tickFor(200'000'000);
+  EXPECT_EQ(out_.retired, std::vector<uint64_t>{first});
+  EXPECT_EQ(manager_->stats().retired_sessions, 1u);
+  // The other session, left without data, is abandoned after 30 s and retired 2 s later.
+  tickFor(SessionManager::kIdleTimeoutNs);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->session(second)->state, "abandoned");
+  tickFor(2'100'000'000);
+  EXPECT_EQ(out_.retired, (std::vector<uint64_t>{first, second}));
+  EXPECT_EQ(manager_->stats().retired_sessions, 2u);
+  tickFor(5'000'000'000);
+  EXPECT_EQ(out_.retired.size(), 2u) << "each once";
+}
+
+TEST_F(OwnershipTest, LateChunksOfAnEndedSessionAreTakenFromItsOwnerOnly) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  sendRange(session_, 1, sent - 100, kA);
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  now_ns_ += static_cast<int64_t>(config_.close_grace_s * 1e9) + 10'000'000;
+  manager_->tick(now_ns_);
+  ASSERT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->session(session_)->state, "incomplete");
+  // B's "late" chunk is refused; A's is stored.
+  sendRange(session_, sent - 99, 100, kB, kRogueVersion);
+  EXPECT_EQ(manager_->stats().refused, 100u);
+  ASSERT_EQ(securityEvents().size(), 1u);
+  EXPECT_THAT(securityEvents()[0],
+              AllOf(HasSubstr("a late RecordChunk from participant " + kB.guid),
+                    HasSubstr("belonged to " + kA.guid)));
+  EXPECT_EQ(stored(session_).rows, sent - 100);
+  sendRange(session_, sent - 99, 100, kA);
+  const Stored s = stored(session_);
+  EXPECT_EQ(s.rows, sent);
+  EXPECT_EQ(s.from_rogue, 0u);
+  EXPECT_EQ(manager_->stats().refused, 100u);
 }
 
 }  // namespace

@@ -140,6 +140,11 @@ class ClientLink {
   /// and the one pending. Older ones are freed here, never on the loop's thread.
   std::deque<std::shared_ptr<const KnnTorqueModel>> knn_alive_;
   static constexpr std::size_t kKnnKeep = 12;
+  /// Reader history of SessionStatus and JointModel per session (the topics keep the last
+  /// one per session): samples from other writers (forgeries, which fromServer() drops)
+  /// share the session's instance, and with a history of 1 they could push the server's
+  /// CLOSED or newest model out before this link takes it.
+  static constexpr int32_t kServerTopicHistory = 256;
 };
 
 }  // namespace telehand::client::link

@@ -1,0 +1,259 @@
+// A rogue participant against a real session (server and client as processes): it sends
+// RecordChunks just ahead of the client's sequence numbers, a CLOSE, a 20 MB SessionFile, a
+// forged SessionStatus CLOSED and a forged JointModel (coefficients x100) for the client's
+// session, and floods the server with OPENs. Without security the rogue is a participant on
+// the same partition; with it, an authenticated device of the same PKI. Either way the
+// client's session is recorded whole and only the client's samples are in it.
+#include <gtest/gtest.h>
+#include <stdlib.h>
+
+#include <algorithm>
+#include <fstream>
+#include <iostream>
+#include <string>
+#include <thread>
+
+#include "process.h"
+#include "process_test.h"
+#include "telehand/server/store/sqlite_store.h"
+
+namespace telehand::test {
+namespace {
+
+using namespace std::chrono_literals;
+
+/// What telehand-test-inject writes into another session (inject_main.cpp).
+constexpr uint32_t kForgedVersion = 4242;
+constexpr double kMarkerM = 0.0424242;
+
+/// VmRSS of a process in kB (0 when it is gone).
+uint64_t rssKb(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.starts_with("VmRSS:")) return std::stoull(line.substr(6));
+  }
+  return 0;
+}
+
+class RogueTest : public ProcessTest {
+ protected:
+  RogueTest() : ProcessTest("rogue", TELEHAND_LOOPBACK_XML) {}
+  void SetUp() override {
+    ProcessTest::SetUp();
+    // A secure participant of this process (SecurityTest) leaves its PKI and identity in
+    // the environment, where the children would take them as their defaults.
+    ::unsetenv("TELEHAND_PKI");
+    ::unsetenv("TELEHAND_IDENTITY");
+  }
+
+  /// A PKI with the default identities and a second device, 'lab9-mf2', for the rogue.
+  void makePki() {
+    const std::string dir = path("pki");
+    Process make({TELEHAND_MAKE_PKI, dir}, path("pki.log"));
+    ASSERT_EQ(make.wait(60s), std::optional<int>(0)) << make.output();
+    Process more({TELEHAND_MAKE_PKI, dir, "lab9-mf2:device"}, path("pki-more.log"));
+    ASSERT_EQ(more.wait(60s), std::optional<int>(0)) << more.output();
+    pki_ = dir;
+  }
+
+  /// The rogue's command line: as 'lab9-mf2' under security.
+  std::vector<std::string> rogue(std::vector<std::string> args) const {
+    if (!pki_.empty()) {
+      args.push_back("--identity");
+      args.push_back("lab9-mf2");
+    }
+    return cmd(TELEHAND_INJECT_BIN, std::move(args));
+  }
+
+  struct Attacks {
+    std::string chunk, close, file, status, model;
+    std::optional<int> status_rc, model_rc;
+  };
+
+  /// Server, an 8 s client, and the rogue's attacks on the client's session; then the
+  /// checks every run shares: the client exits 0 and its record is whole and its own.
+  Attacks run() {
+    Attacks a;
+    const std::string db = path("records.db");
+    Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "60"}), path("server.log"));
+    Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "8", "-q"}), path("client.log"));
+    // First the chunks ahead of the client (the refusal it reports is the first of the
+    // session, so the event names it), then the rest at once. The forged status goes on
+    // past the client's CLOSE, at 1 kHz: forgeries share the session's instance with the
+    // server's samples and must not push its CLOSED out of the client's reader.
+    Process chunk(rogue({"chunk-ahead", "--wait", "2"}), path("chunk.log"));
+    EXPECT_EQ(chunk.wait(30s), std::optional<int>(0)) << chunk.output();
+    const std::string victim =
+        std::to_string(matchNumber(chunk.output(), R"(attacking session (\d+))"));
+    Process close(rogue({"close", "--session", victim, "--wait", "1"}), path("close.log"));
+    Process file(rogue({"file", "--session", victim, "--bytes", "20000000", "--wait", "1"}),
+                 path("file.log"));
+    Process status(rogue({"forge-status", "--session", victim, "--wait", "10", "--period-ms", "1"}),
+                   path("status.log"));
+    Process model(rogue({"forge-model", "--session", victim, "--wait", "5", "--period-ms", "1"}),
+                  path("model.log"));
+    EXPECT_EQ(close.wait(30s), std::optional<int>(0)) << close.output();
+    EXPECT_EQ(file.wait(60s), std::optional<int>(0)) << file.output();
+    a.model_rc = model.wait(30s);
+    a.status_rc = status.wait(30s);
+
+    const auto client_rc = client.wait(30s);
+    EXPECT_TRUE(client_rc.has_value()) << "client did not finish\n" << client.output();
+    EXPECT_EQ(client_rc, std::optional<int>(0)) << client.output();
+    EXPECT_EQ(server.stop(), 0) << server.output();
+    a.chunk = chunk.output();
+    a.close = close.output();
+    a.file = file.output();
+    a.status = status.output();
+    a.model = model.output();
+
+    const std::string out = client.output();
+    const uint64_t session = matchNumber(out, R"(session (\d+) open)");
+    const uint64_t sent = matchNumber(out, R"((\d+) samples sent)");
+    EXPECT_GT(session, 0u) << out;
+    EXPECT_GT(sent, 6000u) << out;  // 8 s at 1 kHz
+    // The client took its record's figures from the server, not from the forged status.
+    EXPECT_NE(out.find("record: " + std::to_string(sent) + " samples recorded, 0 missing"),
+              std::string::npos)
+        << out;
+    EXPECT_EQ(
+        a.chunk.find("attacking session " + std::to_string(session) + "\n") != std::string::npos,
+        true)
+        << a.chunk;
+
+    server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
+    const auto info = store.session(session);
+    EXPECT_TRUE(info.has_value());
+    if (!info) return a;
+    EXPECT_EQ(info->state, "closed");
+    EXPECT_EQ(info->samples, sent);
+    EXPECT_EQ(info->samples_expected, sent) << "the rogue's CLOSE (1 sample) was taken";
+    EXPECT_EQ(info->rejected, 0u);
+    EXPECT_FALSE(info->owner.empty());
+    uint64_t rows = 0, gaps = 0, next = 0, marked = 0, forged = 0, invalid = 0;
+    uint32_t highest_version = 0;
+    store.forEachSample(session, [&](const Sample& s, bool valid) {
+      ++rows;
+      gaps += s.seq != next;
+      next = s.seq + 1;
+      marked += s.fingers[0].position_m[0] == kMarkerM;
+      forged += s.model_version == kForgedVersion;
+      highest_version = std::max(highest_version, s.model_version);
+      invalid += !valid;
+    });
+    EXPECT_EQ(rows, sent);
+    EXPECT_EQ(gaps, 0u);
+    EXPECT_EQ(next, sent) << "no sequence number past the client's last";
+    EXPECT_EQ(marked, 0u) << "rows from the rogue's chunks";
+    EXPECT_EQ(forged, 0u) << "the client rendered the forged JointModel";
+    EXPECT_LT(highest_version, 100u);
+    EXPECT_EQ(invalid, 0u);
+    EXPECT_TRUE(store.files(session).empty());
+    // The refusal is an event of the session's record, naming what and whom.
+    std::string refused;
+    for (const auto& e : store.events(session)) {
+      if (e.text.find("security: refused") != std::string::npos) refused += e.text + "\n";
+    }
+    EXPECT_NE(refused.find("security: refused a RecordChunk from participant "), std::string::npos)
+        << refused;
+    EXPECT_NE(refused.find("session " + std::to_string(session) + " belongs to " + info->owner),
+              std::string::npos)
+        << refused;
+    EXPECT_NE(a.chunk.find("refused: security: refused a RecordChunk"), std::string::npos)
+        << a.chunk;
+    return a;
+  }
+};
+
+TEST_F(RogueTest, AParticipantOnThePartitionCannotTouchAnotherSession) {
+  const Attacks a = run();
+  // Unsecured, the rogue can write anything; the server and the client take none of it.
+  EXPECT_EQ(a.status_rc, std::optional<int>(0)) << a.status;
+  EXPECT_GT(matchNumber(a.status, R"(forged (\d+) SessionStatus)"), 1000u) << a.status;
+  EXPECT_EQ(a.model_rc, std::optional<int>(0)) << a.model;
+  EXPECT_GT(matchNumber(a.model, R"(forged (\d+) JointModel)"), 1000u) << a.model;
+  EXPECT_NE(a.close.find("sent CLOSE"), std::string::npos) << a.close;
+  EXPECT_NE(a.file.find("sent a SessionFile of 20000000 bytes"), std::string::npos) << a.file;
+}
+
+TEST_F(RogueTest, AnAuthenticatedDeviceCannotTouchAnotherSession) {
+  makePki();
+  const Attacks a = run();
+  // The device role may not write what only servers publish: the writers are not created.
+  EXPECT_EQ(a.status_rc, std::optional<int>(4)) << a.status;
+  EXPECT_NE(a.status.find("writer refused: SessionStatus"), std::string::npos) << a.status;
+  EXPECT_EQ(a.model_rc, std::optional<int>(4)) << a.model;
+  EXPECT_NE(a.model.find("writer refused: JointModel"), std::string::npos) << a.model;
+  // What it may write (chunks, commands, files) is refused by ownership.
+  EXPECT_NE(a.close.find("sent CLOSE"), std::string::npos) << a.close;
+  EXPECT_NE(a.file.find("sent a SessionFile of 20000000 bytes"), std::string::npos) << a.file;
+}
+
+TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
+  // 10,000 OPENs from 16 participants (4 sessions each at most): the server opens its 64
+  // (server.max_sessions, each with a Bullet hand) and refuses the rest. Measured, not
+  // timed: the server's RSS before, at the peak and after the sessions end.
+  const std::string db = path("records.db");
+  {
+    std::ofstream cfg(path("server.toml"));
+    cfg << "[server]\nstatus_keep_s = 2.0\n";
+  }
+  Process server(
+      cmd(TELEHAND_SERVER_BIN, {"--config", path("server.toml"), "--db", db, "--seconds", "60"}),
+      path("server.log"));
+  // A first session and its end: what the server keeps once it has served one.
+  Process warm(cmd(TELEHAND_INJECT_BIN, {"open-flood", "--count", "1", "--hold", "0"}),
+               path("warm.log"));
+  ASSERT_EQ(warm.wait(30s), std::optional<int>(0)) << warm.output();
+  std::this_thread::sleep_for(3s);
+  const uint64_t baseline = rssKb(server.pid());
+  ASSERT_GT(baseline, 0u);
+  Process four(cmd(TELEHAND_INJECT_BIN, {"open-flood", "--count", "4", "--hold", "3"}),
+               path("four.log"));
+  uint64_t four_peak = 0;
+  while (!four.wait(0ms)) {
+    four_peak = std::max(four_peak, rssKb(server.pid()));
+    std::this_thread::sleep_for(50ms);
+  }
+  ASSERT_EQ(four.wait(0ms), std::optional<int>(0)) << four.output();
+  ASSERT_EQ(matchNumber(four.output(), R"(opened=(\d+))"), 4u) << four.output();
+  const double per_session_kb = static_cast<double>(four_peak - baseline) / 4.0;
+  std::this_thread::sleep_for(3s);
+
+  Process flood(cmd(TELEHAND_INJECT_BIN,
+                    {"open-flood", "--count", "10000", "--participants", "16", "--hold", "3"}),
+                path("flood.log"));
+  uint64_t peak = 0;
+  while (!flood.wait(0ms)) {
+    peak = std::max(peak, rssKb(server.pid()));
+    std::this_thread::sleep_for(50ms);
+  }
+  EXPECT_EQ(flood.wait(0ms), std::optional<int>(0)) << flood.output();
+  const std::string out = flood.output();
+  EXPECT_EQ(matchNumber(out, R"(opened=(\d+))"), 64u) << out;
+  EXPECT_EQ(matchNumber(out, R"(closed=(\d+))"), 64u) << out;
+  std::this_thread::sleep_for(3s);  // past status_keep_s: the sessions are retired
+  const uint64_t after = rssKb(server.pid());
+  EXPECT_EQ(server.stop(), 0) << server.output();
+  EXPECT_NE(server.output().find("security: refused an OPEN from participant"), std::string::npos);
+
+  const double bound_kb = static_cast<double>(baseline) + 64.0 * per_session_kb;
+  const auto mb = [](auto kb) { return static_cast<double>(kb) / 1024.0; };
+  std::cout << "server RSS: baseline " << mb(baseline) << " MB, " << mb(per_session_kb)
+            << " MB per session (4 sessions: peak " << mb(four_peak) << " MB), flood peak "
+            << mb(peak) << " MB (bound baseline + 64 x per session = " << mb(bound_kb)
+            << " MB), after the sessions end " << mb(after) << " MB\n";
+  RecordProperty("rss_baseline_kb", static_cast<int>(baseline));
+  RecordProperty("rss_per_session_kb", static_cast<int>(per_session_kb));
+  RecordProperty("rss_flood_peak_kb", static_cast<int>(peak));
+  RecordProperty("rss_after_kb", static_cast<int>(after));
+  // Generous margins: the bound the limits promise, +25 %, and 1 GB whatever was measured.
+  EXPECT_LT(static_cast<double>(peak), 1.25 * bound_kb);
+  EXPECT_LT(peak, 1024u * 1024u);
+  EXPECT_LT(static_cast<double>(after), 1.1 * static_cast<double>(baseline) + 8.0 * 1024.0)
+      << "the ended sessions' memory went back";
+}
+
+}  // namespace
+}  // namespace telehand::test
