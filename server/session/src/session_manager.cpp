@@ -59,17 +59,25 @@ void SessionManager::event(uint64_t session_id, uint64_t client_id, telehand_msg
   }
 }
 
-void SessionManager::unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns) {
-  if (unknown_reported_ns_.size() >= kMaxUnknownIds && !unknown_reported_ns_.count(session_id)) {
-    // A flood of made-up ids must not grow memory: forget ids not reported for 5 s, and past
-    // the cap leave new ones unreported (they are still counted in the stats).
-    std::erase_if(unknown_reported_ns_,
-                  [&](const auto& kv) { return now_ns - kv.second >= 5 * kNsPerS; });
-    if (unknown_reported_ns_.size() >= kMaxUnknownIds) return;
+namespace {
+/// Whether an event about `id` is due: at most one per 5 s per id. A flood of ids must not
+/// grow memory: past `cap` ids, those not reported for 5 s are forgotten, and past the cap
+/// new ones stay unreported (the stats still count them).
+bool reportDue(std::map<uint64_t, int64_t>& reported, std::size_t cap, uint64_t id,
+               int64_t now_ns) {
+  if (reported.size() >= cap && !reported.count(id)) {
+    std::erase_if(reported, [&](const auto& kv) { return now_ns - kv.second >= 5 * kNsPerS; });
+    if (reported.size() >= cap) return false;
   }
-  auto [it, fresh] = unknown_reported_ns_.try_emplace(session_id, now_ns);
-  if (!fresh && now_ns - it->second < 5 * kNsPerS) return;
+  auto [it, fresh] = reported.try_emplace(id, now_ns);
+  if (!fresh && now_ns - it->second < 5 * kNsPerS) return false;
   it->second = now_ns;
+  return true;
+}
+}  // namespace
+
+void SessionManager::unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns) {
+  if (!reportDue(unknown_reported_ns_, kMaxUnknownIds, session_id, now_ns)) return;
   event(0, 0, telehand_msg_EVENT_ERROR,
         what + " for unknown session " + std::to_string(session_id) + " dropped", now_ns);
 }
@@ -77,14 +85,7 @@ void SessionManager::unknownSession(uint64_t session_id, const std::string& what
 void SessionManager::refuse(uint64_t session_id, uint64_t client_id, const std::string& what,
                             uint64_t count, int64_t now_ns) {
   stats_.refused += count;
-  if (refused_reported_ns_.size() >= kMaxUnknownIds && !refused_reported_ns_.count(session_id)) {
-    std::erase_if(refused_reported_ns_,
-                  [&](const auto& kv) { return now_ns - kv.second >= 5 * kNsPerS; });
-    if (refused_reported_ns_.size() >= kMaxUnknownIds) return;
-  }
-  auto [it, fresh] = refused_reported_ns_.try_emplace(session_id, now_ns);
-  if (!fresh && now_ns - it->second < 5 * kNsPerS) return;
-  it->second = now_ns;
+  if (!reportDue(refused_reported_ns_, kMaxUnknownIds, session_id, now_ns)) return;
   event(session_id, client_id, telehand_msg_EVENT_ERROR,
         "security: refused " + what + " (" + std::to_string(stats_.refused) +
             " refused by this server so far)",
