@@ -9,10 +9,16 @@
 #include <dds/ddsi/ddsi_serdata_default.h>
 
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
 #include <vector>
 
 namespace telehand::fuzz {
+
+/// A broken invariant: abort, which libFuzzer reports with the input that did it.
+inline void check(bool ok) {
+  if (!ok) std::abort();
+}
 
 template <class T>
 class CdrSample {

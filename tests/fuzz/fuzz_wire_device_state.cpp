@@ -14,11 +14,9 @@
 
 using namespace telehand;
 
-namespace {
-void check(bool ok) {
-  if (!ok) std::abort();
-}
+using fuzz::check;
 
+namespace {
 bool within(double v, double bound) { return std::isfinite(v) && std::abs(v) <= bound; }
 
 // sample_bounds, restated.

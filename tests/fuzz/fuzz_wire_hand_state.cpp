@@ -15,10 +15,9 @@
 
 using namespace telehand;
 
+using fuzz::check;
+
 namespace {
-void check(bool ok) {
-  if (!ok) std::abort();
-}
 bool same(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
 }  // namespace
 

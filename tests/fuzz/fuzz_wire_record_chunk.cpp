@@ -12,11 +12,7 @@
 
 using namespace telehand;
 
-namespace {
-void check(bool ok) {
-  if (!ok) std::abort();
-}
-}  // namespace
+using fuzz::check;
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
   fuzz::CdrSample<telehand_msg_RecordChunk> in(telehand_msg_RecordChunk_desc);
