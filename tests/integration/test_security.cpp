@@ -2,13 +2,21 @@
 // supervisor's watcher run under a PKI this test makes; an unauthenticated participant on
 // the same domain and partition receives nothing, a participant with a certificate from
 // another CA finds no session, and a supervisor's identity cannot write a JointModel.
+#include <arpa/inet.h>
 #include <gtest/gtest.h>
+#include <linux/if_ether.h>
+#include <net/if.h>
+#include <netpacket/packet.h>
 #include <stdlib.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <filesystem>
 #include <memory>
+#include <string_view>
 #include <thread>
+#include <vector>
 
 #include "process.h"
 #include "process_test.h"
@@ -129,6 +137,83 @@ TEST_F(SecurityTest, OnlyAuthenticatedParticipantsTakePart) {
   ASSERT_TRUE(info.has_value());
   EXPECT_EQ(info->state, "closed");
   EXPECT_EQ(info->samples, sent);
+}
+
+/// Every packet on the loopback interface while it runs (AF_PACKET, needs CAP_NET_RAW),
+/// searched for a string.
+class WireSniffer {
+ public:
+  explicit WireSniffer(std::string needle) : needle_(std::move(needle)) {
+    fd_ = ::socket(AF_PACKET, SOCK_RAW, htons(ETH_P_ALL));
+    if (fd_ < 0) return;
+    sockaddr_ll a{};
+    a.sll_family = AF_PACKET;
+    a.sll_protocol = htons(ETH_P_ALL);
+    a.sll_ifindex = static_cast<int>(if_nametoindex("lo"));
+    if (::bind(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
+      ::close(fd_);
+      fd_ = -1;
+      return;
+    }
+    timeval tv{0, 100'000};
+    ::setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+    thread_ = std::thread([this] {
+      std::vector<char> buf(65536);
+      while (!stop_.load()) {
+        const ssize_t n = ::recv(fd_, buf.data(), buf.size(), 0);
+        if (n <= 0) continue;
+        ++packets_;
+        if (std::string_view(buf.data(), static_cast<std::size_t>(n)).find(needle_) !=
+            std::string_view::npos)
+          ++hits_;
+      }
+    });
+  }
+  ~WireSniffer() { stopNow(); }
+  bool ok() const { return fd_ >= 0; }
+  void stopNow() {
+    stop_.store(true);
+    if (thread_.joinable()) thread_.join();
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = -1;
+  }
+  uint64_t packets() const { return packets_.load(); }
+  uint64_t hits() const { return hits_.load(); }
+
+ private:
+  std::string needle_;
+  int fd_ = -1;
+  std::atomic<bool> stop_{false};
+  std::atomic<uint64_t> packets_{0}, hits_{0};
+  std::thread thread_;
+};
+
+TEST_F(SecurityTest, TheWireCarriesNoPlaintext) {
+  // A session whose user name is on the wire in SessionCommand and SessionStatus: under
+  // security no packet holds it; without, some do (the sniffer sees what it should).
+  for (const bool secure : {true, false}) {
+    const std::string user = "wire" + std::to_string(getpid()) + (secure ? "s" : "i");
+    WireSniffer sniff(user);
+    if (!sniff.ok()) GTEST_SKIP() << "no raw socket on lo (needs CAP_NET_RAW)";
+    const std::string saved = pki_;
+    if (!secure) pki_.clear();
+    const std::string tag = secure ? "secure" : "insecure";
+    Process server(cmd(TELEHAND_SERVER_BIN, {"--db", path(tag + ".db"), "--seconds", "60"}),
+                   path(tag + "-server.log"));
+    Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "3", "-q", "--user", user}),
+                   path(tag + "-client.log"));
+    const auto rc = client.wait(30s);
+    pki_ = saved;
+    EXPECT_EQ(server.stop(), 0) << server.output();
+    sniff.stopNow();
+    ASSERT_EQ(rc, std::optional<int>(0)) << client.output();
+    EXPECT_GT(sniff.packets(), 1000u) << tag;
+    if (secure) {
+      EXPECT_EQ(sniff.hits(), 0u) << "the user name crossed loopback in clear";
+    } else {
+      EXPECT_GT(sniff.hits(), 0u) << "the sniffer did not see the unsecured session";
+    }
+  }
 }
 
 TEST_F(SecurityTest, EachRoleWritesOnlyItsTopics) {

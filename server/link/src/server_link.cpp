@@ -79,6 +79,17 @@ void ServerLink::retire(uint64_t session_id) {
   telehand_msg_KnnModel k{};
   k.session_id = session_id;
   knn_writer_.unregister(k);
+  // The keyed topics without late joiners keep an instance per session all the same (and
+  // SessionEvent its last 64 events): freed here too, or each session would leave ~20 KB.
+  telehand_msg_SessionEvent e{};
+  e.session_id = session_id;
+  event_writer_.unregister(e);
+  telehand_msg_HandState h{};
+  h.session_id = session_id;
+  hand_writer_.unregister(h);
+  telehand_msg_DirectForce f{};
+  f.session_id = session_id;
+  direct_writer_.unregister(f);
 }
 
 session::Origin ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {

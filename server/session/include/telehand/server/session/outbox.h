@@ -18,8 +18,9 @@ class Outbox {
   virtual void publish(const telehand_msg_KnnModel& k) { (void)k; }
   /// Direct mode only (the baseline design).
   virtual void publish(const telehand_msg_DirectForce& f) { (void)f; }
-  /// An ended session leaves the transient-local topics (SessionStatus, JointModel,
-  /// KnnModel): late joiners no longer receive it and the writers free its instance.
+  /// An ended session leaves every keyed topic (SessionStatus, JointModel, KnnModel,
+  /// SessionEvent, HandState, DirectForce): late joiners no longer receive it and the
+  /// writers free its instances.
   virtual void retire(uint64_t session_id) { (void)session_id; }
 };
 
