@@ -14,7 +14,8 @@ enum Attach : dds_attach_t { kWake = 1, kCommands, kDevice, kChunks, kFiles };
 }  // namespace
 
 ServerLink::ServerLink(const dds::Options& options)
-    : participant_(options),
+    : secured_(!options.pki.empty()),
+      participant_(options),
       topics_(participant_),
       device_reader_(participant_, topics_.device_state,
                      dds::qos::deviceStateReader(kDeviceReaderDepth)),
@@ -94,7 +95,10 @@ void ServerLink::retire(uint64_t session_id) {
 
 session::Origin ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
   const dds::Sender& s = senders_.of(reader, info.publication_handle);
-  return {s.participant, s.guid};
+  // An authenticated participant's GUID begins with 48 bits of its certificate subject's
+  // hash (DDS Security: the same for all participants of one identity); the hex GUID's
+  // first 12 characters.
+  return {s.participant, s.guid, secured_ && s.guid.size() >= 12 ? s.guid.substr(0, 12) : ""};
 }
 
 void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>& stop,

@@ -151,12 +151,18 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     return;
   }
   if (from.participant != 0) {
+    // Per identity under DDS Security (one certificate cannot take the server with many
+    // participants), else per participant.
     const auto mine = std::count_if(sessions_.begin(), sessions_.end(), [&](const auto& kv) {
-      return kv.second.owner == from.participant;
+      return from.identity.empty() ? kv.second.owner == from.participant
+                                   : kv.second.owner_identity == from.identity;
     });
     if (mine >= config_.max_sessions_per_participant) {
       refuse(0, cmd.client_id,
-             "an OPEN from participant " + from.guid + ": it has " + std::to_string(mine) +
+             "an OPEN from participant " + from.guid + ": " +
+                 (from.identity.empty() ? std::string("it has ")
+                                        : "its identity " + from.identity + " has ") +
+                 std::to_string(mine) +
                  " sessions open, the limit per participant (server.max_sessions_per_participant)",
              1, now_ns);
       return;
@@ -221,6 +227,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   Session& s = sessions_.try_emplace(info.id, ctx_, info, cmd, patient, hand_, hand_config_, now_ns)
                    .first->second;
   s.owner = from.participant;
+  s.owner_identity = from.identity;
   const bool wants_knn = cmd.stiffness == telehand_msg_STIFFNESS_KNN;
   if (capture) {
     s.capture.follow(cmd.follow_session, wants_knn);

@@ -743,8 +743,8 @@ class OwnershipTest : public SessionManagerTest {
   }
 
   static constexpr uint32_t kRogueVersion = 999;
-  const Origin kA{11, "0110a0a0a0a0a0a0a0a0a0a0000001c1"};
-  const Origin kB{22, "0110b0b0b0b0b0b0b0b0b0b0000001c1"};
+  const Origin kA{11, "0110a0a0a0a0a0a0a0a0a0a0000001c1", ""};
+  const Origin kB{22, "0110b0b0b0b0b0b0b0b0b0b0000001c1", ""};
   uint64_t chunk_seq_ = 0;
 };
 
@@ -852,6 +852,30 @@ TEST_F(OwnershipTest, AnUnknownSenderIsNotRefused) {
   EXPECT_EQ(manager_->stats().refused, 0u);
   EXPECT_EQ(store_->session(session_)->state, "closed");
   EXPECT_EQ(stored(session_).rows, 100u);
+}
+
+TEST_F(OwnershipTest, UnderSecurityTheLimitCountsTheIdentityNotItsParticipants) {
+  // Two participants of one certificate (their GUIDs share the subject's 48-bit hash) and
+  // one of another: the limit per participant holds for the identity.
+  config_.max_sessions_per_participant = 2;
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  const Origin one{31, "d9e01656ff1acb63b2659309000001c1", "d9e01656ff1a"};
+  const Origin same{32, "d9e01656ff1a62f3bd8594ce000001c1", "d9e01656ff1a"};
+  const Origin other{33, "953d9ad09f1f8cea4e891935000001c1", "953d9ad09f1f"};
+  from_ = one;
+  ASSERT_NE(open("healthy"), 0u);
+  from_ = same;
+  ASSERT_NE(open("healthy"), 0u);
+  EXPECT_EQ(open("healthy"), 0u) << "a third session of the same identity";
+  from_ = one;
+  EXPECT_EQ(open("stiff"), 0u);
+  EXPECT_EQ(manager_->stats().refused, 2u);
+  const auto refused = securityEvents();
+  ASSERT_FALSE(refused.empty());
+  EXPECT_THAT(refused[0], HasSubstr("its identity d9e01656ff1a has 2 sessions open"));
+  from_ = other;
+  EXPECT_NE(open("healthy"), 0u);
+  EXPECT_EQ(manager_->activeSessions(), 3u);
 }
 
 TEST_F(OwnershipTest, OpensBeyondTheLimitsAreRefusedAndTheOpenSessionsGoOn) {

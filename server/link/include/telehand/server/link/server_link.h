@@ -45,6 +45,7 @@ class ServerLink final : public session::Outbox {
   /// The manager's view of who wrote a sample a reader took.
   session::Origin origin(dds_entity_t reader, const dds_sample_info_t& info);
 
+  bool secured_;  // DDS Security: senders carry their identity (Origin::identity)
   dds::Participant participant_;
   dds::Topics topics_;
   dds::Reader<telehand_msg_DeviceState> device_reader_;

@@ -49,9 +49,10 @@ class Session {
   SessionContext& ctx;
   store::SessionInfo info;
   uint64_t client_id = 0;
-  uint32_t request_seq = 0;  // the OPEN this session answers
-  uint64_t owner = 0;        // the participant that opened it (Origin::participant), 0: unknown
-  uint64_t seq_high = 0;     // highest sequence number taken, live or recorded
+  uint32_t request_seq = 0;    // the OPEN this session answers
+  uint64_t owner = 0;          // the participant that opened it (Origin::participant), 0: unknown
+  std::string owner_identity;  // its Origin::identity (DDS Security), empty without
+  uint64_t seq_high = 0;       // highest sequence number taken, live or recorded
   bool have_seq = false;
   int files = 0;  // SessionFiles kept
   telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;

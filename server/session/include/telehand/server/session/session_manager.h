@@ -37,6 +37,10 @@ using store::SessionStore;
 struct Origin {
   uint64_t participant = 0;  ///< the participant's instance handle in this process
   std::string guid;          ///< its GUID, hex, as the record keeps it
+  /// Under DDS Security, the identity behind the participant: the first 48 bits of its
+  /// GUID, which the authentication plugin derives from the certificate's subject (the
+  /// same for every participant of one identity). Empty without security.
+  std::string identity;
 };
 
 class SessionManager {
