@@ -60,6 +60,10 @@ void SessionManager::event(uint64_t session_id, uint64_t client_id, telehand_msg
 }
 
 namespace {
+/// Rate-limit keys of OPEN refusals: the sender's participant handle with the top bit set,
+/// apart from session ids.
+constexpr uint64_t kOpenKey = uint64_t{1} << 63;
+
 /// Whether an event about `id` is due: at most one per 5 s per id. A flood of ids must not
 /// grow memory: past `cap` ids, those not reported for 5 s are forgotten, and past the cap
 /// new ones stay unreported (the stats still count them).
@@ -83,9 +87,10 @@ void SessionManager::unknownSession(uint64_t session_id, const std::string& what
 }
 
 void SessionManager::refuse(uint64_t session_id, uint64_t client_id, const std::string& what,
-                            uint64_t count, int64_t now_ns) {
+                            uint64_t count, int64_t now_ns, std::optional<uint64_t> rate_key) {
   stats_.refused += count;
-  if (!reportDue(refused_reported_ns_, kMaxUnknownIds, session_id, now_ns)) return;
+  if (!reportDue(refused_reported_ns_, kMaxUnknownIds, rate_key.value_or(session_id), now_ns))
+    return;
   event(session_id, client_id, telehand_msg_EVENT_ERROR,
         "security: refused " + what + " (" + std::to_string(stats_.refused) +
             " refused by this server so far)",
@@ -147,7 +152,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
            "an OPEN from participant " + (from.guid.empty() ? std::string("?") : from.guid) + ": " +
                std::to_string(sessions_.size()) + " sessions open, the server's limit " +
                "(server.max_sessions)",
-           1, now_ns);
+           1, now_ns, kOpenKey | from.participant);
     return;
   }
   if (from.participant != 0) {
@@ -164,7 +169,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
                                         : "its identity " + from.identity + " has ") +
                  std::to_string(mine) +
                  " sessions open, the limit per participant (server.max_sessions_per_participant)",
-             1, now_ns);
+             1, now_ns, kOpenKey | from.participant);
       return;
     }
   }

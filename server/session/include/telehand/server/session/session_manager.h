@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -101,8 +102,10 @@ class SessionManager {
   /// True when `from` may act on session `s`; otherwise counts and reports the refusal.
   bool owns(Session& s, const Origin& from, const char* what, uint64_t count, int64_t now_ns);
   /// Refuse `what` for a session: counted, one security event per session per 5 s.
+  /// `rate_key`: what the once-per-5-s limit counts by (default: the session; an OPEN's
+  /// refusals count by their sender, so that each one hears of its own).
   void refuse(uint64_t session_id, uint64_t client_id, const std::string& what, uint64_t count,
-              int64_t now_ns);
+              int64_t now_ns, std::optional<uint64_t> rate_key = std::nullopt);
   /// End a session: score its exploration, part it from its capture or followers, close it.
   void finish(Session& s, int64_t now_ns, const std::string& state);
   void event(uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
