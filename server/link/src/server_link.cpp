@@ -70,27 +70,25 @@ void ServerLink::publish(const telehand_msg_SessionEvent& e) {
   if (event_writer_.write(e) < 0) counters_.publish_errors.fetch_add(1);
 }
 
+namespace {
+/// Ends a session's instance on a topic keyed by session_id.
+template <typename T>
+void unregisterSession(dds::Writer<T>& writer, uint64_t session_id) {
+  T key{};
+  key.session_id = session_id;
+  writer.unregister(key);
+}
+}  // namespace
+
 void ServerLink::retire(uint64_t session_id) {
-  telehand_msg_SessionStatus st{};
-  st.session_id = session_id;
-  status_writer_.unregister(st);
-  telehand_msg_JointModel m{};
-  m.session_id = session_id;
-  model_writer_.unregister(m);
-  telehand_msg_KnnModel k{};
-  k.session_id = session_id;
-  knn_writer_.unregister(k);
+  unregisterSession(status_writer_, session_id);
+  unregisterSession(model_writer_, session_id);
+  unregisterSession(knn_writer_, session_id);
   // The keyed topics without late joiners keep an instance per session all the same (and
   // SessionEvent its last 64 events): freed here too, or each session would leave ~20 KB.
-  telehand_msg_SessionEvent e{};
-  e.session_id = session_id;
-  event_writer_.unregister(e);
-  telehand_msg_HandState h{};
-  h.session_id = session_id;
-  hand_writer_.unregister(h);
-  telehand_msg_DirectForce f{};
-  f.session_id = session_id;
-  direct_writer_.unregister(f);
+  unregisterSession(event_writer_, session_id);
+  unregisterSession(hand_writer_, session_id);
+  unregisterSession(direct_writer_, session_id);
 }
 
 session::Origin ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
