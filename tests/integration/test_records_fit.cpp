@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <filesystem>
 
 #include "process.h"
@@ -15,9 +16,11 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
 TEST(RecordsFit, SynthThenFitWritesACaseAndPlots) {
-  const fs::path dir =
-      fs::temp_directory_path() / ("telehand-records-fit-" + std::to_string(getpid()));
-  fs::create_directories(dir);
+  // A directory of its own: a kept one from an earlier failed run (same pid) must not lend
+  // its record.
+  std::string tmpl = (fs::temp_directory_path() / "telehand-records-fit-XXXXXX").string();
+  ASSERT_NE(mkdtemp(tmpl.data()), nullptr);
+  const fs::path dir = tmpl;
   const std::string db = (dir / "r.db").string();
   Process synth({TELEHAND_RECORDS_BIN, "--db", db, "synth", "--case", "stiff", "--seconds-per-axis",
                  "6", "--device", TELEHAND_DEPLOY_DIR "/devices/mf2.toml", "-q"},
