@@ -65,11 +65,7 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
       r.finite = false;
       break;
     }
-    for (int k = 0; k < kAxes; ++k) {
-      const CubicCurve& c = patient.axes[static_cast<std::size_t>(k)];
-      const double deg = radToDeg(a[k]);
-      r.range_excess_deg = std::max({r.range_excess_deg, c.min_deg - deg, deg - c.max_deg});
-    }
+    r.range_excess_deg = std::max(r.range_excess_deg, model.rangeExcessDeg(a));
     const double t = i * 1e-3;
     if (motion == Motion::kMobilization && t > op.ramp_s + 0.5) {
       const double f0 = dev.renderedForce()[0].norm(), f1 = dev.renderedForce()[1].norm();

@@ -218,15 +218,8 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, const Vec3& angles) noex
     }
   }
   // How far the rendered angles are past the model's range.
-  const JointModelParams& m = proxy_.model().params();
-  double excess = 0.0;
-  bool finite = true;
-  for (int i = 0; i < kAxes; ++i) {
-    const CubicCurve& c = m.axes[static_cast<std::size_t>(i)];
-    const double deg = radToDeg(angles[i]);
-    if (!std::isfinite(deg)) finite = false;
-    excess = std::max({excess, c.min_deg - deg, deg - c.max_deg});
-  }
+  const bool finite = allFinite(angles);
+  const double excess = proxy_.model().rangeExcessDeg(angles);
   raise(health_.range_excess_max_deg, finite ? excess : 1e9);
   const bool outside = !finite || excess > lim.range_margin_deg;
   // A finger that starts (or resumes) away from the joint, before the grip is on it, is not

@@ -231,6 +231,16 @@ Vec3 JointModel::axisTorque(const PerFinger<Vec3>& p, const Vec3& angles_rad,
   return axisBasis(angles_rad).transpose() * tau;
 }
 
+double JointModel::rangeExcessDeg(const Vec3& angles_rad) const noexcept {
+  double excess = 0.0;
+  for (int i = 0; i < kAxes; ++i) {
+    const CubicCurve& c = p_.axes[static_cast<std::size_t>(i)];
+    const double deg = radToDeg(angles_rad[i]);
+    excess = std::max({excess, c.min_deg - deg, deg - c.max_deg});
+  }
+  return excess;
+}
+
 double JointModel::restAngleRad(int axis) const noexcept {
   const CubicCurve& c = p_.axes[static_cast<std::size_t>(axis)];
   double lo = c.min_deg, hi = c.max_deg;

@@ -173,6 +173,10 @@ class JointModel {
   /// bisection over the curve's valid range; the nearest range end if none is inside.
   double restAngleRad(int axis) const noexcept;
 
+  /// How far `angles_rad` lie past the model's range of motion, degrees, on the axis that is
+  /// furthest out; 0 inside it (non-finite angles are the caller's to check).
+  double rangeExcessDeg(const Vec3& angles_rad) const noexcept;
+
   /// Energy the passive joint stores at `angles_rad` (the work done against the holding
   /// forces from the rest angles), at device scale in joules: zero at rest, never negative.
   double potentialEnergyJ(const Vec3& angles_rad) const noexcept;
