@@ -26,8 +26,12 @@ std::string formatTime(int64_t ns) {
 }
 
 /// Samples the client said it sent that the record does not hold.
-uint64_t missingSamples(const SessionInfo& s) {
-  return s.samples_expected > s.samples ? s.samples_expected - s.samples : 0;
+/// Samples the client said it sent and the record lacks; "?" when the client never said
+/// (a session still open, or one whose server stopped before the CLOSE): then nobody knows
+/// how many are missing, and 0 would claim the record complete.
+std::string missingSamples(const SessionInfo& s) {
+  if (s.samples_expected == 0) return s.samples == 0 && s.state == "closed" ? "0" : "?";
+  return std::to_string(s.samples_expected > s.samples ? s.samples_expected - s.samples : 0);
 }
 
 }  // namespace
@@ -46,7 +50,7 @@ int runList(SqliteStore& store, const std::string& db) {
   for (const auto& s : sessions) {
     const double dur =
         s.ended_ns > s.started_ns ? static_cast<double>(s.ended_ns - s.started_ns) * 1e-9 : 0.0;
-    const uint64_t missing = missingSamples(s);
+    const std::string missing = missingSamples(s);
     std::ostringstream d;
     d << std::fixed << std::setprecision(1) << dur << " s";
     std::cout << std::left << std::setw(6) << s.id << std::setw(14) << s.user << std::setw(14)
@@ -59,7 +63,7 @@ int runList(SqliteStore& store, const std::string& db) {
 
 int runShow(SqliteStore& store, const SessionInfo& info) {
   const uint64_t session_id = info.id;
-  const uint64_t missing = missingSamples(info);
+  const std::string missing = missingSamples(info);
   std::cout << "session " << info.id << ": " << info.mode << " on case '" << info.case_name
             << "' for " << info.user << ", " << info.state << ", started "
             << formatTime(info.started_ns) << "\n  samples " << info.samples << " (missing "
