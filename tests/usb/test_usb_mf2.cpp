@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <sys/prctl.h>
 
+#include <algorithm>
 #include <chrono>
 #include <thread>
 
@@ -310,6 +311,14 @@ TEST_F(UsbMf2Test, OverflowsAreCountedAndStreamingContinues) {
 }
 
 TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
+  // The device runs in real time, as the real one does (a state packet per millisecond), with a
+  // finger in each thimble: the hand's damping (about 0.3 N*s/m at the fingertip, 0.03 N*m*s/rad
+  // at a 10 cm crank). A test thread that a busy machine stalls for milliseconds misses ticks
+  // (the loop then sends zero, flagged kWatchdog), so forces are judged over a window of ticks.
+  emu_.reset();
+  options_.pace_ns = 1'000'000;
+  options_.firmware.damping_nm_s_per_rad = 0.03;
+  emu_ = std::make_unique<Mf2Emulator>(options_);
   // The operator pushes both thimbles: the loop renders a real force against the push.
   const JointModel joint(healthyIndexMcp());
   const auto a = joint.gripFromAngles(Vec3(degToRad(20.0), 0, 0), 0.008);
@@ -350,10 +359,10 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
     std::this_thread::sleep_for(1ms);
     return before;
   };
-  double force = 0.0;
+  double force = 0.0;  // the largest force over the last 100 ticks
   for (int i = 0; i < 300; ++i) {
     tick(rec);
-    force = forceOf(rec);
+    if (i >= 200) force = std::max(force, forceOf(rec));
   }
   ASSERT_GT(force, 0.2) << "the loop renders a force before the unplug; flags " << rec.flags
                         << " angles " << rec.mcp_angles_rad[0] << " " << rec.mcp_angles_rad[1]
@@ -397,9 +406,10 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
   // Force returns, ramped from zero by the safety gate's rate limit (200 N/s per finger).
   EXPECT_LE(forceOf(rec), 2 * 200.0 * step_dt_s + 0.02)
       << "the first tick back: at most one rate-limited step from zero per finger";
+  force = 0.0;
   for (int i = 0; i < 300; ++i) {
     tick(rec);
-    force = forceOf(rec);
+    if (i >= 200) force = std::max(force, forceOf(rec));
   }
   EXPECT_GT(force, 0.2) << "fault: " << client::loop::faultName(loop.fault()) << " after "
                         << loop.health().fault_clamps.load() << " clamps, peak "
