@@ -7,6 +7,7 @@
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
+#include "telehand/core/technique_score.h"
 #include "telehand/core/thimble.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/session/session_manager.h"
@@ -194,16 +195,14 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
       hf.sphere_m = hs.spherePositionsDevice();
       hf.contact_force_n = hs.contactForcesDevice();
     }
-    Vec3 applied = Vec3::Zero();
     for (std::size_t k = 0; k < 2; ++k) {
       const auto& f = d.fingers[k];
       const Quat q(f.orientation_q[0], f.orientation_q[1], f.orientation_q[2], f.orientation_q[3]);
-      const Vec3 fv = thimbleForceVector({f.tangential_n, f.normal_n}, q);
-      applied += fv;
       hf.fingertip_m[k] = p[k];
-      hf.fingertip_force_n[k] = fv;
+      hf.fingertip_force_n[k] = thimbleForceVector({f.tangential_n, f.normal_n}, q);
     }
-    hf.applied_force_ref_n = static_cast<float>(applied.norm() / params.force_scale);
+    // The same figure the lessons score (technique::appliedForceRefN).
+    hf.applied_force_ref_n = static_cast<float>(technique::appliedForceRefN(d, params.force_scale));
   }
   telehand_msg_HandState h;
   toWire(hf, h);

@@ -1,0 +1,627 @@
+#include "telehand/core/technique_score.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <complex>
+#include <cstdio>
+#include <limits>
+
+#include "telehand/core/joint_model.h"
+#include "telehand/core/thimble.h"
+
+namespace telehand::technique {
+
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kSqrt2 = 1.4142135623730951;
+constexpr double kSpectrumMinHz = 0.3;
+constexpr double kSpectrumMaxHz = 10.0;
+
+/// 2nd-order Butterworth low-pass by the bilinear transform (cutoff prewarped).
+struct Biquad {
+  double b0 = 1, b1 = 0, b2 = 0, a1 = 0, a2 = 0;
+};
+
+Biquad butterworth(double cutoff_hz, double dt) noexcept {
+  // Keep the cutoff below Nyquist at coarse sample intervals.
+  const double fc = std::min(cutoff_hz, 0.45 / dt);
+  const double k = std::tan(kPi * fc * dt);
+  const double norm = 1.0 / (1.0 + kSqrt2 * k + k * k);
+  Biquad q;
+  q.b0 = k * k * norm;
+  q.b1 = 2.0 * q.b0;
+  q.b2 = q.b0;
+  q.a1 = 2.0 * (k * k - 1.0) * norm;
+  q.a2 = (1.0 - kSqrt2 * k + k * k) * norm;
+  return q;
+}
+
+/// Group delay of the Butterworth at low frequency: sqrt(2) / (2 pi fc).
+double butterworthDelayS(double cutoff_hz) { return kSqrt2 / (2.0 * kPi * cutoff_hz); }
+
+/// Forward then backward (zero phase), each pass started at rest on its first value.
+std::vector<double> filtfilt(const std::vector<double>& x, double cutoff_hz, double dt) {
+  std::vector<double> y(x.size());
+  if (x.empty()) return y;
+  const Biquad q = butterworth(cutoff_hz, dt);
+  auto pass = [&q](auto first, auto last, auto out) {
+    double x1 = *first, x2 = *first, y1 = *first, y2 = *first;
+    for (; first != last; ++first, ++out) {
+      const double v = q.b0 * *first + q.b1 * x1 + q.b2 * x2 - q.a1 * y1 - q.a2 * y2;
+      x2 = x1;
+      x1 = *first;
+      y2 = y1;
+      y1 = v;
+      *out = v;
+    }
+  };
+  pass(x.begin(), x.end(), y.begin());
+  std::vector<double> tmp(y.rbegin(), y.rend());
+  pass(tmp.begin(), tmp.end(), y.rbegin());
+  return y;
+}
+
+double medianInterval(const std::vector<double>& t) {
+  if (t.size() < 2) return 1e-3;
+  std::vector<double> d(t.size() - 1);
+  for (std::size_t i = 1; i < t.size(); ++i) d[i - 1] = t[i] - t[i - 1];
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
+  const double m = d[d.size() / 2];
+  return m > 0.0 ? m : 1e-3;
+}
+
+/// In-place iterative radix-2 FFT; a.size() is a power of two.
+void fft(std::vector<std::complex<double>>& a) {
+  const std::size_t n = a.size();
+  for (std::size_t i = 1, j = 0; i < n; ++i) {
+    std::size_t bit = n >> 1;
+    for (; j & bit; bit >>= 1) j ^= bit;
+    j ^= bit;
+    if (i < j) std::swap(a[i], a[j]);
+  }
+  for (std::size_t len = 2; len <= n; len <<= 1) {
+    const double ang = -2.0 * kPi / static_cast<double>(len);
+    const std::complex<double> wl(std::cos(ang), std::sin(ang));
+    for (std::size_t i = 0; i < n; i += len) {
+      std::complex<double> w(1.0, 0.0);
+      for (std::size_t k = 0; k < len / 2; ++k) {
+        const std::complex<double> u = a[i + k], v = a[i + k + len / 2] * w;
+        a[i + k] = u + v;
+        a[i + k + len / 2] = u - v;
+        w *= wl;
+      }
+    }
+  }
+}
+
+/// Periodogram peak of x (uniform interval dt) in [lo, hi] Hz: cubic trend removed, Hann
+/// window, zero padded to >= 8x, parabola through the log power of the peak bin and its
+/// neighbours. 0 when x is too short or flat.
+double spectrumPeakHz(const std::vector<double>& x, double dt, double lo, double hi) {
+  const std::size_t m = x.size();
+  if (m < 16) return 0.0;
+  // Cubic least-squares trend on u in [-1, 1].
+  Eigen::Matrix4d ata = Eigen::Matrix4d::Zero();
+  Eigen::Vector4d atb = Eigen::Vector4d::Zero();
+  std::vector<double> u(m);
+  for (std::size_t i = 0; i < m; ++i) {
+    u[i] = 2.0 * static_cast<double>(i) / static_cast<double>(m - 1) - 1.0;
+    const Eigen::Vector4d row(1.0, u[i], u[i] * u[i], u[i] * u[i] * u[i]);
+    ata += row * row.transpose();
+    atb += row * x[i];
+  }
+  const Eigen::Vector4d c = ata.ldlt().solve(atb);
+  std::size_t n = 1;
+  while (n < 8 * m) n <<= 1;
+  std::vector<std::complex<double>> a(n, {0.0, 0.0});
+  for (std::size_t i = 0; i < m; ++i) {
+    const double trend = c[0] + u[i] * (c[1] + u[i] * (c[2] + u[i] * c[3]));
+    const double w =
+        0.5 - 0.5 * std::cos(2.0 * kPi * static_cast<double>(i) / static_cast<double>(m - 1));
+    a[i] = {(x[i] - trend) * w, 0.0};
+  }
+  fft(a);
+  const double df = 1.0 / (static_cast<double>(n) * dt);
+  const std::size_t k_lo = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil(lo / df)));
+  const std::size_t k_hi = std::min(n / 2 - 1, static_cast<std::size_t>(std::floor(hi / df)));
+  if (k_lo >= k_hi) return 0.0;
+  std::size_t best = k_lo;
+  double best_p = -1.0;
+  for (std::size_t k = k_lo; k <= k_hi; ++k) {
+    const double p = std::norm(a[k]);
+    if (p > best_p) {
+      best_p = p;
+      best = k;
+    }
+  }
+  if (!(best_p > 0.0)) return 0.0;
+  const double l0 = std::log(std::norm(a[best - 1]) + 1e-300), l1 = std::log(best_p),
+               l2 = std::log(std::norm(a[best + 1]) + 1e-300);
+  const double den = l0 - 2.0 * l1 + l2;
+  const double delta = den < 0.0 ? std::clamp(0.5 * (l0 - l2) / den, -0.5, 0.5) : 0.0;
+  return (static_cast<double>(best) + delta) * df;
+}
+
+/// Upward zero crossings of the detrended, zero-phase low-passed force after index i0:
+/// (crossings - 1) / (last - first crossing time). 0 when fewer than two.
+double zeroCrossingHz(const std::vector<double>& t, const std::vector<double>& lp, std::size_t i0,
+                      double dt, double period_s) {
+  const std::size_t n = lp.size();
+  if (!(period_s > 0.0) || n < 4) return 0.0;
+  const std::size_t w =
+      std::max<std::size_t>(1, static_cast<std::size_t>(std::lround(period_s / dt)));
+  const std::size_t half = w / 2;
+  if (n < w + 2) return 0.0;
+  // Prefix sums for a centred one-period moving average.
+  std::vector<double> pre(n + 1, 0.0);
+  for (std::size_t i = 0; i < n; ++i) pre[i + 1] = pre[i] + lp[i];
+  const std::size_t first = std::max(i0, half), last = n - (w - half);
+  if (first + 2 >= last) return 0.0;
+  std::vector<double> d(last - first);
+  double ss = 0.0;
+  for (std::size_t i = first; i < last; ++i) {
+    const double ma = (pre[i - half + w] - pre[i - half]) / static_cast<double>(w);
+    d[i - first] = lp[i] - ma;
+    ss += d[i - first] * d[i - first];
+  }
+  const double h = std::max(0.05, 0.25 * std::sqrt(ss / static_cast<double>(d.size())));
+  bool armed = false;
+  int count = 0;
+  double t_first = 0.0, t_last = 0.0;
+  for (std::size_t k = 1; k < d.size(); ++k) {
+    if (d[k] < -h) armed = true;
+    if (armed && d[k - 1] < 0.0 && d[k] >= 0.0) {
+      const double ta = t[first + k - 1], tb = t[first + k];
+      const double tc = ta + (tb - ta) * (-d[k - 1]) / (d[k] - d[k - 1]);
+      if (count == 0) t_first = tc;
+      t_last = tc;
+      ++count;
+      armed = false;
+    }
+  }
+  if (count < 2 || !(t_last > t_first)) return 0.0;
+  return static_cast<double>(count - 1) / (t_last - t_first);
+}
+
+/// Angles at relative time tq, linear between samples (clamped at the ends).
+Vec3 anglesAt(const std::vector<double>& t, const std::vector<Vec3>& a, double tq) {
+  if (tq <= t.front()) return a.front();
+  if (tq >= t.back()) return a.back();
+  const auto it = std::upper_bound(t.begin(), t.end(), tq);
+  const std::size_t j = static_cast<std::size_t>(it - t.begin());
+  const double u = (tq - t[j - 1]) / (t[j] - t[j - 1]);
+  return a[j - 1] + u * (a[j] - a[j - 1]);
+}
+
+using Path = std::array<Vec3, kPathPoints>;
+
+/// One oscillation's angles at kPathPoints phases over its own period.
+Path resample(const std::vector<double>& t, const std::vector<Vec3>& a, const Oscillation& o) {
+  Path p;
+  const double period = o.t_end_s - o.t_start_s;
+  for (int k = 0; k < kPathPoints; ++k) {
+    p[static_cast<std::size_t>(k)] = anglesAt(t, a, o.t_start_s + period * k / kPathPoints);
+  }
+  return p;
+}
+
+/// DTW of two paths (Sakoe-Chiba band kPathBand), Euclidean distance in degrees: RMS along
+/// the warping path.
+double dtwRmsDeg(const Path& x, const std::vector<Vec3>& y) {
+  constexpr int n = kPathPoints;
+  std::array<std::array<double, n>, n> cost;
+  std::array<std::array<int, n>, n> steps;
+  for (auto& row : cost) row.fill(kInf);
+  for (int i = 0; i < n; ++i) {
+    for (int j = std::max(0, i - kPathBand); j <= std::min(n - 1, i + kPathBand); ++j) {
+      const double d =
+          radToDeg(1.0) * radToDeg(1.0) *
+          (x[static_cast<std::size_t>(i)] - y[static_cast<std::size_t>(j)]).squaredNorm();
+      double best = 0.0;
+      int len = 0;
+      if (i > 0 || j > 0) {
+        best = kInf;
+        auto consider = [&](int a, int b) {
+          if (a < 0 || b < 0) return;
+          const double c = cost[static_cast<std::size_t>(a)][static_cast<std::size_t>(b)];
+          if (c < best) {
+            best = c;
+            len = steps[static_cast<std::size_t>(a)][static_cast<std::size_t>(b)];
+          }
+        };
+        consider(i - 1, j - 1);
+        consider(i - 1, j);
+        consider(i, j - 1);
+      }
+      cost[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)] = best + d;
+      steps[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)] = len + 1;
+    }
+  }
+  const double total = cost[n - 1][n - 1];
+  return std::sqrt(total / steps[n - 1][n - 1]);
+}
+
+double meanPathError(const Series& s, const std::vector<double>& rel_t,
+                     const std::vector<Oscillation>& osc, const std::vector<Vec3>& path) {
+  if (osc.empty() || path.size() != static_cast<std::size_t>(kPathPoints)) return 0.0;
+  double sum = 0.0;
+  for (const Oscillation& o : osc) sum += dtwRmsDeg(resample(rel_t, s.angles_rad, o), path);
+  return sum / static_cast<double>(osc.size());
+}
+
+std::vector<double> relativeTimes(const Series& s) {
+  std::vector<double> t(s.t_s.size());
+  for (std::size_t i = 0; i < t.size(); ++i) t[i] = s.t_s[i] - s.t_s.front();
+  return t;
+}
+
+double signedOr(double v) { return std::isfinite(v) ? v : 0.0; }
+
+}  // namespace
+
+double appliedForceRefN(const Sample& s, double force_scale) noexcept {
+  Vec3 applied = Vec3::Zero();
+  for (const SampleFinger& f : s.fingers) {
+    const Quat q(f.orientation_q[0], f.orientation_q[1], f.orientation_q[2], f.orientation_q[3]);
+    applied += thimbleForceVector({f.tangential_n, f.normal_n}, q);
+  }
+  return applied.norm() / force_scale;
+}
+
+Series seriesFromSamples(std::span<const Sample> samples, double force_scale) {
+  Series s;
+  s.t_s.reserve(samples.size());
+  s.force_ref_n.reserve(samples.size());
+  s.angles_rad.reserve(samples.size());
+  for (const Sample& x : samples) {
+    double t = static_cast<double>(x.source_time_ns - samples.front().source_time_ns) * 1e-9;
+    if (!s.t_s.empty() && !(t > s.t_s.back())) t = s.t_s.back() + 1e-3;
+    s.t_s.push_back(t);
+    s.force_ref_n.push_back(appliedForceRefN(x, force_scale));
+    s.angles_rad.emplace_back(x.mcp_angles_rad[0], x.mcp_angles_rad[1], x.mcp_angles_rad[2]);
+  }
+  return s;
+}
+
+// --- OscillationTracker -------------------------------------------------------------------
+
+OscillationTracker::OscillationTracker(double min_hz, double max_hz, double hysteresis_n) noexcept
+    : min_hz_(min_hz), max_hz_(max_hz), hysteresis_n_(hysteresis_n) {}
+
+void OscillationTracker::reset() noexcept {
+  *this = OscillationTracker(min_hz_, max_hz_, hysteresis_n_);
+}
+
+void OscillationTracker::Filter::design(double cutoff, double interval) noexcept {
+  const Biquad q = butterworth(cutoff, interval);
+  b0 = q.b0;
+  b1 = q.b1;
+  b2 = q.b2;
+  a1 = q.a1;
+  a2 = q.a2;
+  cutoff_hz = std::min(cutoff, 0.45 / interval);
+  dt = interval;
+}
+
+double OscillationTracker::Filter::step(double x) noexcept {
+  const double y = b0 * x + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2;
+  x2 = x1;
+  x1 = x;
+  y2 = y1;
+  y1 = y;
+  return y;
+}
+
+void OscillationTracker::startOscillation(double t_cross) noexcept {
+  open_ = true;
+  open_late_ = late_;
+  t_open_ = t_cross;
+  f_integral_ = 0.0;
+  f_time_ = 0.0;
+  y_max_ = -kInf;
+  y_min_ = kInf;
+  flex_max_ = -kInf;
+  flex_min_ = kInf;
+}
+
+void OscillationTracker::halfSwing(double swing) noexcept {
+  swings_[1] = swings_[0];
+  swings_[0] = swing;
+  n_swings_ = std::min(n_swings_ + 1, 2);
+}
+
+bool OscillationTracker::add(double t_s, double force_n, const Vec3& angles_rad,
+                             Oscillation& out) noexcept {
+  if (!std::isfinite(t_s) || !std::isfinite(force_n)) return false;
+  if (!have_) {
+    have_ = true;
+    detect_.rest(force_n);  // the filters start at rest on the first value
+    measure_.rest(force_n);
+    t_prev_ = t_s;
+    y_prev_ = force_n;
+    ext_ = force_n;
+    rising_ = true;
+    t_last_extreme_ = t_s;
+    return false;
+  }
+  const double dt = t_s - t_prev_;
+  if (!(dt > 0.0)) return false;
+  if (!(std::abs(dt - detect_.dt) <= 0.01 * detect_.dt)) detect_.design(kForceCutoffHz, dt);
+  const double measure_hz =
+      last_hz_ > 0.0 ? std::min(kForceCutoffHz, 3.0 * last_hz_) : kForceCutoffHz;
+  if (!(std::abs(dt - measure_.dt) <= 0.01 * measure_.dt) ||
+      !(std::abs(measure_hz - measure_.cutoff_hz) <= 0.01 * measure_hz)) {
+    measure_.design(measure_hz, dt);
+  }
+  const double y = detect_.step(force_n);
+  const double ym = measure_.step(force_n);
+
+  if (open_) {
+    f_integral_ += force_n * dt;
+    f_time_ += dt;
+    y_max_ = std::max(y_max_, ym);
+    y_min_ = std::min(y_min_, ym);
+    flex_max_ = std::max(flex_max_, angles_rad[kFlexion]);
+    flex_min_ = std::min(flex_min_, angles_rad[kFlexion]);
+  }
+
+  // Peaks and troughs with hysteresis; a long stall forgets the swings.
+  if (t_s - t_last_extreme_ > 1.0 / min_hz_) n_swings_ = 0;
+  const double h = n_swings_ >= 2 ? std::max(hysteresis_n_, 0.25 * std::min(swings_[0], swings_[1]))
+                                  : hysteresis_n_;
+  bool trough_now = false;
+  if (rising_) {
+    if (y > ext_) {
+      ext_ = y;
+    } else if (y < ext_ - h) {
+      if (have_trough_) halfSwing(ext_ - last_trough_);
+      last_peak_ = ext_;
+      have_peak_ = true;
+      rising_ = false;
+      ext_ = y;
+      t_last_extreme_ = t_s;
+    }
+  } else {
+    if (y < ext_) {
+      ext_ = y;
+    } else if (y > ext_ + h) {
+      if (have_peak_) halfSwing(last_peak_ - ext_);
+      last_trough_ = ext_;
+      have_trough_ = true;
+      rising_ = true;
+      crossed_ = false;
+      trough_now = true;
+      ext_ = y;
+      t_last_extreme_ = t_s;
+    }
+  }
+
+  bool done = false;
+  if (rising_ && !crossed_ && have_peak_ && have_trough_) {
+    const double level = 0.5 * (last_peak_ + last_trough_);
+    if (y >= level) {
+      crossed_ = true;
+      // Seen in time when the previous sample was still below the level on this rise.
+      late_ = trough_now && !(y_prev_ < level);
+      const double tc =
+          (y_prev_ < level && y > y_prev_) ? t_prev_ + dt * (level - y_prev_) / (y - y_prev_) : t_s;
+      const double t_cross = tc - butterworthDelayS(detect_.cutoff_hz);
+      if (open_ && f_time_ > 0.0) {
+        const double period = t_cross - t_open_;
+        const double freq = period > 0.0 ? 1.0 / period : 0.0;
+        const double swing = y_max_ - y_min_;
+        if (freq >= min_hz_ && freq <= max_hz_ && swing >= 2.0 * hysteresis_n_ && !open_late_ &&
+            !late_) {
+          out.t_start_s = t_open_;
+          out.t_end_s = t_cross;
+          out.peak_n = y_max_;
+          out.trough_n = y_min_;
+          out.mean_n = f_integral_ / f_time_;
+          out.frequency_hz = freq;
+          out.amplitude_deg = radToDeg(flex_max_ - flex_min_);
+          last_hz_ = freq;
+          done = true;
+        }
+      }
+      startOscillation(t_cross);
+    }
+  }
+  y_prev_ = y;
+  t_prev_ = t_s;
+  return done;
+}
+
+// --- Trials -------------------------------------------------------------------------------
+
+TrialFigures analyse(const Series& s, double band_min_n, double band_max_n, double settle_s) {
+  TrialFigures f;
+  const std::size_t n = std::min({s.t_s.size(), s.force_ref_n.size(), s.angles_rad.size()});
+  if (n < 2) return f;
+  std::vector<double> t = relativeTimes(s);
+  t.resize(n);
+  const std::vector<double> force(s.force_ref_n.begin(),
+                                  s.force_ref_n.begin() + static_cast<std::ptrdiff_t>(n));
+  f.duration_s = t[n - 1];
+  const double dt = medianInterval(t);
+
+  OscillationTracker tracker;
+  Oscillation o;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (tracker.add(t[i], force[i], s.angles_rad[i], o) && o.t_start_s >= settle_s) {
+      f.oscillations.push_back(o);
+    }
+  }
+  const std::size_t i0 =
+      static_cast<std::size_t>(std::lower_bound(t.begin(), t.end(), settle_s) - t.begin());
+  if (i0 >= n) return f;
+
+  if (!f.oscillations.empty()) {
+    double peak = 0, trough = 0, amp = 0;
+    for (const Oscillation& x : f.oscillations) {
+      peak += x.peak_n;
+      trough += x.trough_n;
+      amp += x.amplitude_deg;
+    }
+    const double k = static_cast<double>(f.oscillations.size());
+    f.force_peak_n = peak / k;
+    f.force_trough_n = trough / k;
+    f.amplitude_deg = amp / k;
+  }
+
+  const std::vector<double> lp = filtfilt(force, kForceCutoffHz, dt);
+  double sum = 0.0;
+  int in_band = 0;
+  for (int a = 0; a < kAxes; ++a) {
+    f.rom_min_deg[a] = kInf;
+    f.rom_max_deg[a] = -kInf;
+  }
+  for (std::size_t i = i0; i < n; ++i) {
+    sum += force[i];
+    if (lp[i] >= band_min_n && lp[i] <= band_max_n) ++in_band;
+    for (int a = 0; a < kAxes; ++a) {
+      f.rom_min_deg[a] = std::min(f.rom_min_deg[a], radToDeg(s.angles_rad[i][a]));
+      f.rom_max_deg[a] = std::max(f.rom_max_deg[a], radToDeg(s.angles_rad[i][a]));
+    }
+  }
+  const double m = static_cast<double>(n - i0);
+  f.force_mean_n = sum / m;
+  f.time_in_band = in_band / m;
+
+  const std::vector<double> tail(force.begin() + static_cast<std::ptrdiff_t>(i0), force.end());
+  f.frequency_spectrum_hz = spectrumPeakHz(tail, dt, kSpectrumMinHz, kSpectrumMaxHz);
+  if (f.frequency_spectrum_hz > 0.0) {
+    f.frequency_zc_hz = zeroCrossingHz(t, lp, i0, dt, 1.0 / f.frequency_spectrum_hz);
+  }
+
+  // Smoothness: third derivative of the low-passed flexion, per oscillation.
+  std::vector<double> flex(n);
+  for (std::size_t i = 0; i < n; ++i) flex[i] = s.angles_rad[i][kFlexion];
+  const std::vector<double> fl = filtfilt(flex, kJerkCutoffHz, dt);
+  double jerk_sum = 0.0;
+  int jerk_n = 0;
+  for (const Oscillation& x : f.oscillations) {
+    const double a_rad = degToRad(x.amplitude_deg);
+    const double T = x.t_end_s - x.t_start_s;
+    if (!(a_rad > 1e-9) || !(T > 0.0)) continue;
+    auto lo =
+        static_cast<std::size_t>(std::lower_bound(t.begin(), t.end(), x.t_start_s) - t.begin());
+    auto hi = static_cast<std::size_t>(std::lower_bound(t.begin(), t.end(), x.t_end_s) - t.begin());
+    lo = std::max<std::size_t>(lo, 1);
+    hi = std::min(hi, n - 2);
+    double integral = 0.0;
+    for (std::size_t i = lo; i < hi; ++i) {
+      const double j3 = (fl[i + 2] - 3.0 * fl[i + 1] + 3.0 * fl[i] - fl[i - 1]) / (dt * dt * dt);
+      integral += j3 * j3 * dt;
+    }
+    if (!(integral > 0.0)) continue;
+    jerk_sum += std::log(std::pow(T, 5) / (a_rad * a_rad) * integral);
+    ++jerk_n;
+  }
+  if (jerk_n > 0) f.jerk = jerk_sum / jerk_n;
+  return f;
+}
+
+Targets deriveTargets(const Series& demo, double settle_s) {
+  Targets tg;
+  const TrialFigures first = analyse(demo, -kInf, kInf, settle_s);
+  tg.band_min_n = first.force_trough_n;
+  tg.band_max_n = first.force_peak_n;
+  const TrialFigures f = analyse(demo, tg.band_min_n, tg.band_max_n, settle_s);
+  tg.force_peak_n = f.force_peak_n;
+  tg.force_trough_n = f.force_trough_n;
+  tg.force_mean_n = f.force_mean_n;
+  tg.frequency_hz = f.frequency_spectrum_hz;
+  tg.amplitude_deg = f.amplitude_deg;
+  tg.jerk = f.jerk;
+  for (int a = 0; a < kAxes; ++a) {
+    tg.rom_min_deg[a] = f.rom_min_deg[a];
+    tg.rom_max_deg[a] = f.rom_max_deg[a];
+  }
+  tg.time_in_band = f.time_in_band;
+  tg.oscillations = static_cast<int>(f.oscillations.size());
+  if (f.oscillations.empty()) return tg;
+  if (!(tg.frequency_hz > 0.0)) {
+    double fs = 0.0;
+    for (const Oscillation& o : f.oscillations) fs += o.frequency_hz;
+    tg.frequency_hz = fs / static_cast<double>(f.oscillations.size());
+  }
+  const std::vector<double> t = relativeTimes(demo);
+  Path mean;
+  mean.fill(Vec3::Zero());
+  double period = 0.0;
+  for (const Oscillation& o : f.oscillations) {
+    const Path p = resample(t, demo.angles_rad, o);
+    for (std::size_t k = 0; k < mean.size(); ++k) mean[k] += p[k];
+    period += o.t_end_s - o.t_start_s;
+  }
+  const double k = static_cast<double>(f.oscillations.size());
+  tg.path_period_s = period / k;
+  tg.path_rad.reserve(mean.size());
+  for (const Vec3& v : mean) tg.path_rad.push_back(v / k);
+  tg.path_error_deg = meanPathError(demo, t, f.oscillations, tg.path_rad);
+  return tg;
+}
+
+TrialScore score(const Series& attempt, const Targets& t, double settle_s) {
+  TrialScore r;
+  r.figures = analyse(attempt, t.band_min_n, t.band_max_n, settle_s);
+  const TrialFigures& f = r.figures;
+  r.time_in_band = f.time_in_band;
+  if (f.oscillations.empty()) return r;
+  r.peak_error_n = f.force_peak_n - t.force_peak_n;
+  r.trough_error_n = f.force_trough_n - t.force_trough_n;
+  r.mean_error_n = f.force_mean_n - t.force_mean_n;
+  r.frequency_error_hz = signedOr(f.frequency_spectrum_hz - t.frequency_hz);
+  r.amplitude_error_deg = f.amplitude_deg - t.amplitude_deg;
+  r.path_error_deg = meanPathError(attempt, relativeTimes(attempt), f.oscillations, t.path_rad);
+  r.jerk_delta = f.jerk - t.jerk;
+
+  struct Term {
+    double error, tolerance, weight;
+  };
+  const double amp_tol = std::max(0.5, 0.2 * t.amplitude_deg);
+  const double path_tol = std::max(0.5, 0.25 * t.amplitude_deg);
+  const Term terms[] = {
+      {std::abs(r.peak_error_n), 1.0, 0.15},
+      {std::abs(r.trough_error_n), 1.0, 0.10},
+      {std::abs(r.mean_error_n), 1.0, 0.15},
+      {std::abs(r.frequency_error_hz), std::max(0.05, 0.1 * t.frequency_hz), 0.15},
+      {std::abs(r.amplitude_error_deg), amp_tol, 0.10},
+      {std::max(0.0, t.time_in_band - r.time_in_band), 0.2, 0.15},
+      {std::max(0.0, r.path_error_deg - t.path_error_deg), path_tol, 0.10},
+      {std::max(0.0, r.jerk_delta), 0.5, 0.10},
+  };
+  double overall = 0.0;
+  for (const Term& x : terms) overall += x.weight * std::exp(-x.error / x.tolerance);
+  r.overall = std::clamp(100.0 * overall, 0.0, 100.0);
+  return r;
+}
+
+std::string summaryLine(const TrialScore& s) {
+  const TrialFigures& f = s.figures;
+  char buf[320];
+  std::snprintf(buf, sizeof buf,
+                "trial: %zu oscillations, peak %.1f N (%+.1f), mean %.1f N (%+.1f), %.2f Hz "
+                "(%+.2f), amplitude %.1f deg (%+.1f), in band %.0f %%, path %.1f deg, jerk "
+                "%+.1f, score %.0f",
+                f.oscillations.size(), f.force_peak_n, s.peak_error_n, f.force_mean_n,
+                s.mean_error_n, f.frequency_spectrum_hz, s.frequency_error_hz, f.amplitude_deg,
+                s.amplitude_error_deg, 100.0 * s.time_in_band, s.path_error_deg, s.jerk_delta,
+                s.overall);
+  return buf;
+}
+
+std::string oscillationLine(const Oscillation& o, const Targets& t) {
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "oscillation %.2f-%.2f s: peak %.1f N (%+.1f), trough %.1f N (%+.1f), %.2f Hz "
+                "(%+.2f), amplitude %.1f deg (%+.1f)",
+                o.t_start_s, o.t_end_s, o.peak_n, o.peak_n - t.force_peak_n, o.trough_n,
+                o.trough_n - t.force_trough_n, o.frequency_hz, o.frequency_hz - t.frequency_hz,
+                o.amplitude_deg, o.amplitude_deg - t.amplitude_deg);
+  return buf;
+}
+
+}  // namespace telehand::technique
