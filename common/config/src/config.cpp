@@ -41,6 +41,11 @@ void validate(const OperatorConfig& c, const std::string& origin) {
   requireRange(origin, "operator.band_max_n", c.band_max_n, c.band_min_n, 40.0);
   requireRange(origin, "operator.ramp_s", c.ramp_s, 0.0, 60.0);
   requireRange(origin, "operator.sensor_noise_n", c.sensor_noise_n, 0.0, 5.0);
+  requireRange(origin, "operator.force_bias_n", c.force_bias_n, -20.0, 20.0);
+  requireRange(origin, "operator.frequency_error_hz", c.frequency_error_hz, 0.1 - c.frequency_hz,
+               10.0 - c.frequency_hz);
+  requireRange(origin, "operator.tremor_n", c.tremor_n, 0.0, 10.0);
+  requireRange(origin, "operator.amplitude_scale", c.amplitude_scale, 0.0, 5.0);
 }
 
 void validate(const SafetyLimits& c, const std::string& origin) {
@@ -60,6 +65,10 @@ ClientConfig parseClientConfig(const std::string& text, const std::string& origi
   op.read("ramp_s", c.op.ramp_s);
   op.read("sensor_noise_n", c.op.sensor_noise_n);
   op.read("seed", c.op.seed);
+  op.read("force_bias_n", c.op.force_bias_n);
+  op.read("frequency_error_hz", c.op.frequency_error_hz);
+  op.read("tremor_n", c.op.tremor_n);
+  op.read("amplitude_scale", c.op.amplitude_scale);
   op.rejectUnknown();
   TableReader sf(root, "safety", origin);
   sf.read("max_force_n", c.safety.max_force_n);

@@ -1,12 +1,16 @@
 #include "telehand/devices/simulated_mf2.h"
 
 #include <algorithm>
+#include <cmath>
 
 namespace telehand::devices {
 
 namespace {
 constexpr int64_t kStepNs = 1'000'000;  // the device's internal 1 kHz
 constexpr int kMaxCatchUpSteps = 200;   // a stalled caller skips ahead instead of spinning
+// Physiological tremor of the hand: 8-12 Hz (docs/facts.md "Tremor and smoothness").
+constexpr double kTremorLowHz = 8.0;
+constexpr double kTremorHighHz = 12.0;
 }  // namespace
 
 SimulatedMf2::SimulatedMf2(const JointModelParams& geometry, const OperatorConfig& op,
@@ -21,8 +25,44 @@ SimulatedMf2::SimulatedMf2(const JointModelParams& geometry, const OperatorConfi
       pad_sin_(std::sin(degToRad(dyn.pad_angle_deg))),
       pad_cos_(std::cos(degToRad(dyn.pad_angle_deg))),
       rng_(op.seed),
+      tremor_rng_(op.seed ^ 0x7265'6d6f'7254'0001ULL),
       start_ns_(clock.nowNs()),
-      sim_ns_(start_ns_) {}
+      sim_ns_(start_ns_) {
+  // Band-pass: two identical constant 0 dB peak gain biquads in cascade (the skirts of one
+  // alone let through far more than the band), centred on the band's geometric mean, each
+  // sqrt(sqrt(2) - 1) times narrower than its 3 dB width so that the pair's 3 dB band is
+  // 8-12 Hz, at the device's 1 kHz step; the gain makes the response to unit white noise
+  // unit RMS (the sum of the squared impulse response).
+  const double dt = static_cast<double>(kStepNs) * 1e-9;
+  const double f0 = std::sqrt(kTremorLowHz * kTremorHighHz);
+  const double q = f0 * std::sqrt(std::sqrt(2.0) - 1.0) / (kTremorHighHz - kTremorLowHz);
+  const double w0 = 2.0 * kPi * f0 * dt;
+  const double alpha = std::sin(w0) / (2.0 * q);
+  const double a0 = 1.0 + alpha;
+  tb0_ = alpha / a0;
+  tb2_ = -alpha / a0;
+  ta1_ = -2.0 * std::cos(w0) / a0;
+  ta2_ = (1.0 - alpha) / a0;
+  double energy = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const double y = tremorStep(i == 0 ? 1.0 : 0.0);
+    energy += y * y;
+  }
+  tremor_state_ = {};
+  tremor_gain_ = energy > 0.0 ? 1.0 / std::sqrt(energy) : 0.0;
+}
+
+double SimulatedMf2::tremorStep(double x) noexcept {
+  for (auto& st : tremor_state_) {
+    const double y = tb0_ * x + tb2_ * st[1] - ta1_ * st[2] - ta2_ * st[3];
+    st[1] = st[0];
+    st[0] = x;
+    st[3] = st[2];
+    st[2] = y;
+    x = y;
+  }
+  return x;
+}
 
 void SimulatedMf2::setPatient(const JointModelParams& truth) {
   patient_ = JointModel(truth);
@@ -31,9 +71,10 @@ void SimulatedMf2::setPatient(const JointModelParams& truth) {
 
 double SimulatedMf2::targetForceN(double t_s) const noexcept {
   const double smooth = smoothRamp(t_s, op_.ramp_s);
-  const double mid = 0.5 * (op_.band_min_n + op_.band_max_n);
-  const double amp = 0.5 * (op_.band_max_n - op_.band_min_n);
-  return smooth * (mid + amp * std::sin(2.0 * kPi * op_.frequency_hz * t_s));
+  const double mid = 0.5 * (op_.band_min_n + op_.band_max_n) + op_.force_bias_n;
+  const double amp = 0.5 * (op_.band_max_n - op_.band_min_n) * op_.amplitude_scale;
+  const double freq = op_.frequency_hz + op_.frequency_error_hz;
+  return smooth * (mid + amp * std::sin(2.0 * kPi * freq * t_s));
 }
 
 void SimulatedMf2::integrate(double dt) noexcept {
@@ -48,7 +89,11 @@ void SimulatedMf2::integrate(double dt) noexcept {
   if (script_) {
     tau_op = script_->torqueNm(t_s, angles_, rates_);
   } else {
-    tau_op[kFlexion] = targetForceN(t_s) * g.force_scale * lever;
+    if (op_.tremor_n > 0.0) {
+      const double y = tremorStep(tremor_noise_(tremor_rng_));
+      tremor_n_ = smoothRamp(t_s, op_.ramp_s) * op_.tremor_n * tremor_gain_ * y;
+    }
+    tau_op[kFlexion] = (targetForceN(t_s) + tremor_n_) * g.force_scale * lever;
     tau_op[kAbduction] = -k * angles_[kAbduction];
     tau_op[kAxial] = -k * angles_[kAxial];
   }

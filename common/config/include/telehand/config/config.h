@@ -20,6 +20,14 @@ struct OperatorConfig {
   double ramp_s = 1.5;           ///< time to build up to the band
   double sensor_noise_n = 0.02;  ///< FSR noise, 1 sigma
   uint64_t seed = 1;
+  /// Skill: how far the operator is from the clinician who performs the mobilization exactly
+  /// (all 0 and amplitude_scale 1). A simulated student for lessons and their scoring.
+  double force_bias_n = 0.0;        ///< added to the target force (reference scale)
+  double frequency_error_hz = 0.0;  ///< added to frequency_hz
+  /// Physiological tremor: a random force band-limited to 8-12 Hz (seeded from `seed`), its
+  /// RMS in newtons at reference scale; 0 = none.
+  double tremor_n = 0.0;
+  double amplitude_scale = 1.0;  ///< the oscillation's amplitude, 1 = across the band
 };
 
 struct LoopConfig {

@@ -2,7 +2,9 @@
 /// A simulated MF-2 held by a virtual operator who performs the paper's MCP mobilization:
 /// pushes the proximal phalanx in flexion with a force that rises to a band (12-16 N at
 /// reference scale) and oscillates across it at a set frequency, against whatever force the
-/// loop renders back. Deterministic for a given seed and clock.
+/// loop renders back. Deterministic for a given seed and clock. The operator's skill
+/// (OperatorConfig: force bias, frequency error, amplitude scale, tremor) makes it a
+/// student; all at their defaults it is the clinician.
 ///
 /// The device itself is the MF-2 device model (common/mf2_device.h): the thimble poses go
 /// through inverse kinematics to encoder counts and back through forward kinematics (so
@@ -10,6 +12,7 @@
 /// calibrated with the thimbles' calibration (quantization, saturation and dead-channel
 /// flags included), and force commands are rendered through the actuators: J^T F, the
 /// actuators' torque limits, and back to the fingertip forces those torques make.
+#include <array>
 #include <random>
 
 #include "telehand/config/config.h"
@@ -82,11 +85,16 @@ class SimulatedMf2 final : public Device {
   const PerFinger<Vec3>& renderedForce() const noexcept { return rendered_; }
   const mf2::ActuatorTorques& actuatorTorques() const noexcept { return tau_act_; }
   const mf2::Mf2Kinematics& kinematics() const noexcept { return kin_; }
-  /// Force the operator wants to apply now, reference scale (N).
+  /// Force the operator means to apply now, reference scale (N): the band's oscillation
+  /// (amplitude_scale, frequency_hz + frequency_error_hz) plus force_bias_n, built up over
+  /// ramp_s. The tremor comes on top (tremorN).
   double targetForceN(double t_s) const noexcept;
+  /// The tremor force of the last step, reference scale (N): 0 unless tremor_n > 0.
+  double tremorN() const noexcept { return tremor_n_; }
 
  private:
   void advanceTo(int64_t t_ns) noexcept;
+  double tremorStep(double white) noexcept;
   void integrate(double dt) noexcept;
   void fsrFor(int finger, const Quat& thimble, const Vec3& force_device,
               FingerSample& out) noexcept;
@@ -111,6 +119,13 @@ class SimulatedMf2 final : public Device {
   double pad_sin_, pad_cos_;  // of dyn_.pad_angle_deg: how the normal load splits
   std::mt19937_64 rng_;
   std::normal_distribution<double> noise_{0.0, 1.0};
+  // Tremor: white noise from its own generator (the clinician's sensor noise is the same with
+  // or without it) through an 8-12 Hz band-pass, scaled to unit RMS.
+  std::mt19937_64 tremor_rng_;
+  std::normal_distribution<double> tremor_noise_{0.0, 1.0};
+  double tb0_ = 0, tb2_ = 0, ta1_ = 0, ta2_ = 0, tremor_gain_ = 0;
+  std::array<std::array<double, 4>, 2> tremor_state_{};  // per section: x1, x2, y1, y2
+  double tremor_n_ = 0;
 
   int64_t start_ns_;
   int64_t sim_ns_;
