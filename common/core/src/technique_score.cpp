@@ -259,6 +259,11 @@ std::vector<double> relativeTimes(const Series& s) {
 
 double signedOr(double v) { return std::isfinite(v) ? v : 0.0; }
 
+/// v, or 0 when it prints as zero at `decimals` (no "-0.0" in a line).
+double tidy(double v, int decimals) {
+  return std::abs(v) < 0.5 * std::pow(10.0, -decimals) ? 0.0 : v;
+}
+
 }  // namespace
 
 double appliedForceRefN(const Sample& s, double force_scale) noexcept {
@@ -606,10 +611,10 @@ std::string summaryLine(const TrialScore& s) {
                 "trial: %zu oscillations, peak %.1f N (%+.1f), mean %.1f N (%+.1f), %.2f Hz "
                 "(%+.2f), amplitude %.1f deg (%+.1f), in band %.0f %%, path %.1f deg, jerk "
                 "%+.1f, score %.0f",
-                f.oscillations.size(), f.force_peak_n, s.peak_error_n, f.force_mean_n,
-                s.mean_error_n, f.frequency_spectrum_hz, s.frequency_error_hz, f.amplitude_deg,
-                s.amplitude_error_deg, 100.0 * s.time_in_band, s.path_error_deg, s.jerk_delta,
-                s.overall);
+                f.oscillations.size(), f.force_peak_n, tidy(s.peak_error_n, 1), f.force_mean_n,
+                tidy(s.mean_error_n, 1), f.frequency_spectrum_hz, tidy(s.frequency_error_hz, 2),
+                f.amplitude_deg, tidy(s.amplitude_error_deg, 1), 100.0 * s.time_in_band,
+                s.path_error_deg, tidy(s.jerk_delta, 1), s.overall);
   return buf;
 }
 
@@ -618,9 +623,10 @@ std::string oscillationLine(const Oscillation& o, const Targets& t) {
   std::snprintf(buf, sizeof buf,
                 "oscillation %.2f-%.2f s: peak %.1f N (%+.1f), trough %.1f N (%+.1f), %.2f Hz "
                 "(%+.2f), amplitude %.1f deg (%+.1f)",
-                o.t_start_s, o.t_end_s, o.peak_n, o.peak_n - t.force_peak_n, o.trough_n,
-                o.trough_n - t.force_trough_n, o.frequency_hz, o.frequency_hz - t.frequency_hz,
-                o.amplitude_deg, o.amplitude_deg - t.amplitude_deg);
+                o.t_start_s, o.t_end_s, o.peak_n, tidy(o.peak_n - t.force_peak_n, 1), o.trough_n,
+                tidy(o.trough_n - t.force_trough_n, 1), o.frequency_hz,
+                tidy(o.frequency_hz - t.frequency_hz, 2), o.amplitude_deg,
+                tidy(o.amplitude_deg - t.amplitude_deg, 1));
   return buf;
 }
 

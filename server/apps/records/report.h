@@ -1,0 +1,57 @@
+#pragma once
+// telehand-records report: a lesson's trials against the clinician's demonstration as one
+// self-contained HTML page (inline SVG plots: no script, nothing fetched) and as CSV.
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "telehand/core/technique_score.h"
+
+namespace telehand::records {
+
+struct ReportTrial {
+  std::string label;
+  technique::Series series;
+  technique::TrialScore score;
+};
+
+/// A direction's range of motion before the lesson and after it.
+struct ReportRange {
+  std::string direction;
+  double baseline_deg = 0.0, after_deg = 0.0;
+};
+
+struct ReportInput {
+  std::string title, subtitle;
+  technique::Series demonstration;
+  technique::Targets targets;
+  std::vector<ReportTrial> trials;
+  std::vector<ReportRange> ranges;
+  /// Earlier lessons' overall scores, oldest first (label, 0..100): the learning curve.
+  std::vector<std::pair<std::string, double>> history;
+};
+
+/// Most points a plotted line keeps: longer series are decimated (the smallest and the
+/// largest value of each stretch, in time order, so peaks survive).
+inline constexpr std::size_t kMaxPlotPoints = 2000;
+
+/// One self-contained HTML page: the targets and a table of the trials; per trial the force
+/// and the flexion angle against time over the demonstration's (the force with the band);
+/// the frequency per trial against the target; the scores over the trials; the ranges
+/// before and after per direction; the learning curve over earlier lessons and this one.
+/// Every plot is an inline <svg> with an id (force-N, flexion-N, frequency, scores, ranges,
+/// learning).
+std::string renderReportHtml(const ReportInput& in);
+
+/// One row per trial after a header row: the trial's figures and its errors and score.
+std::string renderScoresCsv(const ReportInput& in);
+
+/// One row per oscillation of every trial after a header row.
+std::string renderOscillationsCsv(const ReportInput& in);
+
+/// (x, y) points of a line decimated to at most max_points (min and max per stretch).
+std::vector<std::pair<double, double>> decimate(const std::vector<double>& x,
+                                                const std::vector<double>& y,
+                                                std::size_t max_points = kMaxPlotPoints);
+
+}  // namespace telehand::records

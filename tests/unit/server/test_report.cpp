@@ -1,0 +1,196 @@
+// telehand-records report: the lesson page holds its plots (inline SVG, nothing fetched, long
+// series decimated) and the CSV one row per trial with that trial's figures.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <sstream>
+
+#include "report.h"
+
+namespace telehand::records {
+namespace {
+
+technique::Series mobilization(double freq_hz, double bias_n, double seconds) {
+  technique::Series s;
+  const int n = static_cast<int>(std::lround(seconds * 1000.0));
+  for (int i = 0; i < n; ++i) {
+    const double t = i * 1e-3;
+    const double f = smoothRamp(t, 1.0) * (14.0 + bias_n + 2.0 * std::sin(2.0 * kPi * freq_hz * t));
+    s.t_s.push_back(t);
+    s.force_ref_n.push_back(f);
+    s.angles_rad.emplace_back(degToRad(10.0 + 1.5 * f), 0.0, 0.0);
+  }
+  return s;
+}
+
+ReportInput lesson() {
+  ReportInput in;
+  in.title = "Lesson 3: MCP mobilization";
+  in.subtitle = "student 7, healthy case";
+  in.demonstration = mobilization(3.0, 0.0, 10.0);
+  in.targets = technique::deriveTargets(in.demonstration);
+  const struct {
+    const char* label;
+    double freq, bias, seconds;
+  } trials[] = {{"trial 1", 3.6, 1.5, 10.0},
+                {"trial 2, <retry> & more", 3.2, 0.5, 10.0},
+                {"trial 3", 3.0, 0.1, 20.0}};
+  for (const auto& t : trials) {
+    ReportTrial r;
+    r.label = t.label;
+    r.series = mobilization(t.freq, t.bias, t.seconds);
+    r.score = technique::score(r.series, in.targets);
+    in.trials.push_back(std::move(r));
+  }
+  in.ranges = {{"flexion", 70.0, 78.0}, {"extension", 20.0, 22.5}, {"abduction", 15.0, 15.0}};
+  in.history = {{"lesson 1", 41.0}, {"lesson 2", 55.5}};
+  return in;
+}
+
+std::size_t count(const std::string& text, const std::string& what) {
+  std::size_t n = 0;
+  for (std::size_t p = text.find(what); p != std::string::npos; p = text.find(what, p + 1)) ++n;
+  return n;
+}
+
+TEST(RecordsReport, HtmlHoldsEveryPlotAndNothingExternal) {
+  const ReportInput in = lesson();
+  const std::string html = renderReportHtml(in);
+  EXPECT_EQ(html.rfind("<!DOCTYPE html>", 0), 0u);
+  for (const char* id : {"force-0", "force-1", "force-2", "flexion-0", "flexion-1", "flexion-2",
+                         "frequency", "scores", "ranges", "learning"}) {
+    EXPECT_NE(html.find(std::string("id=\"") + id + "\""), std::string::npos) << id;
+  }
+  EXPECT_EQ(count(html, "<svg"), 10u);
+  EXPECT_EQ(count(html, "</svg>"), 10u);
+  EXPECT_EQ(html.find("<script"), std::string::npos);
+  EXPECT_EQ(html.find("http"), std::string::npos);
+  EXPECT_EQ(html.find("src="), std::string::npos);
+  EXPECT_EQ(html.find("href="), std::string::npos);
+  EXPECT_EQ(html.find("no data"), std::string::npos);
+  // Labels are text, not markup.
+  EXPECT_NE(html.find("trial 2, &lt;retry&gt; &amp; more"), std::string::npos);
+  EXPECT_EQ(html.find("<retry>"), std::string::npos);
+  // Per trial: the band, the demonstration and the trial on the force plot; two ranges bars
+  // per direction; the learning curve's three points (two lessons and this one).
+  EXPECT_EQ(count(html, "fill-opacity=\"0.18\""), 3u);
+  EXPECT_EQ(count(html, "class=\"bar\""), 6u);
+  const std::size_t learning = html.find("id=\"learning\"");
+  EXPECT_EQ(count(html.substr(learning), "<circle"), 3u);
+  EXPECT_NE(html.find("this lesson"), std::string::npos);
+
+  // No plotted line has more than kMaxPlotPoints points (the 20 s trial has 20,000 samples).
+  std::size_t lines = 0, longest = 0;
+  for (std::size_t p = html.find("points=\""); p != std::string::npos;
+       p = html.find("points=\"", p + 1)) {
+    const std::size_t end = html.find('"', p + 8);
+    const std::string pts = html.substr(p + 8, end - p - 8);
+    const std::size_t n = pts.empty() ? 0 : count(pts, " ") + 1;
+    longest = std::max(longest, n);
+    ++lines;
+  }
+  EXPECT_EQ(lines, 3u * 4u + 2u + 1u + 1u);  // force, flexion x2 each; frequency 2; scores; curve
+  EXPECT_LE(longest, kMaxPlotPoints);
+  EXPECT_GT(longest, kMaxPlotPoints / 2);
+}
+
+std::vector<std::string> splitCsv(const std::string& line) {
+  std::vector<std::string> out;
+  std::string field;
+  bool quoted = false;
+  for (std::size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted) {
+      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+        field += '"';
+        ++i;
+      } else if (c == '"') {
+        quoted = false;
+      } else {
+        field += c;
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      out.push_back(field);
+      field.clear();
+    } else {
+      field += c;
+    }
+  }
+  out.push_back(field);
+  return out;
+}
+
+TEST(RecordsReport, CsvHasOneRowPerTrialWithItsFigures) {
+  const ReportInput in = lesson();
+  std::istringstream csv(renderScoresCsv(in));
+  std::string line;
+  ASSERT_TRUE(std::getline(csv, line));
+  const std::vector<std::string> header = splitCsv(line);
+  auto column = [&](const std::string& name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    EXPECT_NE(it, header.end()) << name;
+    return static_cast<std::size_t>(it - header.begin());
+  };
+  std::size_t rows = 0;
+  while (std::getline(csv, line)) {
+    const std::vector<std::string> f = splitCsv(line);
+    ASSERT_EQ(f.size(), header.size()) << line;
+    ASSERT_LT(rows, in.trials.size());
+    const technique::TrialScore& s = in.trials[rows].score;
+    EXPECT_EQ(f[column("label")], in.trials[rows].label);
+    EXPECT_EQ(std::stoul(f[column("oscillations")]), s.figures.oscillations.size());
+    EXPECT_NEAR(std::stod(f[column("force_peak_n")]), s.figures.force_peak_n, 1e-4);
+    EXPECT_NEAR(std::stod(f[column("peak_error_n")]), s.peak_error_n, 1e-4);
+    EXPECT_NEAR(std::stod(f[column("frequency_hz")]), s.figures.frequency_spectrum_hz, 1e-5);
+    EXPECT_NEAR(std::stod(f[column("frequency_error_hz")]), s.frequency_error_hz, 1e-5);
+    EXPECT_NEAR(std::stod(f[column("time_in_band")]), s.time_in_band, 1e-4);
+    EXPECT_NEAR(std::stod(f[column("overall")]), s.overall, 0.01);
+    ++rows;
+  }
+  EXPECT_EQ(rows, in.trials.size());
+  // The figures are the trials' own: trial 1 pushed 1.5 N too hard at +0.6 Hz.
+  EXPECT_NEAR(in.trials[0].score.peak_error_n, 1.5, 0.1);
+  EXPECT_NEAR(in.trials[0].score.frequency_error_hz, 0.6, 0.05);
+
+  std::istringstream osc(renderOscillationsCsv(in));
+  std::size_t osc_rows = 0, expected = 0;
+  for (const ReportTrial& t : in.trials) expected += t.score.figures.oscillations.size();
+  std::getline(osc, line);  // header
+  while (std::getline(osc, line)) ++osc_rows;
+  EXPECT_EQ(osc_rows, expected);
+}
+
+TEST(RecordsReport, DecimationKeepsTheExtremes) {
+  std::vector<double> x, y;
+  for (int i = 0; i < 50000; ++i) {
+    x.push_back(i * 1e-3);
+    y.push_back(std::sin(0.01 * i) + (i == 31234 ? 5.0 : 0.0) - (i == 777 ? 4.0 : 0.0));
+  }
+  const auto pts = decimate(x, y, 2000);
+  EXPECT_LE(pts.size(), 2000u);
+  double lo = 1e9, hi = -1e9;
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    lo = std::min(lo, pts[i].second);
+    hi = std::max(hi, pts[i].second);
+    if (i > 0) {
+      EXPECT_GT(pts[i].first, pts[i - 1].first);
+    }
+  }
+  EXPECT_DOUBLE_EQ(hi, y[31234]);
+  EXPECT_DOUBLE_EQ(lo, y[777]);
+  EXPECT_EQ(decimate({0.0, 1.0}, {2.0, 3.0}).size(), 2u);
+}
+
+TEST(RecordsReport, AnEmptyLessonStillRenders) {
+  ReportInput in;
+  in.title = "empty";
+  const std::string html = renderReportHtml(in);
+  EXPECT_NE(html.find("No trials."), std::string::npos);
+  EXPECT_NE(html.find("id=\"learning\""), std::string::npos);
+  EXPECT_EQ(renderScoresCsv(in).find('\n'), renderScoresCsv(in).size() - 1);  // header only
+}
+
+}  // namespace
+}  // namespace telehand::records
