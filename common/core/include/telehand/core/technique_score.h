@@ -174,13 +174,19 @@ struct TrialScore {
   /// three angles): RMS deg along the warping path, mean over the oscillations.
   double path_error_deg = 0;
   double jerk_delta = 0;  ///< attempt minus target; positive = jerkier than the demonstration
-  /// 0..100, 100 = identical to the demonstration: 100 * sum of w_i * exp(-e_i / tol_i) with
-  /// (e_i, tol_i, w_i): |peak error| 1 N 0.15; |trough error| 1 N 0.10; |mean error| 1 N 0.15;
-  /// |frequency error| 10 % of the target frequency 0.15; |amplitude error| 20 % of the target
-  /// amplitude (at least 0.5 deg) 0.10; time in band short of the demonstration's 0.2 0.15;
-  /// path error beyond the demonstration's own 25 % of the target amplitude (at least 0.5
-  /// deg) 0.10; jerk above the
-  /// demonstration's 0.5 0.10. 0 when the trial has no oscillation.
+  /// 0..100, 100 = identical to the demonstration: 100 * sum of w_i * exp(-e_i / tol_i), the
+  /// terms (e_i; tol_i; w_i):
+  ///   |peak error|; 1 N; 0.15            |trough error|; 1 N; 0.10
+  ///   |mean error|; 1 N; 0.15
+  ///   |frequency error|; 10 % of the target frequency, at least 0.05 Hz; 0.15
+  ///   |amplitude error|; 20 % of the target amplitude, at least 0.5 deg; 0.10
+  ///   time in band short of the demonstration's own; 0.2; 0.15
+  ///   path error beyond the demonstration's own; 25 % of the target amplitude, at least
+  ///     0.5 deg; 0.10
+  ///   jerk above the demonstration's; 0.5; 0.10
+  /// Doing better than the demonstration on time in band, path or jerk costs nothing. No term
+  /// has a cut-off: a larger error, the others unchanged, always scores lower. 0 when the
+  /// trial has no oscillation.
   double overall = 0;
 };
 
