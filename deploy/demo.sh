@@ -3,19 +3,23 @@
 # telehand-server, telehand-client with the simulated MF-2 performing a 20 s MCP
 # mobilization at 3 Hz, and telehand-watch following it as a supervisor would, all under
 # DDS Security with a throw-away PKI (each program as its role: server, device, supervisor).
-# Options: --seconds N (default 20), --frequency HZ (default 3), --insecure (no DDS Security).
+# Options: --seconds N (default 20), --frequency HZ (default 3), --insecure (no DDS Security),
+# --lesson (a whole lesson instead: a clinician's demonstration, the lesson made from it, a
+# simulated student's run with a watcher, and its report; about 2 minutes).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
 seconds=20
 frequency=3
 security=on
+lesson=off
 while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) seconds=$2; shift 2 ;;
     --frequency) frequency=$2; shift 2 ;;
     --insecure) security=off; shift ;;
-    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    --lesson) lesson=on; shift ;;
+    -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
     *) echo "demo: unknown option '$1' (try --help)" >&2; exit 2 ;;
   esac
 done
@@ -45,6 +49,48 @@ if [ "$security" = on ]; then
 else
   dds+=(--insecure)
   secured="no DDS Security"
+fi
+
+if [ "$lesson" = on ]; then
+  echo "== telehand lesson demo: server; a clinician's demonstration; the lesson; a student's run with a watcher; the report; loopback DDS, $secured"
+  "$bin/server/telehand-server" --db "$db" "${dds[@]}" >"$logs/server.log" 2>&1 &
+  pids+=($!)
+  echo "-- 1. the clinician demonstrates a 3 Hz mobilization (10 s)"
+  "$bin/client/telehand-client" "${dds[@]}" --seconds 10 --frequency "$frequency" \
+    --user demo-clinician -q >"$logs/clinician.log" 2>&1 || {
+    echo "demo: the clinician's session failed; logs in $logs" >&2
+    exit 1
+  }
+  demo=$(sed -n 's/^session \([0-9]*\) open.*/\1/p' "$logs/clinician.log" | head -n 1)
+  grep -E '^  record:' "$logs/clinician.log" || true
+  echo "-- 2. a lesson from it"
+  "$bin/server/telehand-records" --db "$db" lesson create --demo "$demo" --guided 2 \
+    --attempts 3 --trial-seconds 8 --schedule terminal | tee "$logs/lesson.log"
+  lesson_id=$(sed -n 's/^lesson \([0-9]*\) .*/\1/p' "$logs/lesson.log" | head -n 1)
+  echo "-- 3. a student runs it: baseline, watch, 2 guided trials, 3 attempts, reassessment"
+  "$bin/client/telehand-client" "${dds[@]}" --lesson "$lesson_id" --user demo-student \
+    --force-bias 1.5 --frequency-error 0.3 --tremor 0.5 --explore-seconds 30 \
+    >"$logs/student.log" 2>&1 &
+  client=$!
+  pids+=($client)
+  sleep 1
+  "$bin/client/telehand-watch" "${dds[@]}" --exit-on-close --wait 15 --plain \
+    >"$logs/watch.log" 2>&1 || true
+  status=0
+  wait "$client" || status=$?
+  grep -E '^phase|feedback:|^summary|record:|lesson:' "$logs/student.log" || true
+  run=$(sed -n 's/^session \([0-9]*\) open.*/\1/p' "$logs/student.log" | head -n 1)
+  if [ "$status" -ne 0 ] || [ -z "$run" ]; then
+    echo "demo: the student's run failed (exit $status); logs in $logs" >&2
+    exit 1
+  fi
+  echo "-- 4. the report"
+  "$bin/server/telehand-records" --db "$db" report "$run" -o "$root/records/reports"
+  echo
+  echo "Lesson $lesson_id (demonstration: session $demo); the student's run: session $run in $db"
+  echo "Show it:  $bin/server/telehand-records --db $db lesson show $lesson_id"
+  echo "Replay the demonstration:  $bin/client/telehand-watch ${dds[*]} --replay $demo"
+  exit 0
 fi
 
 echo "== telehand demo: server, simulated-MF-2 client (${seconds} s, ${frequency} Hz), watcher; loopback DDS, $secured"

@@ -33,8 +33,9 @@ rule client/apps            'telehand/(core|config|devices|protocol|app|client/)
 rule server/sim             'telehand/(core|server/sim)/'
 rule server/store           'telehand/(core|server/store)/'
 rule server/estimate        'telehand/(core|config|devices|server/(store|estimate))/'
-rule server/session         'telehand/(core|config|protocol|server/(sim|store|estimate|session))/|telehand\.h'
-rule server/link            'telehand/(core|config|protocol|server/(sim|store|estimate|session|link))/|telehand\.h|dds/'
+rule server/lesson          'telehand/(core|config|protocol|server/(store|lesson))/'
+rule server/session         'telehand/(core|config|protocol|server/(sim|store|estimate|lesson|session))/|telehand\.h'
+rule server/link            'telehand/(core|config|protocol|server/(sim|store|estimate|lesson|session|link))/|telehand\.h|dds/'
 rule server/apps            'telehand/(core|config|devices|protocol|app|server/)|telehand\.h|dds/'
 
 # No relative includes that climb out of a library.

@@ -206,5 +206,56 @@ TEST_F(NetemTest, DirectModeRunsAcrossTheDelayLineAndTheGuardActs) {
   EXPECT_GT(matchNumber(out, R"(controller active (\d+) ticks)"), 0u) << out;
 }
 
+TEST_F(NetemTest, ALessonDemonstratedAndRunAcrossTheDelayLine) {
+  // The expert demonstrates from the far end of the line (Australia, 300 ms RTT with loss);
+  // the lesson is made on the server's record; a student at the far end runs it: guided
+  // trial, attempt, every sample recorded and both trials scored.
+  const std::string tag = "thsys" + std::to_string(getpid());
+  Netns srv_ns(tag + "a"), cli_ns(tag + "b");
+  ASSERT_TRUE(srv_ns.ok() && cli_ns.ok()) << "cannot create network namespaces";
+  auto line =
+      linkem(srv_ns, cli_ns, std::string(TELEHAND_DEPLOY_DIR) + "/links/spain-australia.toml");
+  ASSERT_NE(line->output().find("linkem ready"), std::string::npos) << line->output();
+  const std::string db = path("records.db");
+  Process server(
+      inNs(srv_ns, "10.77.0.1", "10.77.0.2", TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "110"}),
+      path("server.log"));
+  Process expert(inNs(cli_ns, "10.77.0.2", "10.77.0.1", TELEHAND_CLIENT_BIN,
+                      {"--seconds", "6", "-q", "--user", "expert", "--connect-timeout", "20"}),
+                 path("expert.log"));
+  ASSERT_EQ(expert.wait(60s), 0) << expert.output();
+  const uint64_t demo = matchNumber(expert.output(), R"(session (\d+) open)");
+  Process create(
+      {TELEHAND_RECORDS_BIN, "--db", db, "lesson", "create", "--demo", std::to_string(demo),
+       "--guided", "1", "--attempts", "1", "--trial-seconds", "4", "--no-assessment"},
+      path("create.log"));
+  ASSERT_EQ(create.wait(30s), 0) << create.output();
+  const uint64_t lesson = matchNumber(create.output(), R"(lesson (\d+) )");
+  Process student(inNs(cli_ns, "10.77.0.2", "10.77.0.1", TELEHAND_CLIENT_BIN,
+                       {"--lesson", std::to_string(lesson), "--user", "student", "--watch-speed",
+                        "2", "--connect-timeout", "20", "--no-fault-stop"}),
+                  path("student.log"));
+  const auto rc = student.wait(70s);
+  ASSERT_TRUE(rc.has_value()) << student.output();
+  EXPECT_EQ(*rc, 0) << student.output() << "\n" << server.output();
+  EXPECT_EQ(server.stop(), 0) << server.output();
+  line->stop();
+  const uint64_t run = matchNumber(student.output(), R"(session (\d+) open: lesson)");
+  const uint64_t sent = matchNumber(student.output(), R"((\d+) samples sent)");
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
+  const auto info = store.session(run);
+  ASSERT_TRUE(info.has_value()) << student.output();
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples, sent);
+  const auto trials = store.trials(run);
+  ASSERT_EQ(trials.size(), 2u) << student.output();
+  EXPECT_EQ(trials[0].phase, "guided");
+  EXPECT_EQ(trials[1].phase, "attempt");
+  for (const auto& t : trials) {
+    EXPECT_NE(t.figures.find("missing=0;"), std::string::npos) << t.figures;
+    EXPECT_GT(t.overall, 0.0) << t.figures;
+  }
+}
+
 }  // namespace
 }  // namespace telehand::test

@@ -5,15 +5,62 @@
 // options: the command line and config file; device: the MF-2 (USB, simulated, or the
 // capture rig); session: running it and its summary.
 #include <chrono>
+#include <cstdio>
 #include <iostream>
+#include <set>
 #include <string>
 
 #include "device.h"
+#include "lesson.h"
 #include "options.h"
 #include "session.h"
 #include "telehand/client/link/client_link.h"
 #include "telehand/core/log.h"
 #include "telehand/protocol/wire.h"
+
+namespace telehand::client::app {
+namespace {
+/// A lesson run: its plan from the server, the simulated student (with the simulated MF-2),
+/// the phases, the feedback, the summary.
+int runLessonSession(const ClientOptions& o, ClientDevice& mf2, loop::HapticLoop& loop,
+                     link::ClientLink& link, uint64_t session) {
+  using namespace std::chrono_literals;
+  std::string why;
+  const auto plan = decodePlan(link.lessonPlan(), &why);
+  if (!plan)
+    throw Error("session " + std::to_string(session) + ": the server's lesson plan: " + why);
+  JointModelParams joint = healthyIndexMcp();
+  try {
+    joint = loadPatientCaseByName(o.cases_dir, link.openedCase()).model;
+  } catch (const ConfigError&) {
+  }
+  LessonOperator* student = mf2.prepareLesson(joint, o);
+  const std::vector<LessonStep> steps = lessonSteps(*plan, o);
+  double total = 0.0;
+  for (const auto& st : steps) total += st.seconds;
+  std::cout << "session " << session << " open: lesson " << plan->lesson_id << " on case '"
+            << link.openedCase() << "', " << plan->guided << " guided trial(s) and "
+            << plan->attempts << " attempt(s) of " << plan->trial_s << " s, " << plan->schedule
+            << " feedback, about " << static_cast<int>(total) << " s" << std::endl;
+  LessonDriver driver(*plan, steps, loop, link, student,
+                      std::set<int>(o.request_feedback.begin(), o.request_feedback.end()), o.quiet);
+  const RunTotals totals =
+      runSession(o, loop, link, mf2.usb(), [&](double t) { return driver.step(t); });
+  const auto closed = link.close(30s);
+  driver.finish();
+  const int code = printSummary(o, session, false, joint.force_scale, totals, loop.health(), link,
+                                mf2.usb(), closed);
+  std::printf("  lesson: %d of %d trials run, %zu scores received\n", driver.trialsRun(),
+              plan->guided + plan->attempts, driver.scores().size());
+  if (const auto fault = faultMessage(loop.health(), o.cfg.safety)) {
+    std::cerr << "telehand-client: " << *fault << "\n";
+    return kExitRenderingFault;
+  }
+  if (code == 0 && driver.trialsRun() < plan->guided + plan->attempts) return 3;
+  return code;
+}
+}  // namespace
+}  // namespace telehand::client::app
 
 int main(int argc, char** argv) {
   using namespace telehand;
@@ -38,7 +85,8 @@ int main(int argc, char** argv) {
     const JointModelParams initial = healthyIndexMcp();
     const mf2::Mf2Description description =
         o.device_file.empty() ? mf2::defaultMf2() : mf2::loadMf2Description(o.device_file);
-    const telehand_msg_SessionMode mode = *parseMode(o.mode_name);
+    const telehand_msg_SessionMode mode =
+        o.lesson != 0 ? telehand_msg_MODE_LESSON : *parseMode(o.mode_name);
     if (o.follow != 0 && mode == telehand_msg_MODE_CAPTURE) {
       throw ConfigError("--follow needs a mode other than capture");
     }
@@ -61,11 +109,13 @@ int main(int argc, char** argv) {
     req.stiffness =
         o.stiffness == "knn" ? telehand_msg_STIFFNESS_KNN : telehand_msg_STIFFNESS_CUBIC;
     req.direct_force = teleop.render == client::loop::RenderMode::kDirect;
+    req.lesson_id = o.lesson;
     const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(o.connect_timeout * 1000));
     const uint64_t session = link.open(req, timeout);
     if (!link.awaitModel(timeout)) {
       throw Error("session " + std::to_string(session) + " opened but no JointModel arrived");
     }
+    if (mode == telehand_msg_MODE_LESSON) return runLessonSession(o, mf2, loop, link, session);
     const bool capture = req.mode == telehand_msg_MODE_CAPTURE;
     loop.setActuatorsEnabled(!capture);
     if (capture) {

@@ -66,4 +66,19 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
   }
 }
 
+LessonOperator* ClientDevice::prepareLesson(const JointModelParams& joint, const ClientOptions& o) {
+  if (!sim_) return nullptr;
+  const JointModel rest(joint);
+  sim_->setPose(
+      Vec3(rest.restAngleRad(kFlexion), rest.restAngleRad(kAbduction), rest.restAngleRad(kAxial)));
+  devices::ExplorationPlan plan = devices::planExploration(joint, o.cfg.op.band_max_n);
+  plan.force_scale = joint.force_scale;
+  plan.lever_arm_m = joint.lever_arm_m;
+  plan.seed = o.cfg.op.seed;
+  student_ = std::make_unique<LessonOperator>(*sim_, plan, joint,
+                                              devices::SimulatedMf2Dynamics{}.operator_stiffness);
+  sim_->setOperator(student_.get());
+  return student_.get();
+}
+
 }  // namespace telehand::client::app

@@ -4,6 +4,7 @@
 // simulated one on the capture rig (a patient's finger in the grip).
 #include <memory>
 
+#include "lesson.h"
 #include "options.h"
 #include "telehand/client/usb/usb_mf2.h"
 #include "telehand/core/clock.h"
@@ -26,6 +27,9 @@ class ClientDevice {
   devices::Device& device() noexcept { return *device_; }
   /// The USB MF-2, or null.
   usb::UsbMf2* usb() noexcept { return usb_.get(); }
+  /// A lesson run on the simulated MF-2: the simulated student on case `joint` (before the
+  /// loop starts). Null with a real MF-2: the student at it acts the phases out.
+  LessonOperator* prepareLesson(const JointModelParams& joint, const ClientOptions& o);
 
  private:
   devices::Mf2ModelCalibration usb_calibration_;
@@ -33,6 +37,7 @@ class ClientDevice {
   std::unique_ptr<devices::CaptureRig> rig_;
   std::unique_ptr<devices::SimulatedMf2> sim_;
   std::unique_ptr<devices::ExplorationOperator> explorer_;  // --mode exploration, simulated
+  std::unique_ptr<LessonOperator> student_;                 // --lesson, simulated
   devices::Device* device_ = nullptr;
 };
 

@@ -42,6 +42,14 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   auto* bmax = app.add_option("--band-max", o.cfg.op.band_max_n,
                               "force band high end, N at reference scale");
   auto* seed = app.add_option("--seed", o.cfg.op.seed, "simulated operator seed");
+  // The simulated operator's skill (a student for lessons; all 0: the clinician).
+  auto* bias = app.add_option("--force-bias", o.cfg.op.force_bias_n,
+                              "simulated operator: pushes this much harder (N at reference scale)");
+  auto* ferr = app.add_option("--frequency-error", o.cfg.op.frequency_error_hz,
+                              "simulated operator: oscillates this much faster (Hz)");
+  auto* tremor = app.add_option("--tremor", o.cfg.op.tremor_n,
+                                "simulated operator: 8-12 Hz tremor, N RMS at reference scale")
+                     ->check(CLI::Range(0.0, 10.0));
   telehand::app::addDdsOptions(app, o.dds, o.insecure, "device");
   app.add_option("--connect-timeout", o.connect_timeout, "seconds to wait for the server")
       ->capture_default_str();
@@ -88,13 +96,29 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
                  "capture mode, simulated MF-2: seconds the clinician mobilizes each axis")
       ->check(CLI::Range(1.0, 600.0))
       ->capture_default_str();
-  TELEHAND_CLI_PARSE(app, argc, argv)
-
+  app.add_option("--lesson", o.lesson,
+                 "run this stored lesson (see telehand-records lesson list): baseline, watch the "
+                 "demonstration, guided trials, attempts, reassessment; --mode and --seconds do "
+                 "not apply");
+  app.add_option("--explore-seconds", o.explore_seconds,
+                 "lesson: length of each exploration phase (6 directions take 30 s)")
+      ->check(CLI::Range(2.0, 300.0))
+      ->capture_default_str();
+  app.add_option("--watch-speed", o.watch_speed, "lesson: replay speed of the demonstration")
+      ->check(CLI::Range(0.25, 2.0))
+      ->capture_default_str();
+  app.add_option("--request-feedback", o.request_feedback,
+                 "lesson with the self-requested schedule: the trials (1-based) after which the "
+                 "student asks for feedback")
+      ->delimiter(',')
+      ->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
   o.frequency_given = static_cast<bool>(*freq);
   o.band_min_given = static_cast<bool>(*bmin);
   o.band_max_given = static_cast<bool>(*bmax);
   o.seed_given = static_cast<bool>(*seed);
+  o.skill_given =
+      static_cast<bool>(*bias) || static_cast<bool>(*ferr) || static_cast<bool>(*tremor);
   o.rt_given = static_cast<bool>(*rt);
   // A capture is fitted only when every axis was swept: by default it lasts the three
   // sweeps and a little for the session to open.
@@ -113,6 +137,11 @@ void applyConfigFile(ClientOptions& o) {
     if (o.band_min_given) cfg.op.band_min_n = cli_op.band_min_n;
     if (o.band_max_given) cfg.op.band_max_n = cli_op.band_max_n;
     if (o.seed_given) cfg.op.seed = cli_op.seed;
+    if (o.skill_given) {
+      cfg.op.force_bias_n = cli_op.force_bias_n;
+      cfg.op.frequency_error_hz = cli_op.frequency_error_hz;
+      cfg.op.tremor_n = cli_op.tremor_n;
+    }
     if (o.rt_given) cfg.loop.rt_priority = rt_cli;
   }
   validate(cfg.op, "command line");

@@ -3,6 +3,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "telehand/config/config.h"
 #include "telehand/protocol/dds.h"
@@ -25,9 +26,14 @@ struct ClientOptions {
   uint64_t follow = 0;
   std::string stiffness = "cubic", patient_name = "healthy", cases_dir;
   double thimble_noise = 1.43, sweep_seconds = 10.0;
+  // --lesson: run a stored lesson (docs/lessons.md).
+  uint64_t lesson = 0;
+  double explore_seconds = 30.0;  ///< each exploration phase (baseline, reassessment)
+  double watch_speed = 1.0;       ///< the demonstration's replay speed
+  std::vector<int> request_feedback{2, 4, 6, 8, 10};  ///< self schedule: trials asked about
   // Given on the command line: these win over the config file.
   bool frequency_given = false, band_min_given = false, band_max_given = false, seed_given = false,
-       rt_given = false;
+       rt_given = false, skill_given = false;
 };
 
 /// Parses the command line into `o`; returns the exit code when the program is done (--help:

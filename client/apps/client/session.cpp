@@ -18,7 +18,7 @@ namespace telehand::client::app {
 using namespace std::chrono_literals;
 
 RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::ClientLink& link,
-                     usb::UsbMf2* usb) {
+                     usb::UsbMf2* usb, const std::function<bool(double)>& step) {
   const ClientConfig& cfg = o.cfg;
   RunTotals r;
   installStopSignals();
@@ -36,7 +36,7 @@ RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::Clien
   auto next_print = t0 + 1s;
   uint64_t live_prev = 0;
   while (!g_stop_requested.load()) {
-    std::this_thread::sleep_for(50ms);
+    std::this_thread::sleep_for(step ? 5ms : 50ms);
     const auto now = std::chrono::steady_clock::now();
     const double t = std::chrono::duration<double>(now - t0).count();
     const auto& h = loop.health();
@@ -48,10 +48,10 @@ RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::Clien
     if (usb != nullptr) {
       for (const auto& m : usb->takeMessages()) std::cerr << "device: " << m << "\n";
     }
-    if (t >= o.seconds) break;
+    if (step ? !step(t) : t >= o.seconds) break;
     // A rendering fault ends the session (the loop already commands zero force).
     if (loop.fault() != loop::LoopFault::kNone) break;
-    if (!o.quiet && now >= next_print) {
+    if (!o.quiet && !step && now >= next_print) {
       next_print += 1s;
       const uint64_t live = link.stats().live_sent.load();
       const std::string line = fmt::format(

@@ -2,6 +2,7 @@
 // The running session: the loop and the link until --seconds or Ctrl-C, with a progress
 // line once a second; then its summary.
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 
@@ -19,8 +20,10 @@ struct RunTotals {
 };
 
 /// Starts the link and the loop, runs them and stops them (the session stays open).
+/// With `step` (a lesson run), it is called every 5 ms with the elapsed seconds and ends the
+/// run by returning false; --seconds does not apply.
 RunTotals runSession(const ClientOptions& o, loop::HapticLoop& loop, link::ClientLink& link,
-                     usb::UsbMf2* usb);
+                     usb::UsbMf2* usb, const std::function<bool(double)>& step = {});
 
 /// What went wrong when the loop latched a rendering fault (which, when, the clamps and the
 /// peak force), or nothing.

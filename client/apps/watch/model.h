@@ -49,6 +49,11 @@ struct Options {
   double wait_s = 10.0;
   bool exit_on_close = false;
   bool plain = false;
+  /// --replay: replay this recorded session (the server publishes it as a session of its
+  /// own) and watch that, at `speed`, looping with `loop`.
+  uint64_t replay = 0;
+  double speed = 1.0;
+  bool loop = false;
 };
 
 struct EventLine {

@@ -121,10 +121,25 @@ End watchSession(Watcher& w, const Options& o, uint64_t id, const Clock& clock,
 
 }  // namespace
 
-int run(const Options& o) {
+int run(const Options& given) {
   SteadyClock clock;
   const int64_t t0 = clock.nowNs();
-  Watcher w(o.dds);
+  Watcher w(given.dds);
+  Options o = given;
+  if (o.replay != 0) {
+    std::string why;
+    const uint64_t replay = w.openReplay(o.replay, secondsToNs(o.wait_s), why);
+    if (replay == 0) {
+      std::cerr << "telehand-watch: cannot replay session " << o.replay << ": " << why << "\n";
+      return 2;
+    }
+    if (o.speed != 1.0) w.control(replay, telehand_msg_CMD_PHASE, "speed", o.speed);
+    if (o.loop) w.control(replay, telehand_msg_CMD_PHASE, "loop", 1.0);
+    std::fprintf(stderr, "telehand-watch: replaying session %llu as session %llu at %.2gx%s\n",
+                 static_cast<unsigned long long>(o.replay), static_cast<unsigned long long>(replay),
+                 o.speed, o.loop ? ", looping" : "");
+    o.session = replay;
+  }
   const std::optional<uint64_t> id = chooseSession(w, o, clock);
   if (!id) return 2;
   if (*id == 0) {  // Ctrl-C while waiting
@@ -140,6 +155,7 @@ int run(const Options& o) {
   }
   int64_t elapsed_ns = 0;
   const End end = watchSession(w, o, *id, clock, elapsed_ns);
+  if (o.replay != 0) w.control(*id, telehand_msg_CMD_CLOSE, "", 0.0);  // the replay ends with us
   printSummary(*id, w.find(*id), end, static_cast<double>(elapsed_ns) * 1e-9);
   return 0;
 }

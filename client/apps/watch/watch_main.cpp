@@ -50,6 +50,14 @@ int main(int argc, char** argv) {
   app.add_option("--wait", o.wait_s, "seconds to wait for the session to appear")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
+  app.add_option("--replay", o.replay,
+                 "replay this recorded session (a lesson's demonstration, any record) at real "
+                 "time, as the server publishes it, and watch it")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--speed", o.speed, "replay speed")
+      ->check(CLI::Range(0.25, 2.0))
+      ->capture_default_str();
+  app.add_flag("--loop", o.loop, "replay: start again at the end");
   app.add_flag("--plain", o.plain,
                "one key=value line per refresh, no ANSI (automatic when stdout is not a terminal)");
   bool insecure = false;

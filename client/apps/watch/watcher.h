@@ -1,5 +1,7 @@
 #pragma once
 // The readers of the four session topics and what they have told so far.
+#include <unistd.h>
+
 #include "model.h"
 
 namespace telehand::client::watch {
@@ -13,6 +15,7 @@ class Watcher {
         model_reader_(participant_, topics_.joint_model, dds::qos::jointModel()),
         hand_reader_(participant_, topics_.hand_state, dds::qos::handStateReader(kHandReaderDepth)),
         event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
+        command_writer_(participant_, topics_.session_command, dds::qos::sessionCommand()),
         waitset_(participant_) {
     waitset_.attach(status_reader_.handle(), 1);
     waitset_.attach(model_reader_.handle(), 2);
@@ -99,7 +102,64 @@ class Watcher {
   /// Whether a server (the HandState writer) is matched right now.
   bool serverMatched() const noexcept { return hand_reader_.matchedWriters() > 0; }
 
+  /// Asks the servers to replay recorded session `source` (docs/lessons.md "Watch") and waits
+  /// for the answer: the replay's own session id, or 0 with `why` (no server, a refusal).
+  uint64_t openReplay(uint64_t source, int64_t timeout_ns, std::string& why) {
+    SteadyClock clock;
+    const int64_t deadline = clock.nowNs() + timeout_ns;
+    while (command_writer_.matchedReaders() == 0) {
+      if (clock.nowNs() > deadline) {
+        why = "no telehand-server took the request (is one running on this domain?)";
+        return 0;
+      }
+      wait(10 * kNsPerMs);
+    }
+    telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_OPEN, 0);
+    cmd.mode = telehand_msg_MODE_REPLAY;
+    cmd.follow_session = source;
+    copyString(cmd.user, "supervisor");
+    command_writer_.write(cmd);
+    while (clock.nowNs() < deadline) {
+      wait(20 * kNsPerMs);
+      poll(clock.nowNs());
+      for (const auto& [id, v] : sessions_) {
+        if (v.status && v.status->client_id == client_id_ &&
+            v.status->request_seq == cmd.request_seq) {
+          return id;
+        }
+      }
+      for (const auto& e : sessions_[0].events) {
+        if (e.kind == telehand_msg_EVENT_ERROR && e.text.find("replay") != std::string::npos) {
+          why = e.text;
+          return 0;
+        }
+      }
+    }
+    why = "the server did not answer within the wait";
+    return 0;
+  }
+  /// A replay's control (pause, play, speed, loop) or the end of it (close).
+  void control(uint64_t session, telehand_msg_CommandKind kind, const char* phase, double value) {
+    telehand_msg_SessionCommand cmd = command(kind, session);
+    copyString(cmd.text, phase);
+    cmd.value = value;
+    command_writer_.write(cmd);
+  }
+
  private:
+  telehand_msg_SessionCommand command(telehand_msg_CommandKind kind, uint64_t session) {
+    telehand_msg_SessionCommand cmd{};
+    cmd.client_id = client_id_;
+    cmd.request_seq = ++request_seq_;
+    cmd.source_time_ns = wallNs();
+    cmd.kind = kind;
+    cmd.session_id = session;
+    copyString(cmd.case_name, "");
+    copyString(cmd.user, "");
+    copyString(cmd.text, "");
+    return cmd;
+  }
+
   static void onHand(SessionView& v, const telehand_msg_HandState& h, int64_t now_ns,
                      int64_t wall_ns) {
     ++v.hand_states;
@@ -139,7 +199,11 @@ class Watcher {
   dds::Reader<telehand_msg_JointModel> model_reader_;
   dds::Reader<telehand_msg_HandState> hand_reader_;
   dds::Reader<telehand_msg_SessionEvent> event_reader_;
+  dds::Writer<telehand_msg_SessionCommand> command_writer_;  // replays only
   dds::WaitSet waitset_;
+  uint64_t client_id_ = (static_cast<uint64_t>(::getpid()) << 32) ^
+                        static_cast<uint64_t>(wallNs()) ^ 0x5757'0000'0000'0000ULL;
+  uint32_t request_seq_ = 0;
   std::map<uint64_t, SessionView> sessions_;  // 0 holds events not tied to a session
   uint64_t arrivals_ = 0;
 };

@@ -3,6 +3,7 @@
 #include <sys/prctl.h>
 
 #include <algorithm>
+#include <cstring>
 #include <random>
 
 #include "telehand/core/clock.h"
@@ -66,6 +67,7 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
   copyString(cmd.text, "");
   cmd.follow_session = req.follow_session;
   cmd.stiffness = req.stiffness;
+  cmd.lesson_id = req.lesson_id;
   dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
 
   while (std::chrono::steady_clock::now() < deadline) {
@@ -74,6 +76,8 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
         session_id_ = st.session_id;
         // From now on the session's models and status come from this server only.
         server_ = senders_.of(status_reader_.handle(), info.publication_handle).participant;
+        lesson_plan_.assign(st.lesson, strnlen(st.lesson, sizeof st.lesson));
+        opened_case_.assign(st.case_name, strnlen(st.case_name, sizeof st.case_name));
       }
     });
     pollEvents();
@@ -255,13 +259,39 @@ bool ClientLink::fromServer(dds_entity_t reader, const dds_sample_info_t& info) 
 }
 
 void ClientLink::pollEvents() {
-  event_reader_.take([&](const telehand_msg_SessionEvent& e, const dds_sample_info_t&) {
+  event_reader_.take([&](const telehand_msg_SessionEvent& e, const dds_sample_info_t& info) {
     const bool mine =
         (session_id_ != 0 && e.session_id == session_id_) || e.client_id == client_id_;
-    if (!mine || e.kind != telehand_msg_EVENT_ERROR) return;
+    if (!mine) return;
+    if (e.kind == telehand_msg_EVENT_SCORE) {
+      // Scores steer what the student is shown: the acknowledging server's only.
+      const std::string text(e.text, strnlen(e.text, sizeof e.text));
+      if (session_id_ == 0 || e.session_id != session_id_ ||
+          !fromServer(event_reader_.handle(), info) ||
+          text.find(" oscillation ") != std::string::npos) {
+        return;
+      }
+      std::lock_guard lock(messages_mu_);
+      if (scores_.size() < 256) scores_.push_back(text);
+      return;
+    }
+    if (e.kind != telehand_msg_EVENT_ERROR) return;
     std::lock_guard lock(messages_mu_);
     messages_.emplace_back(e.text);
   });
+}
+
+std::vector<std::string> ClientLink::takeScores() {
+  std::lock_guard lock(messages_mu_);
+  return std::exchange(scores_, {});
+}
+
+void ClientLink::phase(const std::string& name, double value, uint64_t last_seq) {
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_PHASE);
+  copyString(cmd.text, name);
+  cmd.value = value;
+  cmd.last_seq = last_seq;
+  command_writer_.write(cmd);
 }
 
 std::vector<std::string> ClientLink::takeMessages() {
@@ -303,6 +333,7 @@ CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
         r.record = st.record;
       }
     });
+    pollEvents();  // the scores of a lesson's last trials come with the close
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   return r;

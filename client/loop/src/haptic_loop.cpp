@@ -102,6 +102,8 @@ StepStatus HapticLoop::step() noexcept {
   // repeated sample is not a still finger, a resumed one not a jump within one tick).
   const ProxyOutput rendered = proxy_.render(p, sample_.time_ns);
   stored_energy_j_ = rendered.potential_j;
+  health_.guide_nm.store(rendered.guide_ref_nm.cwiseAbs().maxCoeff(), std::memory_order_relaxed);
+  health_.guide_authority.store(proxy_.model().params().guide.authority, std::memory_order_relaxed);
   const bool direct = direct_.load(std::memory_order_relaxed);
   DirectForceSample df;
   while (forces_->tryPop(df)) {

@@ -281,10 +281,55 @@ double JointModel::potentialEnergyJ(const Vec3& angles_rad) const noexcept {
   return j * p_.force_scale;
 }
 
+Vec3 JointModel::guideTargetRad(double t_s, Vec3* rates_rad_s) const noexcept {
+  const GuideParams& g = p_.guide;
+  constexpr int n = GuideParams::kPoints;
+  if (!(g.period_s > 0.0) || !std::isfinite(t_s)) {
+    if (rates_rad_s) rates_rad_s->setZero();
+    return g.path_rad[0];
+  }
+  double cycles = t_s / g.period_s;
+  cycles -= std::floor(cycles);
+  const double x = cycles * n;
+  const int i = std::clamp(static_cast<int>(x), 0, n - 1);
+  const int j = (i + 1) % n;
+  const double f = x - i;
+  const auto ui = static_cast<std::size_t>(i), uj = static_cast<std::size_t>(j);
+  if (rates_rad_s) *rates_rad_s = (g.path_rad[uj] - g.path_rad[ui]) * (n / g.period_s);
+  return (1.0 - f) * g.path_rad[ui] + f * g.path_rad[uj];
+}
+
+Vec3 JointModel::guideTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s,
+                               double t_s) const noexcept {
+  const GuideParams& g = p_.guide;
+  if (!g.active()) return Vec3::Zero();
+  Vec3 target_rates;
+  const Vec3 target = guideTargetRad(t_s, &target_rates);
+  const double authority = std::clamp(g.authority, 0.0, 1.0);
+  const double bound = std::clamp(g.max_force_n, 0.0, GuideParams::kMaxForceN);
+  const double k = std::clamp(g.stiffness_n_per_deg, 0.0, GuideParams::kMaxStiffnessNPerDeg);
+  Vec3 tau;
+  for (int i = 0; i < kAxes; ++i) {
+    const double f = k * radToDeg(target[i] - angles_rad[i]) +
+                     k * GuideParams::kDampingS * radToDeg(target_rates[i] - rates_rad_s[i]);
+    // NaN angles give NaN here; the safety gate zeroes non-finite forces.
+    tau[i] = authority * std::clamp(f, -bound, bound) * p_.lever_arm_m;
+  }
+  return tau;
+}
+
 JointProxy::JointProxy(const JointModelParams& initial, int64_t blend_ns)
     : current_(initial), previous_(initial), pending_(initial), blend_ns_(blend_ns) {}
 
 void JointProxy::startFade(int64_t now_ns) noexcept {
+  // A new path (or a guide where there was none) starts at its beginning; a change of
+  // authority or stiffness on the same path keeps its phase.
+  const GuideParams& was = current_.params().guide;
+  const GuideParams& next = pending_.params().guide;
+  if (next.active() &&
+      (!was.active() || was.period_s != next.period_s || was.path_rad != next.path_rad)) {
+    guide_t0_ns_ = now_ns;
+  }
   previous_ = current_;
   current_ = pending_;
   have_pending_ = false;
@@ -302,11 +347,14 @@ void JointProxy::setModel(const JointModelParams& next) noexcept {
 }
 
 ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p,
-                                   const Vec3& angles, const Vec3& rates) const noexcept {
+                                   const Vec3& angles, const Vec3& rates,
+                                   double guide_t_s) const noexcept {
   ProxyOutput out;
   out.angles_rad = angles;
   out.torque_ref_nm = m.passiveTorqueNm(angles, rates);
-  out.force_device_n = m.fingertipForces(p, angles, out.torque_ref_nm * m.params().force_scale);
+  out.guide_ref_nm = m.guideTorqueNm(angles, rates, guide_t_s);
+  out.force_device_n =
+      m.fingertipForces(p, angles, (out.torque_ref_nm + out.guide_ref_nm) * m.params().force_scale);
   return out;
 }
 
@@ -328,7 +376,8 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   last_angles_ = grip_angles;
   const Vec3 angles = grip_angles + current_.params().grip_offset_rad;
 
-  ProxyOutput out = renderWith(current_, p, angles, rates_);
+  const double guide_t_s = static_cast<double>(now_ns - guide_t0_ns_) * 1e-9;
+  ProxyOutput out = renderWith(current_, p, angles, rates_, guide_t_s);
   const double v_current = current_.potentialEnergyJ(angles);
   out.potential_j = v_current;
   if (!blending_) return out;
@@ -336,7 +385,7 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   // The previous version renders with its own drift correction: a correction fades in like
   // any other model change.
   const Vec3 old_angles = previous_.proxyAngles(p);
-  const ProxyOutput old = renderWith(previous_, p, old_angles, rates_);
+  const ProxyOutput old = renderWith(previous_, p, old_angles, rates_, guide_t_s);
   double gap = 0.0, now_force = 0.0;
   for (int k = 0; k < 2; ++k) {
     gap = std::max(gap, (out.force_device_n[k] - old.force_device_n[k]).norm());
@@ -376,6 +425,7 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   const double w = weight_;
   out.potential_j = w * v_current + (1.0 - w) * v_previous;
   out.torque_ref_nm = w * out.torque_ref_nm + (1.0 - w) * old.torque_ref_nm;
+  out.guide_ref_nm = w * out.guide_ref_nm + (1.0 - w) * old.guide_ref_nm;
   for (int k = 0; k < 2; ++k) {
     out.force_device_n[k] = w * out.force_device_n[k] + (1.0 - w) * old.force_device_n[k];
   }

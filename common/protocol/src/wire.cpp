@@ -31,6 +31,15 @@ void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointMo
   out.joint_orientation_q[3] = p.joint_orientation.z();
   copyString(out.case_name, std::string_view(p.case_name.data()));
   for (int i = 0; i < 3; ++i) out.grip_offset_rad[i] = p.grip_offset_rad[i];
+  const GuideParams& g = p.guide;
+  out.guide_authority = g.authority;
+  out.guide_period_s = g.period_s;
+  out.guide_stiffness_n_per_deg = g.stiffness_n_per_deg;
+  out.guide_max_force_n = g.max_force_n;
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    for (int i = 0; i < 3; ++i)
+      out.guide_path_rad[k][i] = g.path_rad[static_cast<std::size_t>(k)][i];
+  }
 }
 
 std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::string* why) {
@@ -87,6 +96,29 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
     if (!(std::abs(m.grip_offset_rad[i]) <= degToRad(JointModelParams::kMaxGripOffsetDeg))) {
       return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) +
                  " grip_offset_rad is not finite or beyond ±30 deg");
+    }
+  }
+  GuideParams& g = p.guide;
+  g.authority = m.guide_authority;
+  g.period_s = m.guide_period_s;
+  g.stiffness_n_per_deg = m.guide_stiffness_n_per_deg;
+  g.max_force_n = m.guide_max_force_n;
+  if (!(g.authority >= 0.0 && g.authority <= 1.0)) return bad("guide_authority out of [0, 1]");
+  if (!(g.period_s == 0.0 || (g.period_s >= 0.1 && g.period_s <= 10.0))) {
+    return bad("guide_period_s neither 0 nor in [0.1, 10] s");
+  }
+  if (!(g.stiffness_n_per_deg >= 0.0 &&
+        g.stiffness_n_per_deg <= GuideParams::kMaxStiffnessNPerDeg)) {
+    return bad("guide_stiffness_n_per_deg out of [0, 2]");
+  }
+  if (!(g.max_force_n >= 0.0 && g.max_force_n <= GuideParams::kMaxForceN)) {
+    return bad("guide_max_force_n out of [0, 16] N");
+  }
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    Vec3& a = g.path_rad[static_cast<std::size_t>(k)];
+    a = Vec3(m.guide_path_rad[k][0], m.guide_path_rad[k][1], m.guide_path_rad[k][2]);
+    if (!allFinite(a) || a.cwiseAbs().maxCoeff() > M_PI) {
+      return bad("guide_path_rad point " + std::to_string(k) + " is not finite or beyond ±180 deg");
     }
   }
   std::memcpy(p.case_name.data(), m.case_name, std::min(sizeof(m.case_name), p.case_name.size()));
@@ -261,6 +293,10 @@ std::string_view modeName(telehand_msg_SessionMode m) noexcept {
       return "exploration";
     case telehand_msg_MODE_CAPTURE:
       return "capture";
+    case telehand_msg_MODE_LESSON:
+      return "lesson";
+    case telehand_msg_MODE_REPLAY:
+      return "replay";
   }
   return "unknown";
 }
@@ -269,6 +305,8 @@ std::optional<telehand_msg_SessionMode> parseMode(std::string_view name) noexcep
   if (name == "mobilization") return telehand_msg_MODE_MOBILIZATION;
   if (name == "exploration") return telehand_msg_MODE_EXPLORATION;
   if (name == "capture") return telehand_msg_MODE_CAPTURE;
+  if (name == "lesson") return telehand_msg_MODE_LESSON;
+  if (name == "replay") return telehand_msg_MODE_REPLAY;
   return std::nullopt;
 }
 

@@ -2,6 +2,7 @@
 #include <iostream>
 
 #include "records_fit.h"
+#include "records_lesson.h"
 #include "records_read.h"
 #include "telehand/app/cli.h"
 #include "telehand/core/error.h"
@@ -9,7 +10,9 @@
 
 int main(int argc, char** argv) {
   using namespace telehand::server::store;
-  CLI::App app{"telehand-records: list and export telehand session records"};
+  CLI::App app{
+      "telehand-records: list, show, export and fit telehand session records; lessons "
+      "and their reports"};
   std::string db = "records/telehand.db";
   app.add_option("--db", db, "record database")->capture_default_str();
   app.require_subcommand(1);
@@ -64,9 +67,63 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   synth->add_option("--seed", synth_req.seed, "noise seed")->capture_default_str();
   synth->add_flag("-q,--quiet", synth_req.quiet, "no progress lines");
+  // Lessons (docs/lessons.md).
+  telehand::records::LessonRequest lesson_req;
+  lesson_req.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
+  uint64_t lesson_id = 0;
+  auto* lesson =
+      app.add_subcommand("lesson", "lessons: create one from a demonstration, list, show");
+  lesson->require_subcommand(1);
+  auto* lcreate = lesson->add_subcommand(
+      "create",
+      "a lesson from a demonstration session: its targets (force band, frequency, "
+      "amplitude, range, path) and how the student's run goes");
+  lcreate->add_option("--demo", lesson_req.demo, "the demonstration (a mobilization session)")
+      ->required();
+  lcreate->add_option("--name", lesson_req.name, "what the lesson is called");
+  lcreate
+      ->add_option("--schedule", lesson_req.schedule,
+                   "feedback: concurrent (live bars), terminal (after each trial), faded "
+                   "(ever fewer), self (when the student asks)")
+      ->check(CLI::IsMember({"concurrent", "terminal", "faded", "self"}))
+      ->capture_default_str();
+  lcreate->add_option("--guided", lesson_req.guided, "guided trials (authority full down to low)")
+      ->check(CLI::Range(0, 10))
+      ->capture_default_str();
+  lcreate->add_option("--attempts", lesson_req.attempts, "free attempts after them")
+      ->check(CLI::Range(1, 20))
+      ->capture_default_str();
+  lcreate->add_option("--trial-seconds", lesson_req.trial_s, "length of each trial")
+      ->check(CLI::Range(2.0, 120.0))
+      ->capture_default_str();
+  bool no_assessment = false;
+  lcreate->add_flag("--no-assessment", no_assessment,
+                    "no exploration before and after (the range change is not measured)");
+  lcreate->add_option("--cases", lesson_req.cases_dir, "patient cases directory")
+      ->capture_default_str();
+  auto* llist = lesson->add_subcommand("list", "every lesson, with its runs");
+  auto* lshow = lesson->add_subcommand("show", "one lesson: targets, plan and runs");
+  lshow->add_option("lesson", lesson_id, "lesson id (see 'lesson list')")->required();
+  telehand::records::ReportRequest report_req;
+  report_req.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
+  auto* report = app.add_subcommand(
+      "report",
+      "a lesson run as an HTML page with plots and CSVs of its scores: SESSION (a run) "
+      "or --lesson ID (its latest run)");
+  report->add_option("session", report_req.session, "a lesson run's session id");
+  report->add_option("--lesson", report_req.lesson, "a lesson: report its latest run");
+  report->add_option("-o,--output-dir", report_req.out_dir, "where to write the report")
+      ->capture_default_str();
+  report->add_option("--cases", report_req.cases_dir, "patient cases directory")
+      ->capture_default_str();
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
+    if (*lesson && *lcreate) {
+      lesson_req.db = db;
+      lesson_req.assessment = !no_assessment;
+      return telehand::records::runLessonCreate(lesson_req);
+    }
     if (*synth) {
       synth_req.db = db;
       return telehand::records::runSynth(synth_req);
@@ -77,6 +134,15 @@ int main(int argc, char** argv) {
     }
     SqliteStore store(db, SqliteStore::Mode::kReadOnly);
     if (*list) return telehand::records::runList(store, db);
+    if (*llist) return telehand::records::runLessonList(store, db);
+    if (*lshow) return telehand::records::runLessonShow(store, lesson_id);
+    if (*report) {
+      if ((report_req.session == 0) == (report_req.lesson == 0)) {
+        std::cerr << "telehand-records report: give a SESSION or --lesson ID (one of them)\n";
+        return 2;
+      }
+      return telehand::records::runReport(store, report_req);
+    }
     const auto info = store.session(session_id);
     if (info && *show) return telehand::records::runShow(store, *info);
     if (!info) {

@@ -56,7 +56,8 @@ void HandRunner::step(const JointModel& model) {
 
 bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
                          const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
-                         telehand_msg_SessionMode mode, int64_t now_ns, Vec3* before) {
+                         telehand_msg_SessionMode mode,
+                         int64_t /*now_ns: the hand runs on device time*/, Vec3* before) {
   if (sim_ && live.isNew(d)) {
     // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
     // on the way, with the thimbles moving in a straight line across the gap (jumping the
@@ -93,7 +94,10 @@ bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Samp
     }
     sim_->setFingerTargets(grip, true);
     step(model);
-    return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, now_ns, before);
+    // On device time, like the steps: the hand is a function of the samples alone (a replay
+    // of the record reproduces it, docs/lessons.md "Watch").
+    return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, d.source_time_ns,
+                        before);
   }
   if (!sim_ && exploration_.active()) {
     // No hand: the thimbles set the angles and the joint model gives the force holding them.

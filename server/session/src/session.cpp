@@ -5,11 +5,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/core/thimble.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/lesson/lesson.h"
 #include "telehand/server/session/session_manager.h"
 
 namespace telehand::server::session {
@@ -40,6 +42,8 @@ Session::Session(SessionContext& context, const store::SessionInfo& session_info
       recorder(session_info.id),
       hand(session_info.id, hand_model, params, hand_config, context.config.hand_deadband_weber,
            now_ns),
+      hand_model_(hand_model),
+      hand_config_(hand_config),
       next_recovery_check_ns_(now_ns + kNsPerS) {
   if (cmd.mode == telehand_msg_MODE_EXPLORATION) hand.beginExploration("baseline");
   if (cmd.direct_force) direct_ = std::make_unique<JointProxy>(params);
@@ -89,6 +93,7 @@ void Session::publishStatus(telehand_msg_SessionState state) {
   copyString(st.case_name, info.case_name);
   copyString(st.user, info.user);
   copyString(st.record, ctx.store.location() + " session " + std::to_string(info.id));
+  if (lesson) copyString(st.lesson, encodePlan(lesson->plan));
   ctx.out.publish(st);
 }
 
@@ -139,8 +144,129 @@ void Session::onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& val
 
 void Session::tick(int64_t now_ns) {
   live.updateRate(now_ns);
-  hand.publishDue(ctx, live, model, now_ns);
+  if (replay) {
+    // A replay is this session's HandState while it lasts (a lesson's watch phase ends
+    // with it; a replay session stays open, at its end, until its viewer closes it).
+    replay->tick(now_ns);
+    live.touch(now_ns);
+    if (replay->finished() && mode == telehand_msg_MODE_LESSON) {
+      ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, "watch: the demonstration ended",
+                now_ns);
+      endReplay();
+    } else if (replay->finished() && !closing) {
+      // A replay session ends with its record: closed now (it records nothing of its own).
+      ctx.event(info.id, client_id, telehand_msg_EVENT_INFO,
+                "replay: the end of the record (" + std::to_string(replay->stepped()) +
+                    " samples replayed)",
+                now_ns);
+      closing = true;
+      expected = 0;
+      close_deadline_ns = now_ns;
+    }
+  } else {
+    hand.publishDue(ctx, live, model, now_ns);
+  }
+  if (lesson) lesson->scoreDue(ctx, info.id, client_id, params.force_scale, now_ns, false);
   recorder.retry(ctx);
+}
+
+void Session::startReplay(uint64_t source, const JointModelParams& m, double speed,
+                          int64_t now_ns) {
+  JointModelParams start = m;
+  start.guide = GuideParams{};
+  replay = std::make_unique<Replay>(ctx, info.id, source, start, hand_model_, hand_config_, now_ns);
+  replay->continueSeq(hand.published());  // viewers see one sequence of HandStates
+  replay->setSpeed(speed > 0.0 ? speed : 1.0, now_ns);
+  replay->play(now_ns);
+}
+
+void Session::endReplay() {
+  if (!replay) return;
+  hand.continueSeq(replay->published());
+  replay.reset();
+}
+
+void Session::setGuide(double authority) {
+  JointModelParams next = params;
+  next.guide =
+      authority > 0.0 && lesson ? lesson::guideFor(lesson->targets, authority) : GuideParams{};
+  if (next.guide == params.guide) return;
+  adoptModel(next, nullptr);
+}
+
+void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
+  const std::string phase(cmd.text, strnlen(cmd.text, sizeof cmd.text));
+  auto refuse = [&](const std::string& why) {
+    ++ctx.stats.bad_commands;
+    ctx.event(info.id, cmd.client_id, telehand_msg_EVENT_ERROR,
+              "phase '" + phase.substr(0, 32) + "' refused: " + why, now_ns);
+  };
+  if (mode == telehand_msg_MODE_REPLAY) {
+    if (!replay) return refuse("the replay is not running");
+    if (phase == "pause") {
+      replay->pause(now_ns);
+    } else if (phase == "play") {
+      replay->play(now_ns);
+    } else if (phase == "speed") {
+      if (!std::isfinite(cmd.value)) return refuse("the speed is not a number");
+      replay->setSpeed(cmd.value, now_ns);
+    } else if (phase == "loop") {
+      replay->setLoop(cmd.value != 0.0);
+    } else {
+      return refuse("a replay knows pause, play, speed and loop");
+    }
+    return;
+  }
+  if (mode != telehand_msg_MODE_LESSON || !lesson) return refuse("the session runs no lesson");
+  const bool known = phase == "baseline" || phase == "watch" || phase == "guided" ||
+                     phase == "attempt" || phase == "rest" || phase == "reassessment";
+  if (!known) {
+    return refuse("a lesson knows baseline, watch, guided, attempt, rest and reassessment");
+  }
+  if (phase == "guided" && !(cmd.value > 0.0 && cmd.value <= 1.0)) {
+    return refuse("a guided trial's authority must be in (0, 1]");
+  }
+  if (lesson->trialsBegun() >= lesson->plan.guided + lesson->plan.attempts &&
+      (phase == "guided" || phase == "attempt")) {
+    return refuse("the lesson's " + std::to_string(lesson->trialsBegun()) + " trials are done");
+  }
+  // The stream may lag the command (it travels on its own topics), by seconds at most.
+  if (cmd.last_seq >= sample_bounds::kMaxSeq ||
+      cmd.last_seq > (have_seq ? seq_high : 0) + SessionManager::kSeqWindow) {
+    return refuse("its last sample " + std::to_string(cmd.last_seq) +
+                  " is beyond the session's stream");
+  }
+  // Whatever ran ends here: the trial (it waits for its record to be scored), the
+  // exploration phase (scored now), the demonstration.
+  lesson->end(cmd.last_seq, now_ns);
+  hand.endExploration(ctx, client_id, now_ns);
+  endReplay();
+  const uint64_t next_seq = cmd.last_seq + 1;
+  if (phase == "baseline" || phase == "reassessment") {
+    setGuide(0.0);
+    hand.beginExploration(phase);
+  } else if (phase == "watch") {
+    setGuide(0.0);
+    try {
+      startReplay(lesson->info.demo_session, openingModel(patient),
+                  cmd.value > 0.0 ? cmd.value : 1.0, now_ns);
+    } catch (const Error& e) {
+      return refuse(std::string("the demonstration cannot be replayed: ") + e.what());
+    }
+  } else if (phase == "guided") {
+    lesson->begin("guided", cmd.value, next_seq);
+    setGuide(cmd.value);
+  } else if (phase == "attempt") {
+    lesson->begin("attempt", 0.0, next_seq);
+    setGuide(0.0);
+  } else {  // rest
+    setGuide(0.0);
+  }
+  std::string text = "phase: " + phase;
+  if (phase == "guided") {
+    text += " (guide authority " + std::to_string(std::lround(100 * cmd.value)) + " %)";
+  }
+  ctx.event(info.id, cmd.client_id, telehand_msg_EVENT_INFO, text, now_ns);
 }
 
 void Session::recoverIfDue(int64_t now_ns) {
@@ -167,6 +293,12 @@ void Session::recover(int64_t now_ns) {
 }
 
 void Session::close(const std::string& state, int64_t now_ns) {
+  if (lesson) {
+    // The last trial ends with the record; everything waiting is scored on what arrived.
+    lesson->end(seq_high, now_ns);
+    lesson->scoreDue(ctx, info.id, client_id, params.force_scale, now_ns, true);
+    ctx.event(info.id, client_id, telehand_msg_EVENT_SCORE, lesson->summary(), now_ns);
+  }
   {
     // The link's packet rates, into the record.
     const double secs = std::max(static_cast<double>(now_ns - opened_ns) * 1e-9, 1e-3);

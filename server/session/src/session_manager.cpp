@@ -11,6 +11,7 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/lesson/lesson.h"
 #include "telehand/server/session/session.h"
 
 namespace telehand::server::session {
@@ -111,7 +112,10 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
                                const Origin& from) {
   if (cmd.kind != telehand_msg_CMD_OPEN) {
     if (Session* s = find(cmd.session_id)) {
-      if (!owns(*s, from, cmd.kind == telehand_msg_CMD_CLOSE ? "a CLOSE" : "a MARK", 1, now_ns)) {
+      const char* what = cmd.kind == telehand_msg_CMD_CLOSE   ? "a CLOSE"
+                         : cmd.kind == telehand_msg_CMD_PHASE ? "a PHASE"
+                                                              : "a MARK";
+      if (!owns(*s, from, what, 1, now_ns)) {
         return;
       }
     }
@@ -136,6 +140,17 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
         s.hand.endExploration(ctx_, s.client_id, now_ns);
         s.hand.beginExploration("reassessment");
       }
+      return;
+    }
+    case telehand_msg_CMD_PHASE: {
+      Session* s = find(cmd.session_id);
+      if (!s) {
+        ++stats_.bad_commands;
+        event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+              "PHASE for unknown session " + std::to_string(cmd.session_id), now_ns);
+        return;
+      }
+      s->onPhase(cmd, now_ns);
       return;
     }
   }
@@ -173,10 +188,46 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       return;
     }
   }
+  if (cmd.mode != telehand_msg_MODE_MOBILIZATION && cmd.mode != telehand_msg_MODE_EXPLORATION &&
+      cmd.mode != telehand_msg_MODE_CAPTURE && cmd.mode != telehand_msg_MODE_LESSON &&
+      cmd.mode != telehand_msg_MODE_REPLAY) {
+    ++stats_.bad_commands;
+    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+          "OPEN with unknown mode " + std::to_string(static_cast<int>(cmd.mode)), now_ns);
+    return;
+  }
   std::string case_name = cmd.case_name;
+  // A lesson run renders the lesson's case; a replay shows a recorded session on its own.
+  std::optional<store::LessonInfo> lesson_info;
+  technique::Targets targets;
+  std::optional<store::SessionInfo> replayed;
+  try {
+    if (cmd.mode == telehand_msg_MODE_LESSON) {
+      lesson_info = store_.lesson(cmd.lesson_id);
+      if (!lesson_info)
+        throw Error("no lesson " + std::to_string(cmd.lesson_id) + " in the record");
+      targets = lesson::decodeTargets(lesson_info->targets);
+      case_name = lesson_info->case_name;
+    } else if (cmd.mode == telehand_msg_MODE_REPLAY) {
+      replayed = store_.session(cmd.follow_session);
+      if (!replayed) {
+        throw Error("no session " + std::to_string(cmd.follow_session) + " in the record");
+      }
+      if (replayed->mode == "replay") throw Error("a replay cannot be replayed");
+      case_name = replayed->case_name;
+    }
+  } catch (const Error& e) {
+    ++stats_.bad_commands;
+    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+          std::string("cannot open the ") +
+              (lesson_info || cmd.mode == telehand_msg_MODE_LESSON ? "lesson run: " : "replay: ") +
+              e.what(),
+          now_ns);
+    return;
+  }
   PatientCase patient;
   Session* capture = nullptr;
-  if (cmd.follow_session != 0) {
+  if (cmd.follow_session != 0 && cmd.mode != telehand_msg_MODE_REPLAY) {
     // A follower renders the live fit of a running capture session.
     capture = find(cmd.follow_session);
     if (!capture || capture->mode != telehand_msg_MODE_CAPTURE || capture->closing) {
@@ -239,6 +290,26 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     capture->capture.addFollower(info.id);
   }
   if (cmd.mode == telehand_msg_MODE_CAPTURE) s.capture.startRefit(s.params, refit_options_);
+  if (lesson_info) {
+    const auto demo = store_.session(lesson_info->demo_session);
+    const double demo_s = demo ? static_cast<double>(demo->samples) * 1e-3 : 0.0;
+    const LessonPlan plan = lesson::planOf(*lesson_info, targets, std::min(demo_s, 600.0));
+    s.lesson = std::make_unique<LessonRun>(*lesson_info, targets, plan);
+    try {
+      store_.setSessionLesson(info.id, lesson_info->id);
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("session {}: {}", info.id, e.what());
+    }
+  }
+  if (replayed) {
+    try {
+      s.startReplay(replayed->id, s.params, 1.0, now_ns);
+    } catch (const Error& e) {
+      event(s.info.id, cmd.client_id, telehand_msg_EVENT_ERROR,
+            std::string("the replay cannot read its record: ") + e.what(), now_ns);
+    }
+  }
 
   s.publishStatus(telehand_msg_SESSION_ACTIVE);
   s.publishModel();
@@ -248,7 +319,12 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
                            std::to_string(cmd.follow_session) +
                            (wants_knn ? " (k-nearest-neighbour model)" : " (cubic model)")
                      : "") +
-            (cmd.direct_force ? " (direct force: the server renders)" : ""),
+            (cmd.direct_force ? " (direct force: the server renders)" : "") +
+            (lesson_info ? ", lesson " + std::to_string(lesson_info->id) + " (demonstration " +
+                               std::to_string(lesson_info->demo_session) + ", " +
+                               lesson_info->schedule + " feedback)"
+                         : std::string()) +
+            (replayed ? ", replaying session " + std::to_string(replayed->id) : std::string()),
         now_ns);
 }
 

@@ -24,9 +24,11 @@ namespace {
 // user_version the schema number. Schema 1 (no marker in the header, user_version 0) kept each
 // sample as a BLOB of the C struct's memory next to a few query columns; schema 2 keeps every
 // field of the sample in a column of its own, named as in the CSV export (sampleColumns());
-// schema 3 adds the session's owner (the DDS participant that opened it, docs/security.md).
+// schema 3 adds the session's owner (the DDS participant that opened it, docs/security.md);
+// schema 4 adds lessons, lesson runs and their trials (docs/lessons.md).
 constexpr int32_t kApplicationId = 0x54484E44;  // "THND"
-constexpr int kSchemaVersion = 3;
+constexpr int kSchemaVersion = 4;
+constexpr int kOwnerSchemaVersion = 3;
 constexpr int kColumnSchemaVersion = 2;
 constexpr int kBlobSchemaVersion = 1;
 
@@ -56,6 +58,23 @@ CREATE TABLE IF NOT EXISTS session_files (
   name TEXT NOT NULL,
   content BLOB NOT NULL,
   PRIMARY KEY (session_id, name));
+)sql";
+
+// Schema 4's tables (addLessonTables() adds them to an older file).
+constexpr const char* kLessonTables = R"sql(
+CREATE TABLE IF NOT EXISTS lessons (
+  id INTEGER PRIMARY KEY,
+  name TEXT NOT NULL, demo_session INTEGER NOT NULL, case_name TEXT NOT NULL,
+  technique TEXT NOT NULL, schedule TEXT NOT NULL, guided INTEGER NOT NULL,
+  attempts INTEGER NOT NULL, trial_s REAL NOT NULL, assessment INTEGER NOT NULL,
+  targets TEXT NOT NULL, created_ns INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS lesson_runs (
+  session_id INTEGER PRIMARY KEY, lesson_id INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS trials (
+  session_id INTEGER NOT NULL, idx INTEGER NOT NULL, phase TEXT NOT NULL,
+  authority REAL NOT NULL, first_seq INTEGER NOT NULL, last_seq INTEGER NOT NULL,
+  overall REAL NOT NULL, figures TEXT NOT NULL,
+  PRIMARY KEY (session_id, idx));
 )sql";
 
 /// Calls f(field) for every field of a sample except session_id, in sampleColumns() order.
@@ -132,10 +151,11 @@ std::string insertSampleSql() {
 }
 
 /// SELECT of every field in visitFields() order, then valid.
-std::string selectSamplesSql() {
+std::string selectSamplesSql(bool range = false) {
   std::string cols;
   for (const auto& n : fieldNames()) cols += n + ", ";
-  return "SELECT " + cols + "valid FROM samples WHERE session_id = ? ORDER BY seq";
+  return "SELECT " + cols + "valid FROM samples WHERE session_id = ?" +
+         (range ? " AND seq >= ? AND seq <= ?" : "") + " ORDER BY seq";
 }
 
 /// Binds session_id, the fields and valid to an insert statement.
@@ -295,6 +315,9 @@ SqliteStore::Layout SqliteStore::inspect() {
     if (version == kColumnSchemaVersion && has("samples") && has("sessions")) {
       return Layout::kColumns;
     }
+    if (version == kOwnerSchemaVersion && has("samples") && has("sessions")) {
+      return Layout::kOwner;
+    }
     if (version != kSchemaVersion || !has("samples")) {
       throw StoreError("'" + path_ + "' carries the telehand marker but schema " +
                        std::to_string(version) +
@@ -365,14 +388,19 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
         layout = inspect();  // another program may have got there first
         if (layout == Layout::kEmpty) {
           exec(kOtherTables);
+          exec(kLessonTables);
           exec(samplesTableSql().c_str());
           exec(("PRAGMA application_id = " + std::to_string(kApplicationId) + ";").c_str());
           exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
         } else if (layout == Layout::kBlob) {
           migrateFromBlobs();
           addOwnerColumn();
+          addLessonTables();
         } else if (layout == Layout::kColumns) {
           addOwnerColumn();
+          addLessonTables();
+        } else if (layout == Layout::kOwner) {
+          addLessonTables();
         }
         exec("COMMIT");
       } catch (...) {
@@ -390,6 +418,20 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
   }
 }
 
+bool SqliteStore::hasTable(const char* name) {
+  Statement st(db_, "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = ?");
+  sqlite3_bind_text(st.get(), 1, name, -1, SQLITE_STATIC);
+  return st.step() && sqlite3_column_int(st.get(), 0) > 0;
+}
+
+/// Schema 3 -> 4 inside the caller's transaction: the lesson tables, empty.
+void SqliteStore::addLessonTables() {
+  exec(kLessonTables);
+  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  spdlog::info("record database '{}': schema {} -> {} (lessons and their trials)", path_,
+               kOwnerSchemaVersion, kSchemaVersion);
+}
+
 bool SqliteStore::hasOwnerColumn() {
   Statement st(db_, "SELECT name FROM pragma_table_info('sessions') WHERE name = 'owner'");
   return st.step();
@@ -399,9 +441,9 @@ bool SqliteStore::hasOwnerColumn() {
 /// sessions recorded before owners were).
 void SqliteStore::addOwnerColumn() {
   if (!hasOwnerColumn()) exec("ALTER TABLE sessions ADD COLUMN owner TEXT NOT NULL DEFAULT '';");
-  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  exec(("PRAGMA user_version = " + std::to_string(kOwnerSchemaVersion) + ";").c_str());
   spdlog::info("record database '{}': schema {} -> {} (sessions record their owner)", path_,
-               kColumnSchemaVersion, kSchemaVersion);
+               kColumnSchemaVersion, kOwnerSchemaVersion);
 }
 
 /// Schema 1 -> 2 inside the caller's transaction: every blob decoded into the columns, the
@@ -623,13 +665,144 @@ void SqliteStore::forEachSample(uint64_t session_id,
     }
     return;
   }
-  Statement st(db_, selectSamplesSql());
+  Statement st(db_, selectSamplesSql().c_str());
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   Sample s{};
   while (st.step()) {
     const bool valid = readSample(st.get(), session_id, s);
     fn(s, valid);
   }
+}
+
+void SqliteStore::forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint64_t last_seq,
+                                  const std::function<void(const Sample&, bool)>& fn) {
+  if (queryInt(db_, "PRAGMA user_version") == 0) {  // schema 1: its blobs, filtered
+    forEachSample(session_id, [&](const Sample& s, bool valid) {
+      if (s.seq >= first_seq && s.seq <= last_seq) fn(s, valid);
+    });
+    return;
+  }
+  // Sequence numbers are stored as SQLite's signed integers; the window is clamped to them.
+  constexpr uint64_t kMax = static_cast<uint64_t>(std::numeric_limits<sqlite3_int64>::max());
+  Statement st(db_, selectSamplesSql(true).c_str());
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(std::min(first_seq, kMax)));
+  sqlite3_bind_int64(st.get(), 3, static_cast<sqlite3_int64>(std::min(last_seq, kMax)));
+  Sample s{};
+  while (st.step()) {
+    const bool valid = readSample(st.get(), session_id, s);
+    fn(s, valid);
+  }
+}
+
+uint64_t SqliteStore::createLesson(const LessonInfo& l) {
+  Statement st(db_,
+               "INSERT INTO lessons (name, demo_session, case_name, technique, schedule, guided, "
+               "attempts, trial_s, assessment, targets, created_ns) "
+               "VALUES (?,?,?,?,?,?,?,?,?,?,?)");
+  sqlite3_bind_text(st.get(), 1, l.name.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(l.demo_session));
+  sqlite3_bind_text(st.get(), 3, l.case_name.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_text(st.get(), 4, l.technique.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_text(st.get(), 5, l.schedule.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_int(st.get(), 6, l.guided);
+  sqlite3_bind_int(st.get(), 7, l.attempts);
+  sqlite3_bind_double(st.get(), 8, l.trial_s);
+  sqlite3_bind_int(st.get(), 9, l.assessment ? 1 : 0);
+  sqlite3_bind_text(st.get(), 10, l.targets.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_int64(st.get(), 11, l.created_ns);
+  st.step();
+  return static_cast<uint64_t>(sqlite3_last_insert_rowid(db_));
+}
+
+namespace {
+constexpr const char* kLessonSelect =
+    "SELECT id, name, demo_session, case_name, technique, schedule, guided, attempts, trial_s, "
+    "assessment, targets, created_ns FROM lessons ";
+
+LessonInfo readLesson(const Statement& st) {
+  LessonInfo l;
+  l.id = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0));
+  l.name = st.text(1);
+  l.demo_session = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 2));
+  l.case_name = st.text(3);
+  l.technique = st.text(4);
+  l.schedule = st.text(5);
+  l.guided = sqlite3_column_int(st.get(), 6);
+  l.attempts = sqlite3_column_int(st.get(), 7);
+  l.trial_s = sqlite3_column_double(st.get(), 8);
+  l.assessment = sqlite3_column_int(st.get(), 9) != 0;
+  l.targets = st.text(10);
+  l.created_ns = sqlite3_column_int64(st.get(), 11);
+  return l;
+}
+}  // namespace
+
+std::vector<LessonInfo> SqliteStore::listLessons() {
+  std::vector<LessonInfo> out;
+  if (!hasTable("lessons")) return out;  // a read-only file of an older schema
+  Statement st(db_, (std::string(kLessonSelect) + "ORDER BY id").c_str());
+  while (st.step()) out.push_back(readLesson(st));
+  return out;
+}
+
+std::optional<LessonInfo> SqliteStore::lesson(uint64_t lesson_id) {
+  if (!hasTable("lessons")) return std::nullopt;
+  Statement st(db_, (std::string(kLessonSelect) + "WHERE id = ?").c_str());
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(lesson_id));
+  if (!st.step()) return std::nullopt;
+  return readLesson(st);
+}
+
+void SqliteStore::setSessionLesson(uint64_t session_id, uint64_t lesson_id) {
+  Statement st(db_, "INSERT OR REPLACE INTO lesson_runs (session_id, lesson_id) VALUES (?,?)");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(lesson_id));
+  st.step();
+}
+
+uint64_t SqliteStore::sessionLesson(uint64_t session_id) {
+  if (!hasTable("lesson_runs")) return 0;
+  Statement st(db_, "SELECT lesson_id FROM lesson_runs WHERE session_id = ?");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  return st.step() ? static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0)) : 0;
+}
+
+void SqliteStore::appendTrial(const TrialRecord& t) {
+  Statement st(db_,
+               "INSERT OR REPLACE INTO trials (session_id, idx, phase, authority, first_seq, "
+               "last_seq, overall, figures) VALUES (?,?,?,?,?,?,?,?)");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(t.session_id));
+  sqlite3_bind_int(st.get(), 2, t.index);
+  sqlite3_bind_text(st.get(), 3, t.phase.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_double(st.get(), 4, t.authority);
+  sqlite3_bind_int64(st.get(), 5, static_cast<sqlite3_int64>(t.first_seq));
+  sqlite3_bind_int64(st.get(), 6, static_cast<sqlite3_int64>(t.last_seq));
+  sqlite3_bind_double(st.get(), 7, t.overall);
+  sqlite3_bind_text(st.get(), 8, t.figures.c_str(), -1, SQLITE_TRANSIENT);
+  st.step();
+}
+
+std::vector<TrialRecord> SqliteStore::trials(uint64_t session_id) {
+  std::vector<TrialRecord> out;
+  if (!hasTable("trials")) return out;
+  Statement st(db_,
+               "SELECT idx, phase, authority, first_seq, last_seq, overall, figures FROM trials "
+               "WHERE session_id = ? ORDER BY idx");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  while (st.step()) {
+    TrialRecord t;
+    t.session_id = session_id;
+    t.index = sqlite3_column_int(st.get(), 0);
+    t.phase = st.text(1);
+    t.authority = sqlite3_column_double(st.get(), 2);
+    t.first_seq = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 3));
+    t.last_seq = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 4));
+    t.overall = sqlite3_column_double(st.get(), 5);
+    t.figures = st.text(6);
+    out.push_back(std::move(t));
+  }
+  return out;
 }
 
 void SqliteStore::appendFile(uint64_t session_id, const SessionFile& f) {

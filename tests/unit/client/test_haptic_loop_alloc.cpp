@@ -2,6 +2,7 @@
 // the global operator new/delete with counting versions, armed per thread around step().
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <memory>
 #include <new>
@@ -295,6 +296,76 @@ TEST(HapticLoopAlloc, StepAllocatesNothingWithPassivityControlDirectForcesAndQue
   EXPECT_EQ(h.models_applied.load(), 2u);
   EXPECT_EQ(h.model_version.load(), 3u) << "the queued version came after the first fade";
   EXPECT_LE(h.update_step_max_ratio.load(), 1.0);
+}
+
+/// A guide along a 3 Hz flexion swing of +-6 deg about 20 deg (a demonstration's path).
+GuideParams swingGuide(double authority) {
+  GuideParams g;
+  g.authority = authority;
+  g.period_s = 1.0 / 3.0;
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    const double ph = 2.0 * M_PI * k / GuideParams::kPoints;
+    g.path_rad[static_cast<std::size_t>(k)] = Vec3(degToRad(20.0 + 6.0 * std::sin(ph)), 0, 0);
+  }
+  return g;
+}
+
+TEST(HapticLoopAlloc, GuidanceStaysInsideTheGateFadesAsScheduledAndAllocatesNothing) {
+  // A lesson's guided trials, as the server schedules them: full, half, then none, each a
+  // new model version faded in by the proxy. The simulated student pushes at 3 Hz.
+  ManualClock clock(kNsPerS);
+  const JointModelParams model = healthyIndexMcp();
+  SimulatedMf2 sim(model, OperatorConfig{}, clock);
+  TestDevice dev(sim);
+  const SafetyLimits limits{};
+  HapticLoop hl(dev, clock, model, limits);
+  hl.setSession(78);
+  const double authorities[] = {1.0, 0.5, 0.0};
+  constexpr int kTrialTicks = 3000;
+  std::size_t allocations = 0;
+  double max_force = 0.0;
+  // The guide's share of the commanded torque per trial (largest |guide| torque seen).
+  double guide_max[3] = {0, 0, 0};
+  double guide_end[3] = {0, 0, 0};
+  for (int trial = 0; trial < 3; ++trial) {
+    JointModelParams next = model;
+    next.version = static_cast<uint32_t>(2 + trial);
+    next.guide = swingGuide(authorities[trial]);
+    ASSERT_TRUE(hl.models().tryPush(next));
+    for (int i = 0; i < kTrialTicks; ++i) {
+      clock.advance(kNsPerMs);
+      {
+        AllocationGuard guard;
+        hl.step();
+        allocations += guard.allocations() + guard.deallocations();
+      }
+      Sample s;
+      while (hl.samples().tryPop(s)) {
+        for (int k = 0; k < 2; ++k) {
+          const Vec3 f(s.fingers[k].command_n[0], s.fingers[k].command_n[1],
+                       s.fingers[k].command_n[2]);
+          max_force = std::max(max_force, f.norm());
+        }
+      }
+      // After the 200 ms fade the guide is the trial's own.
+      const loop::LoopHealth& h = hl.health();
+      if (i > 300) guide_max[trial] = std::max(guide_max[trial], h.guide_nm.load());
+      if (i == kTrialTicks - 1) guide_end[trial] = h.guide_authority.load();
+    }
+  }
+  EXPECT_EQ(allocations, 0u) << "step() allocated or freed with a guide";
+  EXPECT_LE(max_force, limits.max_force_n + 1e-9) << "every force leaves through the gate";
+  EXPECT_EQ(hl.health().fault.load(), 0u) << loop::faultName(hl.fault());
+  EXPECT_EQ(hl.health().models_applied.load(), 3u);
+  // Authority as scheduled: full, half, none; the guide's torque bounded by authority.
+  EXPECT_DOUBLE_EQ(guide_end[0], 1.0);
+  EXPECT_DOUBLE_EQ(guide_end[1], 0.5);
+  EXPECT_DOUBLE_EQ(guide_end[2], 0.0);
+  const double bound = swingGuide(1.0).max_force_n * model.lever_arm_m;
+  EXPECT_GT(guide_max[0], 0.0);
+  EXPECT_LE(guide_max[0], 1.0 * bound + 1e-12);
+  EXPECT_LE(guide_max[1], 0.5 * bound + 1e-12);
+  EXPECT_EQ(guide_max[2], 0.0);
 }
 
 }  // namespace

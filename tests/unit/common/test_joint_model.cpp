@@ -550,5 +550,78 @@ TEST(JointProxy, ZeroBlendSwitchesAtOnce) {
   }
 }
 
+GuideParams testGuide(double authority) {
+  GuideParams g;
+  g.authority = authority;
+  g.period_s = 0.5;
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    const double ph = 2.0 * M_PI * k / GuideParams::kPoints;
+    g.path_rad[static_cast<std::size_t>(k)] =
+        Vec3(degToRad(10.0 + 5.0 * std::sin(ph)), degToRad(1.0), 0.0);
+  }
+  return g;
+}
+
+TEST(Guide, LeadsTowardThePathBoundedByItsAuthority) {
+  JointModelParams p = healthyIndexMcp();
+  p.guide = testGuide(1.0);
+  const JointModel m(p);
+  // On the path, moving with it: no force.
+  Vec3 rates;
+  const Vec3 on = m.guideTargetRad(0.125, &rates);
+  EXPECT_NEAR(radToDeg(on[kFlexion]), 15.0, 0.05) << "a quarter period: the swing's top";
+  EXPECT_LT(m.guideTorqueNm(on, rates, 0.125).norm(), 1e-9);
+  // Periodic.
+  EXPECT_LT((m.guideTargetRad(0.125 + 3 * 0.5) - on).norm(), 1e-9);
+  // Behind the path: pulled toward it, k per degree, then bounded.
+  Vec3 behind = on;
+  behind[kFlexion] -= degToRad(2.0);
+  const Vec3 pull = m.guideTorqueNm(behind, rates, 0.125);
+  EXPECT_NEAR(pull[kFlexion], 2.0 * p.guide.stiffness_n_per_deg * p.lever_arm_m, 1e-9);
+  Vec3 far = on;
+  far[kFlexion] -= degToRad(60.0);
+  EXPECT_NEAR(m.guideTorqueNm(far, rates, 0.125)[kFlexion], p.guide.max_force_n * p.lever_arm_m,
+              1e-12);
+  // Authority scales it; none is no force; a guide asking beyond the limits is held to them.
+  JointModelParams half = p;
+  half.guide.authority = 0.5;
+  EXPECT_NEAR(JointModel(half).guideTorqueNm(far, rates, 0.125)[kFlexion],
+              0.5 * p.guide.max_force_n * p.lever_arm_m, 1e-12);
+  JointModelParams none = p;
+  none.guide.authority = 0.0;
+  EXPECT_EQ(JointModel(none).guideTorqueNm(far, rates, 0.125), Vec3::Zero());
+  JointModelParams greedy = p;
+  greedy.guide.max_force_n = 1e6;
+  greedy.guide.stiffness_n_per_deg = 1e6;
+  EXPECT_LE(std::abs(JointModel(greedy).guideTorqueNm(far, rates, 0.125)[kFlexion]),
+            GuideParams::kMaxForceN * p.lever_arm_m + 1e-12);
+}
+
+TEST(Guide, TheProxyRendersItAndFadesItsAuthority) {
+  JointModelParams p = healthyIndexMcp();
+  const JointModel m(p);
+  const Vec3 at(degToRad(10.0), 0.0, 0.0);
+  const PerFinger<Vec3> grip = m.gripFromAngles(at, 0.008);
+  JointProxy proxy(p, 200'000'000);
+  int64_t t = 1'000'000'000;
+  const ProxyOutput plain = proxy.render(grip, t);
+  EXPECT_EQ(plain.guide_ref_nm, Vec3::Zero());
+  JointModelParams guided = p;
+  guided.version = 2;
+  guided.guide = testGuide(1.0);
+  proxy.setModel(guided);
+  double last = 0.0, largest_step = 0.0;
+  for (int i = 0; i < 400; ++i) {
+    t += 1'000'000;
+    const ProxyOutput o = proxy.render(grip, t);
+    const double g = o.guide_ref_nm.norm();
+    largest_step = std::max(largest_step, std::abs(g - last));
+    last = g;
+  }
+  EXPECT_GT(last, 0.0) << "after the fade the guide acts";
+  // Faded in, not stepped: no tick changes the guide by more than the update bound allows.
+  EXPECT_LT(largest_step * p.force_scale / p.lever_arm_m, 0.15);
+}
+
 }  // namespace
 }  // namespace telehand

@@ -643,5 +643,34 @@ TEST(PatientCaseWire, FromWireRejectsBadNeutralZonesAndSpeedGains) {
   }
 }
 
+TEST(GuideWire, RoundTripsAndRefusesWhatIsOutOfRange) {
+  JointModelParams p = healthyIndexMcp();
+  p.guide.authority = 0.5;
+  p.guide.period_s = 0.33;
+  for (int k = 0; k < GuideParams::kPoints; ++k)
+    p.guide.path_rad[static_cast<std::size_t>(k)] = Vec3(0.01 * k, -0.002 * k, 0.0);
+  telehand_msg_JointModel w{};
+  toWire(p, 5, w);
+  std::string why;
+  const auto back = fromWire(w, &why);
+  ASSERT_TRUE(back.has_value()) << why;
+  EXPECT_EQ(back->guide, p.guide);
+  auto refused = [&](auto mutate, const char* named) {
+    telehand_msg_JointModel b = w;
+    mutate(b);
+    std::string reason;
+    EXPECT_FALSE(fromWire(b, &reason).has_value()) << named;
+    EXPECT_NE(reason.find(named), std::string::npos) << reason;
+  };
+  refused([](auto& b) { b.guide_authority = 1.5; }, "guide_authority");
+  refused([](auto& b) { b.guide_authority = std::nan(""); }, "guide_authority");
+  refused([](auto& b) { b.guide_period_s = 0.01; }, "guide_period_s");
+  refused([](auto& b) { b.guide_stiffness_n_per_deg = 50.0; }, "guide_stiffness");
+  refused([](auto& b) { b.guide_max_force_n = 1e9; }, "guide_max_force_n");
+  refused([](auto& b) { b.guide_path_rad[10][1] = std::numeric_limits<double>::infinity(); },
+          "guide_path_rad point 10");
+  refused([](auto& b) { b.guide_path_rad[3][0] = 7.0; }, "guide_path_rad point 3");
+}
+
 }  // namespace
 }  // namespace telehand

@@ -86,13 +86,14 @@ void SimulatedMf2::integrate(double dt) noexcept {
   const double t_s = static_cast<double>(sim_ns_ - start_ns_) * 1e-9;
 
   Vec3 tau_op;
+  // The operator's tremor runs whoever scripts the push (a script may add tremorN()).
+  if (op_.tremor_n > 0.0) {
+    const double y = tremorStep(tremor_noise_(tremor_rng_));
+    tremor_n_ = smoothRamp(t_s, op_.ramp_s) * op_.tremor_n * tremor_gain_ * y;
+  }
   if (script_) {
     tau_op = script_->torqueNm(t_s, angles_, rates_);
   } else {
-    if (op_.tremor_n > 0.0) {
-      const double y = tremorStep(tremor_noise_(tremor_rng_));
-      tremor_n_ = smoothRamp(t_s, op_.ramp_s) * op_.tremor_n * tremor_gain_ * y;
-    }
     tau_op[kFlexion] = (targetForceN(t_s) + tremor_n_) * g.force_scale * lever;
     tau_op[kAbduction] = -k * angles_[kAbduction];
     tau_op[kAxial] = -k * angles_[kAxial];

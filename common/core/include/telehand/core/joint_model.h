@@ -68,6 +68,33 @@ Vec3 eulerFromRotation(const Mat3& r) noexcept;
 /// (omega = E · rates) and that the per-axis torques act about (tau_i = e_i · tau).
 Mat3 eulerAxisBasis(const Vec3& angles_rad) noexcept;
 
+/// A lesson's haptic guidance (docs/lessons.md "Feel"): a bounded virtual spring in joint space
+/// that leads the rendered joint along one period of the demonstration's MCP angles, repeated.
+/// The grip follows the phalanx, so this is the demonstration's thimble path on the student's
+/// grip. Rendered by the client's proxy on top of the passive torque, through the same
+/// passivity guard and safety gate; the server's hand ignores it (it is not the joint's).
+struct GuideParams {
+  static constexpr int kPoints = 64;
+  /// Largest stiffness and force a guide may ask for (wire validation): 2 N/deg at 1 cm is
+  /// 2.9 N/mm after the 1:4 scale, still under the 1 kHz loop's stable wall with the joint's.
+  static constexpr double kMaxStiffnessNPerDeg = 2.0;
+  static constexpr double kMaxForceN = 16.0;
+  /// The spring's damping on the angle rate error, as a time constant: stiffness · this.
+  static constexpr double kDampingS = 0.005;
+  double authority = 0.0;            ///< 0 (none) .. 1 (full): scales the whole guide force
+  double period_s = 0.0;             ///< one period of the demonstration's oscillation
+  double stiffness_n_per_deg = 0.5;  ///< reference scale, force at the lever arm per degree
+  double max_force_n = 8.0;          ///< bound on each axis' guide force (reference scale)
+  std::array<Vec3, kPoints> path_rad = zeroPath();  ///< MCP angles over one period, evenly in time
+  bool active() const noexcept { return authority > 0.0 && period_s > 0.0; }
+  static std::array<Vec3, kPoints> zeroPath() noexcept {
+    std::array<Vec3, kPoints> a;
+    for (Vec3& v : a) v.setZero();
+    return a;
+  }
+  bool operator==(const GuideParams&) const = default;
+};
+
 /// Everything the server owns and publishes about one joint (JointModel on the wire).
 struct JointModelParams {
   uint32_t version = 0;
@@ -95,6 +122,8 @@ struct JointModelParams {
   Vec3 grip_offset_rad = Vec3::Zero();
   /// Largest correction a model may carry (wire validation; the server clamps well inside).
   static constexpr double kMaxGripOffsetDeg = 30.0;
+  /// A lesson's guidance while the student is led (authority 0: none).
+  GuideParams guide{};
 
   bool operator==(const JointModelParams&) const = default;
 };
@@ -180,6 +209,13 @@ class JointModel {
   /// Energy the passive joint stores at `angles_rad` (the work done against the holding
   /// forces from the rest angles), at device scale in joules: zero at rest, never negative.
   double potentialEnergyJ(const Vec3& angles_rad) const noexcept;
+  /// Where the guide leads the joint `t_s` into its period (linear between path points,
+  /// periodic), and the path's angle rates there.
+  Vec3 guideTargetRad(double t_s, Vec3* rates_rad_s = nullptr) const noexcept;
+  /// The guide's torque per axis at reference scale, `t_s` after it started: per axis
+  /// authority · clamp(k · (target − angle) + k · kDampingS · (target rate − rate), ±max force)
+  /// at the lever arm. Zero without an active guide.
+  Vec3 guideTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s, double t_s) const noexcept;
 
  private:
   /// The viscous part for one axis given its elastic torque (see passiveTorqueNm).
@@ -192,7 +228,8 @@ class JointModel {
 /// What the proxy renders on one tick.
 struct ProxyOutput {
   Vec3 angles_rad = Vec3::Zero();
-  Vec3 torque_ref_nm = Vec3::Zero();                           ///< passive torque, reference scale
+  Vec3 torque_ref_nm = Vec3::Zero();  ///< passive torque, reference scale
+  Vec3 guide_ref_nm = Vec3::Zero();   ///< a lesson guide's torque, reference scale (in the forces)
   PerFinger<Vec3> force_device_n{Vec3::Zero(), Vec3::Zero()};  ///< before the safety gate
   bool blending = false;
   /// This tick's force change due to the model update alone (blend weight change times the
@@ -246,7 +283,7 @@ class JointProxy {
 
  private:
   ProxyOutput renderWith(const JointModel& m, const PerFinger<Vec3>& p, const Vec3& angles,
-                         const Vec3& rates) const noexcept;
+                         const Vec3& rates, double guide_t_s) const noexcept;
   void startFade(int64_t now_ns) noexcept;
 
   JointModel current_;
@@ -263,6 +300,7 @@ class JointProxy {
   int64_t last_ns_ = 0;
   Vec3 last_angles_ = Vec3::Zero();
   Vec3 rates_ = Vec3::Zero();
+  int64_t guide_t0_ns_ = 0;  // when the guide's path (as rendered now) started
 };
 
 }  // namespace telehand

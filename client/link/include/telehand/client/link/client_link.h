@@ -46,6 +46,7 @@ struct OpenRequest {
   uint64_t follow_session = 0;  ///< render this capture session's live fit
   telehand_msg_StiffnessKind stiffness = telehand_msg_STIFFNESS_CUBIC;
   bool direct_force = false;  ///< baseline: the server computes the force
+  uint64_t lesson_id = 0;     ///< MODE_LESSON: the lesson to run
 };
 
 struct CloseResult {
@@ -76,6 +77,16 @@ class ClientLink {
 
   /// Send a mark/feedback event into the session.
   void mark(const std::string& text);
+  /// A lesson run's next phase (docs/lessons.md): `last_seq` is the last sample sent before
+  /// it, `value` the guide's authority of a guided trial.
+  void phase(const std::string& name, double value, uint64_t last_seq);
+  /// MODE_LESSON: the plan the server sent with the OPEN's answer (empty otherwise).
+  const std::string& lessonPlan() const noexcept { return lesson_plan_; }
+  /// The patient case the server opened the session on (a lesson's is the lesson's).
+  const std::string& openedCase() const noexcept { return opened_case_; }
+  /// Score events of this session from its server (a trial's and the run's; oscillations
+  /// are left in the record), in arrival order; drained on read.
+  std::vector<std::string> takeScores();
   /// Send files to keep with the session's record (a capture's device and calibration files).
   void sendFiles(const std::vector<mf2::NamedFile>& files);
 
@@ -123,6 +134,9 @@ class ClientLink {
   LinkStats stats_;
   std::mutex messages_mu_;
   std::vector<std::string> messages_;
+  std::vector<std::string> scores_;  // under messages_mu_
+  std::string lesson_plan_;
+  std::string opened_case_;
   uint32_t model_version_ = 0;
   std::optional<JointModelParams> pending_model_;  // taken but not yet in the loop's ring
   // Data-driven models: a STIFFNESS_KNN JointModel waits for the KnnModel of its version.

@@ -31,6 +31,10 @@ struct LoopHealth {
   std::atomic<uint64_t> samples_dropped{0};  ///< sample ring full: the link thread fell behind
   std::atomic<uint64_t> models_applied{0};
   std::atomic<uint32_t> model_version{0};
+  /// A lesson's guide: the largest per-axis guide torque rendered this tick (N·m, reference
+  /// scale) and the authority of the guide in the model rendered (0: none).
+  std::atomic<double> guide_nm{0.0};
+  std::atomic<double> guide_authority{0.0};
   std::atomic<double> force_max_n{0.0};     ///< largest commanded per-finger force
   std::atomic<double> last_force_n{0.0};    ///< thumb + index commanded force magnitude
   std::atomic<double> applied_ref_n{0.0};   ///< student's applied force, reference scale

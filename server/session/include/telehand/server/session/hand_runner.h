@@ -2,6 +2,7 @@
 /// A session's hand: the Bullet hand stepped on device time (catching up on lost samples,
 /// holding on withheld ones), the exploration phases it is observed for, the drift between
 /// it and the proxy, and the HandState it is published as.
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -59,6 +60,9 @@ class HandRunner {
   /// Time the pads pressed the joint (recovery).
   double treatmentS() const noexcept { return treatment_s_; }
   uint64_t published() const noexcept { return hand_seq_; }
+  /// Number the next HandState `next`: a session whose HandState comes from elsewhere for a
+  /// while (a lesson's replay) keeps one sequence for its viewers.
+  void continueSeq(uint64_t next) noexcept { hand_seq_ = std::max(hand_seq_, next); }
   uint64_t withheld() const noexcept { return hand_withheld_; }
 
  private:

@@ -13,8 +13,10 @@
 #include "telehand/core/knn_model.h"
 #include "telehand/server/session/capture_fanout.h"
 #include "telehand/server/session/hand_runner.h"
+#include "telehand/server/session/lesson_run.h"
 #include "telehand/server/session/live_stream.h"
 #include "telehand/server/session/recorder.h"
+#include "telehand/server/session/replay.h"
 #include "telehand/server/session/session_context.h"
 
 namespace telehand::server::session {
@@ -45,6 +47,11 @@ class Session {
   void recoverIfDue(int64_t now_ns);
   /// Report the link's rates and the outcome, close the record, publish CLOSED.
   void close(const std::string& state, int64_t now_ns);
+  /// A lesson run's or a replay's PHASE command (docs/lessons.md); errors go out as events.
+  void onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  /// Replay session `source` of the record as this session's HandState (a replay session's
+  /// whole content, or a lesson's watch phase); throws Error when it cannot be read.
+  void startReplay(uint64_t source, const JointModelParams& model, double speed, int64_t now_ns);
 
   SessionContext& ctx;
   store::SessionInfo info;
@@ -69,13 +76,21 @@ class Session {
   Recorder recorder;
   HandRunner hand;
   CaptureFanout capture;
+  std::unique_ptr<LessonRun> lesson;  // MODE_LESSON
+  std::unique_ptr<Replay> replay;     // MODE_REPLAY, or a lesson's watch phase
 
  private:
+  /// The session's own model with the guide of `authority` (0: none), adopted and published.
+  void setGuide(double authority);
+  /// The replay (if any) ends; the session's own hand numbers its HandStates on from it.
+  void endReplay();
   void recover(int64_t now_ns);
   /// Free the k-NN models nothing here can render any more (the model, the hand and the
   /// direct renderer's current, fading-out and waiting versions).
   void releaseKnn();
 
+  const sim::HandModel* hand_model_;
+  sim::HandSimConfig hand_config_;
   int64_t next_recovery_check_ns_ = 0;
   std::unique_ptr<JointProxy> direct_;  // direct mode: the server renders the force
   uint64_t direct_sent_ = 0;

@@ -38,14 +38,25 @@ class SqliteStore final : public SessionStore {
   std::vector<EventRecord> events(uint64_t session_id) override;
   void appendFile(uint64_t session_id, const SessionFile& f) override;
   std::vector<SessionFile> files(uint64_t session_id) override;
+  void forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint64_t last_seq,
+                       const std::function<void(const Sample&, bool)>& fn) override;
+  uint64_t createLesson(const LessonInfo& lesson) override;
+  std::vector<LessonInfo> listLessons() override;
+  std::optional<LessonInfo> lesson(uint64_t lesson_id) override;
+  void setSessionLesson(uint64_t session_id, uint64_t lesson_id) override;
+  uint64_t sessionLesson(uint64_t session_id) override;
+  void appendTrial(const TrialRecord& t) override;
+  std::vector<TrialRecord> trials(uint64_t session_id) override;
   std::string location() const override { return path_; }
 
  private:
-  enum class Layout { kEmpty, kBlob, kColumns, kCurrent };
+  enum class Layout { kEmpty, kBlob, kColumns, kOwner, kCurrent };
   Layout inspect();
   void migrateFromBlobs();
   void addOwnerColumn();
   bool hasOwnerColumn();
+  bool hasTable(const char* name);
+  void addLessonTables();
   void exec(const char* sql);
   sqlite3_stmt* prepare(const char* sql);
 

@@ -39,6 +39,35 @@ struct SessionFile {
   std::string content;
 };
 
+/// A lesson (docs/lessons.md): a demonstration session, the patient case and technique it
+/// was made on, the targets derived from it and how the student's run is organised.
+struct LessonInfo {
+  uint64_t id = 0;
+  std::string name;
+  uint64_t demo_session = 0;
+  std::string case_name;
+  std::string technique = "mobilization";
+  /// Feedback schedule: concurrent, terminal, faded or self (self-requested).
+  std::string schedule = "terminal";
+  int guided = 2;          ///< guided trials (authority full, then partial, ... down to none)
+  int attempts = 3;        ///< free attempts after them
+  double trial_s = 8.0;    ///< length of each trial
+  bool assessment = true;  ///< exploration baseline before and reassessment after
+  std::string targets;     ///< the derived targets, as server/lesson encodes them
+  int64_t created_ns = 0;
+};
+
+/// One scored trial of a lesson run (or a single oscillation's scores live as events).
+struct TrialRecord {
+  uint64_t session_id = 0;
+  int index = 0;           ///< 1-based, in the order they ran
+  std::string phase;       ///< guided, attempt
+  double authority = 0.0;  ///< the guide's authority during it
+  uint64_t first_seq = 0, last_seq = 0;
+  double overall = 0.0;  ///< 0..100
+  std::string figures;   ///< the scores, as server/lesson encodes them
+};
+
 class SessionStore {
  public:
   virtual ~SessionStore() = default;
@@ -69,6 +98,19 @@ class SessionStore {
   /// Keep a file with the session (same name again: replaced).
   virtual void appendFile(uint64_t session_id, const SessionFile& f) = 0;
   virtual std::vector<SessionFile> files(uint64_t session_id) = 0;
+  /// Samples with first_seq <= seq <= last_seq, in sequence order.
+  virtual void forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint64_t last_seq,
+                               const std::function<void(const Sample&, bool valid)>& fn) = 0;
+  /// Lessons: a new one gets a fresh id.
+  virtual uint64_t createLesson(const LessonInfo& lesson) = 0;
+  virtual std::vector<LessonInfo> listLessons() = 0;
+  virtual std::optional<LessonInfo> lesson(uint64_t lesson_id) = 0;
+  /// A lesson run: the session that ran `lesson_id` (its trials are kept with it).
+  virtual void setSessionLesson(uint64_t session_id, uint64_t lesson_id) = 0;
+  /// The lesson a session ran, 0 if none.
+  virtual uint64_t sessionLesson(uint64_t session_id) = 0;
+  virtual void appendTrial(const TrialRecord& t) = 0;
+  virtual std::vector<TrialRecord> trials(uint64_t session_id) = 0;
   /// Where the record lives, for people.
   virtual std::string location() const = 0;
 };

@@ -1,0 +1,222 @@
+#include "records_lesson.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <map>
+#include <sstream>
+
+#include "report.h"
+#include "telehand/config/config.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/error.h"
+#include "telehand/server/lesson/lesson.h"
+
+namespace telehand::records {
+
+using namespace server::store;
+
+namespace {
+
+/// The force scale of a case (the demonstration's rendering), from the cases directory; the
+/// healthy joint's when the case is not there.
+double forceScaleOf(const std::string& cases_dir, const std::string& case_name) {
+  try {
+    return loadPatientCaseByName(cases_dir, case_name).model.force_scale;
+  } catch (const ConfigError&) {
+    return healthyIndexMcp().force_scale;
+  }
+}
+
+std::vector<Sample> samplesIn(SqliteStore& store, uint64_t session, uint64_t first, uint64_t last) {
+  std::vector<Sample> out;
+  store.forEachSampleIn(session, first, last, [&](const Sample& s, bool valid) {
+    if (valid) out.push_back(s);
+  });
+  return out;
+}
+
+std::vector<Sample> allSamples(SqliteStore& store, uint64_t session) {
+  return samplesIn(store, session, 0, UINT64_MAX);
+}
+
+/// Sessions that ran `lesson_id`, oldest first.
+std::vector<SessionInfo> runsOf(SqliteStore& store, uint64_t lesson_id) {
+  std::vector<SessionInfo> out;
+  for (const auto& s : store.listSessions()) {
+    if (s.mode == "lesson" && store.sessionLesson(s.id) == lesson_id) out.push_back(s);
+  }
+  return out;
+}
+
+double meanOverall(const std::vector<TrialRecord>& trials) {
+  if (trials.empty()) return 0.0;
+  double sum = 0.0;
+  for (const auto& t : trials) sum += t.overall;
+  return sum / static_cast<double>(trials.size());
+}
+
+}  // namespace
+
+int runLessonCreate(const LessonRequest& r) {
+  if (!validSchedule(r.schedule)) {
+    throw Error("--schedule '" + r.schedule + "': one of concurrent, terminal, faded, self");
+  }
+  SqliteStore store(r.db, SqliteStore::Mode::kReadWrite);
+  const auto demo = store.session(r.demo);
+  if (!demo) throw Error("no session " + std::to_string(r.demo) + " in " + r.db);
+  if (demo->mode != "mobilization") {
+    throw Error("session " + std::to_string(r.demo) + " is a " + demo->mode +
+                " session: a demonstration is a mobilization");
+  }
+  const double scale = forceScaleOf(r.cases_dir, demo->case_name);
+  const technique::Targets t = server::lesson::targetsFromRecord(store, r.demo, scale);
+  LessonInfo l;
+  l.name = r.name.empty() ? "mobilization by " + demo->user + " on " + demo->case_name : r.name;
+  l.demo_session = r.demo;
+  l.case_name = demo->case_name;
+  l.schedule = r.schedule;
+  l.guided = r.guided;
+  l.attempts = r.attempts;
+  l.trial_s = r.trial_s;
+  l.assessment = r.assessment;
+  l.targets = server::lesson::encodeTargets(t);
+  l.created_ns = wallNs();
+  const uint64_t id = store.createLesson(l);
+  std::cout << std::fixed << std::setprecision(2) << "lesson " << id << " '" << l.name
+            << "' from session " << r.demo << " (" << demo->case_name << "): force " << t.band_min_n
+            << "-" << t.band_max_n << " N, " << t.frequency_hz << " Hz, amplitude "
+            << t.amplitude_deg << " deg, " << t.oscillations << " oscillations; " << l.guided
+            << " guided + " << l.attempts << " attempts of " << l.trial_s << " s, " << l.schedule
+            << " feedback" << (l.assessment ? ", with assessment" : "") << "\n"
+            << "run it: telehand-client --lesson " << id << "\n";
+  return 0;
+}
+
+int runLessonList(SqliteStore& store, const std::string& db) {
+  const auto lessons = store.listLessons();
+  if (lessons.empty()) {
+    std::cout << "no lessons in " << db
+              << " (make one: telehand-records lesson create --demo SESSION)\n";
+    return 0;
+  }
+  std::cout << std::left << std::setw(6) << "id" << std::setw(8) << "demo" << std::setw(10)
+            << "case" << std::setw(12) << "schedule" << std::setw(8) << "trials" << std::setw(6)
+            << "runs"
+            << "name\n";
+  for (const auto& l : lessons) {
+    std::cout << std::left << std::setw(6) << l.id << std::setw(8) << l.demo_session
+              << std::setw(10) << l.case_name << std::setw(12) << l.schedule << std::setw(8)
+              << (std::to_string(l.guided) + "+" + std::to_string(l.attempts)) << std::setw(6)
+              << runsOf(store, l.id).size() << l.name << "\n";
+  }
+  return 0;
+}
+
+int runLessonShow(SqliteStore& store, uint64_t lesson_id) {
+  const auto l = store.lesson(lesson_id);
+  if (!l) throw Error("no lesson " + std::to_string(lesson_id) + " in the record");
+  const technique::Targets t = server::lesson::decodeTargets(l->targets);
+  std::cout << std::fixed << std::setprecision(2) << "lesson " << l->id << ": " << l->name
+            << "\n  demonstration: session " << l->demo_session << " on case " << l->case_name
+            << " (" << l->technique << ")\n  targets: force " << t.band_min_n << "-" << t.band_max_n
+            << " N (peak " << t.force_peak_n << ", mean " << t.force_mean_n << "), "
+            << t.frequency_hz << " Hz, amplitude " << t.amplitude_deg << " deg, flexion "
+            << t.rom_min_deg[0] << ".." << t.rom_max_deg[0] << " deg, path period "
+            << t.path_period_s << " s\n  plan: " << l->guided << " guided trial(s), " << l->attempts
+            << " attempt(s) of " << l->trial_s << " s, " << l->schedule << " feedback"
+            << (l->assessment ? ", exploration before and after" : "") << "\n";
+  const auto runs = runsOf(store, l->id);
+  if (runs.empty()) std::cout << "  runs: none yet\n";
+  for (const auto& s : runs) {
+    const auto trials = store.trials(s.id);
+    std::cout << "  run: session " << s.id << " by " << s.user << ", " << s.state << ", "
+              << trials.size() << " trials scored, mean overall " << std::setprecision(0)
+              << meanOverall(trials) << std::setprecision(2) << "\n";
+  }
+  return 0;
+}
+
+int runReport(SqliteStore& store, const ReportRequest& r) {
+  uint64_t session = r.session;
+  std::optional<LessonInfo> lesson;
+  if (r.lesson != 0) {
+    lesson = store.lesson(r.lesson);
+    if (!lesson) throw Error("no lesson " + std::to_string(r.lesson) + " in the record");
+    const auto runs = runsOf(store, r.lesson);
+    if (runs.empty()) throw Error("lesson " + std::to_string(r.lesson) + " has not been run yet");
+    session = runs.back().id;
+  }
+  const auto info = store.session(session);
+  if (!info) throw Error("no session " + std::to_string(session) + " in the record");
+  const uint64_t lesson_id = store.sessionLesson(session);
+  if (lesson_id == 0) {
+    throw Error("session " + std::to_string(session) + " is not a lesson run (mode " + info->mode +
+                ")");
+  }
+  if (!lesson) lesson = store.lesson(lesson_id);
+  if (!lesson) throw Error("the lesson of session " + std::to_string(session) + " is missing");
+  const double scale = forceScaleOf(r.cases_dir, lesson->case_name);
+  ReportInput in;
+  in.targets = server::lesson::decodeTargets(lesson->targets);
+  {
+    const auto demo = allSamples(store, lesson->demo_session);
+    in.demonstration = technique::seriesFromSamples(demo, scale);
+  }
+  in.title = "Lesson " + std::to_string(lesson->id) + ": " + lesson->name;
+  in.subtitle = "run: session " + std::to_string(session) + " by " + info->user + " on case " +
+                info->case_name + " (" + info->state + "), " + lesson->schedule + " feedback";
+  // Each trial scored again from its record (the scores are a function of the record).
+  for (const auto& t : store.trials(session)) {
+    ReportTrial rt;
+    rt.label = "trial " + std::to_string(t.index) + " (" + t.phase +
+               (t.phase == "guided"
+                    ? " " + std::to_string(static_cast<int>(std::lround(100 * t.authority))) + " %"
+                    : std::string()) +
+               ")";
+    const auto samples = samplesIn(store, session, t.first_seq, t.last_seq);
+    if (samples.size() < 2) continue;
+    rt.series = technique::seriesFromSamples(samples, scale);
+    rt.score = technique::score(rt.series, in.targets, server::lesson::kSettleS);
+    in.trials.push_back(std::move(rt));
+  }
+  // Ranges before and after, per direction reached in both phases.
+  std::map<std::string, double> before, after;
+  for (const auto& reach : store.reaches(session)) {
+    (reach.phase == "baseline" ? before : after)[reach.direction] = reach.angle_deg;
+  }
+  for (const auto& [dir, deg] : before) {
+    if (after.count(dir)) in.ranges.push_back({dir, deg, after[dir]});
+  }
+  // The learning curve: this user's runs of lessons, oldest first, up to this one.
+  for (const auto& s : store.listSessions()) {
+    if (s.mode != "lesson" || s.user != info->user || s.id > session) continue;
+    const auto trials = store.trials(s.id);
+    if (trials.empty()) continue;
+    in.history.emplace_back("session " + std::to_string(s.id), meanOverall(trials));
+  }
+  std::filesystem::create_directories(r.out_dir);
+  const std::string base =
+      (std::filesystem::path(r.out_dir) /
+       ("lesson-" + std::to_string(lesson->id) + "-session-" + std::to_string(session)))
+          .string();
+  auto write = [](const std::string& path, const std::string& text) {
+    const std::string tmp = path + ".partial";
+    {
+      std::ofstream f(tmp, std::ios::binary);
+      if (!(f << text)) throw Error("cannot write '" + tmp + "'");
+    }
+    std::filesystem::rename(tmp, path);
+  };
+  write(base + ".html", renderReportHtml(in));
+  write(base + "-scores.csv", renderScoresCsv(in));
+  write(base + "-oscillations.csv", renderOscillationsCsv(in));
+  std::cout << "report: " << base << ".html (" << in.trials.size() << " trials, "
+            << in.ranges.size() << " ranges, " << in.history.size() << " runs in the learning "
+            << "curve)\nscores: " << base << "-scores.csv, " << base << "-oscillations.csv\n";
+  return 0;
+}
+
+}  // namespace telehand::records

@@ -1,0 +1,43 @@
+#pragma once
+/// Lessons (docs/lessons.md): what a demonstration sets as targets, how they are kept in the
+/// record (text: one `key=value` per `;`), the plan a student's client receives, the guide
+/// that leads the student, and which trials the feedback schedule shows feedback after.
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+
+#include "telehand/core/joint_model.h"
+#include "telehand/core/technique_score.h"
+#include "telehand/protocol/lesson_plan.h"
+#include "telehand/server/store/store.h"
+
+namespace telehand::server::lesson {
+
+/// What a trial's build-up takes before it is judged, seconds: the push rises over 1.5 s
+/// (the simulated operator's ramp, a clinician's is similar), and the first oscillations on
+/// the way up are no part of the technique. Used for the demonstration and every trial.
+inline constexpr double kSettleS = 2.0;
+
+/// The targets as the record keeps them; decode throws Error naming the key that is missing,
+/// malformed or out of range (a record may be damaged or hostile).
+std::string encodeTargets(const technique::Targets& t);
+technique::Targets decodeTargets(const std::string& text);
+
+/// A trial's scores as the record keeps them (key=value; oscillations are not listed).
+std::string encodeScore(const technique::TrialScore& s);
+/// Any key=value text as numbers (keys whose value is not a finite number are left out).
+std::map<std::string, double> decodeFigures(const std::string& text);
+
+/// The targets a demonstration record sets: its samples (valid ones, in order) as a series at
+/// `force_scale`. Throws Error when the record is missing, too short or not an oscillation.
+technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_session,
+                                     double force_scale, double settle_s = kSettleS);
+
+/// The guide of a guided trial: the targets' path and period at `authority` (0..1).
+GuideParams guideFor(const technique::Targets& t, double authority);
+
+/// The plan a student's client receives for `l` (common/protocol/lesson_plan.h).
+LessonPlan planOf(const store::LessonInfo& l, const technique::Targets& t, double demo_s);
+
+}  // namespace telehand::server::lesson

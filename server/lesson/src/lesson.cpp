@@ -1,0 +1,200 @@
+#include "telehand/server/lesson/lesson.h"
+
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "telehand/core/error.h"
+
+namespace telehand::server::lesson {
+
+namespace {
+
+void put(std::string& out, const char* key, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%s=%.9g;", key, v);
+  out += buf;
+}
+
+bool parseDouble(const std::string& v, double& out) {
+  const auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), out);
+  return ec == std::errc{} && p == v.data() + v.size() && std::isfinite(out);
+}
+
+std::map<std::string, std::string> splitPairs(const std::string& text) {
+  std::map<std::string, std::string> kv;
+  std::size_t pos = 0;
+  while (pos < text.size()) {
+    const std::size_t end = std::min(text.find(';', pos), text.size());
+    const std::string item = text.substr(pos, end - pos);
+    const std::size_t eq = item.find('=');
+    if (eq != std::string::npos) kv[item.substr(0, eq)] = item.substr(eq + 1);
+    pos = end + 1;
+  }
+  return kv;
+}
+
+}  // namespace
+
+std::string encodeTargets(const technique::Targets& t) {
+  std::string out;
+  put(out, "band_min_n", t.band_min_n);
+  put(out, "band_max_n", t.band_max_n);
+  put(out, "force_peak_n", t.force_peak_n);
+  put(out, "force_trough_n", t.force_trough_n);
+  put(out, "force_mean_n", t.force_mean_n);
+  put(out, "frequency_hz", t.frequency_hz);
+  put(out, "amplitude_deg", t.amplitude_deg);
+  put(out, "jerk", t.jerk);
+  for (int i = 0; i < 3; ++i) {
+    put(out, ("rom_min_deg" + std::to_string(i)).c_str(), t.rom_min_deg[i]);
+    put(out, ("rom_max_deg" + std::to_string(i)).c_str(), t.rom_max_deg[i]);
+  }
+  put(out, "path_period_s", t.path_period_s);
+  out += "path=";
+  char buf[64];
+  for (std::size_t k = 0; k < t.path_rad.size(); ++k) {
+    for (int i = 0; i < 3; ++i) {
+      std::snprintf(buf, sizeof buf, "%s%.12g", (k == 0 && i == 0) ? "" : ",", t.path_rad[k][i]);
+      out += buf;
+    }
+  }
+  return out;
+}
+
+technique::Targets decodeTargets(const std::string& text) {
+  const auto kv = splitPairs(text);
+  auto num = [&](const std::string& key, double lo, double hi) {
+    const auto it = kv.find(key);
+    double d = 0.0;
+    if (it == kv.end()) throw Error("lesson targets: '" + key + "' is missing");
+    if (!parseDouble(it->second, d) || d < lo || d > hi) {
+      throw Error("lesson targets: '" + key + "' = '" + it->second + "' is not a number in [" +
+                  std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    }
+    return d;
+  };
+  technique::Targets t{};
+  t.band_min_n = num("band_min_n", 0, 200);
+  t.band_max_n = num("band_max_n", t.band_min_n, 200);
+  t.force_peak_n = num("force_peak_n", 0, 200);
+  t.force_trough_n = num("force_trough_n", 0, 200);
+  t.force_mean_n = num("force_mean_n", 0, 200);
+  t.frequency_hz = num("frequency_hz", 0.1, 10);
+  t.amplitude_deg = num("amplitude_deg", 0, 360);
+  t.jerk = num("jerk", -1e6, 1e6);
+  for (int i = 0; i < 3; ++i) {
+    t.rom_min_deg[i] = num("rom_min_deg" + std::to_string(i), -180, 180);
+    t.rom_max_deg[i] = num("rom_max_deg" + std::to_string(i), -180, 180);
+  }
+  t.path_period_s = num("path_period_s", 0.1, 10);
+  const auto it = kv.find("path");
+  if (it == kv.end()) throw Error("lesson targets: 'path' is missing");
+  std::vector<double> v;
+  std::size_t pos = 0;
+  const std::string& s = it->second;
+  while (pos <= s.size() && !s.empty()) {
+    const std::size_t end = std::min(s.find(',', pos), s.size());
+    double d = 0.0;
+    if (!parseDouble(s.substr(pos, end - pos), d) || std::abs(d) > M_PI) {
+      throw Error("lesson targets: path value " + std::to_string(v.size()) +
+                  " is not an angle within ±pi");
+    }
+    v.push_back(d);
+    pos = end + 1;
+  }
+  if (v.size() != 3 * static_cast<std::size_t>(GuideParams::kPoints)) {
+    throw Error("lesson targets: the path has " + std::to_string(v.size()) + " values, not " +
+                std::to_string(3 * GuideParams::kPoints));
+  }
+  t.path_rad.resize(GuideParams::kPoints);
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    const auto u = static_cast<std::size_t>(k);
+    t.path_rad[u] = Vec3(v[3 * u], v[3 * u + 1], v[3 * u + 2]);
+  }
+  return t;
+}
+
+std::string encodeScore(const technique::TrialScore& s) {
+  std::string out;
+  const technique::TrialFigures& f = s.figures;
+  put(out, "overall", s.overall);
+  put(out, "peak_error_n", s.peak_error_n);
+  put(out, "mean_error_n", s.mean_error_n);
+  put(out, "frequency_error_hz", s.frequency_error_hz);
+  put(out, "amplitude_error_deg", s.amplitude_error_deg);
+  put(out, "time_in_band", s.time_in_band);
+  put(out, "path_error_deg", s.path_error_deg);
+  put(out, "jerk_delta", s.jerk_delta);
+  put(out, "oscillations", static_cast<double>(f.oscillations.size()));
+  put(out, "force_peak_n", f.force_peak_n);
+  put(out, "force_trough_n", f.force_trough_n);
+  put(out, "force_mean_n", f.force_mean_n);
+  put(out, "frequency_zc_hz", f.frequency_zc_hz);
+  put(out, "frequency_spectrum_hz", f.frequency_spectrum_hz);
+  put(out, "amplitude_deg", f.amplitude_deg);
+  put(out, "jerk", f.jerk);
+  put(out, "duration_s", f.duration_s);
+  return out;
+}
+
+std::map<std::string, double> decodeFigures(const std::string& text) {
+  std::map<std::string, double> out;
+  for (const auto& [k, v] : splitPairs(text)) {
+    double d = 0.0;
+    if (parseDouble(v, d)) out[k] = d;
+  }
+  return out;
+}
+
+technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_session,
+                                     double force_scale, double settle_s) {
+  const auto info = store.session(demo_session);
+  if (!info) throw Error("session " + std::to_string(demo_session) + " is not in the record");
+  std::vector<Sample> samples;
+  samples.reserve(info->samples);
+  store.forEachSample(demo_session, [&](const Sample& s, bool valid) {
+    if (valid) samples.push_back(s);
+  });
+  if (samples.size() < 3000) {
+    throw Error("session " + std::to_string(demo_session) + " has " +
+                std::to_string(samples.size()) +
+                " valid samples: a demonstration needs at least 3 s of record");
+  }
+  const technique::Series series = technique::seriesFromSamples(samples, force_scale);
+  technique::Targets t = technique::deriveTargets(series, settle_s);
+  if (!(t.frequency_hz >= 0.1 && t.frequency_hz <= 10.0) ||
+      t.path_rad.size() != static_cast<std::size_t>(GuideParams::kPoints)) {
+    throw Error("session " + std::to_string(demo_session) +
+                " does not oscillate (no frequency between 0.1 and 10 Hz found): not a "
+                "demonstration of a mobilization");
+  }
+  return t;
+}
+
+GuideParams guideFor(const technique::Targets& t, double authority) {
+  GuideParams g;
+  g.authority = std::clamp(authority, 0.0, 1.0);
+  g.period_s = t.path_period_s;
+  for (int k = 0; k < GuideParams::kPoints && static_cast<std::size_t>(k) < t.path_rad.size(); ++k)
+    g.path_rad[static_cast<std::size_t>(k)] = t.path_rad[static_cast<std::size_t>(k)];
+  return g;
+}
+
+LessonPlan planOf(const store::LessonInfo& l, const technique::Targets& t, double demo_s) {
+  LessonPlan p;
+  p.lesson_id = l.id;
+  p.schedule = l.schedule;
+  p.guided = l.guided;
+  p.attempts = l.attempts;
+  p.trial_s = l.trial_s;
+  p.assessment = l.assessment;
+  p.demo_s = demo_s;
+  p.band_min_n = t.band_min_n;
+  p.band_max_n = t.band_max_n;
+  p.frequency_hz = t.frequency_hz;
+  return p;
+}
+
+}  // namespace telehand::server::lesson

@@ -1,0 +1,449 @@
+// Lessons on the server (docs/lessons.md): a lesson from a demonstration record, a student's
+// run in phases (the guide published with the model, trials scored on the record), the
+// replay of a record reproducing the live hand, and what the server refuses.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "telehand/core/clock.h"
+#include "telehand/protocol/lesson_plan.h"
+#include "telehand/protocol/wire.h"
+#include "telehand/server/lesson/lesson.h"
+#include "telehand/server/session/session_manager.h"
+#include "telehand/server/sim/hand_model.h"
+#include "telehand/server/store/sqlite_store.h"
+
+namespace telehand::server::session {
+namespace {
+
+namespace fs = std::filesystem;
+using store::SqliteStore;
+using ::testing::HasSubstr;
+
+const std::string kDeploy = TELEHAND_DEPLOY_DIR;
+
+class Outbox final : public session::Outbox {
+ public:
+  void publish(const telehand_msg_SessionStatus& s) override { statuses.push_back(s); }
+  void publish(const telehand_msg_JointModel& m) override { models.push_back(m); }
+  void publish(const telehand_msg_HandState& h) override { hands.push_back(h); }
+  void publish(const telehand_msg_SessionEvent& e) override { events.push_back(e); }
+  void retire(uint64_t) override {}
+  std::vector<std::string> textsOf(telehand_msg_EventKind kind, uint64_t session) const {
+    std::vector<std::string> out;
+    for (const auto& e : events) {
+      if (e.kind == kind && e.session_id == session) out.emplace_back(e.text);
+    }
+    return out;
+  }
+  std::vector<telehand_msg_SessionStatus> statuses;
+  std::vector<telehand_msg_JointModel> models;
+  std::vector<telehand_msg_HandState> hands;
+  std::vector<telehand_msg_SessionEvent> events;
+};
+
+const sim::HandModel& hand() {
+  static const sim::HandModel model = sim::HandModel::load(kDeploy + "/hand/hand24.urdf");
+  return model;
+}
+
+/// A clinician's (or student's) mobilization, as the loop would record it: the grip on the
+/// phalanx at flexion angle(t), the applied force on the index pad.
+struct Motion {
+  double mean_n = 14.0, amp_n = 2.0, hz = 3.0;
+  double flex_deg = 20.0, flex_amp_deg = 4.0;
+  double force(double t) const { return mean_n + amp_n * std::sin(2 * M_PI * hz * t); }
+  double flexion(double t) const {
+    return degToRad(flex_deg + flex_amp_deg * std::sin(2 * M_PI * hz * t - 0.3));
+  }
+};
+
+class LessonTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    dir_ = fs::temp_directory_path() /
+           ("telehand-lesson-" + std::to_string(::getpid()) + "-" + std::to_string(counter++));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    config_.db_path = (dir_ / "telehand.db").string();
+    config_.cases_dir = kDeploy + "/cases";
+    config_.hand_state_hz = 100.0;
+    store_ = std::make_unique<SqliteStore>(config_.db_path);
+    manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  }
+  void TearDown() override {
+    manager_.reset();
+    store_.reset();
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  telehand_msg_SessionCommand command(telehand_msg_CommandKind kind, uint64_t session = 0) {
+    telehand_msg_SessionCommand c{};
+    c.client_id = 7;
+    c.request_seq = ++request_seq_;
+    c.kind = kind;
+    c.session_id = session;
+    copyString(c.case_name, "healthy");
+    copyString(c.user, "student");
+    copyString(c.text, "");
+    return c;
+  }
+
+  /// Opens a session; 0 when the server refused it.
+  uint64_t open(telehand_msg_SessionMode mode, uint64_t lesson = 0, uint64_t follow = 0) {
+    auto c = command(telehand_msg_CMD_OPEN);
+    c.mode = mode;
+    c.lesson_id = lesson;
+    c.follow_session = follow;
+    const std::size_t before = out_.statuses.size();
+    manager_->onCommand(c, now_ns_);
+    if (out_.statuses.size() == before) return 0;
+    return out_.statuses.back().session_id;
+  }
+
+  /// `ms` samples of `m` from sequence number `seq` on, live and into the record (as a
+  /// client sends them), 1 ms apart; ticks every 10 ms.
+  void stream(uint64_t session, const Motion& m, uint64_t seq, int ms) {
+    const JointModel joint(healthyIndexMcp());
+    std::vector<telehand_msg_DeviceState> chunk;
+    for (int i = 0; i < ms; ++i) {
+      const double t = static_cast<double>(seq + static_cast<uint64_t>(i)) * 1e-3;
+      telehand_msg_DeviceState d{};
+      d.session_id = session;
+      d.seq = seq + static_cast<uint64_t>(i);
+      d.source_time_ns = kT0 + static_cast<int64_t>(d.seq) * 1'000'000;
+      d.model_version = 1;
+      const Vec3 angles(m.flexion(t), 0.0, 0.0);
+      const PerFinger<Vec3> p = joint.gripFromAngles(angles, 0.008);
+      for (int k = 0; k < 2; ++k) {
+        const Quat q = joint.thimbleOrientation(k, angles);
+        const double qv[4] = {q.w(), q.x(), q.y(), q.z()};
+        for (int j = 0; j < 3; ++j) d.fingers[k].position_m[j] = p[k][j];
+        for (int j = 0; j < 4; ++j) d.fingers[k].orientation_q[j] = qv[j];
+      }
+      // The push on the index pad (normal force), at device scale.
+      d.fingers[1].normal_n = static_cast<float>(m.force(t) * 0.25);
+      for (int j = 0; j < 3; ++j) d.mcp_angles_rad[j] = angles[j];
+      manager_->onDeviceState(d, now_ns_);
+      chunk.push_back(d);
+      if (chunk.size() == 100) flush(session, chunk);
+      now_ns_ += 1'000'000;
+      if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
+    }
+    flush(session, chunk);
+  }
+  void flush(uint64_t session, std::vector<telehand_msg_DeviceState>& chunk) {
+    if (chunk.empty()) return;
+    telehand_msg_RecordChunk c{};
+    c.session_id = session;
+    c.chunk_seq = chunk_seq_++;
+    c.samples._buffer = chunk.data();
+    c.samples._length = static_cast<uint32_t>(chunk.size());
+    c.samples._maximum = c.samples._length;
+    manager_->onChunk(c, now_ns_);
+    chunk.clear();
+  }
+  void tickFor(int ms) {
+    for (int i = 0; i < ms; i += 10) {
+      now_ns_ += 10'000'000;
+      manager_->tick(now_ns_);
+    }
+  }
+  void phase(uint64_t session, const char* name, double value, uint64_t last_seq) {
+    auto c = command(telehand_msg_CMD_PHASE, session);
+    copyString(c.text, name);
+    c.value = value;
+    c.last_seq = last_seq;
+    manager_->onCommand(c, now_ns_);
+  }
+  void close(uint64_t session, uint64_t sent) {
+    auto c = command(telehand_msg_CMD_CLOSE, session);
+    c.samples_sent = sent;
+    c.last_seq = sent ? sent - 1 : 0;
+    manager_->onCommand(c, now_ns_);
+    tickFor(200);
+  }
+  /// A closed demonstration of `m` (6 s) and a lesson made from it.
+  uint64_t demoLesson(const Motion& m, int guided = 1, int attempts = 2) {
+    demo_ = open(telehand_msg_MODE_MOBILIZATION);
+    EXPECT_NE(demo_, 0u);
+    stream(demo_, m, 0, 6000);
+    close(demo_, 6000);
+    store::LessonInfo l;
+    l.name = "test lesson";
+    l.demo_session = demo_;
+    l.case_name = "healthy";
+    l.guided = guided;
+    l.attempts = attempts;
+    l.trial_s = 4.0;
+    l.targets = lesson::encodeTargets(lesson::targetsFromRecord(*store_, demo_, 0.25));
+    return store_->createLesson(l);
+  }
+
+  static constexpr int64_t kT0 = 1'700'000'000'000'000'000;
+  fs::path dir_;
+  ServerConfig config_;
+  Outbox out_;
+  std::unique_ptr<SqliteStore> store_;
+  std::unique_ptr<SessionManager> manager_;
+  uint32_t request_seq_ = 0;
+  uint64_t chunk_seq_ = 0;
+  uint64_t demo_ = 0;
+  int64_t now_ns_ = 1'000'000'000;
+};
+
+TEST_F(LessonTest, TargetsComeFromTheDemonstrationRecord) {
+  const Motion m;
+  const uint64_t id = demoLesson(m);
+  const auto l = store_->lesson(id);
+  ASSERT_TRUE(l.has_value());
+  const technique::Targets t = lesson::decodeTargets(l->targets);
+  EXPECT_NEAR(t.frequency_hz, m.hz, 0.05);
+  EXPECT_NEAR(t.force_peak_n, m.mean_n + m.amp_n, 0.3);
+  EXPECT_NEAR(t.force_trough_n, m.mean_n - m.amp_n, 0.3);
+  EXPECT_NEAR(t.path_period_s, 1.0 / m.hz, 0.01);
+  ASSERT_EQ(t.path_rad.size(), static_cast<std::size_t>(GuideParams::kPoints));
+  // The path spans the demonstration's flexion swing.
+  double lo = 1e9, hi = -1e9;
+  for (const Vec3& a : t.path_rad) {
+    lo = std::min(lo, radToDeg(a[kFlexion]));
+    hi = std::max(hi, radToDeg(a[kFlexion]));
+  }
+  EXPECT_NEAR(hi - lo, 2 * m.flex_amp_deg, 0.5);
+  // The record keeps what it was given (encode, decode, encode).
+  EXPECT_EQ(lesson::encodeTargets(t), l->targets);
+}
+
+TEST_F(LessonTest, ARunIsPlannedGuidedAndScoredFromTheRecord) {
+  const Motion demo;
+  const uint64_t lesson_id = demoLesson(demo, 1, 1);
+  const uint64_t run = open(telehand_msg_MODE_LESSON, lesson_id);
+  ASSERT_NE(run, 0u);
+  // The plan travels with the OPEN's answer.
+  std::string why;
+  const auto plan = decodePlan(out_.statuses.back().lesson, &why);
+  ASSERT_TRUE(plan.has_value()) << why << ": " << out_.statuses.back().lesson;
+  EXPECT_EQ(plan->lesson_id, lesson_id);
+  EXPECT_EQ(plan->guided, 1);
+  EXPECT_EQ(plan->attempts, 1);
+  EXPECT_NEAR(plan->frequency_hz, demo.hz, 0.05);
+  EXPECT_NEAR(plan->demo_s, 6.0, 0.01);
+  EXPECT_EQ(store_->sessionLesson(run), lesson_id);
+
+  // The student holds the finger, then watches the demonstration (2x): its replay is this
+  // session's HandState meanwhile, numbered on from the session's own.
+  stream(run, demo, 1, 200);
+  phase(run, "watch", 2.0, 200);
+  tickFor(3500);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_INFO, run).back(),
+              HasSubstr("watch: the demonstration ended"));
+  uint64_t last_hand_seq = 0, hand_states = 0;
+  bool ordered = true;
+  for (const auto& h : out_.hands) {
+    if (h.session_id != run) continue;
+    ordered = ordered && (hand_states == 0 || h.seq > last_hand_seq);
+    last_hand_seq = h.seq;
+    ++hand_states;
+  }
+  EXPECT_TRUE(ordered) << "one sequence of HandStates across the watch phase";
+  EXPECT_GT(hand_states, 300u);
+
+  // Guided trial: the model carries the guide at full authority.
+  phase(run, "guided", 1.0, 200);
+  const auto guided = fromWire(out_.models.back(), nullptr);
+  ASSERT_TRUE(guided.has_value());
+  EXPECT_EQ(out_.models.back().session_id, run);
+  EXPECT_DOUBLE_EQ(guided->guide.authority, 1.0);
+  EXPECT_NEAR(guided->guide.period_s, 1.0 / demo.hz, 0.01);
+  Motion worse = demo;
+  worse.mean_n += 2.0;  // pushes 2 N harder, 0.5 Hz faster
+  worse.hz += 0.5;
+  stream(run, worse, 201, 4000);
+  // The attempt: no guide; the guided trial (samples 201..4200) waits for its record.
+  phase(run, "attempt", 0.0, 4200);
+  EXPECT_DOUBLE_EQ(fromWire(out_.models.back(), nullptr)->guide.authority, 0.0);
+  tickFor(500);
+  const auto trials = store_->trials(run);
+  ASSERT_EQ(trials.size(), 1u);
+  EXPECT_EQ(trials[0].phase, "guided");
+  EXPECT_EQ(trials[0].first_seq, 201u);
+  EXPECT_EQ(trials[0].last_seq, 4200u);
+  const auto fig = lesson::decodeFigures(trials[0].figures);
+  EXPECT_NEAR(fig.at("peak_error_n"), 2.0, 0.2);
+  EXPECT_NEAR(fig.at("frequency_error_hz"), 0.5, 0.05);
+  EXPECT_EQ(fig.at("missing"), 0.0);
+  const auto scores = out_.textsOf(telehand_msg_EVENT_SCORE, run);
+  ASSERT_FALSE(scores.empty());
+  EXPECT_THAT(scores.back(), HasSubstr("trial 1 (guided 100 %)"));
+  // Every oscillation is scored too (3.5 per second over the 2 s after the settle).
+  int oscillations = 0;
+  for (const auto& s : scores) oscillations += s.find(" oscillation ") != std::string::npos;
+  EXPECT_GE(oscillations, 5);
+
+  // The attempt repeats the demonstration: a near-perfect score. Its trial ends with the
+  // record at the close.
+  stream(run, demo, 4201, 4000);
+  // No more trials than the plan: a third is refused.
+  phase(run, "attempt", 0.0, 8200);
+  phase(run, "attempt", 0.0, 8200);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(), HasSubstr("trials are done"));
+  close(run, 8200);  // samples 1..8200
+  const auto all = store_->trials(run);
+  ASSERT_EQ(all.size(), 2u);
+  EXPECT_EQ(all[1].phase, "attempt");
+  EXPECT_GT(all[1].overall, all[0].overall);
+  EXPECT_GT(all[1].overall, 90.0);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_SCORE, run).back(), HasSubstr("2 trials scored"));
+}
+
+TEST_F(LessonTest, BadLessonsAndPhasesAreRefusedWithAReason) {
+  EXPECT_EQ(open(telehand_msg_MODE_LESSON, 99), 0u);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, 0).back(), HasSubstr("no lesson 99"));
+  // A damaged lesson row: its targets name what is wrong.
+  store::LessonInfo bad;
+  bad.demo_session = 1;
+  bad.case_name = "healthy";
+  bad.targets = "band_min_n=12;band_max_n=oops";
+  const uint64_t id = store_->createLesson(bad);
+  EXPECT_EQ(open(telehand_msg_MODE_LESSON, id), 0u);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, 0).back(), HasSubstr("band_max_n"));
+
+  const uint64_t plain = open(telehand_msg_MODE_MOBILIZATION);
+  ASSERT_NE(plain, 0u);
+  phase(plain, "guided", 1.0, 0);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, plain).back(), HasSubstr("runs no lesson"));
+
+  const uint64_t run = open(telehand_msg_MODE_LESSON, demoLesson(Motion{}));
+  ASSERT_NE(run, 0u);
+  phase(run, "dance", 0.0, 0);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(), HasSubstr("a lesson knows"));
+  phase(run, "guided", 7.0, 0);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(), HasSubstr("authority"));
+  phase(run, "attempt", 0.0, uint64_t{1} << 62);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(), HasSubstr("beyond"));
+  EXPECT_EQ(open(telehand_msg_MODE_REPLAY, 0, 12345), 0u);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, 0).back(), HasSubstr("no session 12345"));
+}
+
+TEST_F(LessonTest, AReplayReproducesTheLiveHandStates) {
+  // A live session: every HandState published, by the sample it reflects.
+  const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+  ASSERT_NE(live, 0u);
+  Motion m;
+  m.flex_amp_deg = 8.0;
+  stream(live, m, 0, 3000);
+  close(live, 3000);
+  std::map<uint64_t, telehand_msg_HandState> seen;
+  for (const auto& h : out_.hands) {
+    if (h.session_id == live) seen[h.device_seq] = h;
+  }
+  ASSERT_GT(seen.size(), 200u);
+  // The same record replayed by another server on the same record, publishing every
+  // millisecond (so that every sample's state is seen), at half speed with a pause.
+  ServerConfig every_ms = config_;
+  every_ms.hand_state_hz = 1000.0;
+  Outbox out;
+  SessionManager other(*store_, out, every_ms, &hand());
+  auto c = command(telehand_msg_CMD_OPEN);
+  c.mode = telehand_msg_MODE_REPLAY;
+  c.follow_session = live;
+  other.onCommand(c, now_ns_);
+  ASSERT_FALSE(out.statuses.empty());
+  const uint64_t replay = out.statuses.back().session_id;
+  auto control = [&](const char* what, double value) {
+    auto p = command(telehand_msg_CMD_PHASE, replay);
+    copyString(p.text, what);
+    p.value = value;
+    other.onCommand(p, now_ns_);
+  };
+  auto run = [&](int ms) {
+    for (int i = 0; i < ms; ++i) {
+      now_ns_ += 1'000'000;
+      other.tick(now_ns_);
+    }
+  };
+  control("speed", 0.5);
+  run(1000);
+  control("pause", 0.0);
+  run(300);
+  const std::size_t paused_at = out.hands.size();
+  run(300);
+  EXPECT_EQ(out.hands.size() - paused_at, 300u) << "paused: the same state again, every ms";
+  control("play", 0.0);
+  run(6000);
+  std::size_t compared = 0;
+  double worst = 0.0;
+  uint64_t last_seq = 0;
+  for (const auto& h : out.hands) {
+    last_seq = std::max(last_seq, h.device_seq);
+    const auto it = seen.find(h.device_seq);
+    if (it == seen.end()) continue;
+    ++compared;
+    for (int i = 0; i < 3; ++i)
+      worst = std::max(worst, std::abs(h.mcp_angles_rad[i] - it->second.mcp_angles_rad[i]));
+    for (int j = 0; j < h.dof_count; ++j)
+      worst = std::max(worst, std::abs(h.joint_angles_rad[j] - it->second.joint_angles_rad[j]));
+  }
+  EXPECT_GE(compared, seen.size()) << "every live state has its replayed twin";
+  EXPECT_LE(worst, 1e-9) << "over " << compared << " states";
+  EXPECT_EQ(last_seq, 2999u) << "the replay reached the record's end";
+  // At its end the replay session closes by itself.
+  EXPECT_EQ(out.statuses.back().session_id, replay);
+  EXPECT_EQ(out.statuses.back().state, telehand_msg_SESSION_CLOSED);
+}
+
+TEST(LessonPlan, RoundTripsAndRefusesWhatIsOutOfRange) {
+  LessonPlan p;
+  p.lesson_id = 12;
+  p.schedule = "faded";
+  p.guided = 2;
+  p.attempts = 3;
+  p.trial_s = 8;
+  p.assessment = true;
+  p.demo_s = 10.5;
+  p.band_min_n = 12.1;
+  p.band_max_n = 15.9;
+  p.frequency_hz = 3.02;
+  const auto q = decodePlan(encodePlan(p));
+  ASSERT_TRUE(q.has_value());
+  EXPECT_EQ(q->schedule, "faded");
+  EXPECT_EQ(q->attempts, 3);
+  EXPECT_NEAR(q->frequency_hz, 3.02, 1e-4);
+  std::string why;
+  EXPECT_FALSE(decodePlan("lesson=1;schedule=loud", &why));
+  EXPECT_THAT(why, HasSubstr("schedule"));
+  std::string text = encodePlan(p);
+  text.replace(text.find("trial_s=8.000"), 13, "trial_s=1e9");
+  EXPECT_FALSE(decodePlan(text, &why));
+  EXPECT_THAT(why, HasSubstr("trial_s"));
+  // Authority fades from full over the guided trials, never zero while guided.
+  EXPECT_DOUBLE_EQ(guidedAuthority(0, 2), 1.0);
+  EXPECT_DOUBLE_EQ(guidedAuthority(1, 2), 0.5);
+  EXPECT_NEAR(guidedAuthority(2, 3), 1.0 / 3.0, 1e-12);
+  EXPECT_DOUBLE_EQ(guidedAuthority(3, 3), 0.0);
+  // Schedules: terminal always, self when asked, faded ever fewer, concurrent at the end.
+  int faded = 0;
+  for (int i = 0; i < 9; ++i) {
+    EXPECT_TRUE(feedbackAfter("terminal", i, 9, false));
+    EXPECT_EQ(feedbackAfter("self", i, 9, i == 4), i == 4);
+    faded += feedbackAfter("faded", i, 9, false);
+  }
+  EXPECT_GT(faded, 2);
+  EXPECT_LT(faded, 9);
+  EXPECT_TRUE(feedbackAfter("faded", 0, 9, false));
+  EXPECT_FALSE(feedbackAfter("faded", 7, 9, false));
+  EXPECT_FALSE(feedbackAfter("concurrent", 0, 9, false));
+}
+
+}  // namespace
+}  // namespace telehand::server::session
