@@ -240,23 +240,29 @@ PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const 
   std::vector<double> sx(nbins, 0.0), cnt(nbins, 0.0), sy(nbins, 0.0),
       se(nbins * static_cast<std::size_t>(d.m), 0.0);
   const auto m = static_cast<std::size_t>(d.m);
+  // With a curve scale s_i, a bin's curve column is s_i · φ(x_bin): the bin pools Σ s²
+  // (as the count), Σ s·y and Σ s·extra.
+  const bool scaled = o.curve_scale.size() >= n;
+  std::vector<double> nx(nbins, 0.0);
   for (std::size_t i = 0; i < n; ++i) {
     const auto b = std::min(static_cast<std::size_t>((x[i] - x0) / bin), nbins - 1);
+    const double sc = scaled ? o.curve_scale[i] : 1.0;
     sx[b] += x[i];
-    cnt[b] += 1.0;
-    sy[b] += y[i];
+    nx[b] += 1.0;
+    cnt[b] += sc * sc;
+    sy[b] += sc * y[i];
     d.yy += y[i] * y[i];
     for (std::size_t j = 0; j < m; ++j) {
       const double ej = extras[j][i];
-      se[b * m + j] += ej;
+      se[b * m + j] += sc * ej;
       d.ey[j] += ej * y[i];
       for (std::size_t l = j; l < m; ++l) d.ee[j][l] += ej * extras[l][i];
     }
   }
   d.n = static_cast<double>(n);
   for (std::size_t b = 0; b < nbins; ++b) {
-    if (cnt[b] == 0.0) continue;
-    d.x.push_back(sx[b] / cnt[b]);
+    if (nx[b] == 0.0) continue;
+    d.x.push_back(sx[b] / nx[b]);
     d.cnt.push_back(cnt[b]);
     d.sy.push_back(sy[b]);
     for (std::size_t j = 0; j < m; ++j) d.se.push_back(se[b * m + j]);

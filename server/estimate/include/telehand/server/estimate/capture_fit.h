@@ -47,6 +47,16 @@ struct AxisFit {
   double rest_deg = 0.0;  ///< its centre
   double rms_n = 0.0;     ///< RMS residual, N
   double damping_nms_per_rad = 0.0;
+  /// Protective spasm (JointModelParams::speed_gain_s_per_rad): while the joint is stretched
+  /// the damping is min(damping + gain·|F_el|·lever, damping_cap_nms_per_rad). The gain
+  /// as used (0 when the spasm did not pay for itself, FitOptions::penalty), and the free
+  /// estimate with its standard error from the curvature of the residual (whether used or
+  /// not; a standard error of infinity: the capture holds no unsaturated stretch).
+  double speed_gain_s_per_rad = 0.0;
+  bool spasm = false;
+  double speed_gain_fitted_s_per_rad = 0.0;
+  double speed_gain_se_s_per_rad = 0.0;
+  double damping_cap_nms_per_rad = 0.0;  ///< the cap the fit assumed (FitOptions)
   double inertia_kgm2 = 0.0;  ///< the moving mass as seen at the joint (phalanx + device)
   /// Whether inertia_kgm2 was estimated from the capture (true) or is the known value
   /// FitOptions::inertia_kgm2, used because the capture did not excite the inertia apart
@@ -72,6 +82,11 @@ struct AxisFit {
   std::size_t samples = 0;
   /// The fitted holding force at `deg` (JointModel::holdingForceN semantics).
   double holdingForceN(double deg) const noexcept;
+  /// The fitted force at the lever arm besides the holding force, at `deg` moving at
+  /// `rate_rad_s` and accelerating at `acc_rad_s2`: viscous and spasm (capped, as
+  /// JointModel::passiveTorqueNm) and inertial, N.
+  double dynamicForceN(double deg, double rate_rad_s, double acc_rad_s2,
+                       double lever_m) const noexcept;
 };
 
 struct CaptureFit {
@@ -79,7 +94,11 @@ struct CaptureFit {
   CaptureCounts counts;
   double delay_samples = 0.0;  ///< the force channel's lag behind the positions, samples
   bool ok() const noexcept { return axes[0].ok && axes[1].ok && axes[2].ok; }
-  /// `base` with the fitted curves, ranges and damping (lever arm, scale, frame, name kept).
+  /// The joint's speed gain from the axes' free estimates, weighted by their inverse
+  /// variance, when any axis found a spasm; else 0.
+  double speedGain() const noexcept;
+  /// `base` with the fitted curves, ranges, damping and speed gain (lever arm, scale, frame,
+  /// name kept).
   JointModelParams model(const JointModelParams& base) const;
 };
 
@@ -114,6 +133,17 @@ struct FitOptions {
   /// measured, the estimate is still 10-30 % off. 0 always uses the known value.
   double max_inertia_collinearity = 0.5;
   double max_inertia_rel_se = 0.1;
+  /// Protective spasm: the speed gain is fitted (alternating with the curve until it
+  /// settles) and kept when it lowers the residual sum of squares by more than
+  /// spasm_penalty · σ² ln n. false: no spasm term.
+  bool fit_spasm = true;
+  double spasm_penalty = 2.0;
+  /// The scale the fitted model is rendered at (paper: 1:4). With the lever arm it sets the
+  /// cap on damping plus spasm that the joint model renders (JointModel::maxDampingNmsPerRad:
+  /// 0.01 N·m·s/rad at 1 cm and 1:4), which the fit applies as the model does. A simulated
+  /// patient is capped so; a real finger's reflex is not, and the fitted gain then holds the
+  /// part of it under the cap, which is what the model renders. 0: no cap.
+  double render_force_scale = 0.25;
 };
 
 /// The per-axis force that a sample's thimbles exert at the lever arm (paper eqs. 1-2 for
