@@ -392,27 +392,35 @@ struct SpasmFit {
 /// shape (walls, zone) is searched again with that gain, until the shape settles.
 /// `plain`: the fit without spasm; the spasm is kept when it pays for itself (`penalty`).
 SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, double cap,
-                  double penalty) {
+                  double penalty, const SpasmFit* start = nullptr) {
   SpasmFit out;
   out.fit = plain;
   const std::size_t n = d.x.size();
   if (!plain.r.ok || n < 10) return out;
-  // A zone in the plain fit can be the spasm's own doing (inside a zone the elastic force,
-  // and with it the reflex, is zero): start without one; the search may find it again.
   PiecewiseCubic shape = plain.r.curve;
-  shape.zone_deg = 0.0;
   std::vector<double> fel(n);
-  for (std::size_t i = 0; i < n; ++i) fel[i] = plain.r.curve.eval(d.x[i]);
-  double gain = 0.0, best = 1e300;
-  for (double g = 0.05; g <= kMaxGain * 1.0001; g *= 1.6) {
-    const double r = rssOf(fitAtGain(d, known_j, shape, SpasmTerm{g, plain.b, cap}, fel).r);
-    if (r < best) {
-      best = r;
-      gain = g;
+  double gain = 0.0, b = plain.b;
+  if (start && start->found && start->fit.r.ok) {
+    // From an earlier fit of the same capture (another lag).
+    shape = start->fit.r.curve;
+    gain = start->gain;
+    b = start->fit.b;
+  } else {
+    // A zone in the plain fit can be the spasm's own doing (inside a zone the elastic
+    // force, and with it the reflex, is zero): start without one; the search may find it.
+    shape.zone_deg = 0.0;
+    for (std::size_t i = 0; i < n; ++i) fel[i] = plain.r.curve.eval(d.x[i]);
+    double best = 1e300;
+    for (double g = 0.05; g <= kMaxGain * 1.0001; g *= 1.6) {
+      const double r = rssOf(fitAtGain(d, known_j, shape, SpasmTerm{g, plain.b, cap}, fel).r);
+      if (r < best) {
+        best = r;
+        gain = g;
+      }
     }
   }
-  GainFit gf = convergeGain(d, known_j, shape, gain, plain.b, cap);
-  for (int round = 0; round < 4 && gf.fit.r.ok; ++round) {
+  GainFit gf = convergeGain(d, known_j, shape, gain, b, cap);
+  for (int round = 0; round < 8 && gf.fit.r.ok; ++round) {
     for (std::size_t i = 0; i < n; ++i) fel[i] = gf.fit.r.curve.eval(d.x[i]);
     const DynamicFit next =
         fitWithSpasm(d, known_j, PiecewiseFitOptions{}, SpasmTerm{gf.gain, gf.fit.b, cap}, fel);
@@ -423,12 +431,13 @@ SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, do
                       std::abs(a.zone_deg - shape.zone_deg) < 0.05 &&
                       std::abs(a.rest_deg - shape.rest_deg) < 0.05;
     shape = a;
+    const double before = gf.gain;
     gf = convergeGain(d, known_j, shape, gf.gain, next.b, cap);
     if (std::getenv("FIT_DEBUG"))
       std::fprintf(stderr, "round %d g %.4f se %.4f b %.4f rss/n %.4f zone %.2f walls %.1f..%.1f\n",
                    round, gf.gain, gf.se, gf.fit.b, gf.fit.r.rms * gf.fit.r.rms, shape.zone_deg,
                    shape.min_deg, shape.max_deg);
-    if (same) break;
+    if (same && std::abs(gf.gain - before) <= 0.01 * std::max(before, 0.05)) break;
   }
   if (!gf.fit.r.ok) return out;
   out.gain = gf.gain;
@@ -522,6 +531,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     for (int axis = 0; axis < kAxes; ++axis) {
       if (report && progress) progress(axis, 0.0);
       Work& wk = work[static_cast<std::size_t>(axis)];
+      const SpasmFit before = wk.sp;
       wk = Work{};
       if (n < options_.min_samples) continue;
       wk.d = axisData(points_, rate, acc, axis, delay);
@@ -534,7 +544,8 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       plain.r = fitAxis(wk.d, kj, PiecewiseFitOptions{}, plain.b, plain.j, plain.j_se);
       if (!plain.r.ok) continue;
       wk.sp.fit = plain;
-      if (options_.fit_spasm) wk.sp = fitSpasm(wk.d, kj, plain, cap, options_.spasm_penalty);
+      if (options_.fit_spasm)
+        wk.sp = fitSpasm(wk.d, kj, plain, cap, options_.spasm_penalty, &before);
       wk.ok = true;
       any_spasm = any_spasm || wk.sp.found;
       if (report && progress) progress(axis, 0.5);
