@@ -8,7 +8,9 @@
 //  3. (--fit-table) fitted holding force against the truth: the shipped cases at the default
 //     capture length (10 s per axis), 0.5, 3 and 6 Hz, the paper's 1.43 N thimble noise,
 //     three seeds each; the largest error over the reachable range off the zone edges and
-//     walls, and including them (the walls to 2 deg beyond each end reached).
+//     walls, and including them (the walls to 2 deg beyond each end reached); over the
+//     range the capture covered, with how far it stopped short of the truth's range under
+//     18 N where it did (more than 1 deg).
 //     Also the fitted speed gain (spasm) against the truth's.
 // Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]
 //          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]]
@@ -73,10 +75,17 @@ class Recorder final : public server::session::Outbox {
 
 }  // namespace
 
-/// The fitted and true holding force, worst over the reachable range (inner: off the zone
-/// edges and 1 deg from the walls; edges: including them and 2 deg into each wall reached).
-std::pair<double, double> fitErrors(const JointModelParams& truth_p, const JointModelParams& fit_p,
-                                    int i, double max_force_n) {
+/// The fitted and true holding force, worst over the range the capture covered: the truth's
+/// range under max_force_n (its static holding force), cut to where the capture reached
+/// (inner: off the zone edges and 1 deg from the walls; edges: including them and 2 deg into
+/// each wall the capture went 2 deg into). `short_deg`: how far the capture stopped short of
+/// the truth's range under max_force_n (the larger of both ends; 0: all of it reached).
+struct FitError {
+  double inner = 0.0, edges = 0.0, short_deg = 0.0;
+};
+
+FitError fitErrors(const JointModelParams& truth_p, const JointModelParams& fit_p, int i,
+                   double max_force_n, double reached_min, double reached_max) {
   const JointModel truth(truth_p), fitted(fit_p);
   const CubicCurve& c = truth_p.axes[static_cast<std::size_t>(i)];
   const double rest = radToDeg(truth.restAngleRad(i));
@@ -84,18 +93,22 @@ std::pair<double, double> fitErrors(const JointModelParams& truth_p, const Joint
   double lo = rest, hi = rest;
   while (lo - 0.05 >= c.min_deg && std::abs(f(lo - 0.05)) <= max_force_n) lo -= 0.05;
   while (hi + 0.05 <= c.max_deg && std::abs(f(hi + 0.05)) <= max_force_n) hi += 0.05;
-  const bool wlo = lo <= c.min_deg + 0.05, whi = hi >= c.max_deg - 0.05;
+  FitError e;
+  e.short_deg = std::max({reached_min - lo, hi - reached_max, 0.0});
+  lo = std::max(lo, reached_min);
+  hi = std::min(hi, reached_max);
+  const bool wlo = lo <= c.min_deg + 0.05 && reached_min <= c.min_deg - 2.0;
+  const bool whi = hi >= c.max_deg - 0.05 && reached_max >= c.max_deg + 2.0;
   const double zone = truth_p.neutral_zone_deg[static_cast<std::size_t>(i)];
-  double inner = 0.0, edges = 0.0;
   for (double d = wlo ? c.min_deg - 2.0 : lo; d <= (whi ? c.max_deg + 2.0 : hi); d += 0.05) {
-    const double e = std::abs(fitted.holdingForceN(i, degToRad(d)) - f(d));
-    edges = std::max(edges, e);
+    const double err = std::abs(fitted.holdingForceN(i, degToRad(d)) - f(d));
+    e.edges = std::max(e.edges, err);
     const bool near =
         (wlo && d < c.min_deg + 1.0) || (whi && d > c.max_deg - 1.0) ||
         (zone > 0.0 && (std::abs(d - rest + zone) < 1.5 || std::abs(d - rest - zone) < 1.5));
-    if (d >= lo && d <= hi && !near) inner = std::max(inner, e);
+    if (d >= lo && d <= hi && !near) e.inner = std::max(e.inner, err);
   }
-  return {inner, edges};
+  return e;
 }
 
 struct TableOptions {
@@ -128,7 +141,7 @@ int fitTable(const TableOptions& t) {
   for (const PatientCase& pc : cases) {
     const JointModelParams& truth = pc.model;
     for (const double hz : t.hz) {
-      std::array<std::pair<double, double>, kAxes> worst{};
+      std::array<FitError, kAxes> worst{};
       bool all_ok = true;
       double gain_lo = 1e300, gain_hi = -1e300;
       for (uint64_t seed = t.first_seed; seed < t.first_seed + t.seeds; ++seed) {
@@ -147,16 +160,28 @@ int fitTable(const TableOptions& t) {
         JointModelParams static_truth = truth;
         static_truth.speed_gain_s_per_rad = 0.0;
         for (int i = 0; i < kAxes; ++i) {
-          const auto e = fitErrors(static_truth, fitted, i, o.max_force_n);
+          const auto& a = fit.axes[static_cast<std::size_t>(i)];
+          const auto e =
+              fitErrors(static_truth, fitted, i, o.max_force_n, a.reached_min_deg, a.reached_max_deg);
           auto& w = worst[static_cast<std::size_t>(i)];
-          w = {std::max(w.first, e.first), std::max(w.second, e.second)};
+          w = {std::max(w.inner, e.inner), std::max(w.edges, e.edges),
+               std::max(w.short_deg, e.short_deg)};
+        }
+      }
+      std::string short_of;
+      for (std::size_t i = 0; i < kAxes; ++i) {
+        if (worst[i].short_deg > 1.0) {
+          char b[64];
+          std::snprintf(b, sizeof b, " %s %.1f deg short", kAxisNames[i].data(), worst[i].short_deg);
+          short_of += b;
         }
       }
       std::printf("%-11s %-4.1f | %6.2f / %-6.2f     | %6.2f / %-6.2f       | %6.2f / %-6.2f   | "
-                  "%4.2f..%4.2f (%4.2f) %s\n",
-                  pc.name.c_str(), hz, worst[0].first, worst[0].second, worst[1].first,
-                  worst[1].second, worst[2].first, worst[2].second, gain_lo, gain_hi,
-                  truth.speed_gain_s_per_rad, all_ok ? "" : "(an axis not fitted)");
+                  "%4.2f..%4.2f (%4.2f) %s%s\n",
+                  pc.name.c_str(), hz, worst[0].inner, worst[0].edges, worst[1].inner,
+                  worst[1].edges, worst[2].inner, worst[2].edges, gain_lo, gain_hi,
+                  truth.speed_gain_s_per_rad, all_ok ? "" : "(an axis not fitted)",
+                  short_of.c_str());
       std::fflush(stdout);
     }
   }
@@ -193,7 +218,8 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   for (int i = 0; i < kAxes; ++i) {
     const auto ax = static_cast<std::size_t>(i);
     const auto& a = fit.axes[ax];
-    const auto e = fitErrors(st, fitted, i, o.max_force_n);
+    const auto fe = fitErrors(st, fitted, i, o.max_force_n, a.reached_min_deg, a.reached_max_deg);
+    const std::pair<double, double> e{fe.inner, fe.edges};
     std::printf("%-9s plan %.1f..%.1f reached %.1f..%.1f truth %.1f..%.1f fit %.1f..%.1f walls %d%d "
                 "zone %.1f (%.1f) rms %.2f hyst %.2f err %.2f/%.2f gain %.3f±%.3f %d b %.5f\n",
                 kAxisNames[ax].data(), cap.plan.lo_deg[ax], cap.plan.hi_deg[ax], a.reached_min_deg,

@@ -295,6 +295,26 @@ PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const 
     const double c = best.*param;
     for (double v = c - step; v <= c + step + 1e-9; v += step / 10.0) tryAt(v);
   };
+  if (o.find_walls && !o.fixed_shape) {
+    // Both walls at once on a coarse grid near the ends: where the cubic's end slopes are
+    // steep, one wall alone may not pay while the pair does, and a search of one at a
+    // time would not find them.
+    const double reach = std::min(0.4 * span, 10.0);
+    const Shape start = best;
+    for (double lo = x0; lo <= x0 + reach + 1e-9; lo += 0.5) {
+      for (double hi = x1 - reach; hi <= x1 + 1e-9; hi += 0.5) {
+        Shape sh = start;
+        sh.lo = lo;
+        sh.hi = hi;
+        if (sh.hi <= sh.lo) continue;
+        const Trial t = solve(d, sh, wall);
+        if (t.ok && t.rss < bt.rss) {
+          bt = t;
+          best = sh;
+        }
+      }
+    }
+  }
   for (int round = 0; round < 3 && !o.fixed_shape; ++round) {
     const Shape before = best;
     if (o.find_walls) {
