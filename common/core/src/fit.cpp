@@ -301,8 +301,8 @@ PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const 
     // time would not find them.
     const double reach = std::min(0.4 * span, 10.0);
     const Shape start = best;
-    for (double lo = x0; lo <= x0 + reach + 1e-9; lo += 0.5) {
-      for (double hi = x1 - reach; hi <= x1 + 1e-9; hi += 0.5) {
+    for (double lo = x0; lo <= x0 + reach + 1e-9; lo += 1.0) {
+      for (double hi = x1 - reach; hi <= x1 + 1e-9; hi += 1.0) {
         Shape sh = start;
         sh.lo = lo;
         sh.hi = hi;

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <limits>
 #include <span>
 #include <sstream>
@@ -433,10 +432,6 @@ SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, do
     shape = a;
     const double before = gf.gain;
     gf = convergeGain(d, known_j, shape, gf.gain, next.b, cap);
-    if (std::getenv("FIT_DEBUG"))
-      std::fprintf(stderr, "round %d g %.4f se %.4f b %.4f rss/n %.4f zone %.2f walls %.1f..%.1f\n",
-                   round, gf.gain, gf.se, gf.fit.b, gf.fit.r.rms * gf.fit.r.rms, shape.zone_deg,
-                   shape.min_deg, shape.max_deg);
     if (same && std::abs(gf.gain - before) <= 0.01 * std::max(before, 0.05)) break;
   }
   if (!gf.fit.r.ok) return out;
@@ -698,7 +693,8 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
   std::ostringstream o;
   char buf[256];
   o << "# Fitted from a capture (telehand-records fit): per axis, a least-squares cubic of the\n"
-       "# force (N) at the lever arm against the angle (deg), over the range reached.\n";
+       "# force (N) at the lever arm against the angle (deg), over the range reached; the\n"
+       "# damping and the spasm's speed gain (0: none found) with it.\n";
   o << "[case]\n";
   o << "name = \"" << name << "\"\n";
   o << "description = \"" << description << "\"\n";
@@ -723,8 +719,11 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
     std::snprintf(buf, sizeof buf, "\ncoeffs = [%.9g, %.9g, %.9g, %.9g]\n", c.coeffs[0],
                   c.coeffs[1], c.coeffs[2], c.coeffs[3]);
     o << buf;
-    std::snprintf(buf, sizeof buf, "min_deg = %.3f\nmax_deg = %.3f\nneutral_zone_deg = %.3f\n",
-                  c.min_deg, c.max_deg, model.neutral_zone_deg[i]);
+    // A range end the capture did not feel as a wall is where it stopped, not the joint's.
+    const char* not_reached = "   # range end not reached: the capture stopped here";
+    std::snprintf(buf, sizeof buf, "min_deg = %.3f%s\nmax_deg = %.3f%s\nneutral_zone_deg = %.3f\n",
+                  c.min_deg, a.ok && !a.wall_min ? not_reached : "", c.max_deg,
+                  a.ok && !a.wall_max ? not_reached : "", model.neutral_zone_deg[i]);
     o << buf;
   }
   o << "\n";
