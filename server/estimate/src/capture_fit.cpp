@@ -660,8 +660,10 @@ double CaptureFit::speedGain() const noexcept {
   bool any = false;
   double sw = 0.0, swg = 0.0;
   for (const AxisFit& a : axes) {
-    if (!a.ok) continue;
-    any = any || a.spasm;
+    // An axis whose capture does not show the spasm may still hold a free estimate with a
+    // small standard error (traded against its plain damping): only axes that show it count.
+    if (!a.ok || !a.spasm) continue;
+    any = true;
     const double se = a.speed_gain_se_s_per_rad;
     if (!(se > 0.0) || !std::isfinite(se)) continue;
     sw += 1.0 / (se * se);

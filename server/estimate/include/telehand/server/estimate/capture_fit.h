@@ -94,8 +94,8 @@ struct CaptureFit {
   CaptureCounts counts;
   double delay_samples = 0.0;  ///< the force channel's lag behind the positions, samples
   bool ok() const noexcept { return axes[0].ok && axes[1].ok && axes[2].ok; }
-  /// The joint's speed gain from the axes' free estimates, weighted by their inverse
-  /// variance, when any axis found a spasm; else 0.
+  /// The joint's speed gain: the estimates of the axes that found a spasm, weighted by
+  /// their inverse variance; 0 when none did.
   double speedGain() const noexcept;
   /// `base` with the fitted curves, ranges, damping and speed gain (lever arm, scale, frame,
   /// name kept).
