@@ -12,8 +12,15 @@
 //     range the capture covered, with how far it stopped short of the truth's range under
 //     18 N where it did (more than 1 deg).
 //     Also the fitted speed gain (spasm) against the truth's.
+//  4. (--probe CASE_FILE|random-SEED HZ SEED) one capture fitted, per axis: the range
+//     planned, reached and fitted, walls, zone, residual, hysteresis, errors, speed gain
+//     with its standard error; PROBE_CURVE=1 prints the curves against the truth,
+//     PROBE_TRUTH=1 the truth's own residual at lags of 0-2 samples against the fit's
+//     (a fit worse than the truth: a search problem; better: the model misses something),
+//     PROBE_NOSPASM=1 fits without the spasm term, PROBE_DUMP=FILE writes the points.
 // Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]
-//          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]]
+//          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]
+//          | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
 #include <unistd.h>
@@ -136,7 +143,8 @@ int fitTable(const TableOptions& t) {
       "speed gain fit (truth) | worst of %llu seeds, N\n",
       static_cast<unsigned long long>(t.seeds));
   std::vector<PatientCase> cases;
-  for (const auto& name : t.cases) cases.push_back(loadPatientCase(t.cases_dir + "/" + name + ".toml"));
+  for (const auto& name : t.cases)
+    cases.push_back(loadPatientCase(t.cases_dir + "/" + name + ".toml"));
   for (const uint64_t r : t.random) cases.push_back(randomPatientCase(r));
   for (const PatientCase& pc : cases) {
     const JointModelParams& truth = pc.model;
@@ -161,8 +169,8 @@ int fitTable(const TableOptions& t) {
         static_truth.speed_gain_s_per_rad = 0.0;
         for (int i = 0; i < kAxes; ++i) {
           const auto& a = fit.axes[static_cast<std::size_t>(i)];
-          const auto e =
-              fitErrors(static_truth, fitted, i, o.max_force_n, a.reached_min_deg, a.reached_max_deg);
+          const auto e = fitErrors(static_truth, fitted, i, o.max_force_n, a.reached_min_deg,
+                                   a.reached_max_deg);
           auto& w = worst[static_cast<std::size_t>(i)];
           w = {std::max(w.inner, e.inner), std::max(w.edges, e.edges),
                std::max(w.short_deg, e.short_deg)};
@@ -172,22 +180,22 @@ int fitTable(const TableOptions& t) {
       for (std::size_t i = 0; i < kAxes; ++i) {
         if (worst[i].short_deg > 1.0) {
           char b[64];
-          std::snprintf(b, sizeof b, " %s %.1f deg short", kAxisNames[i].data(), worst[i].short_deg);
+          std::snprintf(b, sizeof b, " %s %.1f deg short", kAxisNames[i].data(),
+                        worst[i].short_deg);
           short_of += b;
         }
       }
-      std::printf("%-11s %-4.1f | %6.2f / %-6.2f     | %6.2f / %-6.2f       | %6.2f / %-6.2f   | "
-                  "%4.2f..%4.2f (%4.2f) %s%s\n",
-                  pc.name.c_str(), hz, worst[0].inner, worst[0].edges, worst[1].inner,
-                  worst[1].edges, worst[2].inner, worst[2].edges, gain_lo, gain_hi,
-                  truth.speed_gain_s_per_rad, all_ok ? "" : "(an axis not fitted)",
-                  short_of.c_str());
+      std::printf(
+          "%-11s %-4.1f | %6.2f / %-6.2f     | %6.2f / %-6.2f       | %6.2f / %-6.2f   | "
+          "%4.2f..%4.2f (%4.2f) %s%s\n",
+          pc.name.c_str(), hz, worst[0].inner, worst[0].edges, worst[1].inner, worst[1].edges,
+          worst[2].inner, worst[2].edges, gain_lo, gain_hi, truth.speed_gain_s_per_rad,
+          all_ok ? "" : "(an axis not fitted)", short_of.c_str());
       std::fflush(stdout);
     }
   }
   return 0;
 }
-
 
 int probe(const std::string& file, double hz, uint64_t seed) {
   const PatientCase pc = file.rfind("random-", 0) == 0
@@ -220,13 +228,14 @@ int probe(const std::string& file, double hz, uint64_t seed) {
     const auto& a = fit.axes[ax];
     const auto fe = fitErrors(st, fitted, i, o.max_force_n, a.reached_min_deg, a.reached_max_deg);
     const std::pair<double, double> e{fe.inner, fe.edges};
-    std::printf("%-9s plan %.1f..%.1f reached %.1f..%.1f truth %.1f..%.1f fit %.1f..%.1f walls %d%d "
-                "zone %.1f (%.1f) rms %.2f hyst %.2f err %.2f/%.2f gain %.3f±%.3f %d b %.5f\n",
-                kAxisNames[ax].data(), cap.plan.lo_deg[ax], cap.plan.hi_deg[ax], a.reached_min_deg,
-                a.reached_max_deg, st.axes[ax].min_deg, st.axes[ax].max_deg, a.curve.min_deg,
-                a.curve.max_deg, a.wall_min, a.wall_max, a.zone_deg, st.neutral_zone_deg[ax],
-                a.rms_n, a.hysteresis_n, e.first, e.second, a.speed_gain_fitted_s_per_rad,
-                a.speed_gain_se_s_per_rad, a.spasm, a.damping_nms_per_rad);
+    std::printf(
+        "%-9s plan %.1f..%.1f reached %.1f..%.1f truth %.1f..%.1f fit %.1f..%.1f walls %d%d "
+        "zone %.1f (%.1f) rms %.2f hyst %.2f err %.2f/%.2f gain %.3f±%.3f %d b %.5f\n",
+        kAxisNames[ax].data(), cap.plan.lo_deg[ax], cap.plan.hi_deg[ax], a.reached_min_deg,
+        a.reached_max_deg, st.axes[ax].min_deg, st.axes[ax].max_deg, a.curve.min_deg,
+        a.curve.max_deg, a.wall_min, a.wall_max, a.zone_deg, st.neutral_zone_deg[ax], a.rms_n,
+        a.hysteresis_n, e.first, e.second, a.speed_gain_fitted_s_per_rad, a.speed_gain_se_s_per_rad,
+        a.spasm, a.damping_nms_per_rad);
     if (std::getenv("PROBE_CURVE")) {
       for (double d = a.reached_min_deg; d <= a.reached_max_deg; d += 5.0)
         std::printf("   %6.1f truth %7.2f fit %7.2f\n", d, tm.holdingForceN(i, degToRad(d)),
@@ -257,22 +266,32 @@ int probe(const std::string& file, double hz, uint64_t seed) {
           const double model = fel + c * v / L + 2.6e-5 * w / L;
           const double r = pts[k].axis_force_n[i] - model;
           ss += r * r;
-          const double rf = pts[k].axis_force_n[i] - fm.holdingForceN(i, ang) -
-                            fit.axes[static_cast<std::size_t>(i)].dynamicForceN(radToDeg(ang), v, w, L);
+          const double rf =
+              pts[k].axis_force_n[i] - fm.holdingForceN(i, ang) -
+              fit.axes[static_cast<std::size_t>(i)].dynamicForceN(radToDeg(ang), v, w, L);
           ssf += rf * rf;
           ++cnt;
           const int b = std::clamp(static_cast<int>((radToDeg(ang) + 60.0) / 5.0), 0, 39);
           if (std::abs(v) > 0.5) {
-            if (str) { bs[b] += r; cs[b] += 1; } else { bn[b] += r; cn[b] += 1; }
+            if (str) {
+              bs[b] += r;
+              cs[b] += 1;
+            } else {
+              bn[b] += r;
+              cn[b] += 1;
+            }
           }
         }
-        std::printf("delay %d %-9s truth rms %.3f fit rms %.3f\n", delay, kAxisNames[static_cast<std::size_t>(i)].data(),
-                    std::sqrt(ss / static_cast<double>(cnt)), std::sqrt(ssf / static_cast<double>(cnt)));
+        std::printf("delay %d %-9s truth rms %.3f fit rms %.3f\n", delay,
+                    kAxisNames[static_cast<std::size_t>(i)].data(),
+                    std::sqrt(ss / static_cast<double>(cnt)),
+                    std::sqrt(ssf / static_cast<double>(cnt)));
         if (delay == 0 && std::getenv("PROBE_BINS"))
           for (int b = 0; b < 40; ++b)
             if (cs[b] > 50 || cn[b] > 50)
               std::printf("   %5.0f stretch %6.2f (%4.0f) return %6.2f (%4.0f)\n", b * 5.0 - 60.0,
-                          cs[b] > 0 ? bs[b] / cs[b] : 0.0, cs[b], cn[b] > 0 ? bn[b] / cn[b] : 0.0, cn[b]);
+                          cs[b] > 0 ? bs[b] / cs[b] : 0.0, cs[b], cn[b] > 0 ? bn[b] / cn[b] : 0.0,
+                          cn[b]);
       }
     }
   }
@@ -283,10 +302,10 @@ int probe(const std::string& file, double hz, uint64_t seed) {
     const auto& pts = fitter.points();
     for (std::size_t k = 0; k < pts.size(); ++k)
       std::fprintf(f, "%lld %.5f %.5f %.5f %.4f %.4f %.4f %.4f %.4f %.4f %.2f %.2f %.2f\n",
-                   (long long)pts[k].seq, radToDeg(pts[k].angles_rad[0]), radToDeg(pts[k].angles_rad[1]),
-                   radToDeg(pts[k].angles_rad[2]), pts[k].axis_force_n[0], pts[k].axis_force_n[1],
-                   pts[k].axis_force_n[2], rate[k][0], rate[k][1], rate[k][2], acc[k][0], acc[k][1],
-                   acc[k][2]);
+                   (long long)pts[k].seq, radToDeg(pts[k].angles_rad[0]),
+                   radToDeg(pts[k].angles_rad[1]), radToDeg(pts[k].angles_rad[2]),
+                   pts[k].axis_force_n[0], pts[k].axis_force_n[1], pts[k].axis_force_n[2],
+                   rate[k][0], rate[k][1], rate[k][2], acc[k][0], acc[k][1], acc[k][2]);
     std::fclose(f);
   }
   return 0;

@@ -279,8 +279,7 @@ struct DynamicFit {
 /// F_el·|v| where stretching under the cap, so that its coefficient is a Gauss-Newton step
 /// of the gain taken jointly with the linear parts.
 DynamicFit fitWithSpasm(const AxisData& d, double known_j, const PiecewiseFitOptions& o,
-                        const SpasmTerm& sp, std::span<const double> fel,
-                        bool with_step = false) {
+                        const SpasmTerm& sp, std::span<const double> fel, bool with_step = false) {
   const std::size_t n = d.x.size();
   std::vector<double> y(n), u(n), scale(n, 1.0), z(with_step ? n : 0, 0.0);
   const bool free_j = std::isnan(known_j);
@@ -357,8 +356,8 @@ GainFit convergeGain(const AxisData& d, double known_j, const PiecewiseCubic& sh
   fixed.fixed_shape = &shape;
   for (int step = 0; step < max_steps; ++step) {
     for (std::size_t i = 0; i < n; ++i) fel[i] = out.fit.r.curve.eval(d.x[i]);
-    const DynamicFit gn = fitWithSpasm(d, known_j, fixed, SpasmTerm{out.gain, out.fit.b, cap}, fel,
-                                       true);
+    const DynamicFit gn =
+        fitWithSpasm(d, known_j, fixed, SpasmTerm{out.gain, out.fit.b, cap}, fel, true);
     if (!gn.r.ok) break;
     out.se = gn.dg_se;
     double dg = gn.dg;
@@ -622,8 +621,8 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       same.fixed_shape = &r.curve;
       std::vector<double> fel(x.size());
       for (std::size_t i = 0; i < x.size(); ++i) fel[i] = r.curve.eval(x[i]);
-      const DynamicFit f = fitWithSpasm(d, std::nan(""), same,
-                                        SpasmTerm{a.speed_gain_s_per_rad, b, cap}, fel);
+      const DynamicFit f =
+          fitWithSpasm(d, std::nan(""), same, SpasmTerm{a.speed_gain_s_per_rad, b, cap}, fel);
       if (f.r.ok) {
         a.inertia_fitted_kgm2 = f.j * lever;
         a.inertia_se_kgm2 = f.j_se * lever;
@@ -647,8 +646,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   return out;
 }
 
-double AxisFit::dynamicForceN(double deg, double rate, double acc,
-                              double lever_m) const noexcept {
+double AxisFit::dynamicForceN(double deg, double rate, double acc, double lever_m) const noexcept {
   const double fel = holdingForceN(deg);
   double c = damping_nms_per_rad;
   if (spasm && fel * rate > 0.0) c += speed_gain_s_per_rad * std::abs(fel) * lever_m;

@@ -44,10 +44,10 @@ std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
   u.fit = fitter_.fit();
   const auto took =
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0);
-  wait_ns_ = options_.max_busy_fraction > 0.0
-                 ? static_cast<int64_t>(static_cast<double>(took.count()) /
-                                        options_.max_busy_fraction)
-                 : 0;
+  wait_ns_ =
+      options_.max_busy_fraction > 0.0
+          ? static_cast<int64_t>(static_cast<double>(took.count()) / options_.max_busy_fraction)
+          : 0;
   bool any_axis = false;
   for (auto& a : u.fit.axes) {
     // An axis is taken once the clinician has mobilized it in both directions (the force

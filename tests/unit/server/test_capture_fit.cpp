@@ -344,8 +344,7 @@ std::pair<double, double> reachable(const JointModel& m, int axis, double max_fo
 /// reach, e.g. against a spasm's resistance at speed, is not judged: the fit reports it as
 /// not reached).
 std::array<TruthCheck, kAxes> compareWithTruth(const JointModelParams& truth_p,
-                                               const JointModelParams& fitted_p,
-                                               double max_force_n,
+                                               const JointModelParams& fitted_p, double max_force_n,
                                                const CaptureFit* fit = nullptr) {
   JointModelParams static_truth = truth_p;
   static_truth.speed_gain_s_per_rad = 0.0;  // the holding force does not depend on it
@@ -406,8 +405,8 @@ CaseRun runCase(const JointModelParams& truth, double hz, uint64_t seed,
   CaseRun r;
   r.fit = fitter.fit();
   EXPECT_TRUE(r.fit.ok());
-  r.check = compareWithTruth(truth, r.fit.model(truth), o.max_force_n,
-                             captured_range ? &r.fit : nullptr);
+  r.check =
+      compareWithTruth(truth, r.fit.model(truth), o.max_force_n, captured_range ? &r.fit : nullptr);
   return r;
 }
 
