@@ -295,18 +295,43 @@ PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const 
     const double c = best.*param;
     for (double v = c - step; v <= c + step + 1e-9; v += step / 10.0) tryAt(v);
   };
+  auto descend = [&]() {
+    for (int round = 0; round < 3 && !o.fixed_shape; ++round) {
+      const Shape before = best;
+      if (o.find_walls) {
+        search(&Shape::hi, x1 - 0.4 * span, x1, 0.25);
+        search(&Shape::lo, x0, x0 + 0.4 * span, 0.25);
+      }
+      if (o.find_zone) {
+        if (best.zone <= 0.0) {
+          const double r = rootIn(polyOf(d, best, bt), best.lo, best.hi);
+          if (std::isnan(r)) break;
+          best.rest = r;
+        }
+        search(&Shape::zone, 0.0, std::min(0.3 * span, 30.0), 0.25);
+        if (best.zone > 0.0) search(&Shape::rest, best.rest - 3.0, best.rest + 3.0, 0.1);
+      }
+      if (best.lo == before.lo && best.hi == before.hi && best.zone == before.zone &&
+          best.rest == before.rest)
+        break;
+    }
+  };
+  descend();
   if (o.find_walls && !o.fixed_shape) {
-    // Both walls at once on a coarse grid near the ends: where the cubic's end slopes are
-    // steep, one wall alone may not pay while the pair does, and a search of one at a
-    // time would not find them.
+    // Then both walls at once on a coarse grid near the ends (with the zone found): where
+    // the cubic's end slopes are steep, one wall alone may not pay while the pair does,
+    // and a search of one at a time does not find them; if the pair does better, descend
+    // again from there.
     const double reach = std::min(0.4 * span, 10.0);
     const Shape start = best;
+    const double rss_before = bt.rss;
     for (double lo = x0; lo <= x0 + reach + 1e-9; lo += 1.0) {
       for (double hi = x1 - reach; hi <= x1 + 1e-9; hi += 1.0) {
         Shape sh = start;
         sh.lo = lo;
         sh.hi = hi;
         if (sh.hi <= sh.lo) continue;
+        if (sh.zone > 0.0 && (sh.rest - sh.zone < sh.lo || sh.rest + sh.zone > sh.hi)) continue;
         const Trial t = solve(d, sh, wall);
         if (t.ok && t.rss < bt.rss) {
           bt = t;
@@ -314,25 +339,7 @@ PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const 
         }
       }
     }
-  }
-  for (int round = 0; round < 3 && !o.fixed_shape; ++round) {
-    const Shape before = best;
-    if (o.find_walls) {
-      search(&Shape::hi, x1 - 0.4 * span, x1, 0.25);
-      search(&Shape::lo, x0, x0 + 0.4 * span, 0.25);
-    }
-    if (o.find_zone) {
-      if (best.zone <= 0.0) {
-        const double r = rootIn(polyOf(d, best, bt), best.lo, best.hi);
-        if (std::isnan(r)) break;
-        best.rest = r;
-      }
-      search(&Shape::zone, 0.0, std::min(0.3 * span, 30.0), 0.25);
-      if (best.zone > 0.0) search(&Shape::rest, best.rest - 3.0, best.rest + 3.0, 0.1);
-    }
-    if (best.lo == before.lo && best.hi == before.hi && best.zone == before.zone &&
-        best.rest == before.rest)
-      break;
+    if (bt.rss < rss_before) descend();
   }
   // Keep each part only when it pays for itself.
   const double pen = o.fixed_shape ? 0.0 : o.penalty * (bt.rss / d.n) * std::log(d.n);
