@@ -390,25 +390,37 @@ struct SpasmFit {
 /// shape (walls, zone) is searched again with that gain, until the shape settles.
 /// `plain`: the fit without spasm; the spasm is kept when it pays for itself (`penalty`).
 SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, double cap,
-                  double penalty, const SpasmFit* start = nullptr) {
+                  double penalty, double min_gain, const SpasmFit* start = nullptr) {
   SpasmFit out;
   out.fit = plain;
   const std::size_t n = d.x.size();
   if (!plain.r.ok || n < 10) return out;
-  PiecewiseCubic shape = plain.r.curve;
   std::vector<double> fel(n);
-  double gain = 0.0, b = plain.b;
-  if (start && start->found && start->fit.r.ok) {
-    // From an earlier fit of the same capture (another lag).
-    shape = start->fit.r.curve;
-    gain = start->gain;
-    b = start->fit.b;
-  } else {
-    // A zone in the plain fit can be the spasm's own doing (inside a zone the elastic
-    // force, and with it the reflex, is zero): start without one; the search may find it.
-    shape.zone_deg = 0.0;
+  // From a shape, gain and damping: Gauss-Newton on the gain, then the shape searched again
+  // with it, until both settle.
+  auto run = [&](PiecewiseCubic shape, double gain, double b) {
+    GainFit gf = convergeGain(d, known_j, shape, gain, b, cap);
+    for (int round = 0; round < 8 && gf.fit.r.ok; ++round) {
+      for (std::size_t i = 0; i < n; ++i) fel[i] = gf.fit.r.curve.eval(d.x[i]);
+      const DynamicFit next =
+          fitWithSpasm(d, known_j, PiecewiseFitOptions{}, SpasmTerm{gf.gain, gf.fit.b, cap}, fel);
+      if (!next.r.ok) break;
+      const PiecewiseCubic& a = next.r.curve;
+      const bool same = std::abs(a.min_deg - shape.min_deg) < 0.05 &&
+                        std::abs(a.max_deg - shape.max_deg) < 0.05 &&
+                        std::abs(a.zone_deg - shape.zone_deg) < 0.05 &&
+                        std::abs(a.rest_deg - shape.rest_deg) < 0.05;
+      shape = a;
+      const double before = gf.gain;
+      gf = convergeGain(d, known_j, shape, gf.gain, next.b, cap);
+      if (same && std::abs(gf.gain - before) <= 0.01 * std::max(before, 0.05)) break;
+    }
+    return gf;
+  };
+  // From a shape with the plain fit's curve: the gain from a coarse scan.
+  auto scanned = [&](const PiecewiseCubic& shape) {
     for (std::size_t i = 0; i < n; ++i) fel[i] = plain.r.curve.eval(d.x[i]);
-    double best = 1e300;
+    double best = 1e300, gain = 0.0;
     for (double g = 0.05; g <= kMaxGain * 1.0001; g *= 1.6) {
       const double r = rssOf(fitAtGain(d, known_j, shape, SpasmTerm{g, plain.b, cap}, fel).r);
       if (r < best) {
@@ -416,29 +428,29 @@ SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, do
         gain = g;
       }
     }
-  }
-  GainFit gf = convergeGain(d, known_j, shape, gain, b, cap);
-  for (int round = 0; round < 8 && gf.fit.r.ok; ++round) {
-    for (std::size_t i = 0; i < n; ++i) fel[i] = gf.fit.r.curve.eval(d.x[i]);
-    const DynamicFit next =
-        fitWithSpasm(d, known_j, PiecewiseFitOptions{}, SpasmTerm{gf.gain, gf.fit.b, cap}, fel);
-    if (!next.r.ok) break;
-    const PiecewiseCubic& a = next.r.curve;
-    const bool same = std::abs(a.min_deg - shape.min_deg) < 0.05 &&
-                      std::abs(a.max_deg - shape.max_deg) < 0.05 &&
-                      std::abs(a.zone_deg - shape.zone_deg) < 0.05 &&
-                      std::abs(a.rest_deg - shape.rest_deg) < 0.05;
-    shape = a;
-    const double before = gf.gain;
-    gf = convergeGain(d, known_j, shape, gf.gain, next.b, cap);
-    if (same && std::abs(gf.gain - before) <= 0.01 * std::max(before, 0.05)) break;
+    return run(shape, gain, plain.b);
+  };
+  GainFit gf;
+  if (start && start->found && start->fit.r.ok) {
+    // From an earlier fit of the same capture (another lag).
+    gf = run(start->fit.r.curve, start->gain, start->fit.b);
+  } else {
+    // A zone in the plain fit can be the spasm's own doing (inside a zone the elastic
+    // force, and with it the reflex, is zero), or the joint's: both starts, the better kept.
+    PiecewiseCubic shape = plain.r.curve;
+    shape.zone_deg = 0.0;
+    gf = scanned(shape);
+    if (plain.r.curve.zone_deg > 0.0) {
+      const GainFit z = scanned(plain.r.curve);
+      if (z.fit.r.ok && (!gf.fit.r.ok || rssOf(z.fit.r) < rssOf(gf.fit.r))) gf = z;
+    }
   }
   if (!gf.fit.r.ok) return out;
   out.gain = gf.gain;
   out.se = gf.se;
   const double rss = rssOf(gf.fit.r);
   const double pen = penalty * (rss / static_cast<double>(n)) * std::log(static_cast<double>(n));
-  out.found = out.gain > 0.0 && rssOf(plain.r) - rss > pen;
+  out.found = out.gain >= min_gain && rssOf(plain.r) - rss > pen;
   if (out.found) out.fit = gf.fit;
   return out;
 }
@@ -539,7 +551,8 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       if (!plain.r.ok) continue;
       wk.sp.fit = plain;
       if (options_.fit_spasm)
-        wk.sp = fitSpasm(wk.d, kj, plain, cap, options_.spasm_penalty, &before);
+        wk.sp = fitSpasm(wk.d, kj, plain, cap, options_.spasm_penalty,
+                         options_.min_speed_gain_s_per_rad, &before);
       wk.ok = true;
       any_spasm = any_spasm || wk.sp.found;
       if (report && progress) progress(axis, 0.5);

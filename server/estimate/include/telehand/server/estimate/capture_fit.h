@@ -138,6 +138,13 @@ struct FitOptions {
   /// spasm_penalty · σ² ln n. false: no spasm term.
   bool fit_spasm = true;
   double spasm_penalty = 2.0;
+  /// ...and its gain is at least this (s/rad). A smaller gain changes the damping by a few
+  /// per cent of the cap over the range, and at speed a joint without spasm can earn one:
+  /// where the joint's plain damping is near the cap, a tiny gain gives the stretch the cap
+  /// and the return the plain damping, and that asymmetry absorbs the capture's own lag
+  /// misfit (a random patient at 6 Hz: gain 0.006, its curve 0.8 N off). Random patients
+  /// draw 0.5-3 s/rad, the shipped spasm has 1.5.
+  double min_speed_gain_s_per_rad = 0.1;
   /// The scale the fitted model is rendered at (paper: 1:4). With the lever arm it sets the
   /// cap on damping plus spasm that the joint model renders (JointModel::maxDampingNmsPerRad:
   /// 0.01 N·m·s/rad at 1 cm and 1:4), which the fit applies as the model does. A simulated
