@@ -3,8 +3,9 @@
 /// lever arm that the thimbles measured against the angle the encoders measured, fitted by
 /// least squares as the joint model renders it: a cubic, a free neutral zone around rest
 /// and end-of-range walls where the clinician felt them (fitPiecewiseCubic), plus a viscous
-/// and an inertial term (the phalanx, thimbles and links accelerated by the clinician), so
-/// that mobilizing at speed does not bend the curve. Reported with the RMS residual, the
+/// term, a protective spasm (a stretch reflex capped as the joint model renders it) and an
+/// inertial term (the phalanx, thimbles and links accelerated by the clinician), so that
+/// mobilizing at speed does not bend the curve. Reported with the RMS residual, the
 /// range reached, and two checks the residual alone does not show: how far the curve moves
 /// when the dynamic terms are left out, and the up- against down-sweep hysteresis. The same code
 /// serves the live refit in the server and `telehand-records fit`.
@@ -75,7 +76,8 @@ struct AxisFit {
   /// of a newton, the curve rests on the dynamic terms: mobilize slower.
   double dynamic_n = 0.0;
   /// Largest difference of the mean residual between up and down sweeps at the same angle
-  /// (5° bins), N: a speed-dependent force the model does not hold (e.g. spasm) shows here.
+  /// (5° bins), N: a speed-dependent force the model does not hold (e.g. a spasm the fit
+  /// did not keep) shows here.
   double hysteresis_n = 0.0;
   double neutral_min_deg = 0.0;  ///< where |F| stays under the neutral-zone threshold
   double neutral_max_deg = 0.0;
