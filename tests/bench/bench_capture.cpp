@@ -8,16 +8,29 @@
 //  3. (--fit-table) fitted holding force against the truth: the shipped cases at the default
 //     capture length (10 s per axis), 0.5, 3 and 6 Hz, the paper's 1.43 N thimble noise,
 //     three seeds each; the largest error over the reachable range off the zone edges and
-//     walls, and including them (the walls to 2 deg beyond each end reached).
-// Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]]
+//     walls, and including them (the walls to 2 deg beyond each end reached); over the
+//     range the capture covered, with how far it stopped short of the truth's range under
+//     18 N where it did (more than 1 deg).
+//     Also the fitted speed gain (spasm) against the truth's.
+//  4. (--probe CASE_FILE|random-SEED HZ SEED) one capture fitted, per axis: the range
+//     planned, reached and fitted, walls, zone, residual, hysteresis, errors, speed gain
+//     with its standard error; PROBE_CURVE=1 prints the curves against the truth,
+//     PROBE_TRUTH=1 the truth's own residual at lags of 0-2 samples against the fit's
+//     (a fit worse than the truth: a search problem; better: the model misses something),
+//     PROBE_NOSPASM=1 fits without the spasm term, PROBE_DUMP=FILE writes the points.
+// Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]
+//          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]
+//          | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <string>
 #include <vector>
 
 #include "telehand/config/config.h"
@@ -69,10 +82,17 @@ class Recorder final : public server::session::Outbox {
 
 }  // namespace
 
-/// The fitted and true holding force, worst over the reachable range (inner: off the zone
-/// edges and 1 deg from the walls; edges: including them and 2 deg into each wall reached).
-std::pair<double, double> fitErrors(const JointModelParams& truth_p, const JointModelParams& fit_p,
-                                    int i, double max_force_n) {
+/// The fitted and true holding force, worst over the range the capture covered: the truth's
+/// range under max_force_n (its static holding force), cut to where the capture reached
+/// (inner: off the zone edges and 1 deg from the walls; edges: including them and 2 deg into
+/// each wall the capture went 2 deg into). `short_deg`: how far the capture stopped short of
+/// the truth's range under max_force_n (the larger of both ends; 0: all of it reached).
+struct FitError {
+  double inner = 0.0, edges = 0.0, short_deg = 0.0;
+};
+
+FitError fitErrors(const JointModelParams& truth_p, const JointModelParams& fit_p, int i,
+                   double max_force_n, double reached_min, double reached_max) {
   const JointModel truth(truth_p), fitted(fit_p);
   const CubicCurve& c = truth_p.axes[static_cast<std::size_t>(i)];
   const double rest = radToDeg(truth.restAngleRad(i));
@@ -80,30 +100,59 @@ std::pair<double, double> fitErrors(const JointModelParams& truth_p, const Joint
   double lo = rest, hi = rest;
   while (lo - 0.05 >= c.min_deg && std::abs(f(lo - 0.05)) <= max_force_n) lo -= 0.05;
   while (hi + 0.05 <= c.max_deg && std::abs(f(hi + 0.05)) <= max_force_n) hi += 0.05;
-  const bool wlo = lo <= c.min_deg + 0.05, whi = hi >= c.max_deg - 0.05;
+  FitError e;
+  e.short_deg = std::max({reached_min - lo, hi - reached_max, 0.0});
+  lo = std::max(lo, reached_min);
+  hi = std::min(hi, reached_max);
+  const bool wlo = lo <= c.min_deg + 0.05 && reached_min <= c.min_deg - 2.0;
+  const bool whi = hi >= c.max_deg - 0.05 && reached_max >= c.max_deg + 2.0;
   const double zone = truth_p.neutral_zone_deg[static_cast<std::size_t>(i)];
-  double inner = 0.0, edges = 0.0;
   for (double d = wlo ? c.min_deg - 2.0 : lo; d <= (whi ? c.max_deg + 2.0 : hi); d += 0.05) {
-    const double e = std::abs(fitted.holdingForceN(i, degToRad(d)) - f(d));
-    edges = std::max(edges, e);
+    const double err = std::abs(fitted.holdingForceN(i, degToRad(d)) - f(d));
+    e.edges = std::max(e.edges, err);
     const bool near =
         (wlo && d < c.min_deg + 1.0) || (whi && d > c.max_deg - 1.0) ||
         (zone > 0.0 && (std::abs(d - rest + zone) < 1.5 || std::abs(d - rest - zone) < 1.5));
-    if (d >= lo && d <= hi && !near) inner = std::max(inner, e);
+    if (d >= lo && d <= hi && !near) e.inner = std::max(e.inner, err);
   }
-  return {inner, edges};
+  return e;
 }
 
-int fitTable(const std::string& cases_dir) {
+struct TableOptions {
+  std::string cases_dir = "deploy/cases";
+  std::vector<std::string> cases = {"healthy", "stiff", "lax", "recovery", "spasm"};
+  std::vector<double> hz = {0.5, 3.0, 6.0};
+  uint64_t first_seed = 1, seeds = 3;
+  std::vector<uint64_t> random;  ///< randomPatientCase seeds instead of the case files
+};
+
+std::vector<std::string> splitList(const std::string& s) {
+  std::vector<std::string> out;
+  std::size_t a = 0;
+  while (a <= s.size()) {
+    const std::size_t b = std::min(s.find(',', a), s.size());
+    if (b > a) out.push_back(s.substr(a, b - a));
+    a = b + 1;
+  }
+  return out;
+}
+
+int fitTable(const TableOptions& t) {
   std::printf(
-      "case      Hz   | flexion inner/edges | abduction inner/edges | axial inner/edges "
-      "(N, worst of 3 seeds)\n");
-  for (const char* name : {"healthy", "stiff", "lax", "recovery", "spasm"}) {
-    const JointModelParams truth = loadPatientCase(cases_dir + "/" + name + ".toml").model;
-    for (const double hz : {0.5, 3.0, 6.0}) {
-      std::array<std::pair<double, double>, kAxes> worst{};
+      "case        Hz   | flexion inner/edges | abduction inner/edges | axial inner/edges | "
+      "speed gain fit (truth) | worst of %llu seeds, N\n",
+      static_cast<unsigned long long>(t.seeds));
+  std::vector<PatientCase> cases;
+  for (const auto& name : t.cases)
+    cases.push_back(loadPatientCase(t.cases_dir + "/" + name + ".toml"));
+  for (const uint64_t r : t.random) cases.push_back(randomPatientCase(r));
+  for (const PatientCase& pc : cases) {
+    const JointModelParams& truth = pc.model;
+    for (const double hz : t.hz) {
+      std::array<FitError, kAxes> worst{};
       bool all_ok = true;
-      for (uint64_t seed = 1; seed <= 3; ++seed) {
+      double gain_lo = 1e300, gain_hi = -1e300;
+      for (uint64_t seed = t.first_seed; seed < t.first_seed + t.seeds; ++seed) {
         server::estimate::SyntheticCaptureOptions o;
         o.truth = truth;
         o.frequency_hz = hz;
@@ -113,25 +162,183 @@ int fitTable(const std::string& cases_dir) {
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
         all_ok = all_ok && fit.ok();
+        const JointModelParams fitted = fit.model(truth);
+        gain_lo = std::min(gain_lo, fitted.speed_gain_s_per_rad);
+        gain_hi = std::max(gain_hi, fitted.speed_gain_s_per_rad);
         JointModelParams static_truth = truth;
         static_truth.speed_gain_s_per_rad = 0.0;
         for (int i = 0; i < kAxes; ++i) {
-          const auto e = fitErrors(static_truth, fit.model(truth), i, o.max_force_n);
+          const auto& a = fit.axes[static_cast<std::size_t>(i)];
+          const auto e = fitErrors(static_truth, fitted, i, o.max_force_n, a.reached_min_deg,
+                                   a.reached_max_deg);
           auto& w = worst[static_cast<std::size_t>(i)];
-          w = {std::max(w.first, e.first), std::max(w.second, e.second)};
+          w = {std::max(w.inner, e.inner), std::max(w.edges, e.edges),
+               std::max(w.short_deg, e.short_deg)};
         }
       }
-      std::printf("%-9s %-4.1f | %6.2f / %-6.2f     | %6.2f / %-6.2f       | %6.2f / %-6.2f %s\n",
-                  name, hz, worst[0].first, worst[0].second, worst[1].first, worst[1].second,
-                  worst[2].first, worst[2].second, all_ok ? "" : "(an axis not fitted)");
+      std::string short_of;
+      for (std::size_t i = 0; i < kAxes; ++i) {
+        if (worst[i].short_deg > 1.0) {
+          char b[64];
+          std::snprintf(b, sizeof b, " %s %.1f deg short", kAxisNames[i].data(),
+                        worst[i].short_deg);
+          short_of += b;
+        }
+      }
+      std::printf(
+          "%-11s %-4.1f | %6.2f / %-6.2f     | %6.2f / %-6.2f       | %6.2f / %-6.2f   | "
+          "%4.2f..%4.2f (%4.2f) %s%s\n",
+          pc.name.c_str(), hz, worst[0].inner, worst[0].edges, worst[1].inner, worst[1].edges,
+          worst[2].inner, worst[2].edges, gain_lo, gain_hi, truth.speed_gain_s_per_rad,
+          all_ok ? "" : "(an axis not fitted)", short_of.c_str());
+      std::fflush(stdout);
     }
   }
   return 0;
 }
 
+int probe(const std::string& file, double hz, uint64_t seed) {
+  const PatientCase pc = file.rfind("random-", 0) == 0
+                             ? randomPatientCase(std::stoull(file.substr(7)))
+                             : loadPatientCase(file);
+  server::estimate::SyntheticCaptureOptions o;
+  o.truth = pc.model;
+  o.frequency_hz = hz;
+  o.seed = seed;
+  const auto cap = server::estimate::synthesizeCapture(o);
+  server::estimate::FitOptions fo;
+  fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
+  server::estimate::CaptureFitter fitter(cap.geometry, fo);
+  for (const auto& smp : cap.samples) fitter.add(smp, true);
+  const int64_t t0 = now();
+  const auto fit = fitter.fit();
+  std::printf("fit %.0f ms\n", static_cast<double>(now() - t0) / 1e6);
+  std::printf("samples %zu used %llu fsr_fault %llu delay %.2f\n", cap.samples.size(),
+              (unsigned long long)fit.counts.used, (unsigned long long)fit.counts.fsr_fault,
+              fit.delay_samples);
+  const JointModelParams fitted = fit.model(pc.model);
+  std::printf("fitted b %.5f gain %.3f (truth b %.5f gain %.3f)\n", fitted.damping_nms_per_rad,
+              fitted.speed_gain_s_per_rad, pc.model.damping_nms_per_rad,
+              pc.model.speed_gain_s_per_rad);
+  JointModelParams st = pc.model;
+  st.speed_gain_s_per_rad = 0.0;
+  const JointModel tm(st), fm(fitted);
+  for (int i = 0; i < kAxes; ++i) {
+    const auto ax = static_cast<std::size_t>(i);
+    const auto& a = fit.axes[ax];
+    const auto fe = fitErrors(st, fitted, i, o.max_force_n, a.reached_min_deg, a.reached_max_deg);
+    const std::pair<double, double> e{fe.inner, fe.edges};
+    std::printf(
+        "%-9s plan %.1f..%.1f reached %.1f..%.1f truth %.1f..%.1f fit %.1f..%.1f walls %d%d "
+        "zone %.1f (%.1f) rms %.2f hyst %.2f err %.2f/%.2f gain %.3f±%.3f %d b %.5f\n",
+        kAxisNames[ax].data(), cap.plan.lo_deg[ax], cap.plan.hi_deg[ax], a.reached_min_deg,
+        a.reached_max_deg, st.axes[ax].min_deg, st.axes[ax].max_deg, a.curve.min_deg,
+        a.curve.max_deg, a.wall_min, a.wall_max, a.zone_deg, st.neutral_zone_deg[ax], a.rms_n,
+        a.hysteresis_n, e.first, e.second, a.speed_gain_fitted_s_per_rad, a.speed_gain_se_s_per_rad,
+        a.spasm, a.damping_nms_per_rad);
+    if (std::getenv("PROBE_CURVE")) {
+      for (double d = a.reached_min_deg; d <= a.reached_max_deg; d += 5.0)
+        std::printf("   %6.1f truth %7.2f fit %7.2f\n", d, tm.holdingForceN(i, degToRad(d)),
+                    fm.holdingForceN(i, degToRad(d)));
+    }
+  }
+  if (std::getenv("PROBE_TRUTH")) {
+    const auto rate = fitter.rates();
+    const auto acc = fitter.accelerations();
+    const auto& pts = fitter.points();
+    const JointModel full(pc.model);
+    const double L = pc.model.lever_arm_m, dcap = full.maxDampingNmsPerRad();
+    for (int delay = 0; delay <= 2; ++delay) {
+      for (int i = 0; i < kAxes; ++i) {
+        double ss = 0, ssf = 0;
+        std::size_t cnt = 0;
+        // mean residual per 10-deg bin, stretching vs returning
+        double bs[40] = {}, bn[40] = {}, cs[40] = {}, cn[40] = {};
+        for (std::size_t k = 2 + static_cast<std::size_t>(delay); k + 2 < pts.size(); ++k) {
+          const std::size_t q = k - static_cast<std::size_t>(delay);
+          const double ang = pts[q].angles_rad[i], v = rate[q][i], w = acc[q][i];
+          const double fel = tm.holdingForceN(i, ang);
+          const double el = -fel * L;
+          const bool str = el * v < 0.0;
+          const double c = std::min(pc.model.damping_nms_per_rad +
+                                        (str ? pc.model.speed_gain_s_per_rad * std::abs(el) : 0.0),
+                                    dcap);
+          const double model = fel + c * v / L + 2.6e-5 * w / L;
+          const double r = pts[k].axis_force_n[i] - model;
+          ss += r * r;
+          const double rf =
+              pts[k].axis_force_n[i] - fm.holdingForceN(i, ang) -
+              fit.axes[static_cast<std::size_t>(i)].dynamicForceN(radToDeg(ang), v, w, L);
+          ssf += rf * rf;
+          ++cnt;
+          const int b = std::clamp(static_cast<int>((radToDeg(ang) + 60.0) / 5.0), 0, 39);
+          if (std::abs(v) > 0.5) {
+            if (str) {
+              bs[b] += r;
+              cs[b] += 1;
+            } else {
+              bn[b] += r;
+              cn[b] += 1;
+            }
+          }
+        }
+        std::printf("delay %d %-9s truth rms %.3f fit rms %.3f\n", delay,
+                    kAxisNames[static_cast<std::size_t>(i)].data(),
+                    std::sqrt(ss / static_cast<double>(cnt)),
+                    std::sqrt(ssf / static_cast<double>(cnt)));
+        if (delay == 0 && std::getenv("PROBE_BINS"))
+          for (int b = 0; b < 40; ++b)
+            if (cs[b] > 50 || cn[b] > 50)
+              std::printf("   %5.0f stretch %6.2f (%4.0f) return %6.2f (%4.0f)\n", b * 5.0 - 60.0,
+                          cs[b] > 0 ? bs[b] / cs[b] : 0.0, cs[b], cn[b] > 0 ? bn[b] / cn[b] : 0.0,
+                          cn[b]);
+      }
+    }
+  }
+  if (const char* dump = std::getenv("PROBE_DUMP")) {
+    FILE* f = std::fopen(dump, "w");
+    const auto rate = fitter.rates();
+    const auto acc = fitter.accelerations();
+    const auto& pts = fitter.points();
+    for (std::size_t k = 0; k < pts.size(); ++k)
+      std::fprintf(f, "%lld %.5f %.5f %.5f %.4f %.4f %.4f %.4f %.4f %.4f %.2f %.2f %.2f\n",
+                   (long long)pts[k].seq, radToDeg(pts[k].angles_rad[0]),
+                   radToDeg(pts[k].angles_rad[1]), radToDeg(pts[k].angles_rad[2]),
+                   pts[k].axis_force_n[0], pts[k].axis_force_n[1], pts[k].axis_force_n[2],
+                   rate[k][0], rate[k][1], rate[k][2], acc[k][0], acc[k][1], acc[k][2]);
+    std::fclose(f);
+  }
+  return 0;
+}
+
 int main(int argc, char** argv) {
-  if (argc > 1 && std::strcmp(argv[1], "--fit-table") == 0)
-    return fitTable(argc > 2 ? argv[2] : "deploy/cases");
+  if (argc > 4 && std::strcmp(argv[1], "--probe") == 0)
+    return probe(argv[2], std::stod(argv[3]), std::stoull(argv[4]));
+  if (argc > 1 && std::strcmp(argv[1], "--fit-table") == 0) {
+    TableOptions t;
+    int a = 2;
+    if (argc > a && argv[a][0] != '-') t.cases_dir = argv[a++];
+    for (; a + 1 < argc; a += 2) {
+      const std::string key = argv[a], val = argv[a + 1];
+      if (key == "--cases") {
+        t.cases = splitList(val);
+      } else if (key == "--hz") {
+        t.hz.clear();
+        for (const auto& h : splitList(val)) t.hz.push_back(std::stod(h));
+      } else if (key == "--seeds") {  // FIRST,COUNT
+        const auto v = splitList(val);
+        t.first_seed = std::stoull(v.at(0));
+        t.seeds = v.size() > 1 ? std::stoull(v[1]) : 1;
+      } else if (key == "--random") {  // randomPatientCase seeds
+        if (t.cases.size() == 5) t.cases.clear();
+        for (const auto& r : splitList(val)) t.random.push_back(std::stoull(r));
+      } else {
+        std::fprintf(stderr, "unknown option %s\n", key.c_str());
+        return 2;
+      }
+    }
+    return fitTable(t);
+  }
   const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
   spdlog::set_level(spdlog::level::warn);
   // 1. k-nearest neighbours per tick.

@@ -240,23 +240,29 @@ PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const 
   std::vector<double> sx(nbins, 0.0), cnt(nbins, 0.0), sy(nbins, 0.0),
       se(nbins * static_cast<std::size_t>(d.m), 0.0);
   const auto m = static_cast<std::size_t>(d.m);
+  // With a curve scale s_i, a bin's curve column is s_i · φ(x_bin): the bin pools Σ s²
+  // (as the count), Σ s·y and Σ s·extra.
+  const bool scaled = o.curve_scale.size() >= n;
+  std::vector<double> nx(nbins, 0.0);
   for (std::size_t i = 0; i < n; ++i) {
     const auto b = std::min(static_cast<std::size_t>((x[i] - x0) / bin), nbins - 1);
+    const double sc = scaled ? o.curve_scale[i] : 1.0;
     sx[b] += x[i];
-    cnt[b] += 1.0;
-    sy[b] += y[i];
+    nx[b] += 1.0;
+    cnt[b] += sc * sc;
+    sy[b] += sc * y[i];
     d.yy += y[i] * y[i];
     for (std::size_t j = 0; j < m; ++j) {
       const double ej = extras[j][i];
-      se[b * m + j] += ej;
+      se[b * m + j] += sc * ej;
       d.ey[j] += ej * y[i];
       for (std::size_t l = j; l < m; ++l) d.ee[j][l] += ej * extras[l][i];
     }
   }
   d.n = static_cast<double>(n);
   for (std::size_t b = 0; b < nbins; ++b) {
-    if (cnt[b] == 0.0) continue;
-    d.x.push_back(sx[b] / cnt[b]);
+    if (nx[b] == 0.0) continue;
+    d.x.push_back(sx[b] / nx[b]);
     d.cnt.push_back(cnt[b]);
     d.sy.push_back(sy[b]);
     for (std::size_t j = 0; j < m; ++j) d.se.push_back(se[b * m + j]);
@@ -289,24 +295,51 @@ PiecewiseFitResult fitPiecewiseCubic(std::span<const double> x, std::span<const 
     const double c = best.*param;
     for (double v = c - step; v <= c + step + 1e-9; v += step / 10.0) tryAt(v);
   };
-  for (int round = 0; round < 3 && !o.fixed_shape; ++round) {
-    const Shape before = best;
-    if (o.find_walls) {
-      search(&Shape::hi, x1 - 0.4 * span, x1, 0.25);
-      search(&Shape::lo, x0, x0 + 0.4 * span, 0.25);
-    }
-    if (o.find_zone) {
-      if (best.zone <= 0.0) {
-        const double r = rootIn(polyOf(d, best, bt), best.lo, best.hi);
-        if (std::isnan(r)) break;
-        best.rest = r;
+  auto descend = [&]() {
+    for (int round = 0; round < 3 && !o.fixed_shape; ++round) {
+      const Shape before = best;
+      if (o.find_walls) {
+        search(&Shape::hi, x1 - 0.4 * span, x1, 0.25);
+        search(&Shape::lo, x0, x0 + 0.4 * span, 0.25);
       }
-      search(&Shape::zone, 0.0, std::min(0.3 * span, 30.0), 0.25);
-      if (best.zone > 0.0) search(&Shape::rest, best.rest - 3.0, best.rest + 3.0, 0.1);
+      if (o.find_zone) {
+        if (best.zone <= 0.0) {
+          const double r = rootIn(polyOf(d, best, bt), best.lo, best.hi);
+          if (std::isnan(r)) break;
+          best.rest = r;
+        }
+        search(&Shape::zone, 0.0, std::min(0.3 * span, 30.0), 0.25);
+        if (best.zone > 0.0) search(&Shape::rest, best.rest - 3.0, best.rest + 3.0, 0.1);
+      }
+      if (best.lo == before.lo && best.hi == before.hi && best.zone == before.zone &&
+          best.rest == before.rest)
+        break;
     }
-    if (best.lo == before.lo && best.hi == before.hi && best.zone == before.zone &&
-        best.rest == before.rest)
-      break;
+  };
+  descend();
+  if (o.find_walls && !o.fixed_shape) {
+    // Then both walls at once on a coarse grid near the ends (with the zone found): where
+    // the cubic's end slopes are steep, one wall alone may not pay while the pair does,
+    // and a search of one at a time does not find them; if the pair does better, descend
+    // again from there.
+    const double reach = std::min(0.4 * span, 10.0);
+    const Shape start = best;
+    const double rss_before = bt.rss;
+    for (double lo = x0; lo <= x0 + reach + 1e-9; lo += 1.0) {
+      for (double hi = x1 - reach; hi <= x1 + 1e-9; hi += 1.0) {
+        Shape sh = start;
+        sh.lo = lo;
+        sh.hi = hi;
+        if (sh.hi <= sh.lo) continue;
+        if (sh.zone > 0.0 && (sh.rest - sh.zone < sh.lo || sh.rest + sh.zone > sh.hi)) continue;
+        const Trial t = solve(d, sh, wall);
+        if (t.ok && t.rss < bt.rss) {
+          bt = t;
+          best = sh;
+        }
+      }
+    }
+    if (bt.rss < rss_before) descend();
   }
   // Keep each part only when it pays for itself.
   const double pen = o.fixed_shape ? 0.0 : o.penalty * (bt.rss / d.n) * std::log(d.n);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <span>
 #include <sstream>
 
@@ -254,6 +255,206 @@ PiecewiseFitResult fitAxis(const AxisData& d, double known_j, const PiecewiseFit
   return r;
 }
 
+/// The spasm as the fit holds it, in force units at the lever arm: the damping is `b` (N per
+/// rad/s) except while stretching (the holding force and the rate of one sign), where it is
+/// min(b + gain·|F_el|, cap).
+struct SpasmTerm {
+  double gain = 0.0;   ///< s/rad
+  double b = 0.0;      ///< N·s/rad, the plain damping the saturation test assumes
+  double cap = 1e300;  ///< N·s/rad
+};
+
+/// y ≈ piecewise(x) + (damping)·v (+ j·w), the damping as SpasmTerm holds it. Which samples
+/// stretch the joint and which reach the cap come from `fel`, an estimate of the elastic
+/// force per sample; given those, the model is linear: stretching under the cap the force
+/// is F_el·(1 + gain·|v|) + b·v (|F_el|·v = F_el·|v| while stretching), at the cap
+/// F_el + cap·v, else F_el + b·v.
+struct DynamicFit {
+  PiecewiseFitResult r;
+  double b = 0.0, j = 0.0, j_se = 0.0;
+  double dg = 0.0, dg_se = 0.0;  ///< the gain step (with_step), and its standard error
+};
+
+/// With `with_step`, one more column: the derivative of the force with respect to the gain,
+/// F_el·|v| where stretching under the cap, so that its coefficient is a Gauss-Newton step
+/// of the gain taken jointly with the linear parts.
+DynamicFit fitWithSpasm(const AxisData& d, double known_j, const PiecewiseFitOptions& o,
+                        const SpasmTerm& sp, std::span<const double> fel, bool with_step = false) {
+  const std::size_t n = d.x.size();
+  std::vector<double> y(n), u(n), scale(n, 1.0), z(with_step ? n : 0, 0.0);
+  const bool free_j = std::isnan(known_j);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double v = d.v[i];
+    double known = 0.0;
+    u[i] = v;
+    if (fel[i] * v > 0.0 && sp.b + sp.gain * std::abs(fel[i]) >= sp.cap) {
+      // Stretching at the cap (or the plain damping over it).
+      known = sp.cap * v;
+      u[i] = 0.0;
+    } else if (fel[i] * v > 0.0) {  // stretching under the cap
+      scale[i] = 1.0 + sp.gain * std::abs(v);
+      if (with_step) z[i] = fel[i] * std::abs(v);
+    } else if (sp.b >= sp.cap) {
+      known = sp.cap * v;
+      u[i] = 0.0;
+    }
+    y[i] = d.y[i] - known - (free_j ? 0.0 : known_j * d.w[i]);
+  }
+  PiecewiseFitOptions so = o;
+  if (sp.gain > 0.0) so.curve_scale = scale;
+  std::vector<std::span<const double>> extras = {u};
+  if (free_j) extras.push_back(d.w);
+  if (with_step) extras.push_back(z);
+  DynamicFit f;
+  f.r = fitPiecewiseCubic(d.x, y, extras, so);
+  if (f.r.ok) {
+    f.b = f.r.extra[0];
+    f.j = free_j ? f.r.extra[1] : known_j;
+    f.j_se = free_j ? f.r.extra_se[1] : 0.0;
+    if (with_step) {
+      f.dg = f.r.extra.back();
+      f.dg_se = f.r.extra_se.back();
+    }
+  }
+  return f;
+}
+
+double rssOf(const PiecewiseFitResult& r) {
+  return r.ok ? r.rms * r.rms * static_cast<double>(r.n) : 1e300;
+}
+
+constexpr double kMaxGain = 20.0;  // the case files' bound
+
+/// The fit at a gain with `shape` held (the linear parts solved), the stretch and the cap
+/// judged by `fel`.
+DynamicFit fitAtGain(const AxisData& d, double known_j, const PiecewiseCubic& shape,
+                     const SpasmTerm& sp, std::span<const double> fel) {
+  PiecewiseFitOptions fixed;
+  fixed.fixed_shape = &shape;
+  return fitWithSpasm(d, known_j, fixed, sp, fel);
+}
+
+struct GainFit {
+  DynamicFit fit;  ///< at `gain`
+  double gain = 0.0;
+  double se = std::numeric_limits<double>::infinity();
+};
+
+/// Gauss-Newton on the gain with `shape` held: each step solves the curve, the damping (and
+/// inertia) and the gain's step together, then judges the stretch and the cap again by the
+/// new curve; a step that raises the residual is halved.
+GainFit convergeGain(const AxisData& d, double known_j, const PiecewiseCubic& shape, double gain,
+                     double b, double cap, int max_steps = 30) {
+  const std::size_t n = d.x.size();
+  std::vector<double> fel(n);
+  for (std::size_t i = 0; i < n; ++i) fel[i] = shape.eval(d.x[i]);
+  GainFit out;
+  out.gain = gain;
+  out.fit = fitAtGain(d, known_j, shape, SpasmTerm{gain, b, cap}, fel);
+  if (!out.fit.r.ok) return out;
+  PiecewiseFitOptions fixed;
+  fixed.fixed_shape = &shape;
+  for (int step = 0; step < max_steps; ++step) {
+    for (std::size_t i = 0; i < n; ++i) fel[i] = out.fit.r.curve.eval(d.x[i]);
+    const DynamicFit gn =
+        fitWithSpasm(d, known_j, fixed, SpasmTerm{out.gain, out.fit.b, cap}, fel, true);
+    if (!gn.r.ok) break;
+    out.se = gn.dg_se;
+    double dg = gn.dg;
+    bool moved = false;
+    for (int half = 0; half < 8; ++half) {
+      const double g = std::clamp(out.gain + dg, 0.0, kMaxGain);
+      const DynamicFit t = fitAtGain(d, known_j, shape, SpasmTerm{g, gn.b, cap}, fel);
+      if (t.r.ok && rssOf(t.r) <= rssOf(out.fit.r)) {
+        moved = std::abs(g - out.gain) > 1e-4 * std::max(out.gain, 0.05);
+        out.gain = g;
+        out.fit = t;
+        break;
+      }
+      dg *= 0.5;
+    }
+    if (!moved) break;
+  }
+  return out;
+}
+
+struct SpasmFit {
+  DynamicFit fit;
+  double gain = 0.0;  ///< the free estimate
+  double se = std::numeric_limits<double>::infinity();
+  bool found = false;
+};
+
+/// The speed gain and the curve with it: a coarse scan of the gain (the plain fit's shape
+/// held) gives the start, Gauss-Newton refines the gain with the shape held, then the
+/// shape (walls, zone) is searched again with that gain, until the shape settles.
+/// `plain`: the fit without spasm; the spasm is kept when it pays for itself (`penalty`).
+SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, double cap,
+                  double penalty, double min_gain, const SpasmFit* start = nullptr) {
+  SpasmFit out;
+  out.fit = plain;
+  const std::size_t n = d.x.size();
+  if (!plain.r.ok || n < 10) return out;
+  std::vector<double> fel(n);
+  // From a shape, gain and damping: Gauss-Newton on the gain, then the shape searched again
+  // with it, until both settle.
+  auto run = [&](PiecewiseCubic shape, double gain, double b) {
+    GainFit gf = convergeGain(d, known_j, shape, gain, b, cap);
+    for (int round = 0; round < 8 && gf.fit.r.ok; ++round) {
+      for (std::size_t i = 0; i < n; ++i) fel[i] = gf.fit.r.curve.eval(d.x[i]);
+      const DynamicFit next =
+          fitWithSpasm(d, known_j, PiecewiseFitOptions{}, SpasmTerm{gf.gain, gf.fit.b, cap}, fel);
+      if (!next.r.ok) break;
+      const PiecewiseCubic& a = next.r.curve;
+      const bool same = std::abs(a.min_deg - shape.min_deg) < 0.05 &&
+                        std::abs(a.max_deg - shape.max_deg) < 0.05 &&
+                        std::abs(a.zone_deg - shape.zone_deg) < 0.05 &&
+                        std::abs(a.rest_deg - shape.rest_deg) < 0.05;
+      shape = a;
+      const double before = gf.gain;
+      gf = convergeGain(d, known_j, shape, gf.gain, next.b, cap);
+      if (same && std::abs(gf.gain - before) <= 0.01 * std::max(before, 0.05)) break;
+    }
+    return gf;
+  };
+  // From a shape with the plain fit's curve: the gain from a coarse scan.
+  auto scanned = [&](const PiecewiseCubic& shape) {
+    for (std::size_t i = 0; i < n; ++i) fel[i] = plain.r.curve.eval(d.x[i]);
+    double best = 1e300, gain = 0.0;
+    for (double g = 0.05; g <= kMaxGain * 1.0001; g *= 1.6) {
+      const double r = rssOf(fitAtGain(d, known_j, shape, SpasmTerm{g, plain.b, cap}, fel).r);
+      if (r < best) {
+        best = r;
+        gain = g;
+      }
+    }
+    return run(shape, gain, plain.b);
+  };
+  GainFit gf;
+  if (start && start->found && start->fit.r.ok) {
+    // From an earlier fit of the same capture (another lag).
+    gf = run(start->fit.r.curve, start->gain, start->fit.b);
+  } else {
+    // A zone in the plain fit can be the spasm's own doing (inside a zone the elastic
+    // force, and with it the reflex, is zero), or the joint's: both starts, the better kept.
+    PiecewiseCubic shape = plain.r.curve;
+    shape.zone_deg = 0.0;
+    gf = scanned(shape);
+    if (plain.r.curve.zone_deg > 0.0) {
+      const GainFit z = scanned(plain.r.curve);
+      if (z.fit.r.ok && (!gf.fit.r.ok || rssOf(z.fit.r) < rssOf(gf.fit.r))) gf = z;
+    }
+  }
+  if (!gf.fit.r.ok) return out;
+  out.gain = gf.gain;
+  out.se = gf.se;
+  const double rss = rssOf(gf.fit.r);
+  const double pen = penalty * (rss / static_cast<double>(n)) * std::log(static_cast<double>(n));
+  out.found = out.gain >= min_gain && rssOf(plain.r) - rss > pen;
+  if (out.found) out.fit = gf.fit;
+  return out;
+}
+
 }  // namespace
 
 std::array<double, kAxes> CaptureFitter::inertiaChoice(
@@ -321,22 +522,93 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   std::array<std::array<double, 3>, kAxes> inertia_info{};
   const std::array<double, kAxes> known_j = inertiaChoice(rate, acc, &inertia_info);
   out.delay_samples = delaySamples(rate, acc, known_j);
+  // In force units at the lever arm: the cap on damping plus spasm (N per rad/s).
+  const double cap = options_.render_force_scale > 0.0
+                         ? kMaxDeviceDampingNsPerM * lever / options_.render_force_scale
+                         : 1e300;
+  struct Work {
+    AxisData d;
+    SpasmFit sp;
+    bool ok = false;
+  };
+  std::array<Work, kAxes> work{};
+  auto fitAt = [&](double delay, bool report) {
+    bool any_spasm = false;
+    for (int axis = 0; axis < kAxes; ++axis) {
+      if (report && progress) progress(axis, 0.0);
+      Work& wk = work[static_cast<std::size_t>(axis)];
+      const SpasmFit before = wk.sp;
+      wk = Work{};
+      if (n < options_.min_samples) continue;
+      wk.d = axisData(points_, rate, acc, axis, delay);
+      const auto& x = wk.d.x;
+      if (x.size() < options_.min_samples) continue;
+      const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
+      if (*hi - *lo < options_.min_span_deg) continue;
+      const double kj = known_j[static_cast<std::size_t>(axis)];
+      DynamicFit plain;
+      plain.r = fitAxis(wk.d, kj, PiecewiseFitOptions{}, plain.b, plain.j, plain.j_se);
+      if (!plain.r.ok) continue;
+      wk.sp.fit = plain;
+      if (options_.fit_spasm)
+        wk.sp = fitSpasm(wk.d, kj, plain, cap, options_.spasm_penalty,
+                         options_.min_speed_gain_s_per_rad, &before);
+      wk.ok = true;
+      any_spasm = any_spasm || wk.sp.found;
+      if (report && progress) progress(axis, 0.5);
+    }
+    return any_spasm;
+  };
+  if (fitAt(out.delay_samples, true) && options_.max_delay_samples > 0) {
+    // The lag was chosen by a fit without the spasm, whose speed-dependent force a lag
+    // partly mimics: choose it again with the spasm in, each axis' shape held and its gain
+    // searched anew per lag.
+    const int most = options_.max_delay_samples;
+    std::vector<double> rss(static_cast<std::size_t>(most) + 1, 0.0);
+    for (int k = 0; k <= most; ++k) {
+      for (int axis = 0; axis < kAxes; ++axis) {
+        const Work& wk = work[static_cast<std::size_t>(axis)];
+        if (!wk.ok) continue;
+        const AxisData dk = axisData(points_, rate, acc, axis, k);
+        const GainFit g = convergeGain(dk, known_j[static_cast<std::size_t>(axis)],
+                                       wk.sp.fit.r.curve, wk.sp.gain, wk.sp.fit.b, cap, 10);
+        rss[static_cast<std::size_t>(k)] +=
+            rssOf(g.fit.r) / static_cast<double>(std::max<std::size_t>(dk.x.size(), 1));
+      }
+    }
+    const auto best =
+        static_cast<std::size_t>(std::min_element(rss.begin(), rss.end()) - rss.begin());
+    double delay = static_cast<double>(best);
+    if (best > 0 && best < rss.size() - 1) {
+      const double l = rss[best - 1], c = rss[best], r = rss[best + 1];
+      const double den = l - 2.0 * c + r;
+      delay += den > 0.0 ? std::clamp(0.5 * (l - r) / den, -0.5, 0.5) : 0.0;
+    }
+    if (std::abs(delay - out.delay_samples) > 0.05) {
+      out.delay_samples = delay;
+      fitAt(delay, false);
+    }
+  }
   for (int axis = 0; axis < kAxes; ++axis) {
-    if (progress) progress(axis, 0.0);
     AxisFit& a = out.axes[static_cast<std::size_t>(axis)];
     a.samples = n;
-    if (n < options_.min_samples) continue;
-    const AxisData d = axisData(points_, rate, acc, axis, out.delay_samples);
+    const Work& wk = work[static_cast<std::size_t>(axis)];
+    if (!wk.ok) {
+      if (progress) progress(axis, 1.0);
+      continue;
+    }
+    const AxisData& d = wk.d;
     const auto& x = d.x;
     const auto& y = d.y;
-    if (x.size() < options_.min_samples) continue;
-    const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
-    if (*hi - *lo < options_.min_span_deg) continue;
-    double b = 0.0, j = 0.0, j_se = 0.0;
-    const PiecewiseFitResult r =
-        fitAxis(d, known_j[static_cast<std::size_t>(axis)], PiecewiseFitOptions{}, b, j, j_se);
+    const SpasmFit& sp = wk.sp;
     if (progress) progress(axis, 1.0);
-    if (!r.ok) continue;
+    const PiecewiseFitResult& r = sp.fit.r;
+    const double b = sp.fit.b, j = sp.fit.j, j_se = sp.fit.j_se;
+    a.spasm = sp.found;
+    a.speed_gain_s_per_rad = sp.found ? sp.gain : 0.0;
+    a.speed_gain_fitted_s_per_rad = sp.gain;
+    a.speed_gain_se_s_per_rad = sp.se;
+    a.damping_cap_nms_per_rad = cap * lever;
     a.ok = true;
     a.curve.coeffs = r.curve.coeffs;
     a.curve.min_deg = r.curve.min_deg;
@@ -358,17 +630,20 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     a.inertia_fitted_kgm2 = j * lever;
     a.inertia_se_kgm2 = j_se * lever;
     if (!a.inertia_estimated) {
-      double fb = 0.0, fj = 0.0, fse = 0.0;
       PiecewiseFitOptions same;
       same.fixed_shape = &r.curve;
-      if (fitAxis(d, std::nan(""), same, fb, fj, fse).ok) {
-        a.inertia_fitted_kgm2 = fj * lever;
-        a.inertia_se_kgm2 = fse * lever;
+      std::vector<double> fel(x.size());
+      for (std::size_t i = 0; i < x.size(); ++i) fel[i] = r.curve.eval(x[i]);
+      const DynamicFit f =
+          fitWithSpasm(d, std::nan(""), same, SpasmTerm{a.speed_gain_s_per_rad, b, cap}, fel);
+      if (f.r.ok) {
+        a.inertia_fitted_kgm2 = f.j * lever;
+        a.inertia_se_kgm2 = f.j_se * lever;
       }
     }
     std::vector<double> res(x.size());
     for (std::size_t i = 0; i < x.size(); ++i)
-      res[i] = y[i] - a.holdingForceN(x[i]) - b * d.v[i] - j * d.w[i];
+      res[i] = y[i] - a.holdingForceN(x[i]) - a.dynamicForceN(x[i], d.v[i], d.w[i], lever);
     a.hysteresis_n = hysteresis(x, res, d.v);
     // The same shape fitted without the dynamic terms: how much the curve rests on them.
     PiecewiseFitOptions fixed;
@@ -384,6 +659,31 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   return out;
 }
 
+double AxisFit::dynamicForceN(double deg, double rate, double acc, double lever_m) const noexcept {
+  const double fel = holdingForceN(deg);
+  double c = damping_nms_per_rad;
+  if (spasm && fel * rate > 0.0) c += speed_gain_s_per_rad * std::abs(fel) * lever_m;
+  if (damping_cap_nms_per_rad > 0.0) c = std::min(c, damping_cap_nms_per_rad);
+  return (c * rate + inertia_kgm2 * acc) / lever_m;
+}
+
+double CaptureFit::speedGain() const noexcept {
+  bool any = false;
+  double sw = 0.0, swg = 0.0;
+  for (const AxisFit& a : axes) {
+    // An axis whose capture does not show the spasm may still hold a free estimate with a
+    // small standard error (traded against its plain damping): only axes that show it count.
+    if (!a.ok || !a.spasm) continue;
+    any = true;
+    const double se = a.speed_gain_se_s_per_rad;
+    if (!(se > 0.0) || !std::isfinite(se)) continue;
+    sw += 1.0 / (se * se);
+    swg += a.speed_gain_fitted_s_per_rad / (se * se);
+  }
+  if (!any || !(sw > 0.0)) return 0.0;
+  return std::clamp(swg / sw, 0.0, 20.0);
+}
+
 JointModelParams CaptureFit::model(const JointModelParams& base) const {
   JointModelParams p = base;
   double damping = 0.0;
@@ -396,7 +696,7 @@ JointModelParams CaptureFit::model(const JointModelParams& base) const {
     ++fitted;
   }
   if (fitted > 0) p.damping_nms_per_rad = std::clamp(damping / fitted, 0.0, 0.5);
-  p.speed_gain_s_per_rad = 0.0;
+  p.speed_gain_s_per_rad = speedGain();
   return p;
 }
 
@@ -406,13 +706,16 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
   std::ostringstream o;
   char buf[256];
   o << "# Fitted from a capture (telehand-records fit): per axis, a least-squares cubic of the\n"
-       "# force (N) at the lever arm against the angle (deg), over the range reached.\n";
+       "# force (N) at the lever arm against the angle (deg), over the range reached; the\n"
+       "# damping and the spasm's speed gain (0: none found) with it.\n";
   o << "[case]\n";
   o << "name = \"" << name << "\"\n";
   o << "description = \"" << description << "\"\n";
   o << "source = \"" << source << "\"\n";
   std::snprintf(buf, sizeof buf, "damping_nms_per_rad = %.6g\n", model.damping_nms_per_rad);
-  o << buf << "speed_gain_s_per_rad = 0.0\n";
+  o << buf;
+  std::snprintf(buf, sizeof buf, "speed_gain_s_per_rad = %.6g\n", model.speed_gain_s_per_rad);
+  o << buf;
   for (std::size_t i = 0; i < kAxes; ++i) {
     const AxisFit& a = fit.axes[i];
     const CubicCurve& c = model.axes[i];
@@ -429,8 +732,11 @@ std::string patientCaseToml(const CaptureFit& fit, const JointModelParams& model
     std::snprintf(buf, sizeof buf, "\ncoeffs = [%.9g, %.9g, %.9g, %.9g]\n", c.coeffs[0],
                   c.coeffs[1], c.coeffs[2], c.coeffs[3]);
     o << buf;
-    std::snprintf(buf, sizeof buf, "min_deg = %.3f\nmax_deg = %.3f\nneutral_zone_deg = %.3f\n",
-                  c.min_deg, c.max_deg, model.neutral_zone_deg[i]);
+    // A range end the capture did not feel as a wall is where it stopped, not the joint's.
+    const char* not_reached = "   # range end not reached: the capture stopped here";
+    std::snprintf(buf, sizeof buf, "min_deg = %.3f%s\nmax_deg = %.3f%s\nneutral_zone_deg = %.3f\n",
+                  c.min_deg, a.ok && !a.wall_min ? not_reached : "", c.max_deg,
+                  a.ok && !a.wall_max ? not_reached : "", model.neutral_zone_deg[i]);
     o << buf;
   }
   o << "\n";

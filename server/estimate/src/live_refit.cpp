@@ -1,6 +1,7 @@
 #include "telehand/server/estimate/live_refit.h"
 
 #include <algorithm>
+#include <chrono>
 
 namespace telehand::server::estimate {
 
@@ -34,12 +35,19 @@ double LiveRefit::maxForceChange(const JointModelParams& a, const JointModelPara
 }
 
 std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
-  if (now_ns - last_refit_ns_ < options_.min_interval_ns) return std::nullopt;
+  if (now_ns - last_refit_ns_ < std::max(options_.min_interval_ns, wait_ns_)) return std::nullopt;
   if (fitter_.size() < options_.min_samples || fitter_.size() == fitted_size_) return std::nullopt;
   last_refit_ns_ = now_ns;
   fitted_size_ = fitter_.size();
   Update u;
+  const auto t0 = std::chrono::steady_clock::now();
   u.fit = fitter_.fit();
+  const auto took =
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0);
+  wait_ns_ =
+      options_.max_busy_fraction > 0.0
+          ? static_cast<int64_t>(static_cast<double>(took.count()) / options_.max_busy_fraction)
+          : 0;
   bool any_axis = false;
   for (auto& a : u.fit.axes) {
     // An axis is taken once the clinician has mobilized it in both directions (the force

@@ -59,6 +59,10 @@ struct PiecewiseFitOptions {
   double penalty = 2.0;
   /// Fit only the linear part, with this shape's walls, zone and rest (no search).
   const PiecewiseCubic* fixed_shape = nullptr;
+  /// Per sample (empty, or as long as x), a known factor on the piecewise curve:
+  /// y ≈ curve_scale_i · piecewise(x_i) + Σ extras (a force that grows with the holding
+  /// force, e.g. a stretch reflex, stays linear in the curve's coefficients).
+  std::span<const double> curve_scale;
 };
 
 struct PiecewiseFitResult {
@@ -72,7 +76,8 @@ struct PiecewiseFitResult {
   double x_min = 0.0, x_max = 0.0;
 };
 
-/// y ≈ piecewise(x) + Σ extra_j · extras[j] (each as long as x), least squares: the cubic and
+/// y ≈ piecewise(x) + Σ extra_j · extras[j] (each as long as x; with options.curve_scale the
+/// curve term is scaled per sample), least squares: the cubic and
 /// the extras' coefficients are linear; the zone (half width, centre), and the wall angles
 /// are searched (coordinate descent on grids, then refined), each kept only when it pays
 /// for itself (options.penalty). Samples are pooled in narrow angle bins, so each trial

@@ -3,8 +3,9 @@
 /// lever arm that the thimbles measured against the angle the encoders measured, fitted by
 /// least squares as the joint model renders it: a cubic, a free neutral zone around rest
 /// and end-of-range walls where the clinician felt them (fitPiecewiseCubic), plus a viscous
-/// and an inertial term (the phalanx, thimbles and links accelerated by the clinician), so
-/// that mobilizing at speed does not bend the curve. Reported with the RMS residual, the
+/// term, a protective spasm (a stretch reflex capped as the joint model renders it) and an
+/// inertial term (the phalanx, thimbles and links accelerated by the clinician), so that
+/// mobilizing at speed does not bend the curve. Reported with the RMS residual, the
 /// range reached, and two checks the residual alone does not show: how far the curve moves
 /// when the dynamic terms are left out, and the up- against down-sweep hysteresis. The same code
 /// serves the live refit in the server and `telehand-records fit`.
@@ -47,6 +48,16 @@ struct AxisFit {
   double rest_deg = 0.0;  ///< its centre
   double rms_n = 0.0;     ///< RMS residual, N
   double damping_nms_per_rad = 0.0;
+  /// Protective spasm (JointModelParams::speed_gain_s_per_rad): while the joint is stretched
+  /// the damping is min(damping + gain·|F_el|·lever, damping_cap_nms_per_rad). The gain
+  /// as used (0 when the spasm did not pay for itself, FitOptions::penalty), and the free
+  /// estimate with its standard error from the curvature of the residual (whether used or
+  /// not; a standard error of infinity: the capture holds no unsaturated stretch).
+  double speed_gain_s_per_rad = 0.0;
+  bool spasm = false;
+  double speed_gain_fitted_s_per_rad = 0.0;
+  double speed_gain_se_s_per_rad = 0.0;
+  double damping_cap_nms_per_rad = 0.0;  ///< the cap the fit assumed (FitOptions)
   double inertia_kgm2 = 0.0;  ///< the moving mass as seen at the joint (phalanx + device)
   /// Whether inertia_kgm2 was estimated from the capture (true) or is the known value
   /// FitOptions::inertia_kgm2, used because the capture did not excite the inertia apart
@@ -65,13 +76,19 @@ struct AxisFit {
   /// of a newton, the curve rests on the dynamic terms: mobilize slower.
   double dynamic_n = 0.0;
   /// Largest difference of the mean residual between up and down sweeps at the same angle
-  /// (5° bins), N: a speed-dependent force the model does not hold (e.g. spasm) shows here.
+  /// (5° bins), N: a speed-dependent force the model does not hold (e.g. a spasm the fit
+  /// did not keep) shows here.
   double hysteresis_n = 0.0;
   double neutral_min_deg = 0.0;  ///< where |F| stays under the neutral-zone threshold
   double neutral_max_deg = 0.0;
   std::size_t samples = 0;
   /// The fitted holding force at `deg` (JointModel::holdingForceN semantics).
   double holdingForceN(double deg) const noexcept;
+  /// The fitted force at the lever arm besides the holding force, at `deg` moving at
+  /// `rate_rad_s` and accelerating at `acc_rad_s2`: viscous and spasm (capped, as
+  /// JointModel::passiveTorqueNm) and inertial, N.
+  double dynamicForceN(double deg, double rate_rad_s, double acc_rad_s2,
+                       double lever_m) const noexcept;
 };
 
 struct CaptureFit {
@@ -79,7 +96,11 @@ struct CaptureFit {
   CaptureCounts counts;
   double delay_samples = 0.0;  ///< the force channel's lag behind the positions, samples
   bool ok() const noexcept { return axes[0].ok && axes[1].ok && axes[2].ok; }
-  /// `base` with the fitted curves, ranges and damping (lever arm, scale, frame, name kept).
+  /// The joint's speed gain: the estimates of the axes that found a spasm, weighted by
+  /// their inverse variance; 0 when none did.
+  double speedGain() const noexcept;
+  /// `base` with the fitted curves, ranges, damping and speed gain (lever arm, scale, frame,
+  /// name kept).
   JointModelParams model(const JointModelParams& base) const;
 };
 
@@ -114,6 +135,24 @@ struct FitOptions {
   /// measured, the estimate is still 10-30 % off. 0 always uses the known value.
   double max_inertia_collinearity = 0.5;
   double max_inertia_rel_se = 0.1;
+  /// Protective spasm: the speed gain is fitted (alternating with the curve until it
+  /// settles) and kept when it lowers the residual sum of squares by more than
+  /// spasm_penalty · σ² ln n. false: no spasm term.
+  bool fit_spasm = true;
+  double spasm_penalty = 2.0;
+  /// ...and its gain is at least this (s/rad). A smaller gain changes the damping by a few
+  /// per cent of the cap over the range, and at speed a joint without spasm can earn one:
+  /// where the joint's plain damping is near the cap, a tiny gain gives the stretch the cap
+  /// and the return the plain damping, and that asymmetry absorbs the capture's own lag
+  /// misfit (a random patient at 6 Hz: gain 0.006, its curve 0.8 N off). Random patients
+  /// draw 0.5-3 s/rad, the shipped spasm has 1.5.
+  double min_speed_gain_s_per_rad = 0.1;
+  /// The scale the fitted model is rendered at (paper: 1:4). With the lever arm it sets the
+  /// cap on damping plus spasm that the joint model renders (JointModel::maxDampingNmsPerRad:
+  /// 0.01 N·m·s/rad at 1 cm and 1:4), which the fit applies as the model does. A simulated
+  /// patient is capped so; a real finger's reflex is not, and the fitted gain then holds the
+  /// part of it under the cap, which is what the model renders. 0: no cap.
+  double render_force_scale = 0.25;
 };
 
 /// The per-axis force that a sample's thimbles exert at the lever arm (paper eqs. 1-2 for

@@ -16,6 +16,10 @@ namespace telehand::server::estimate {
 
 struct LiveRefitOptions {
   int64_t min_interval_ns = 500'000'000;  ///< at most two refits a second
+  /// ...and a refit that took t keeps the next one at least t / max_busy_fraction away, so
+  /// that refits take at most this share of the caller's time (a long capture, or one with
+  /// a spasm, whose fit alternates the gain with the curve, takes longer to fit).
+  double max_busy_fraction = 0.25;
   /// A change is felt when the force differs by more than this fraction of it (force JND
   /// 7-10 %, docs/facts.md "Rendering and perception")...
   double jnd_fraction = 0.07;
@@ -63,6 +67,7 @@ class LiveRefit {
   CaptureFitter fitter_;
   JointModelParams published_;
   int64_t last_refit_ns_ = INT64_MIN / 2;
+  int64_t wait_ns_ = 0;  ///< after the last refit, before the next
   int64_t newest_arrival_ns_ = 0;
   std::size_t fitted_size_ = 0;
 };
