@@ -18,7 +18,7 @@ const probe = {
 window.telehand = probe;
 
 const hand = new Hand($('hand3d'));
-hand.load('hand24.urdf');
+hand.load('hand.urdf');  // the model the gateway's --hand names
 
 let band = [12, 16];
 let ws = null;
@@ -68,7 +68,7 @@ function resetLive() { Object.assign(live, { t: [], f: [], a: [], b: [], g: [], 
 let lastDraw = 0;
 function drawLive(force) {
   const now = performance.now();
-  if (!force && now - lastDraw < 15) return;  // at most about 60 redraws a second
+  if (!force && now - lastDraw < 30) return;  // at most about 30 redraws a second
   lastDraw = now;
   forcePlot.setData([live.t, live.f]);
   mcpPlot.setData([live.t, live.a, live.b, live.g]);
@@ -122,7 +122,7 @@ function connect() {
 setInterval(() => send({ op: 'ping', t: performance.now() }), 2000);
 
 const handlers = {
-  hello(m) { band = m.band; },
+  hello(m) { band = m.band; hand.setDofs(m.dofs); },
   pong(m) {
     rtt = performance.now() - m.t;
     $('rtt').textContent = `rtt ${fmt(rtt, 0)} ms`;
@@ -130,28 +130,31 @@ const handlers = {
   sessions(m) {
     probe.sessions = m.sessions;
     $('server').textContent = m.server_matched ? '' : 'no telehand-server seen on this domain and partition';
+    // Rows are updated in place (a button under the pointer stays the same element).
     const tb = $('sessions').tBodies[0];
-    tb.replaceChildren(...m.sessions.map((s) => {
-      const tr = document.createElement('tr');
-      tr.dataset.session = s.id;
-      if (view.mode === 'live' && view.session === s.id) tr.className = 'selected';
+    const rows = new Map([...tb.rows].map((tr) => [+tr.dataset.session, tr]));
+    m.sessions.forEach((s, i) => {
+      let tr = rows.get(s.id);
+      if (!tr) {
+        tr = document.createElement('tr');
+        tr.dataset.session = s.id;
+        tr.innerHTML = '<td></td><td></td><td></td><td></td><td></td><td></td>'
+          + '<td><button class="watch">watch</button></td>';
+      }
+      rows.delete(s.id);
+      if (tb.rows[i] !== tr) tb.insertBefore(tr, tb.rows[i] || null);
+      tr.className = view.mode === 'live' && view.session === s.id ? 'selected' : '';
       const age = s.age_ms;
       const health = s.state !== 'active' ? '–'
         : age === undefined ? 'no hand yet'
         : `${s.hand_hz}/s ${fmt(s.delay_ms, 0)} ms${s.dev_lost ? ` lost ${s.dev_lost}` : ''}`;
       const cls = s.state !== 'active' ? 'muted' : age === undefined || age > 1000 ? 'bad'
         : s.dev_lost > 0 || s.delay_ms > 300 ? 'warn' : 'ok';
-      tr.innerHTML = `<td>${s.id}</td><td>${s.state}</td><td></td><td></td><td>${s.mode}</td>`
-        + `<td class="${cls}">${health}</td><td></td>`;
-      tr.children[2].textContent = s.user;
-      tr.children[3].textContent = s.case;
-      const b = document.createElement('button');
-      b.textContent = 'watch';
-      b.className = 'watch';
-      b.onclick = () => watch(s.id);
-      tr.children[6].append(b);
-      return tr;
-    }));
+      const cells = [String(s.id), s.state, s.user, s.case, s.mode, health];
+      cells.forEach((text, k) => { if (tr.cells[k].textContent !== text) tr.cells[k].textContent = text; });
+      tr.cells[5].className = cls;
+    });
+    for (const tr of rows.values()) tr.remove();
   },
   records(m) {
     probe.records = m.sessions;
@@ -165,7 +168,6 @@ const handlers = {
       const b = document.createElement('button');
       b.textContent = 'replay';
       b.className = 'replay';
-      b.onclick = () => startReplay(s.id);
       tr.children[5].append(b);
       return tr;
     }));
@@ -183,6 +185,7 @@ const handlers = {
     if (live.t0 === null) live.t0 = m.t_ms;
     live.t.push((m.t_ms - live.t0) / 1000);
     live.f.push(m.force);
+    probe.plotSamples = (probe.plotSamples || 0) + 1;
     live.a.push(deg(m.mcp[0]));
     live.b.push(deg(m.mcp[1]));
     live.g.push(deg(m.mcp[2]));
@@ -226,8 +229,9 @@ function addEvent(when, kind, text) {
   const li = document.createElement('li');
   li.className = kind;
   li.textContent = `${when}  ${kind}  ${text}`;
-  $('events').append(li);
-  li.scrollIntoView({ block: 'nearest' });
+  const box = $('events');
+  box.append(li);
+  box.scrollTop = box.scrollHeight;  // this list only, never the page
 }
 
 function watch(id) {
@@ -328,6 +332,15 @@ $('mark-form').addEventListener('submit', (e) => {
   send(msg);
   $('mark-text').value = '';
   $('mark-status').textContent = 'sending…';
+});
+// The lists are rebuilt as frames come: one handler per table, not per button.
+$('sessions').addEventListener('click', (e) => {
+  const tr = e.target.closest('button.watch') && e.target.closest('tr');
+  if (tr) watch(+tr.dataset.session);
+});
+$('records').addEventListener('click', (e) => {
+  const tr = e.target.closest('button.replay') && e.target.closest('tr');
+  if (tr) startReplay(+tr.dataset.session);
 });
 $('refresh-records').onclick = () => send({ op: 'records' });
 

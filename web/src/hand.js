@@ -27,6 +27,7 @@ export class Hand {
     this.camera.up.set(0, 0, 1);
     this.camera.position.set(0.05, -0.30, 0.22);
     this.renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
     container.appendChild(this.renderer.domElement);
     this.controls = new OrbitControls(this.camera, this.renderer.domElement);
     this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8899aa, 2.2));
@@ -57,8 +58,10 @@ export class Hand {
     this.resize();
     new ResizeObserver(() => this.resize()).observe(container);
     this.dirty = true;
-    const loop = () => {
-      if (this.dirty) {
+    let last = 0;
+    const loop = (now) => {
+      if (this.dirty && now - last >= 30) {  // at most about 30 renders a second
+        last = now;
         this.controls.update();
         this.renderer.render(this.scene, this.camera);
         this.dirty = false;
@@ -126,6 +129,9 @@ export class Hand {
     this.dirty = true;
   }
 
+  /// HandState.joint_angles_rad's order: the joint names, as the gateway's hello tells them.
+  setDofs(names) { this.dofs = names; }
+
   setJoint(name, angle) {
     const j = this.byName.get(name);
     if (!j || !Number.isFinite(angle)) return;
@@ -136,11 +142,8 @@ export class Hand {
 
   /// A HandState frame (or a replay sample: mcp only).
   pose(f) {
-    if (Array.isArray(f.joints) && f.joints.length) {
-      f.joints.forEach((a, i) => {
-        const j = this.joints[i];
-        if (j && Number.isFinite(a)) { j.angle = a; j.object.quaternion.setFromAxisAngle(j.axis, a); }
-      });
+    if (Array.isArray(f.joints) && f.joints.length && this.dofs) {
+      f.joints.forEach((a, i) => this.setJoint(this.dofs[i], a));
     } else if (f.mcp) {
       this.setJoint('index_mcp_flexion', f.mcp[0]);
       this.setJoint('index_mcp_abduction', f.mcp[1]);

@@ -15,6 +15,7 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/sim/hand_model.h"
 
 namespace telehand::web {
 
@@ -46,6 +47,11 @@ int statsCb(mg_connection* c, void* g) {
   const std::string body = static_cast<Gateway*>(g)->statsJson();
   mg_send_http_ok(c, "application/json", static_cast<long long>(body.size()));
   mg_write(c, body.data(), body.size());
+  return 200;
+}
+
+int handCb(mg_connection* c, void* path) {
+  mg_send_mime_file(c, static_cast<const std::string*>(path)->c_str(), "application/xml");
   return 200;
 }
 
@@ -87,6 +93,13 @@ Gateway::Gateway(const Options& options)
       command_writer_(participant_, topics_.session_command, dds::qos::sessionCommand()),
       wake_(participant_),
       waitset_(participant_) {
+  // HandState.joint_angles_rad's order is the hand model's (the server's --list-dofs): the
+  // page is told the names rather than guessing the order from the URDF.
+  std::string dofs;
+  for (const auto& n : server::sim::HandModel::load(o_.hand).dofNames()) {
+    dofs += (dofs.empty() ? "" : ",") + jsonString(n);
+  }
+  dofs_json_ = "[" + dofs + "]";
   waitset_.attach(status_reader_.handle(), 1);
   waitset_.attach(hand_reader_.handle(), 2);
   waitset_.attach(event_reader_.handle(), 3);
@@ -125,6 +138,7 @@ Gateway::Gateway(const Options& options)
   }
   mg_set_websocket_handler(http_, "/ws", connectCb, readyCb, dataCb, closeCb, this);
   mg_set_request_handler(http_, "/api/stats", statsCb, this);
+  mg_set_request_handler(http_, "/hand.urdf$", handCb, &o_.hand);
 }
 
 Gateway::~Gateway() {
@@ -303,10 +317,10 @@ void Gateway::onReady(mg_connection* conn) {
   const mg_request_info* ri = mg_get_request_info(conn);
   spdlog::info("browser {} connected from {}", c->id, ri ? ri->remote_addr : "?");
   push(*c, fmt::format(R"({{"type":"hello","client":{},"hand_hz":{},"band":[{},{}],)"
-                       R"("max_message":{},"replay":{},"domain":{},"partition":{}}})",
+                       R"("max_message":{},"replay":{},"domain":{},"partition":{},"dofs":{}}})",
                        c->id, o_.hand_hz, o_.band_min_n, o_.band_max_n, o_.max_message,
                        o_.db.empty() ? "false" : "true", o_.dds.domain,
-                       jsonString(o_.dds.partition)));
+                       jsonString(o_.dds.partition), dofs_json_));
   ++stats_.writer_threads;
   c->writer = std::thread([this, c] {
     writerLoop(c);

@@ -25,6 +25,7 @@ struct Options {
   std::string bind = "127.0.0.1:8080";  ///< civetweb listening_ports syntax
   std::string root;                     ///< the page's files (index.html, vendor/, hand24.urdf)
   std::string db;                       ///< the record store for replay ('' = no replay)
+  std::string hand;                     ///< the hand model (URDF) HandState's joints follow
   double hand_hz = 60.0;                ///< HandState frames per second per browser, at most
   double band_min_n = 12.0;             ///< reference force band shown on the plot
   double band_max_n = 16.0;
@@ -94,6 +95,7 @@ class Gateway {
   Options o_;
   Stats stats_;
   uint64_t gateway_id_;
+  std::string dofs_json_;
   dds::Participant participant_;
   dds::Topics topics_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;

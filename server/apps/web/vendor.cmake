@@ -1,5 +1,5 @@
 # Copies the page (SRC/src) and the JavaScript it imports from SRC/node_modules (installed by
-# deploy/setup.sh from SRC/package-lock.json) into DST, with the hand model HAND.
+# deploy/setup.sh from SRC/package-lock.json) into DST.
 set(modules ${SRC}/node_modules)
 foreach(f three/build/three.module.js three/build/three.core.js
           three/examples/jsm/controls/OrbitControls.js uplot/dist/uPlot.esm.js
@@ -17,5 +17,4 @@ file(COPY ${modules}/three/examples/jsm/controls/OrbitControls.js
      DESTINATION ${DST}/vendor/three/addons)
 file(COPY ${modules}/uplot/dist/uPlot.esm.js ${modules}/uplot/dist/uPlot.min.css
           ${modules}/uplot/LICENSE DESTINATION ${DST}/vendor/uplot)
-file(COPY ${HAND} DESTINATION ${DST})
 file(WRITE ${DST}/.vendored "")

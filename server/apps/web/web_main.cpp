@@ -28,6 +28,10 @@ int main(int argc, char** argv) {
                  "address:port to serve on (default 127.0.0.1:8080, this machine only; e.g. "
                  "0.0.0.0:8080 to open it to the network)");
   app.add_option("--db", o.db, "the record store to replay sessions from (telehand-server --db)");
+  o.hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
+  app.add_option("--hand", o.hand, "the hand model (URDF) the server's HandState follows")
+      ->check(CLI::ExistingFile)
+      ->capture_default_str();
   app.add_option("--root", o.root, "the page's files")
       ->check(CLI::ExistingDirectory)
       ->capture_default_str();
@@ -69,8 +73,8 @@ int main(int argc, char** argv) {
     if (!std::filesystem::exists(std::filesystem::path(o.root) / "index.html")) {
       throw ConfigError("no index.html in '" + o.root + "' (--root)");
     }
-    if (!o.db.empty() && !std::filesystem::exists(o.db)) {
-      throw ConfigError("no record store '" + o.db + "' (--db)");
+    if (!o.db.empty() && !std::filesystem::exists(o.db)) {  // the server may make it later
+      std::cerr << "telehand-web: no record store '" << o.db << "' yet (--db)\n";
     }
     installStopSignals();
     web::Gateway gateway(o);
