@@ -5,10 +5,10 @@
 // and the client's DeviceState rate and the record, first without browsers, then with them.
 //
 //   telehand-bench-web [--clients 20] [--stalled 1] [--seconds 60] [--baseline 10]
-#include <CLI/CLI.hpp>
 #include <spdlog/fmt/fmt.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
@@ -94,8 +94,10 @@ int main(int argc, char** argv) {
   int clients = 20, stalled = 1;
   double seconds = 60, baseline = 10;
   std::string build = TELEHAND_BUILD_DIR;
-  app.add_option("--clients", clients, "WebSocket clients watching the session")->capture_default_str();
-  app.add_option("--stalled", stalled, "clients that upgrade and never read")->capture_default_str();
+  app.add_option("--clients", clients, "WebSocket clients watching the session")
+      ->capture_default_str();
+  app.add_option("--stalled", stalled, "clients that upgrade and never read")
+      ->capture_default_str();
   app.add_option("--seconds", seconds, "seconds with the clients")->capture_default_str();
   app.add_option("--baseline", baseline, "seconds without clients first")->capture_default_str();
   try {
@@ -114,18 +116,18 @@ int main(int argc, char** argv) {
     return v;
   };
   const std::string total = fmt::format("{:.0f}", baseline + seconds + 15);
-  test::Process server(with({build + "/server/telehand-server", "--db", dir + "/records.db",
-                             "--seconds", total}),
-                       dir + "/server.log");
-  test::Process web(with({build + "/server/telehand-web", "--bind",
-                          "127.0.0.1:" + std::to_string(port), "--max-clients",
-                          std::to_string(clients + stalled + 4), "--log-level", "warn"}),
-                    dir + "/web.log");
+  test::Process server(
+      with({build + "/server/telehand-server", "--db", dir + "/records.db", "--seconds", total}),
+      dir + "/server.log");
+  test::Process web(
+      with({build + "/server/telehand-web", "--bind", "127.0.0.1:" + std::to_string(port),
+            "--max-clients", std::to_string(clients + stalled + 4), "--log-level", "warn"}),
+      dir + "/web.log");
   std::this_thread::sleep_for(1500ms);
-  test::Process client(with({build + "/client/telehand-client", "--seconds",
-                             fmt::format("{:.0f}", baseline + seconds + 6), "-q",
-                             "--no-fault-stop"}),
-                       dir + "/client.log");
+  test::Process client(
+      with({build + "/client/telehand-client", "--seconds",
+            fmt::format("{:.0f}", baseline + seconds + 6), "-q", "--no-fault-stop"}),
+      dir + "/client.log");
   dds::Options o;
   o.config = TELEHAND_LOOPBACK_XML;
   o.partition = partition;
@@ -203,33 +205,43 @@ int main(int argc, char** argv) {
   const std::string client_log = client.output();
   std::smatch m;
   std::string live = "?", record = "?";
-  if (std::regex_search(client_log, m, std::regex(R"(DeviceState live ([\d.]+) packets/s)"))) live = m[1];
-  if (std::regex_search(client_log, m, std::regex(R"(record: (\d+ samples recorded, \d+ missing))")))
+  if (std::regex_search(client_log, m, std::regex(R"(DeviceState live ([\d.]+) packets/s)")))
+    live = m[1];
+  if (std::regex_search(client_log, m,
+                        std::regex(R"(record: (\d+ samples recorded, \d+ missing))")))
     record = m[1];
   std::sort(rates.begin(), rates.end());
-  const double mean = std::accumulate(rates.begin(), rates.end(), 0.0) / static_cast<double>(std::max<std::size_t>(1, rates.size()));
+  const double mean = std::accumulate(rates.begin(), rates.end(), 0.0) /
+                      static_cast<double>(std::max<std::size_t>(1, rates.size()));
   const double kb = std::accumulate(kbps.begin(), kbps.end(), 0.0);
 
-  std::printf("\n%-34s %14s %14s\n", "", "no browsers", fmt::format("{} browsers", clients).c_str());
+  std::printf("\n%-34s %14s %14s\n", "", "no browsers",
+              fmt::format("{} browsers", clients).c_str());
   std::printf("%-34s %14.1f %14.1f\n", "seconds", base.seconds, load.seconds);
   std::printf("%-34s %13.1f%% %13.1f%%\n", "gateway CPU (of one core)", 100 * base.gateway_cpu,
               100 * load.gateway_cpu);
-  std::printf("%-34s %14.1f %14.1f\n", "HandState/s at another subscriber", base.tap_hz, load.tap_hz);
+  std::printf("%-34s %14.1f %14.1f\n", "HandState/s at another subscriber", base.tap_hz,
+              load.tap_hz);
   std::printf("%-34s %14llu %14llu\n", "HandState gaps there",
               static_cast<unsigned long long>(base.tap_gaps),
               static_cast<unsigned long long>(load.tap_gaps));
   std::printf("%-34s %14.1f %14.1f\n", "HandState/s the gateway took", base.gateway_take_hz,
               load.gateway_take_hz);
-  std::printf("\nper browser: hand frames/s min %.1f, median %.1f, mean %.1f, max %.1f; %.1f kB/s "
-              "in all (%.1f each)\n",
-              rates.empty() ? 0 : rates.front(), rates.empty() ? 0 : rates[rates.size() / 2], mean,
-              rates.empty() ? 0 : rates.back(), kb, kb / static_cast<double>(std::max<std::size_t>(1, kbps.size())));
-  std::printf("gateway: frames serialized %llu, sent %llu, replaced before sending %llu, "
-              "dropped slow browsers %llu\n",
-              static_cast<unsigned long long>(statOf(stats1, "hand_frames") - statOf(stats0, "hand_frames")),
-              static_cast<unsigned long long>(statOf(stats1, "hand_sent") - statOf(stats0, "hand_sent")),
-              static_cast<unsigned long long>(statOf(stats1, "hand_coalesced") - statOf(stats0, "hand_coalesced")),
-              static_cast<unsigned long long>(statOf(stats1, "dropped_slow")));
+  std::printf(
+      "\nper browser: hand frames/s min %.1f, median %.1f, mean %.1f, max %.1f; %.1f kB/s "
+      "in all (%.1f each)\n",
+      rates.empty() ? 0 : rates.front(), rates.empty() ? 0 : rates[rates.size() / 2], mean,
+      rates.empty() ? 0 : rates.back(), kb,
+      kb / static_cast<double>(std::max<std::size_t>(1, kbps.size())));
+  std::printf(
+      "gateway: frames serialized %llu, sent %llu, replaced before sending %llu, "
+      "dropped slow browsers %llu\n",
+      static_cast<unsigned long long>(statOf(stats1, "hand_frames") -
+                                      statOf(stats0, "hand_frames")),
+      static_cast<unsigned long long>(statOf(stats1, "hand_sent") - statOf(stats0, "hand_sent")),
+      static_cast<unsigned long long>(statOf(stats1, "hand_coalesced") -
+                                      statOf(stats0, "hand_coalesced")),
+      static_cast<unsigned long long>(statOf(stats1, "dropped_slow")));
   std::printf("client: exit %d, DeviceState live %s/s, record %s\n", client_rc.value_or(-1),
               live.c_str(), record.c_str());
   web.stop();

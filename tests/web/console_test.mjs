@@ -8,6 +8,7 @@
 //
 // node console_test.mjs --build DIR --deploy DIR --artifacts DIR [--chromium PATH]
 import { spawn, execFileSync } from 'node:child_process';
+import net from 'node:net';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
@@ -70,7 +71,24 @@ async function waitFor(page, fn, arg, timeout, what) {
   }
 }
 
+// A delay line between a browser and the gateway: each direction `oneWayMs` late.
+function delayLine(listenPort, targetPort, oneWayMs) {
+  const srv = net.createServer((a) => {
+    const b = net.connect(targetPort, '127.0.0.1');
+    const pipe = (from, to) => {
+      from.on('data', (d) => setTimeout(() => to.writable && to.write(d), oneWayMs));
+      from.on('end', () => setTimeout(() => to.end(), oneWayMs));
+      from.on('error', () => to.destroy());
+    };
+    pipe(a, b);
+    pipe(b, a);
+  });
+  srv.listen(listenPort, '127.0.0.1');
+  return srv;
+}
+
 let browser;
+let delay;
 try {
   const server = start('server', path.join(build, 'server/telehand-server'), ['--db', db, '--seconds', '150', ...dds]);
   const web = start('web', path.join(build, 'server/telehand-web'),
@@ -87,6 +105,12 @@ try {
   page.on('pageerror', (e) => console.log(`page error: ${e.message}`));
   await page.goto(`http://127.0.0.1:${port}/`);
   await waitFor(page, () => window.telehand.connected, null, 10000, 'the page connected');
+  // A second supervisor 1 s of round trip away from the gateway.
+  const farPort = port + 1;
+  delay = delayLine(farPort, port, 500);
+  const far = await browser.newPage({ viewport: { width: 1400, height: 900 } });
+  await far.goto(`http://127.0.0.1:${farPort}/`);
+  await waitFor(far, () => window.telehand.connected, null, 15000, 'the far page connected');
   // --no-fault-stop: on a busy machine the simulated loop can overrun into a rendering fault
   // that would end the session early; this test is about the console, not the loop.
   const client = start('client', path.join(build, 'client/telehand-client'), ['--seconds', '25', '-q', '--no-fault-stop', ...dds]);
@@ -125,6 +149,19 @@ try {
   const redrawRate = (u1[0] - u0[0]) / span;
   check(plotRate >= 20, `force plot receives ${plotRate.toFixed(1)} updates/s (>= 20; redrawn ${redrawRate.toFixed(1)}/s)`);
   await page.screenshot({ path: path.join(artifacts, 'console-live.png') });
+
+  // The far page, over the 1 s delay line: it follows, and says how old its view is.
+  await far.click(`#sessions tr[data-session="${session}"] button.watch`);
+  await waitFor(far, () => window.telehand.handFrames > 10 && window.telehand.ageMs > 0, null, 15000, 'far hand frames');
+  const f0 = await far.evaluate(() => [window.telehand.handFrames, performance.now()]);
+  await sleep(2000);
+  const f1 = await far.evaluate(() => [window.telehand.handFrames, performance.now(), window.telehand.ageMs,
+    document.getElementById('age').textContent, document.getElementById('rtt').textContent]);
+  const farRate = (f1[0] - f0[0]) / ((f1[1] - f0[1]) / 1000);
+  check(farRate >= 20, `over a 1 s round trip the page still gets ${farRate.toFixed(1)} hand frames/s`);
+  check(f1[2] >= 500 && f1[2] < 3000, `and shows its view's age: "${f1[3]}" (${f1[4]})`);
+  await far.screenshot({ path: path.join(artifacts, 'console-live-1s-rtt.png') });
+  await far.close();
 
   // The session ends; the page says so.
   const crc = await Promise.race([client.exited, sleep(40000).then(() => null)]);
@@ -204,6 +241,7 @@ try {
   }
 } finally {
   if (browser) await browser.close();
+  if (delay) delay.close();
   await stopAll();
 }
 console.log(`${passes} passed, ${failures} failed`);

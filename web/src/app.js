@@ -38,8 +38,21 @@ const plotOpts = (title, series, yLabel, w) => ({
   series: [{}, ...series], legend: { live: false },
 });
 function plotWidth() { return Math.max(300, ($('plots').clientWidth - 16) / 2); }
+function drawCursor(u) {  // replay: where the timeline stands
+  if (view.mode !== 'replay' || !replay) return;
+  const x = u.valToPos(replayPos, 'x', true);
+  const ctx = u.ctx;
+  ctx.save();
+  ctx.strokeStyle = '#1d2430';
+  ctx.lineWidth = 1.5;
+  ctx.beginPath();
+  ctx.moveTo(x, u.bbox.top);
+  ctx.lineTo(x, u.bbox.top + u.bbox.height);
+  ctx.stroke();
+  ctx.restore();
+}
 const bandHooks = {
-  draw: [(u) => {  // the reference band behind the force
+  draw: [drawCursor, (u) => {  // the reference band behind the force
     const ctx = u.ctx;
     const y0 = u.valToPos(band[1], 'y', true);
     const y1 = u.valToPos(band[0], 'y', true);
@@ -58,6 +71,7 @@ const mcpPlot = new uPlot(plotOpts('MCP angles (deg)', [
   { label: 'α flexion', stroke: '#1f5fbf', width: 1.5 },
   { label: 'β abduction', stroke: '#2a8a3a', width: 1 },
   { label: 'γ axial', stroke: '#b8860b', width: 1 }], 'deg', plotWidth()), [[], [], [], []], $('mcp-plot'));
+mcpPlot.hooks.draw = [drawCursor];
 new ResizeObserver(() => {
   forcePlot.setSize({ width: plotWidth(), height: 190 });
   mcpPlot.setSize({ width: plotWidth(), height: 190 });
@@ -128,6 +142,11 @@ const handlers = {
     $('rtt').textContent = `rtt ${fmt(rtt, 0)} ms`;
   },
   sessions(m) {
+    // A session that ended since the last list is in the store now: list the records again.
+    const before = new Map(probe.sessions.map((s) => [s.id, s.state]));
+    if (m.sessions.some((s) => s.state === 'closed' && before.get(s.id) !== 'closed' && before.size)) {
+      send({ op: 'records' });
+    }
     probe.sessions = m.sessions;
     $('server').textContent = m.server_matched ? '' : 'no telehand-server seen on this domain and partition';
     // Rows are updated in place (a button under the pointer stays the same element).
@@ -276,6 +295,8 @@ function seek(t) {
   hand.pose({ mcp });
   showFigures(mcp, replay.force[i], { seq: `${replay.seq[i]}`, model: '–', devhz: '–', lost: '–', handhz: '–' });
   $('timeline').value = replayPos;
+  forcePlot.redraw(false, false);
+  mcpPlot.redraw(false, false);
   $('replay-time').textContent = `${fmt(replayPos, 2)} s`;
   probe.replayT = replay.t[i];
   probe.replayMcpDeg = deg(mcp[0]);

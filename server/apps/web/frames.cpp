@@ -45,8 +45,8 @@ double ms(int64_t ns) { return static_cast<double>(ns) * 1e-6; }
 }  // namespace
 
 std::string jsonString(std::string_view s) {
-  return nlohmann::json(std::string(s)).dump(-1, ' ', false,
-                                             nlohmann::json::error_handler_t::replace);
+  return nlohmann::json(std::string(s))
+      .dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 std::string jsonNumber(double v) {

@@ -133,8 +133,8 @@ Gateway::Gateway(const Options& options)
   http_ = mg_start(&callbacks, this, opts);
   if (!http_) {
     mg_exit_library();
-    throw ConfigError(fmt::format("cannot serve on '{}' (in use, or not an address:port?)",
-                                  o_.bind));
+    throw ConfigError(
+        fmt::format("cannot serve on '{}' (in use, or not an address:port?)", o_.bind));
   }
   mg_set_websocket_handler(http_, "/ws", connectCb, readyCb, dataCb, closeCb, this);
   mg_set_request_handler(http_, "/api/stats", statsCb, this);
@@ -151,8 +151,8 @@ int Gateway::run(const std::atomic<bool>& stop) {
   const auto t0 = std::chrono::steady_clock::now();
   while (!stop.load()) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    if (o_.seconds > 0 && std::chrono::steady_clock::now() - t0 >
-                              std::chrono::duration<double>(o_.seconds)) {
+    if (o_.seconds > 0 &&
+        std::chrono::steady_clock::now() - t0 > std::chrono::duration<double>(o_.seconds)) {
       break;
     }
   }
@@ -262,13 +262,12 @@ std::shared_ptr<const std::string> Gateway::sessionsFrame(int64_t now_ns) {
     first = false;
     const std::size_t rate = std::count_if(s.hand_rx.begin(), s.hand_rx.end(),
                                            [&](int64_t t) { return t >= now_ns - kRateWindowNs; });
-    fmt::format_to(
-        std::back_inserter(out),
-        R"({{"id":{},"state":"{}","mode":"{}","user":{},"case":{},"started_ms":{:.3f},)"
-        R"("ended_ms":{:.3f},"samples":{},"missing":{},"hand_hz":{},"hand_gaps":{})",
-        it->first, stateName(st.state), modeName(st.mode), jsonString(st.user),
-        jsonString(st.case_name), ms(st.started_ns), ms(st.ended_ns), st.samples_recorded,
-        st.samples_missing, rate, s.hand_gaps);
+    fmt::format_to(std::back_inserter(out),
+                   R"({{"id":{},"state":"{}","mode":"{}","user":{},"case":{},"started_ms":{:.3f},)"
+                   R"("ended_ms":{:.3f},"samples":{},"missing":{},"hand_hz":{},"hand_gaps":{})",
+                   it->first, stateName(st.state), modeName(st.mode), jsonString(st.user),
+                   jsonString(st.case_name), ms(st.started_ns), ms(st.ended_ns),
+                   st.samples_recorded, st.samples_missing, rate, s.hand_gaps);
     if (s.hand) {
       fmt::format_to(std::back_inserter(out),
                      R"(,"age_ms":{:.1f},"delay_ms":{:.1f},"dev_hz":{},"dev_lost":{},"model":{})",
@@ -541,9 +540,8 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
 void Gateway::watch(const std::shared_ptr<Client>& c, uint64_t session) {
   if (session != 0 && !knownSession(session)) {
     ++stats_.unknown_session;
-    push(*c, errorFrame("unknown_session",
-                        fmt::format("no session {} on domain {} partition {}", session,
-                                    o_.dds.domain, o_.dds.partition)));
+    push(*c, errorFrame("unknown_session", fmt::format("no session {} on domain {} partition {}",
+                                                       session, o_.dds.domain, o_.dds.partition)));
     return;
   }
   std::vector<std::string> history;

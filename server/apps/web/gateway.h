@@ -30,10 +30,10 @@ struct Options {
   double band_min_n = 12.0;             ///< reference force band shown on the plot
   double band_max_n = 16.0;
   std::size_t max_clients = 32;
-  std::size_t max_message = 4096;       ///< largest message a browser may send, bytes
-  std::size_t queue_depth = 512;        ///< messages waiting for one browser before it is dropped
-  std::size_t replay_points = 24000;    ///< samples a replay sends at most (decimated evenly)
-  double seconds = 0.0;                 ///< run this long (0 = until SIGINT/SIGTERM)
+  std::size_t max_message = 4096;     ///< largest message a browser may send, bytes
+  std::size_t queue_depth = 512;      ///< messages waiting for one browser before it is dropped
+  std::size_t replay_points = 24000;  ///< samples a replay sends at most (decimated evenly)
+  double seconds = 0.0;               ///< run this long (0 = until SIGINT/SIGTERM)
 };
 
 /// Counters /api/stats reports (tests and the benchmark read them).
@@ -41,17 +41,17 @@ struct Stats {
   std::atomic<uint64_t> clients_open{0};
   std::atomic<uint64_t> clients_total{0};
   std::atomic<uint64_t> clients_refused{0};
-  std::atomic<uint64_t> hand_states{0};      ///< HandState taken from DDS
-  std::atomic<uint64_t> hand_frames{0};      ///< HandState frames serialized (watched sessions)
-  std::atomic<uint64_t> hand_sent{0};        ///< frames written to browsers
-  std::atomic<uint64_t> hand_coalesced{0};   ///< frames replaced by a newer one before sending
+  std::atomic<uint64_t> hand_states{0};     ///< HandState taken from DDS
+  std::atomic<uint64_t> hand_frames{0};     ///< HandState frames serialized (watched sessions)
+  std::atomic<uint64_t> hand_sent{0};       ///< frames written to browsers
+  std::atomic<uint64_t> hand_coalesced{0};  ///< frames replaced by a newer one before sending
   std::atomic<uint64_t> messages_in{0};
-  std::atomic<uint64_t> bad_messages{0};     ///< malformed, oversized or unknown requests
+  std::atomic<uint64_t> bad_messages{0};  ///< malformed, oversized or unknown requests
   std::atomic<uint64_t> unknown_session{0};
   std::atomic<uint64_t> marks{0};
   std::atomic<uint64_t> replays{0};
-  std::atomic<uint64_t> dropped_slow{0};     ///< browsers dropped for a full queue
-  std::atomic<uint64_t> writer_threads{0};   ///< writer threads alive now
+  std::atomic<uint64_t> dropped_slow{0};    ///< browsers dropped for a full queue
+  std::atomic<uint64_t> writer_threads{0};  ///< writer threads alive now
 };
 
 class Gateway {

@@ -18,11 +18,11 @@ using server::store::SqliteStore;
 namespace {
 
 std::string sessionJson(const server::store::SessionInfo& s) {
-  return fmt::format(
-      R"({{"id":{},"user":{},"case":{},"mode":{},"state":{},"started_ms":{:.3f},)"
-      R"("ended_ms":{:.3f},"samples":{}}})",
-      s.id, jsonString(s.user), jsonString(s.case_name), jsonString(s.mode), jsonString(s.state),
-      static_cast<double>(s.started_ns) * 1e-6, static_cast<double>(s.ended_ns) * 1e-6, s.samples);
+  return fmt::format(R"({{"id":{},"user":{},"case":{},"mode":{},"state":{},"started_ms":{:.3f},)"
+                     R"("ended_ms":{:.3f},"samples":{}}})",
+                     s.id, jsonString(s.user), jsonString(s.case_name), jsonString(s.mode),
+                     jsonString(s.state), static_cast<double>(s.started_ns) * 1e-6,
+                     static_cast<double>(s.ended_ns) * 1e-6, s.samples);
 }
 
 void column(std::string& out, const char* name, const std::vector<double>& v) {
@@ -69,10 +69,10 @@ std::optional<std::string> replayFrame(const std::string& db, uint64_t session,
     thumb.push_back(per[0]);
     index.push_back(per[1]);
   });
-  std::string out = fmt::format(R"({{"type":"replay","session":{},"info":{},"t0_ms":{:.3f},)"
-                                R"("stride":{},"points":{})",
-                                session, sessionJson(*info), static_cast<double>(t0) * 1e-6,
-                                stride, t.size());
+  std::string out =
+      fmt::format(R"({{"type":"replay","session":{},"info":{},"t0_ms":{:.3f},)"
+                  R"("stride":{},"points":{})",
+                  session, sessionJson(*info), static_cast<double>(t0) * 1e-6, stride, t.size());
   column(out, "t", t);
   column(out, "seq", seq);
   column(out, "alpha", a);
