@@ -113,7 +113,7 @@ try {
   await waitFor(far, () => window.telehand.connected, null, 15000, 'the far page connected');
   // --no-fault-stop: on a busy machine the simulated loop can overrun into a rendering fault
   // that would end the session early; this test is about the console, not the loop.
-  const client = start('client', path.join(build, 'client/telehand-client'), ['--seconds', '25', '-q', '--no-fault-stop', ...dds]);
+  const client = start('client', path.join(build, 'client/telehand-client'), ['--seconds', '30', '-q', '--no-fault-stop', ...dds]);
 
   // The session appears, active.
   const handle = await waitFor(page, () => (window.telehand.sessions || []).find((s) => s.state === 'active')?.id,
@@ -124,6 +124,7 @@ try {
   await page.click(`#sessions tr[data-session="${session}"] button.watch`);
   console.log(`clicked at ${new Date().toISOString().slice(11, 23)}`);
   await waitFor(page, () => window.telehand.handFrames > 10, null, 10000, 'hand frames');
+  await far.click(`#sessions tr[data-session="${session}"] button.watch`);
 
   // A mark typed in the page.
   const markText = `web mark ${process.pid}`;
@@ -132,7 +133,15 @@ try {
   await waitFor(page, (t) => window.telehand.acks.some((a) => a.text === t), markText, 10000, 'the mark acknowledged');
   const seen = await page.waitForFunction((t) => window.telehand.events.some((e) => e.kind === 'mark' && e.text.startsWith(t)),
     markText, { timeout: 10000 }).then(() => true, () => false);
-  check(seen, 'the mark comes back as a session event (what the student sees)');
+  check(seen, 'the mark comes back as a session event');
+  const toStudent = await (async () => {
+    for (let i = 0; i < 50; ++i) {
+      if (log('client').includes(`server: mark: ${markText}`)) return true;
+      await sleep(100);
+    }
+    return false;
+  })();
+  check(toStudent, "the student's client shows the mark");
 
   // The MCP angle, sampled while it moves, and the plot's update rate.
   const samples = [];
@@ -151,7 +160,6 @@ try {
   await page.screenshot({ path: path.join(artifacts, 'console-live.png') });
 
   // The far page, over the 1 s delay line: it follows, and says how old its view is.
-  await far.click(`#sessions tr[data-session="${session}"] button.watch`);
   await waitFor(far, () => window.telehand.handFrames > 10 && window.telehand.ageMs > 0, null, 15000, 'far hand frames');
   const f0 = await far.evaluate(() => [window.telehand.handFrames, performance.now()]);
   await sleep(2000);

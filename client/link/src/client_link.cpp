@@ -258,9 +258,11 @@ void ClientLink::pollEvents() {
   event_reader_.take([&](const telehand_msg_SessionEvent& e, const dds_sample_info_t&) {
     const bool mine =
         (session_id_ != 0 && e.session_id == session_id_) || e.client_id == client_id_;
-    if (!mine || e.kind != telehand_msg_EVENT_ERROR) return;
+    // Errors, and a supervisor's marks on this session (shown to the student at once).
+    const bool others_mark = e.kind == telehand_msg_EVENT_MARK && e.client_id != client_id_;
+    if (!mine || (e.kind != telehand_msg_EVENT_ERROR && !others_mark)) return;
     std::lock_guard lock(messages_mu_);
-    messages_.emplace_back(e.text);
+    messages_.emplace_back(others_mark ? "mark: " + std::string(e.text) : std::string(e.text));
   });
 }
 
