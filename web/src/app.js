@@ -233,6 +233,7 @@ const handlers = {
     $('title').textContent = `Replay: session ${m.session} (${m.info.user}, ${m.info.case}, `
       + `${m.info.mode}), ${fmt(probe.replay.duration, 1)} s`;
     $('replay-bar').hidden = false;
+    hand.rest();
     $('timeline').max = probe.replay.duration;
     $('events').replaceChildren();
     for (const e of m.events) addEvent(`${fmt((e.t_ms - m.t0_ms) / 1000, 1)} s`, e.kind, e.text);
@@ -327,6 +328,7 @@ const handTimes = [];
 setInterval(() => {
   if (view.mode !== 'live' || !lastHand) {
     $('age').textContent = view.mode === 'replay' ? 'replay' : 'age –';
+    $('age').className = 'muted';
     return;
   }
   // DDS delay at the gateway + half the round trip to it + time since the frame came.

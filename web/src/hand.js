@@ -134,6 +134,12 @@ export class Hand {
     this.dirty = true;
   }
 
+  /// Every joint at rest (a replay poses the index MCP only).
+  rest() {
+    for (const j of this.joints) this.setJoint(j.name, 0);
+    for (const k of [0, 1]) { this.spheres[k].visible = false; this.arrows[k].visible = false; }
+  }
+
   /// HandState.joint_angles_rad's order: the joint names, as the gateway's hello tells them.
   setDofs(names) { this.dofs = names; }
 
