@@ -108,7 +108,6 @@ int main(int argc, char** argv) {
   std::string tmpl = "/tmp/telehand-bench-web-XXXXXX";
   const std::string dir = mkdtemp(tmpl.data());
   const std::string partition = "benchweb-" + std::to_string(getpid());
-  const int port = 40000 + static_cast<int>(getpid() % 10000);
   const std::vector<std::string> d = {"--dds-config", TELEHAND_LOOPBACK_XML, "--partition",
                                       partition, "--insecure"};
   auto with = [&](std::vector<std::string> v) {
@@ -119,11 +118,21 @@ int main(int argc, char** argv) {
   test::Process server(
       with({build + "/server/telehand-server", "--db", dir + "/records.db", "--seconds", total}),
       dir + "/server.log");
-  test::Process web(
-      with({build + "/server/telehand-web", "--bind", "127.0.0.1:" + std::to_string(port),
-            "--max-clients", std::to_string(clients + stalled + 4), "--log-level", "warn"}),
-      dir + "/web.log");
-  std::this_thread::sleep_for(1500ms);
+  test::Process web(with({build + "/server/telehand-web", "--bind", "127.0.0.1:0", "--max-clients",
+                          std::to_string(clients + stalled + 4), "--log-level", "warn"}),
+                    dir + "/web.log");
+  int port = 0;  // the system chose it; the gateway says which
+  for (int i = 0; i < 200 && port == 0; ++i) {
+    std::this_thread::sleep_for(50ms);
+    std::smatch pm;
+    const std::string out = web.output();
+    if (std::regex_search(out, pm, std::regex(R"(serving http://127\.0\.0\.1:(\d+)/)")))
+      port = std::stoi(pm[1]);
+  }
+  if (port == 0) {
+    std::cerr << "telehand-web did not start: " << web.output() << "\n";
+    return 1;
+  }
   test::Process client(
       with({build + "/client/telehand-client", "--seconds",
             fmt::format("{:.0f}", baseline + seconds + 6), "-q", "--no-fault-stop"}),

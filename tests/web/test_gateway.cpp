@@ -39,14 +39,16 @@ class GatewayTest : public ProcessTest {
     ProcessTest::SetUp();
     db_ = path("records.db");
     { server::store::SqliteStore store(db_); }  // an empty store
-    port_ = 30000 + static_cast<int>(getpid() % 10000) +
-            static_cast<int>(::testing::UnitTest::GetInstance()->random_seed() % 7);
-    web_.emplace(cmd(TELEHAND_WEB_BIN, {"--db", db_, "--bind", "127.0.0.1:" + std::to_string(port_),
-                                        "--max-clients", "8", "--log-level", "warn"}),
+    web_.emplace(cmd(TELEHAND_WEB_BIN, {"--db", db_, "--bind", "127.0.0.1:0", "--max-clients", "8",
+                                        "--log-level", "warn"}),
                  path("web.log"));
-    for (int i = 0; i < 100 && httpGet(port_, "/api/stats").empty(); ++i) {
+    // Port 0: the system chooses; the gateway prints which.
+    for (int i = 0; i < 200 && port_ == 0; ++i) {
       std::this_thread::sleep_for(50ms);
+      port_ =
+          static_cast<int>(matchNumber(web_->output(), R"(serving http://127\.0\.0\.1:(\d+)/)"));
     }
+    ASSERT_GT(port_, 0) << web_->output();
     ASSERT_FALSE(httpGet(port_, "/api/stats").empty()) << web_->output();
   }
   void TearDown() override {

@@ -146,6 +146,12 @@ Gateway::~Gateway() {
   mg_exit_library();
 }
 
+int Gateway::port() const {
+  mg_server_port ports[4]{};
+  const int n = mg_get_server_ports(http_, 4, ports);
+  return n > 0 ? ports[0].port : 0;
+}
+
 int Gateway::run(const std::atomic<bool>& stop) {
   std::thread dds([&] { ddsLoop(stop); });
   const auto t0 = std::chrono::steady_clock::now();

@@ -61,6 +61,9 @@ class Gateway {
   Gateway(const Gateway&) = delete;
   Gateway& operator=(const Gateway&) = delete;
 
+  /// The port it serves on (the one the system chose when --bind asked for port 0).
+  int port() const;
+
   /// Serves until `stop` or --seconds; returns the exit code.
   int run(const std::atomic<bool>& stop);
 

@@ -26,7 +26,8 @@ int main(int argc, char** argv) {
   std::string bind;
   app.add_option("--bind", bind,
                  "address:port to serve on (default 127.0.0.1:8080, this machine only; e.g. "
-                 "0.0.0.0:8080 to open it to the network)");
+                 "0.0.0.0:8080 to open it to the network; port 0: one the system chooses, "
+                 "printed at start)");
   app.add_option("--db", o.db, "the record store to replay sessions from (telehand-server --db)");
   o.hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
   app.add_option("--hand", o.hand, "the hand model (URDF) the server's HandState follows")
@@ -66,6 +67,10 @@ int main(int argc, char** argv) {
   try {
     setupLogging("telehand-web", log_level);
     app::resolveDdsSecurity(o.dds, insecure, "supervisor", "telehand-web");
+    // civetweb would take a bare port for every interface: the address is always said.
+    if (o.bind.find(':') == std::string::npos || o.bind.front() == ':') {
+      throw ConfigError("--bind '" + o.bind + "': give ADDRESS:PORT (e.g. 127.0.0.1:8080)");
+    }
     if (!(o.band_min_n < o.band_max_n)) {
       throw ConfigError(fmt::format("--band-min ({:g} N) must be below --band-max ({:g} N)",
                                     o.band_min_n, o.band_max_n));
@@ -78,8 +83,9 @@ int main(int argc, char** argv) {
     }
     installStopSignals();
     web::Gateway gateway(o);
-    std::cout << "telehand-web: serving http://" << o.bind << "/ (domain " << o.dds.domain
-              << ", partition " << o.dds.partition << ")" << std::endl;
+    std::cout << "telehand-web: serving http://" << o.bind.substr(0, o.bind.rfind(':')) << ":"
+              << gateway.port() << "/ (domain " << o.dds.domain << ", partition " << o.dds.partition
+              << ")" << std::endl;
     return gateway.run(g_stop_requested);
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-web: " << e.what() << "\n";
