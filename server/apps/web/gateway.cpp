@@ -25,6 +25,7 @@ constexpr int64_t kRateWindowNs = 1'000'000'000;
 constexpr int64_t kListPeriodNs = 1'000'000'000;  // the session list to each browser
 constexpr int64_t kListRebuildNs = 250'000'000;
 constexpr std::size_t kEventsKept = 64;
+constexpr std::size_t kSessionsKept = 512;  // ended ones beyond this are forgotten, oldest first
 constexpr uint16_t kCloseTooBig = 1009;
 constexpr uint16_t kClosePolicy = 1008;
 
@@ -193,6 +194,17 @@ void Gateway::onStatus(const telehand_msg_SessionStatus& s) {
   if (!p) p = std::make_unique<Session>();
   p->status = s;
   ++sessions_version_;
+  prune();
+}
+
+void Gateway::prune() {
+  // Bounded however long it runs: sessions that are not active go first, lowest id first
+  // (the server numbers sessions in order), then anything oldest.
+  for (auto it = sessions_.begin(); sessions_.size() > kSessionsKept && it != sessions_.end();) {
+    const auto& st = it->second->status;
+    it = st && st->state == telehand_msg_SESSION_ACTIVE ? std::next(it) : sessions_.erase(it);
+  }
+  while (sessions_.size() > kSessionsKept) sessions_.erase(sessions_.begin());
 }
 
 void Gateway::onEvent(const telehand_msg_SessionEvent& e) {
@@ -203,6 +215,7 @@ void Gateway::onEvent(const telehand_msg_SessionEvent& e) {
     if (!p) p = std::make_unique<Session>();
     p->events.push_back(frame);
     if (p->events.size() > kEventsKept) p->events.pop_front();
+    prune();
   }
   // To the browsers watching it; the server's errors not tied to a session to everyone.
   std::vector<std::shared_ptr<Client>> to;
@@ -223,9 +236,14 @@ void Gateway::onEvent(const telehand_msg_SessionEvent& e) {
 void Gateway::onHand(const telehand_msg_HandState& h, int64_t wall_ns, int64_t now_ns) {
   {
     std::lock_guard lk(sessions_mutex_);
-    auto& p = sessions_[h.session_id];
-    if (!p) p = std::make_unique<Session>();
-    Session& s = *p;
+    auto it = sessions_.find(h.session_id);
+    if (it == sessions_.end()) {
+      sessions_.emplace(h.session_id, std::make_unique<Session>());
+      prune();
+      it = sessions_.find(h.session_id);
+      if (it == sessions_.end()) return;  // no room for a session without a status
+    }
+    Session& s = *it->second;
     if (s.hand && h.seq <= s.hand->seq) return;  // reordered or repeated: the newer stands
     if (s.hand && h.seq > s.hand->seq + 1) s.hand_gaps += h.seq - s.hand->seq - 1;
     s.hand = h;

@@ -83,6 +83,8 @@ class Gateway {
   void onHand(const telehand_msg_HandState& h, int64_t wall_ns, int64_t now_ns);
   void onStatus(const telehand_msg_SessionStatus& s);
   void onEvent(const telehand_msg_SessionEvent& e);
+  /// Keeps at most 512 sessions (sessions_mutex_ held).
+  void prune();
   /// The session list as a frame, rebuilt at most every 250 ms.
   std::shared_ptr<const std::string> sessionsFrame(int64_t now_ns);
   void writerLoop(const std::shared_ptr<Client>& c);
