@@ -173,8 +173,14 @@ TEST_F(GatewayTest, ClosedTabsLeaveNothingBehind) {
   const std::string s = stats();
   EXPECT_EQ(statOf(s, "clients_total"), 1u + kRounds * 5u) << s;
   EXPECT_EQ(procStatus(pid, "Threads"), threads0);
+#if defined(__SANITIZE_ADDRESS__)
+  // AddressSanitizer holds freed memory in quarantine: LeakSanitizer checks the gateway at
+  // its exit instead (TearDown expects exit code 0).
+  (void)rss0;
+#else
   // 100 connections later the gateway holds no more memory than a little allocator slack.
   EXPECT_LT(procStatus(pid, "VmRSS"), rss0 + 4096) << "kB before " << rss0;
+#endif
 }
 
 TEST_F(GatewayTest, BrowsersBeyondTheLimitAreRefused) {
