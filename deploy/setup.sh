@@ -26,6 +26,9 @@ packages=(
   gnuplot-nox
   # network namespaces for system tests
   iproute2
+  # the web console (telehand-web): HTTP/WebSocket server, JSON, the page's JavaScript
+  # dependencies from web/package-lock.json (npm), and the browser its test drives
+  libcivetweb-dev nlohmann-json3-dev nodejs chromium
 )
 
 missing=()
@@ -35,8 +38,27 @@ for p in "${packages[@]}"; do
   fi
 done
 
+# The web console's JavaScript (three.js, uPlot; playwright-core for its browser test),
+# exactly as web/package-lock.json pins it, into web/node_modules; the build vendors it from
+# there. Skipped when what is installed already matches the lockfile.
+web_dependencies() {
+  local web
+  web="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)/web"
+  command -v npm >/dev/null || { echo "setup: npm missing (package nodejs)" >&2; return 1; }
+  if cmp -s "$web/package-lock.json" "$web/node_modules/.telehand-lock" 2>/dev/null; then
+    return 0
+  fi
+  echo "setup: installing the web console's JavaScript (npm ci in web/)"
+  (cd "$web" && npm ci --no-audit --no-fund --loglevel=error)
+  cp "$web/package-lock.json" "$web/node_modules/.telehand-lock"
+}
+
+# npm comes with some builds of nodejs and is a package of its own in Debian's.
+command -v npm >/dev/null || missing+=(npm)
+
 if [ ${#missing[@]} -eq 0 ]; then
   echo "setup: all ${#packages[@]} packages present"
+  web_dependencies
   exit 0
 fi
 
@@ -49,3 +71,4 @@ fi
 export DEBIAN_FRONTEND=noninteractive
 "${sudo_cmd[@]}" apt-get update -qq
 "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
+web_dependencies

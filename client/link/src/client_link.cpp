@@ -275,9 +275,11 @@ void ClientLink::pollEvents() {
       if (scores_.size() < 256) scores_.push_back(text);
       return;
     }
-    if (e.kind != telehand_msg_EVENT_ERROR) return;
+    // Errors, and a supervisor's marks on this session (shown to the student at once).
+    const bool others_mark = e.kind == telehand_msg_EVENT_MARK && e.client_id != client_id_;
+    if (e.kind != telehand_msg_EVENT_ERROR && !others_mark) return;
     std::lock_guard lock(messages_mu_);
-    messages_.emplace_back(e.text);
+    messages_.emplace_back(others_mark ? "mark: " + std::string(e.text) : std::string(e.text));
   });
 }
 

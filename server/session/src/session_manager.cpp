@@ -98,9 +98,13 @@ void SessionManager::refuse(uint64_t session_id, uint64_t client_id, const std::
         now_ns);
 }
 
+bool SessionManager::owns(const Session& s, const Origin& from) {
+  return from.participant == 0 || s.owner == 0 || from.participant == s.owner;
+}
+
 bool SessionManager::owns(Session& s, const Origin& from, const char* what, uint64_t count,
                           int64_t now_ns) {
-  if (from.participant == 0 || s.owner == 0 || from.participant == s.owner) return true;
+  if (owns(s, from)) return true;
   refuse(s.info.id, s.client_id,
          std::string(what) + " from participant " + (from.guid.empty() ? "?" : from.guid) +
              ": session " + std::to_string(s.info.id) + " belongs to " + s.info.owner,
@@ -110,14 +114,30 @@ bool SessionManager::owns(Session& s, const Origin& from, const char* what, uint
 
 void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
                                const Origin& from) {
-  if (cmd.kind != telehand_msg_CMD_OPEN) {
-    if (Session* s = find(cmd.session_id)) {
-      const char* what = cmd.kind == telehand_msg_CMD_CLOSE   ? "a CLOSE"
-                         : cmd.kind == telehand_msg_CMD_PHASE ? "a PHASE"
-                                                              : "a MARK";
-      if (!owns(*s, from, what, 1, now_ns)) {
+  if (cmd.kind == telehand_msg_CMD_MARK) {
+    // Anyone the access control lets write commands (a device, a supervisor) may mark a
+    // session; another participant's mark is kept attributed to it, never acts on the
+    // session, and is bounded per session.
+    if (Session* s = find(cmd.session_id); s && !owns(*s, from)) {
+      if (s->foreign_marks >= kMaxForeignMarks) {
+        refuse(s->info.id, s->client_id,
+               "a MARK from participant " + (from.guid.empty() ? std::string("?") : from.guid) +
+                   ": session " + std::to_string(s->info.id) + " holds " +
+                   std::to_string(kMaxForeignMarks) + " marks from other participants",
+               1, now_ns);
         return;
       }
+      ++s->foreign_marks;
+      event(cmd.session_id, cmd.client_id, telehand_msg_EVENT_MARK,
+            std::string(cmd.text) + " (from participant " +
+                (from.identity.empty() ? from.guid : from.identity) + ")",
+            now_ns);
+      return;
+    }
+  } else if (cmd.kind != telehand_msg_CMD_OPEN) {
+    if (Session* s = find(cmd.session_id)) {
+      if (!owns(*s, from, cmd.kind == telehand_msg_CMD_PHASE ? "a PHASE" : "a CLOSE", 1, now_ns))
+        return;
     }
   }
   switch (cmd.kind) {

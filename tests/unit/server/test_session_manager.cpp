@@ -748,7 +748,7 @@ class OwnershipTest : public SessionManagerTest {
   uint64_t chunk_seq_ = 0;
 };
 
-TEST_F(OwnershipTest, AnotherParticipantIsRefusedEverythingAndTheOwnerIsServed) {
+TEST_F(OwnershipTest, AnotherParticipantIsRefusedAllButMarksAndTheOwnerIsServed) {
   ASSERT_NE(open("healthy", telehand_msg_MODE_CAPTURE), 0u);
   EXPECT_EQ(store_->session(session_)->owner, kA.guid);
   moveToDeg(10.0);  // A's live stream
@@ -756,7 +756,9 @@ TEST_F(OwnershipTest, AnotherParticipantIsRefusedEverythingAndTheOwnerIsServed) 
   const std::size_t statuses = out_.statuses.size();
   const std::size_t hands = out_.hands.size();
 
-  // B: a live sample, a chunk over A's sequence numbers, a file, a MARK and a CLOSE.
+  // B: a live sample, a chunk over A's sequence numbers, a file, a MARK and a CLOSE. The MARK
+  // is kept (a supervisor marks sessions it did not open), attributed to B, and inert: the
+  // owner's "reassessment" would start a phase, B's does not.
   manager_->onDeviceState(wireSample(session_, seq_, kRogueVersion), now_ns_, kB);
   sendRange(session_, 1, 150, kB, kRogueVersion);
   file(kB, "rogue.toml", 100);
@@ -764,13 +766,15 @@ TEST_F(OwnershipTest, AnotherParticipantIsRefusedEverythingAndTheOwnerIsServed) 
   command(telehand_msg_CMD_CLOSE, kB, 0);
   tickFor(100'000'000);
 
-  EXPECT_EQ(manager_->stats().refused, 1u + 150u + 1u + 1u + 1u);
+  EXPECT_EQ(manager_->stats().refused, 1u + 150u + 1u + 1u);
   EXPECT_EQ(manager_->activeSessions(), 1u);
   for (std::size_t i = statuses; i < out_.statuses.size(); ++i)
     EXPECT_EQ(out_.statuses[i].state, telehand_msg_SESSION_ACTIVE);
   EXPECT_EQ(stored(session_).rows, 0u);
   EXPECT_TRUE(store_->files(session_).empty());
-  EXPECT_TRUE(out_.eventsOf(telehand_msg_EVENT_MARK).empty());
+  ASSERT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), 1u);
+  EXPECT_THAT(std::string(out_.eventsOf(telehand_msg_EVENT_MARK)[0]->text),
+              AllOf(HasSubstr("reassessment"), HasSubstr("(from participant " + kB.guid + ")")));
   // The hand took nothing of B's: no new HandState names B's sequence number.
   for (std::size_t i = hands; i < out_.hands.size(); ++i) EXPECT_LT(out_.hands[i].device_seq, seq_);
   // One event for the lot (at most one per 5 s per session), naming the first refusal, the
@@ -797,10 +801,9 @@ TEST_F(OwnershipTest, AnotherParticipantIsRefusedEverythingAndTheOwnerIsServed) 
   now_ns_ += 5'000'000'000;
   command(telehand_msg_CMD_MARK, kB, 0, "x");
   refused = securityEvents();
-  ASSERT_EQ(refused.size(), 5u);
+  ASSERT_EQ(refused.size(), 4u);
   EXPECT_THAT(refused[2], HasSubstr("a SessionFile from participant " + kB.guid));
   EXPECT_THAT(refused[3], HasSubstr("a RecordChunk from participant " + kB.guid));
-  EXPECT_THAT(refused[4], HasSubstr("a MARK from participant " + kB.guid));
   EXPECT_EQ(manager_->activeSessions(), 1u);
 
   // A's own are taken: its record, its file, its mark, its CLOSE.
@@ -822,8 +825,19 @@ TEST_F(OwnershipTest, AnotherParticipantIsRefusedEverythingAndTheOwnerIsServed) 
   EXPECT_EQ(s.invalid, 0u);
   ASSERT_EQ(store_->files(session_).size(), 1u);
   EXPECT_EQ(store_->files(session_)[0].name, "device.toml");
-  EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), 1u);
-  EXPECT_EQ(manager_->stats().refused, 154u + 1u + 1u + 10u + 1u);
+  EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), 3u);  // B's two, A's one
+  EXPECT_EQ(manager_->stats().refused, 153u + 1u + 1u + 10u);
+}
+
+TEST_F(OwnershipTest, MarksFromOtherParticipantsAreBoundedPerSession) {
+  ASSERT_NE(open("healthy"), 0u);
+  const auto cap = static_cast<std::size_t>(SessionManager::kMaxForeignMarks);
+  for (std::size_t i = 0; i < cap + 3; ++i) command(telehand_msg_CMD_MARK, kB, 0, "note");
+  EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), cap);
+  EXPECT_EQ(manager_->stats().refused, 3u);
+  command(telehand_msg_CMD_MARK, kA, 0, "own");  // the owner's marks are not counted
+  EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), cap + 1);
+  EXPECT_EQ(std::string(out_.eventsOf(telehand_msg_EVENT_MARK).back()->text), "own");
 }
 
 TEST_F(OwnershipTest, AnUnknownSenderIsNotRefused) {

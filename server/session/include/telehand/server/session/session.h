@@ -61,7 +61,8 @@ class Session {
   std::string owner_identity;  // its Origin::identity (DDS Security), empty without
   uint64_t seq_high = 0;       // highest sequence number taken, live or recorded
   bool have_seq = false;
-  int files = 0;  // SessionFiles kept
+  int files = 0;          // SessionFiles kept
+  int foreign_marks = 0;  // MARKs kept from participants other than the owner (supervisors)
   telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
   PatientCase patient;
   JointModelParams params;

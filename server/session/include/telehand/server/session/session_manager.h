@@ -95,10 +95,14 @@ class SessionManager {
   static constexpr uint64_t kSeqWindow = 600'000;
   /// Owners of ended sessions remembered, for their late chunks (oldest forgotten first).
   static constexpr std::size_t kMaxEndedOwners = 4096;
+  /// Marks one session keeps from participants other than its owner (supervisors).
+  static constexpr int kMaxForeignMarks = 256;
 
  private:
   void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from);
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  /// True when `from` opened session `s` (or either is unknown).
+  static bool owns(const Session& s, const Origin& from);
   /// True when `from` may act on session `s`; otherwise counts and reports the refusal.
   bool owns(Session& s, const Origin& from, const char* what, uint64_t count, int64_t now_ns);
   /// Refuse `what` for a session: counted, one security event per session per 5 s.

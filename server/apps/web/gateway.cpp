@@ -1,0 +1,682 @@
+#include "gateway.h"
+
+#include <spdlog/fmt/fmt.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <vector>
+
+#include "frames.h"
+#include "replay.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/error.h"
+#include "telehand/protocol/wire.h"
+#include "telehand/server/sim/hand_model.h"
+
+namespace telehand::web {
+
+namespace {
+
+constexpr int64_t kRateWindowNs = 1'000'000'000;
+constexpr int64_t kListPeriodNs = 1'000'000'000;  // the session list to each browser
+constexpr int64_t kListRebuildNs = 250'000'000;
+constexpr std::size_t kEventsKept = 64;
+constexpr std::size_t kSessionsKept = 512;  // ended ones beyond this are forgotten, oldest first
+constexpr uint16_t kCloseTooBig = 1009;
+constexpr uint16_t kClosePolicy = 1008;
+
+int64_t steadyNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+double ms(int64_t ns) { return static_cast<double>(ns) * 1e-6; }
+
+// civetweb's C callbacks: the Gateway is the callback data.
+int connectCb(const mg_connection*, void* g) { return static_cast<Gateway*>(g)->onConnect(); }
+void readyCb(mg_connection* c, void* g) { static_cast<Gateway*>(g)->onReady(c); }
+int dataCb(mg_connection* c, int bits, char* data, size_t len, void* g) {
+  return static_cast<Gateway*>(g)->onData(c, bits, data, len);
+}
+void closeCb(const mg_connection* c, void* g) { static_cast<Gateway*>(g)->onClose(c); }
+int statsCb(mg_connection* c, void* g) {
+  const std::string body = static_cast<Gateway*>(g)->statsJson();
+  mg_send_http_ok(c, "application/json", static_cast<long long>(body.size()));
+  mg_write(c, body.data(), body.size());
+  return 200;
+}
+
+int handCb(mg_connection* c, void* path) {
+  mg_send_mime_file(c, static_cast<const std::string*>(path)->c_str(), "application/xml");
+  return 200;
+}
+
+}  // namespace
+
+struct Gateway::Client {
+  uint64_t id = 0;
+  mg_connection* conn = nullptr;
+  std::mutex m;
+  std::condition_variable cv;
+  bool closing = false;     // the connection is going: the writer ends
+  uint16_t close_code = 0;  // the writer closes the connection with this code (0: no)
+  std::string close_reason;
+  uint64_t watching = 0;
+  std::deque<std::string> queue;
+  std::shared_ptr<const std::string> hand;  // the newest HandState frame not yet sent
+  int64_t next_hand_ns = 0;
+  std::thread writer;
+};
+
+struct Gateway::Session {
+  std::optional<telehand_msg_SessionStatus> status;
+  std::optional<telehand_msg_HandState> hand;
+  int64_t hand_rx_ns = 0;     // steady clock
+  int64_t hand_delay_ns = 0;  // gateway wall clock - HandState source time
+  uint64_t hand_gaps = 0;
+  std::deque<int64_t> hand_rx;
+  std::deque<std::string> events;  // frames, oldest first
+};
+
+Gateway::Gateway(const Options& options)
+    : o_(options),
+      gateway_id_(std::random_device{}() | (static_cast<uint64_t>(std::random_device{}()) << 32)),
+      participant_(o_.dds),
+      topics_(participant_),
+      status_reader_(participant_, topics_.session_status, dds::qos::sessionStatus()),
+      hand_reader_(participant_, topics_.hand_state, dds::qos::handStateReader(4)),
+      event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
+      command_writer_(participant_, topics_.session_command, dds::qos::sessionCommand()),
+      wake_(participant_),
+      waitset_(participant_) {
+  // HandState.joint_angles_rad's order is the hand model's (the server's --list-dofs): the
+  // page is told the names rather than guessing the order from the URDF.
+  std::string dofs;
+  for (const auto& n : server::sim::HandModel::load(o_.hand).dofNames()) {
+    dofs += (dofs.empty() ? "" : ",") + jsonString(n);
+  }
+  dofs_json_ = "[" + dofs + "]";
+  waitset_.attach(status_reader_.handle(), 1);
+  waitset_.attach(hand_reader_.handle(), 2);
+  waitset_.attach(event_reader_.handle(), 3);
+  waitset_.attach(wake_.handle(), 4);
+
+  mg_init_library(0);
+  if (mg_check_feature(16) == 0) {
+    throw ConfigError("this civetweb was built without WebSocket support");
+  }
+  const std::string threads = std::to_string(o_.max_clients + 8);
+  const char* opts[] = {"listening_ports",
+                        o_.bind.c_str(),
+                        "document_root",
+                        o_.root.c_str(),
+                        "num_threads",
+                        threads.c_str(),
+                        "enable_directory_listing",
+                        "no",
+                        "request_timeout_ms",
+                        "10000",
+                        "websocket_timeout_ms",
+                        "3600000",
+                        "additional_header",
+                        "Cache-Control: no-cache",
+                        nullptr};
+  mg_callbacks callbacks{};
+  callbacks.log_message = [](const mg_connection*, const char* message) {
+    spdlog::warn("http: {}", message);
+    return 1;
+  };
+  http_ = mg_start(&callbacks, this, opts);
+  if (!http_) {
+    mg_exit_library();
+    throw ConfigError(
+        fmt::format("cannot serve on '{}' (in use, or not an address:port?)", o_.bind));
+  }
+  mg_set_websocket_handler(http_, "/ws", connectCb, readyCb, dataCb, closeCb, this);
+  mg_set_request_handler(http_, "/api/stats", statsCb, this);
+  mg_set_request_handler(http_, "/hand.urdf$", handCb, &o_.hand);
+}
+
+Gateway::~Gateway() {
+  mg_stop(http_);  // closes every connection: onClose joins each writer
+  mg_exit_library();
+}
+
+int Gateway::port() const {
+  mg_server_port ports[4]{};
+  const int n = mg_get_server_ports(http_, 4, ports);
+  return n > 0 ? ports[0].port : 0;
+}
+
+int Gateway::run(const std::atomic<bool>& stop) {
+  std::thread dds([&] { ddsLoop(stop); });
+  const auto t0 = std::chrono::steady_clock::now();
+  while (!stop.load()) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (o_.seconds > 0 &&
+        std::chrono::steady_clock::now() - t0 > std::chrono::duration<double>(o_.seconds)) {
+      break;
+    }
+  }
+  stopping_.store(true);
+  wake_.trigger();
+  dds.join();
+  return 0;
+}
+
+void Gateway::ddsLoop(const std::atomic<bool>& stop) {
+  while (!stop.load() && !stopping_.load()) {
+    waitset_.wait(std::chrono::milliseconds(500));
+    wake_.clear();
+    takeDds(steadyNs());
+  }
+}
+
+void Gateway::takeDds(int64_t now_ns) {
+  status_reader_.take(
+      [&](const telehand_msg_SessionStatus& s, const dds_sample_info_t&) { onStatus(s); }, 256);
+  event_reader_.take(
+      [&](const telehand_msg_SessionEvent& e, const dds_sample_info_t&) { onEvent(e); }, 256);
+  const int64_t wall = wallNs();
+  stats_.hand_states += hand_reader_.take(
+      [&](const telehand_msg_HandState& h, const dds_sample_info_t&) { onHand(h, wall, now_ns); },
+      256);
+}
+
+void Gateway::onStatus(const telehand_msg_SessionStatus& s) {
+  std::lock_guard lk(sessions_mutex_);
+  auto& p = sessions_[s.session_id];
+  if (!p) p = std::make_unique<Session>();
+  p->status = s;
+  ++sessions_version_;
+  prune();
+}
+
+void Gateway::prune() {
+  // Bounded however long it runs: sessions that are not active go first, lowest id first
+  // (the server numbers sessions in order), then anything oldest.
+  for (auto it = sessions_.begin(); sessions_.size() > kSessionsKept && it != sessions_.end();) {
+    const auto& st = it->second->status;
+    it = st && st->state == telehand_msg_SESSION_ACTIVE ? std::next(it) : sessions_.erase(it);
+  }
+  while (sessions_.size() > kSessionsKept) sessions_.erase(sessions_.begin());
+}
+
+void Gateway::onEvent(const telehand_msg_SessionEvent& e) {
+  std::string frame = eventFrame(e);
+  {
+    std::lock_guard lk(sessions_mutex_);
+    auto& p = sessions_[e.session_id];
+    if (!p) p = std::make_unique<Session>();
+    p->events.push_back(frame);
+    if (p->events.size() > kEventsKept) p->events.pop_front();
+    prune();
+  }
+  // To the browsers watching it; the server's errors not tied to a session to everyone.
+  std::vector<std::shared_ptr<Client>> to;
+  {
+    std::lock_guard lk(clients_mutex_);
+    for (const auto& [conn, c] : clients_) to.push_back(c);
+  }
+  for (const auto& c : to) {
+    bool wants = false;
+    {
+      std::lock_guard lk(c->m);
+      wants = c->watching == e.session_id || e.session_id == 0;
+    }
+    if (wants) push(*c, frame);
+  }
+}
+
+void Gateway::onHand(const telehand_msg_HandState& h, int64_t wall_ns, int64_t now_ns) {
+  {
+    std::lock_guard lk(sessions_mutex_);
+    auto it = sessions_.find(h.session_id);
+    if (it == sessions_.end()) {
+      sessions_.emplace(h.session_id, std::make_unique<Session>());
+      prune();
+      it = sessions_.find(h.session_id);
+      if (it == sessions_.end()) return;  // no room for a session without a status
+    }
+    Session& s = *it->second;
+    if (s.hand && h.seq <= s.hand->seq) return;  // reordered or repeated: the newer stands
+    if (s.hand && h.seq > s.hand->seq + 1) s.hand_gaps += h.seq - s.hand->seq - 1;
+    s.hand = h;
+    s.hand_rx_ns = now_ns;
+    s.hand_delay_ns = wall_ns - h.source_time_ns;
+    s.hand_rx.push_back(now_ns);
+    while (s.hand_rx.front() < now_ns - kRateWindowNs) s.hand_rx.pop_front();
+  }
+  // Serialized only when a browser watches this session: a session nobody watches costs a
+  // take and a copy, nothing more.
+  std::shared_ptr<const std::string> frame;
+  std::lock_guard lk(clients_mutex_);
+  for (const auto& [conn, c] : clients_) {
+    std::lock_guard ck(c->m);
+    if (c->watching != h.session_id || c->closing) continue;
+    if (!frame) {
+      frame = std::make_shared<const std::string>(handFrame(h, wall_ns));
+      ++stats_.hand_frames;
+    }
+    if (c->hand) ++stats_.hand_coalesced;
+    c->hand = frame;
+    c->cv.notify_one();
+  }
+}
+
+std::shared_ptr<const std::string> Gateway::sessionsFrame(int64_t now_ns) {
+  std::lock_guard lk(sessions_mutex_);
+  if (sessions_frame_ && sessions_frame_version_ == sessions_version_ &&
+      now_ns - sessions_frame_ns_ < kListRebuildNs) {
+    return sessions_frame_;
+  }
+  std::string out =
+      fmt::format(R"({{"type":"sessions","now_ms":{:.3f},"sessions":[)", ms(wallNs()));
+  bool first = true;
+  for (auto it = sessions_.rbegin(); it != sessions_.rend(); ++it) {
+    const Session& s = *it->second;
+    if (!s.status) continue;
+    const auto& st = *s.status;
+    if (!first) out += ',';
+    first = false;
+    const std::size_t rate = std::count_if(s.hand_rx.begin(), s.hand_rx.end(),
+                                           [&](int64_t t) { return t >= now_ns - kRateWindowNs; });
+    fmt::format_to(std::back_inserter(out),
+                   R"({{"id":{},"state":"{}","mode":"{}","user":{},"case":{},"started_ms":{:.3f},)"
+                   R"("ended_ms":{:.3f},"samples":{},"missing":{},"hand_hz":{},"hand_gaps":{})",
+                   it->first, stateName(st.state), modeName(st.mode), jsonString(st.user),
+                   jsonString(st.case_name), ms(st.started_ns), ms(st.ended_ns),
+                   st.samples_recorded, st.samples_missing, rate, s.hand_gaps);
+    if (s.hand) {
+      fmt::format_to(std::back_inserter(out),
+                     R"(,"age_ms":{:.1f},"delay_ms":{:.1f},"dev_hz":{},"dev_lost":{},"model":{})",
+                     ms(now_ns - s.hand_rx_ns), ms(s.hand_delay_ns),
+                     jsonNumber(s.hand->device_rate_hz), s.hand->device_lost,
+                     s.hand->model_version);
+    }
+    out += '}';
+  }
+  fmt::format_to(std::back_inserter(out), R"(],"server_matched":{}}})",
+                 hand_reader_.matchedWriters() > 0 ? "true" : "false");
+  sessions_frame_ = std::make_shared<const std::string>(std::move(out));
+  sessions_frame_ns_ = now_ns;
+  sessions_frame_version_ = sessions_version_;
+  return sessions_frame_;
+}
+
+bool Gateway::knownSession(uint64_t id) const {
+  std::lock_guard lk(sessions_mutex_);
+  const auto it = sessions_.find(id);
+  return id != 0 && it != sessions_.end() && it->second->status.has_value();
+}
+
+// --- browsers ---
+
+int Gateway::onConnect() {
+  std::lock_guard lk(clients_mutex_);
+  if (clients_.size() >= o_.max_clients) {
+    ++stats_.clients_refused;
+    spdlog::warn("refused a browser: {} connected, the limit (--max-clients)", clients_.size());
+    return 1;
+  }
+  return 0;
+}
+
+void Gateway::onReady(mg_connection* conn) {
+  auto c = std::make_shared<Client>();
+  c->conn = conn;
+  {
+    std::lock_guard lk(clients_mutex_);
+    c->id = next_client_++;
+    clients_[conn] = c;
+  }
+  ++stats_.clients_open;
+  ++stats_.clients_total;
+  const mg_request_info* ri = mg_get_request_info(conn);
+  spdlog::info("browser {} connected from {}", c->id, ri ? ri->remote_addr : "?");
+  push(*c, fmt::format(R"({{"type":"hello","client":{},"hand_hz":{},"band":[{},{}],)"
+                       R"("max_message":{},"replay":{},"domain":{},"partition":{},"dofs":{}}})",
+                       c->id, o_.hand_hz, o_.band_min_n, o_.band_max_n, o_.max_message,
+                       o_.db.empty() ? "false" : "true", o_.dds.domain,
+                       jsonString(o_.dds.partition), dofs_json_));
+  ++stats_.writer_threads;
+  c->writer = std::thread([this, c] {
+    writerLoop(c);
+    --stats_.writer_threads;
+  });
+}
+
+void Gateway::onClose(const mg_connection* conn) {
+  std::shared_ptr<Client> c;
+  {
+    std::lock_guard lk(clients_mutex_);
+    const auto it = clients_.find(conn);
+    if (it == clients_.end()) return;
+    c = it->second;
+    clients_.erase(it);
+  }
+  {
+    std::lock_guard lk(c->m);
+    c->closing = true;
+    c->queue.clear();
+    c->hand.reset();
+  }
+  c->cv.notify_one();
+  if (c->writer.joinable()) c->writer.join();
+  --stats_.clients_open;
+  spdlog::info("browser {} gone", c->id);
+}
+
+bool Gateway::push(Client& c, std::string frame) {
+  {
+    std::lock_guard lk(c.m);
+    if (c.closing || c.close_code != 0) return false;
+    if (c.queue.size() >= o_.queue_depth) {
+      // A browser that does not read: dropped, never waited for.
+      ++stats_.dropped_slow;
+      c.queue.clear();
+      c.close_code = kClosePolicy;
+      c.close_reason = "too slow: the gateway's queue for this browser is full";
+      spdlog::warn("browser {}: {}", c.id, c.close_reason);
+    } else {
+      c.queue.push_back(std::move(frame));
+    }
+  }
+  c.cv.notify_one();
+  return true;
+}
+
+void Gateway::writerLoop(const std::shared_ptr<Client>& cp) {
+  Client& c = *cp;
+  const auto hand_period = static_cast<int64_t>(1e9 / o_.hand_hz);
+  int64_t next_list = 0;
+  std::vector<std::string> batch;
+  for (;;) {
+    std::shared_ptr<const std::string> hand;
+    uint16_t close_code = 0;
+    std::string close_reason;
+    bool list = false;
+    {
+      std::unique_lock lk(c.m);
+      for (;;) {
+        const int64_t now = steadyNs();
+        if (c.closing) return;
+        if (c.close_code != 0 || !c.queue.empty() || now >= next_list ||
+            (c.hand && now >= c.next_hand_ns)) {
+          break;
+        }
+        int64_t until = next_list;
+        if (c.hand) until = std::min(until, c.next_hand_ns);
+        c.cv.wait_for(lk, std::chrono::nanoseconds(until - now));
+      }
+      const int64_t now = steadyNs();
+      batch.assign(std::make_move_iterator(c.queue.begin()),
+                   std::make_move_iterator(c.queue.end()));
+      c.queue.clear();
+      if (c.hand && now >= c.next_hand_ns) {
+        hand = std::move(c.hand);
+        c.hand.reset();
+        c.next_hand_ns = std::max(c.next_hand_ns + hand_period, now);
+      }
+      if (now >= next_list) {
+        list = true;
+        next_list = now + kListPeriodNs;
+      }
+      close_code = c.close_code;
+      close_reason = c.close_reason;
+    }
+    // Writing blocks this browser's thread only; the DDS thread replaces `hand` meanwhile.
+    auto send = [&](const std::string& s) {
+      return mg_websocket_write(c.conn, MG_WEBSOCKET_OPCODE_TEXT, s.data(), s.size()) > 0;
+    };
+    bool ok = true;
+    for (const auto& s : batch) ok = ok && send(s);
+    if (ok && hand) {
+      ok = send(*hand);
+      ++stats_.hand_sent;
+    }
+    if (ok && list) ok = send(*sessionsFrame(steadyNs()));
+    if (close_code != 0 || !ok) {
+      if (close_code != 0) {
+        std::string payload(2, '\0');
+        payload[0] = static_cast<char>(close_code >> 8);
+        payload[1] = static_cast<char>(close_code & 0xff);
+        payload += close_reason.substr(0, 120);
+        mg_websocket_write(c.conn, MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE, payload.data(),
+                           payload.size());
+      }
+      std::unique_lock lk(c.m);
+      c.closing = true;  // nothing more to this browser; onClose frees it
+      return;
+    }
+  }
+}
+
+int Gateway::onData(mg_connection* conn, int bits, const char* data, std::size_t len) {
+  std::shared_ptr<Client> c;
+  {
+    std::lock_guard lk(clients_mutex_);
+    const auto it = clients_.find(conn);
+    if (it == clients_.end()) return 0;
+    c = it->second;
+  }
+  const int opcode = bits & 0x0f;
+  if (opcode == MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE) return 0;
+  if (opcode == MG_WEBSOCKET_OPCODE_PING || opcode == MG_WEBSOCKET_OPCODE_PONG) return 1;
+  ++stats_.messages_in;
+  if (len > o_.max_message) {
+    ++stats_.bad_messages;
+    push(*c, errorFrame("oversized", fmt::format("a message of {} bytes; the limit is {} bytes",
+                                                 len, o_.max_message)));
+    std::lock_guard lk(c->m);
+    c->close_code = kCloseTooBig;
+    c->close_reason = "message too big";
+    c->cv.notify_one();
+    return 1;  // the writer sends the error, then closes
+  }
+  if ((bits & 0x80) == 0 || opcode == MG_WEBSOCKET_OPCODE_CONTINUATION) {
+    ++stats_.bad_messages;
+    push(*c, errorFrame("malformed", "fragmented messages are not accepted"));
+    return 1;
+  }
+  if (opcode != MG_WEBSOCKET_OPCODE_TEXT) {
+    ++stats_.bad_messages;
+    push(*c, errorFrame("malformed", "binary messages are not accepted: send JSON text"));
+    return 1;
+  }
+  handle(c, std::string_view(data, len));
+  return 1;
+}
+
+void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
+  const nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
+  if (j.is_discarded() || !j.is_object()) {
+    ++stats_.bad_messages;
+    push(*c, errorFrame("malformed", "not a JSON object"));
+    return;
+  }
+  const auto op = j.find("op");
+  if (op == j.end() || !op->is_string()) {
+    ++stats_.bad_messages;
+    push(*c, errorFrame("malformed", "no \"op\" string"));
+    return;
+  }
+  const std::string name = op->get<std::string>();
+  std::optional<uint64_t> session;
+  if (const auto s = j.find("session"); s != j.end()) {
+    if (s->is_number_unsigned()) {
+      session = s->get<uint64_t>();
+    } else if (s->is_string()) {
+      try {
+        std::size_t used = 0;
+        const std::string str = s->get<std::string>();
+        session = std::stoull(str, &used);
+        if (used != str.size()) session.reset();
+      } catch (const std::exception&) {
+        session.reset();
+      }
+    }
+    if (!session) {
+      ++stats_.bad_messages;
+      push(*c, errorFrame("malformed", "\"session\" is not a session id"));
+      return;
+    }
+  }
+  auto needSession = [&]() {
+    if (session) return true;
+    ++stats_.bad_messages;
+    push(*c, errorFrame("malformed", "\"" + name + "\" needs a \"session\" id"));
+    return false;
+  };
+  if (name == "ping") {
+    const auto t = j.find("t");
+    push(*c, fmt::format(R"({{"type":"pong","t":{},"now_ms":{:.3f}}})",
+                         t != j.end() && t->is_number() ? jsonNumber(t->get<double>()) : "null",
+                         ms(wallNs())));
+  } else if (name == "watch") {
+    if (needSession()) watch(c, *session);
+  } else if (name == "mark") {
+    if (!needSession()) return;
+    const auto t = j.find("text");
+    if (t == j.end() || !t->is_string()) {
+      ++stats_.bad_messages;
+      push(*c, errorFrame("malformed", "\"mark\" needs a \"text\" string"));
+      return;
+    }
+    std::optional<double> at;
+    if (const auto a = j.find("at_s"); a != j.end() && a->is_number()) at = a->get<double>();
+    mark(*c, *session, t->get<std::string>(), at);
+  } else if (name == "replay") {
+    if (needSession()) replay(*c, *session);
+  } else if (name == "records") {
+    records(*c);
+  } else {
+    ++stats_.bad_messages;
+    push(*c, errorFrame("unknown_op", "unknown op \"" + name.substr(0, 40) + "\""));
+  }
+}
+
+void Gateway::watch(const std::shared_ptr<Client>& c, uint64_t session) {
+  if (session != 0 && !knownSession(session)) {
+    ++stats_.unknown_session;
+    push(*c, errorFrame("unknown_session", fmt::format("no session {} on domain {} partition {}",
+                                                       session, o_.dds.domain, o_.dds.partition)));
+    return;
+  }
+  std::vector<std::string> history;
+  std::shared_ptr<const std::string> hand;
+  {
+    std::lock_guard lk(sessions_mutex_);
+    if (const auto it = sessions_.find(session); it != sessions_.end()) {
+      history.assign(it->second->events.begin(), it->second->events.end());
+      if (it->second->hand) {
+        hand = std::make_shared<const std::string>(handFrame(*it->second->hand, wallNs()));
+      }
+    }
+  }
+  {
+    std::lock_guard lk(c->m);
+    c->watching = session;
+    c->hand = hand;
+  }
+  push(*c, fmt::format(R"({{"type":"watching","session":{}}})", session));
+  for (auto& e : history) push(*c, std::move(e));
+}
+
+void Gateway::mark(Client& c, uint64_t session, const std::string& text,
+                   std::optional<double> at_s) {
+  if (!knownSession(session)) {
+    ++stats_.unknown_session;
+    push(c, errorFrame("unknown_session",
+                       fmt::format("no session {} to mark on domain {} partition {}", session,
+                                   o_.dds.domain, o_.dds.partition)));
+    return;
+  }
+  std::string clean;
+  for (const char ch : text) clean += (static_cast<unsigned char>(ch) < 0x20) ? ' ' : ch;
+  while (!clean.empty() && clean.back() == ' ') clean.pop_back();
+  while (!clean.empty() && clean.front() == ' ') clean.erase(clean.begin());
+  if (at_s && std::isfinite(*at_s) && *at_s >= 0) {
+    clean = fmt::format("at {:.1f} s: {}", *at_s, clean);
+  }
+  constexpr std::size_t kMax = sizeof(telehand_msg_SessionCommand::text) - 1;
+  if (clean.empty() || clean.size() > kMax) {
+    ++stats_.bad_messages;
+    push(c, errorFrame("bad_request", fmt::format("a mark is 1 to {} bytes of text", kMax)));
+    return;
+  }
+  telehand_msg_SessionCommand cmd{};
+  {
+    std::lock_guard lk(command_mutex_);
+    cmd.client_id = gateway_id_;
+    cmd.request_seq = ++request_seq_;
+    cmd.source_time_ns = wallNs();
+    cmd.kind = telehand_msg_CMD_MARK;
+    cmd.session_id = session;
+    copyString(cmd.text, clean);
+    if (command_writer_.write(cmd) < 0) {
+      push(c, errorFrame("dds", "the mark could not be written to DDS"));
+      return;
+    }
+  }
+  ++stats_.marks;
+  spdlog::info("browser {} marked session {}: {}", c.id, session, clean);
+  push(c, fmt::format(R"({{"type":"ack","op":"mark","session":{},"text":{}}})", session,
+                      jsonString(clean)));
+}
+
+void Gateway::replay(Client& c, uint64_t session) {
+  if (o_.db.empty()) {
+    push(c, errorFrame("no_store", "this gateway has no record store (--db)"));
+    return;
+  }
+  try {
+    auto frame = replayFrame(o_.db, session, o_.replay_points);
+    if (!frame) {
+      ++stats_.unknown_session;
+      push(c, errorFrame("unknown_session", fmt::format("no session {} in {}", session, o_.db)));
+      return;
+    }
+    ++stats_.replays;
+    push(c, std::move(*frame));
+  } catch (const std::exception& e) {
+    push(c, errorFrame("store", e.what()));
+  }
+}
+
+void Gateway::records(Client& c) {
+  if (o_.db.empty()) {
+    push(c, errorFrame("no_store", "this gateway has no record store (--db)"));
+    return;
+  }
+  try {
+    push(c, recordsFrame(o_.db));
+  } catch (const std::exception& e) {
+    push(c, errorFrame("store", e.what()));
+  }
+}
+
+std::string Gateway::statsJson() const {
+  std::size_t sessions = 0;
+  {
+    std::lock_guard lk(sessions_mutex_);
+    sessions = sessions_.size();
+  }
+  return fmt::format(
+      R"({{"clients_open":{},"clients_total":{},"clients_refused":{},"writer_threads":{},)"
+      R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
+      R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
+      R"("dropped_slow":{}}})",
+      stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
+      stats_.writer_threads.load(), sessions, stats_.hand_states.load(), stats_.hand_frames.load(),
+      stats_.hand_sent.load(), stats_.hand_coalesced.load(), stats_.messages_in.load(),
+      stats_.bad_messages.load(), stats_.unknown_session.load(), stats_.marks.load(),
+      stats_.replays.load(), stats_.dropped_slow.load());
+}
+
+}  // namespace telehand::web

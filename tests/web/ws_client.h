@@ -1,0 +1,154 @@
+#pragma once
+// A WebSocket client of telehand-web for tests and the benchmark: civetweb's client API,
+// the frames it receives kept in order (or only counted), plus a raw socket that upgrades
+// and vanishes without a close frame, as a killed tab does.
+#include <arpa/inet.h>
+#include <civetweb.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <string_view>
+
+namespace telehand::test {
+
+class WsClient {
+ public:
+  /// Connects to ws://127.0.0.1:`port`/ws; `keep` false: frames are counted, not kept.
+  explicit WsClient(int port, bool keep = true) : keep_(keep) {
+    char err[256] = {0};
+    conn_ = mg_connect_websocket_client("127.0.0.1", port, 0, err, sizeof err, "/ws", nullptr,
+                                        &WsClient::onData, &WsClient::onClose, this);
+    if (!conn_) error_ = err;
+  }
+  ~WsClient() { close(); }
+  WsClient(const WsClient&) = delete;
+  WsClient& operator=(const WsClient&) = delete;
+
+  bool ok() const { return conn_ != nullptr; }
+  const std::string& error() const { return error_; }
+
+  bool send(const std::string& text, int opcode = MG_WEBSOCKET_OPCODE_TEXT) {
+    return conn_ && mg_websocket_client_write(conn_, opcode, text.data(), text.size()) > 0;
+  }
+  void close() {
+    if (conn_) mg_close_connection(conn_);
+    conn_ = nullptr;
+  }
+
+  /// The next frame containing `needle` (earlier ones are dropped), within `timeout`.
+  std::optional<std::string> waitFor(const std::string& needle,
+                                     std::chrono::milliseconds timeout = std::chrono::seconds(5)) {
+    std::unique_lock lk(m_);
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    for (;;) {
+      while (!frames_.empty()) {
+        std::string f = std::move(frames_.front());
+        frames_.pop_front();
+        if (f.find(needle) != std::string::npos) return f;
+      }
+      if (cv_.wait_until(lk, end) == std::cv_status::timeout && frames_.empty()) return {};
+    }
+  }
+  /// True once the gateway closed the connection.
+  bool waitClosed(std::chrono::milliseconds timeout) {
+    std::unique_lock lk(m_);
+    return cv_.wait_for(lk, timeout, [&] { return closed_; });
+  }
+  uint64_t frames() const {
+    std::lock_guard lk(m_);
+    return count_;
+  }
+  /// HandState frames received.
+  uint64_t hands() const {
+    std::lock_guard lk(m_);
+    return hands_;
+  }
+  uint64_t bytes() const {
+    std::lock_guard lk(m_);
+    return bytes_;
+  }
+
+ private:
+  static int onData(mg_connection*, int bits, char* data, size_t len, void* self) {
+    auto* c = static_cast<WsClient*>(self);
+    if ((bits & 0x0f) != MG_WEBSOCKET_OPCODE_TEXT) return 1;
+    {
+      std::lock_guard lk(c->m_);
+      ++c->count_;
+      c->bytes_ += len;
+      if (std::string_view(data, len).starts_with(R"({"type":"hand")")) ++c->hands_;
+      if (c->keep_) c->frames_.emplace_back(data, len);
+    }
+    c->cv_.notify_all();
+    return 1;
+  }
+  static void onClose(const mg_connection*, void* self) {
+    auto* c = static_cast<WsClient*>(self);
+    {
+      std::lock_guard lk(c->m_);
+      c->closed_ = true;
+    }
+    c->cv_.notify_all();
+  }
+
+  bool keep_;
+  mg_connection* conn_ = nullptr;
+  std::string error_;
+  mutable std::mutex m_;
+  std::condition_variable cv_;
+  std::deque<std::string> frames_;
+  uint64_t count_ = 0, hands_ = 0, bytes_ = 0;
+  bool closed_ = false;
+};
+
+/// Opens a WebSocket by hand and returns the socket once upgraded (-1 on failure); the
+/// caller close()s it without a close frame.
+inline int rawUpgrade(int port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<uint16_t>(port));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
+    ::close(fd);
+    return -1;
+  }
+  const std::string req =
+      "GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n";
+  if (::write(fd, req.data(), req.size()) != static_cast<ssize_t>(req.size())) {
+    ::close(fd);
+    return -1;
+  }
+  char buf[512];
+  const ssize_t n = ::read(fd, buf, sizeof buf);
+  if (n <= 0 || std::string(buf, static_cast<std::size_t>(n)).find(" 101 ") == std::string::npos) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+/// GET `path` from 127.0.0.1:`port`; the body, or "" on failure.
+inline std::string httpGet(int port, const std::string& path) {
+  char err[256] = {0};
+  mg_connection* c = mg_download("127.0.0.1", port, 0, err, sizeof err,
+                                 "GET %s HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n", path.c_str());
+  if (!c) return "";
+  std::string body;
+  char buf[4096];
+  int n;
+  while ((n = mg_read(c, buf, sizeof buf)) > 0) body.append(buf, static_cast<std::size_t>(n));
+  mg_close_connection(c);
+  return body;
+}
+
+}  // namespace telehand::test
