@@ -50,12 +50,7 @@ struct Peer {
   }
 
   void send(telehand_msg_CommandKind kind, uint64_t session, uint64_t samples_sent = 0) {
-    telehand_msg_SessionCommand c{};
-    c.client_id = client_id;
-    c.request_seq = ++request_seq;
-    c.source_time_ns = wallNs();
-    c.kind = kind;
-    c.session_id = session;
+    telehand_msg_SessionCommand c = sessionCommand(kind, client_id, ++request_seq, session);
     c.samples_sent = samples_sent;
     c.last_seq = samples_sent ? samples_sent - 1 : 0;
     copyString(c.case_name, "healthy");

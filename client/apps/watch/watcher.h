@@ -148,16 +148,7 @@ class Watcher {
 
  private:
   telehand_msg_SessionCommand command(telehand_msg_CommandKind kind, uint64_t session) {
-    telehand_msg_SessionCommand cmd{};
-    cmd.client_id = client_id_;
-    cmd.request_seq = ++request_seq_;
-    cmd.source_time_ns = wallNs();
-    cmd.kind = kind;
-    cmd.session_id = session;
-    copyString(cmd.case_name, "");
-    copyString(cmd.user, "");
-    copyString(cmd.text, "");
-    return cmd;
+    return sessionCommand(kind, client_id_, ++request_seq_, session);
   }
 
   static void onHand(SessionView& v, const telehand_msg_HandState& h, int64_t now_ns,

@@ -302,13 +302,7 @@ std::vector<std::string> ClientLink::takeMessages() {
 }
 
 telehand_msg_SessionCommand ClientLink::command(telehand_msg_CommandKind kind) {
-  telehand_msg_SessionCommand cmd{};
-  cmd.client_id = client_id_;
-  cmd.request_seq = ++request_seq_;
-  cmd.source_time_ns = wallNs();
-  cmd.kind = kind;
-  cmd.session_id = session_id_;
-  return cmd;
+  return sessionCommand(kind, client_id_, ++request_seq_, session_id_);
 }
 
 void ClientLink::mark(const std::string& text) {

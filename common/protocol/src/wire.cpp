@@ -3,10 +3,25 @@
 #include <algorithm>
 #include <cmath>
 
+#include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/core/knn_model.h"
 
 namespace telehand {
+
+telehand_msg_SessionCommand sessionCommand(telehand_msg_CommandKind kind, uint64_t client_id,
+                                           uint32_t request_seq, uint64_t session_id) noexcept {
+  telehand_msg_SessionCommand c{};
+  c.client_id = client_id;
+  c.request_seq = request_seq;
+  c.source_time_ns = wallNs();
+  c.kind = kind;
+  c.session_id = session_id;
+  copyString(c.case_name, "");
+  copyString(c.user, "");
+  copyString(c.text, "");
+  return c;
+}
 
 void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointModel& out) {
   out.session_id = session_id;

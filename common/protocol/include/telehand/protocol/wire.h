@@ -25,6 +25,11 @@ void copyString(char (&dst)[N], std::string_view src) noexcept {
   dst[n] = '\0';
 }
 
+/// A SessionCommand from `client_id` (its request number `request_seq`) about `session_id`,
+/// stamped now, every string empty: what every sender of commands starts from.
+telehand_msg_SessionCommand sessionCommand(telehand_msg_CommandKind kind, uint64_t client_id,
+                                           uint32_t request_seq, uint64_t session_id) noexcept;
+
 /// Fill a wire JointModel for `session_id` from model parameters.
 void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointModel& out);
 /// Parameters from a wire JointModel; nullopt with `why` set when a field is not finite or
