@@ -486,7 +486,7 @@ TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) 
   EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'flags'"),
             std::vector<std::string>{"INTEGER"});
   EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
 }
 
 // ---- Schema 1: one blob per sample, the C struct's bytes (x86-64, little-endian) ----------
@@ -672,7 +672,7 @@ TEST_F(SqliteStoreTest, MigratesASchema1BlobFileInPlace) {
   }
   {
     RawDb raw(dbPath());
-    EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
     EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
     EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name LIKE 'samples_%'"), 0)
         << "old table dropped";
@@ -731,7 +731,7 @@ TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
       EXPECT_THAT(e.what(), HasSubstr(dbPath()));
       EXPECT_THAT(
           e.what(),
-          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 3)"));
+          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 4)"));
     }
     EXPECT_EQ(fileBytes(dbPath()), before);
     if (mode == SqliteStore::Mode::kReadWrite) {
@@ -804,8 +804,75 @@ TEST_F(SqliteStoreTest, SessionsKeepTheirOwnerAndSchemaTwoFilesGainTheColumn) {
     EXPECT_EQ(writer.session(writer.createSession(c))->owner, "carol's participant");
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
   EXPECT_EQ(raw.integer("SELECT count(*) FROM sessions WHERE owner = ''"), 2);
+}
+
+TEST_F(SqliteStoreTest, SchemaThreeFilesGainLessonsAndKeepThem) {
+  {
+    SqliteStore store(dbPath());
+    store.createSession(info("alice"));
+  }
+  {
+    // Back to schema 3 as an older telehand left it: no lesson tables.
+    RawDb raw(dbPath());
+    raw.exec("DROP TABLE lessons; DROP TABLE lesson_runs; DROP TABLE trials;");
+    raw.exec("PRAGMA user_version = 3;");
+  }
+  {
+    SqliteStore reader(dbPath(), SqliteStore::Mode::kReadOnly);
+    EXPECT_TRUE(reader.listLessons().empty()) << "a reader of a schema-3 file sees no lessons";
+    EXPECT_TRUE(reader.trials(1).empty());
+    EXPECT_EQ(reader.sessionLesson(1), 0u);
+  }
+  SqliteStore store(dbPath());  // migrates 3 -> 4
+  LessonInfo l;
+  l.name = "demo";
+  l.demo_session = 1;
+  l.case_name = "stiff";
+  l.schedule = "faded";
+  l.guided = 3;
+  l.attempts = 4;
+  l.trial_s = 6.5;
+  l.assessment = false;
+  l.targets = "band_min_n=12;";
+  const uint64_t id = store.createLesson(l);
+  const auto back = store.lesson(id);
+  ASSERT_TRUE(back.has_value());
+  EXPECT_EQ(back->schedule, "faded");
+  EXPECT_EQ(back->guided, 3);
+  EXPECT_DOUBLE_EQ(back->trial_s, 6.5);
+  EXPECT_FALSE(back->assessment);
+  EXPECT_EQ(back->targets, "band_min_n=12;");
+  EXPECT_FALSE(store.lesson(id + 1).has_value());
+  const uint64_t run = store.createSession(info("bob"));
+  store.setSessionLesson(run, id);
+  EXPECT_EQ(store.sessionLesson(run), id);
+  TrialRecord t;
+  t.session_id = run;
+  t.index = 2;
+  t.phase = "attempt";
+  t.first_seq = 100;
+  t.last_seq = 4099;
+  t.overall = 71.5;
+  t.figures = "missing=0;";
+  store.appendTrial(t);
+  t.index = 1;
+  t.phase = "guided";
+  t.authority = 1.0;
+  store.appendTrial(t);
+  const auto trials = store.trials(run);
+  ASSERT_EQ(trials.size(), 2u);
+  EXPECT_EQ(trials[0].phase, "guided") << "in the order they ran";
+  EXPECT_DOUBLE_EQ(trials[0].authority, 1.0);
+  EXPECT_EQ(trials[1].last_seq, 4099u);
+  // Samples by range, in order.
+  store.appendSamples(run, samples(run, 0, 50), {});
+  std::vector<uint64_t> seqs;
+  store.forEachSampleIn(run, 10, 14, [&](const Sample& s, bool) { seqs.push_back(s.seq); });
+  EXPECT_EQ(seqs, (std::vector<uint64_t>{10, 11, 12, 13, 14}));
+  RawDb raw(dbPath());
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
 }
 
 TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
@@ -817,7 +884,7 @@ TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
     EXPECT_EQ(store.appendSamples(id, samples(id, 0, 2), {}), 2u);
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 3);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
 }
 
 // ---- CSV ----------------------------------------------------------------------------------
