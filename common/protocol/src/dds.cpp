@@ -1,5 +1,7 @@
 #include "telehand/protocol/dds.h"
 
+#include "cyclone_instance_fix.h"
+
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -157,6 +159,10 @@ const Sender& SenderCache::of(dds_entity_t reader, dds_instance_handle_t publica
   dds_builtintopic_free_endpoint(ep);
   if (known_.size() >= capacity_) known_.clear();
   return known_.emplace(publication, std::move(s)).first->second;
+}
+
+void releaseUnregistered(dds_instance_handle_t instance) noexcept {
+  telehand_dds_release_unregistered(instance);
 }
 
 std::string participantConfig(const Options& options) {

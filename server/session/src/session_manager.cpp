@@ -439,10 +439,11 @@ void SessionManager::tick(int64_t now_ns) {
     sessions_.erase(it);
   }
 #if defined(__GLIBC__)
-  // A session's hand is megabytes of small blocks: glibc keeps freed ones in its heap, so
-  // without this a burst of sessions (a flood of OPENs up to server.max_sessions) would
-  // hold the server's RSS at its peak after they ended.
-  if (!done.empty()) malloc_trim(0);
+  // A session's hand is megabytes of blocks (hand_heap.h): glibc keeps freed ones in its
+  // arenas, so without this a burst of sessions (a flood of OPENs up to
+  // server.max_sessions) would hold the server's RSS at its peak after they ended. Retired
+  // sessions free their samples in Cyclone: trimmed too.
+  if (!done.empty() || due > 0) malloc_trim(0);
 #endif
 }
 

@@ -130,6 +130,12 @@ class SenderCache {
   Sender unknown_;
 };
 
+/// After a transient-local writer that wrote `instance` unregistered it (on this thread, just
+/// before): drops the reference to the instance's key entry that Cyclone DDS 0.10's writer
+/// history keeps (fixed upstream in 11.0; a no-op with other versions). Without it every
+/// unregistered instance keeps its key entry, about 0.5 kB, for the life of the process.
+void releaseUnregistered(dds_instance_handle_t instance) noexcept;
+
 /// Which DDS world to join.
 struct Options {
   uint32_t domain = 0;
@@ -223,9 +229,16 @@ class Writer {
   /// Returns Cyclone's return code; callers on hot paths count failures instead of throwing.
   dds_return_t write(const T& sample) noexcept { return dds_write(e_.handle(), &sample); }
   /// Ends the instance `key_sample`'s key names (disposed, then freed by the writer and the
-  /// readers): a transient-local writer stops handing it to late joiners.
-  dds_return_t unregister(const T& key_sample) noexcept {
-    return dds_unregister_instance(e_.handle(), &key_sample);
+  /// readers): a transient-local writer stops handing it to late joiners. `written`: this
+  /// writer is transient-local and wrote the instance, so its history indexed it; Cyclone
+  /// DDS 0.10 then keeps the instance's key entry forever (releaseUnregistered), which this
+  /// gives back. A wrong `written` frees an entry still in use: pass it only when sure.
+  dds_return_t unregister(const T& key_sample, bool written = false) noexcept {
+    const dds_instance_handle_t instance =
+        written ? dds_lookup_instance(e_.handle(), &key_sample) : DDS_HANDLE_NIL;
+    const dds_return_t rc = dds_unregister_instance(e_.handle(), &key_sample);
+    if (rc == DDS_RETCODE_OK && instance != DDS_HANDLE_NIL) releaseUnregistered(instance);
+    return rc;
   }
   dds_entity_t handle() const noexcept { return e_.handle(); }
   uint32_t matchedReaders() const noexcept {

@@ -4,6 +4,7 @@
 /// of its own so that recording never delays an echo.
 #include <atomic>
 #include <thread>
+#include <unordered_map>
 
 #include "telehand/protocol/dds.h"
 #include "telehand/protocol/dds_capture.h"
@@ -69,6 +70,10 @@ class ServerLink final : public session::Outbox {
   dds::Reader<telehand_msg_SessionFile> file_reader_;
   dds::Writer<telehand_msg_KnnModel> knn_writer_;
   dds::SenderCache senders_;
+  // The transient-local topics each session not yet retired was written on (kStatus...):
+  // what retire() must hand back to Cyclone (dds::Writer::unregister).
+  enum : unsigned { kStatus = 1, kModel = 2, kEvent = 4, kKnn = 8 };
+  std::unordered_map<uint64_t, unsigned> written_;
 };
 
 }  // namespace telehand::server::link
