@@ -350,10 +350,9 @@ int main(int argc, char** argv) {
   int wait_s = 5;
   int hold_s = 2;
   int period_ms = 50;
-  const std::vector<std::string> modes{"close-unknown", "unknown-state", "nan",
-                                       "chunk-ahead",   "close",         "forge-status",
-                                       "forge-model",   "file",          "open-flood",
-                                       "open-churn"};
+  const std::vector<std::string> modes{
+      "close-unknown", "unknown-state", "nan",  "chunk-ahead", "close",
+      "forge-status",  "forge-model",   "file", "open-flood",  "open-churn"};
   app.add_option("what", what,
                  "close-unknown | unknown-state | nan; attacks on another session: chunk-ahead "
                  "| close | forge-status | forge-model | file; open-flood, open-churn")

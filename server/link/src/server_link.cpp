@@ -111,12 +111,31 @@ void ServerLink::retire(uint64_t session_id) {
   unregisterSession(direct_writer_, session_id);
 }
 
-session::Origin ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
+const session::Origin& ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
+  // Per sample (1 kHz per client): the last writer's origin, or one lookup; built once per
+  // writer (DDS Security adds no work of telehand's per sample).
+  if (info.publication_handle == last_publication_ && last_origin_ != nullptr) {
+    return *last_origin_;
+  }
+  if (const auto it = origins_.find(info.publication_handle); it != origins_.end()) {
+    last_publication_ = info.publication_handle;
+    last_origin_ = &it->second;
+    return it->second;
+  }
   const dds::Sender& s = senders_.of(reader, info.publication_handle);
   // An authenticated participant's GUID begins with 48 bits of its certificate subject's
   // hash (DDS Security: the same for all participants of one identity); the hex GUID's
   // first 12 characters.
-  return {s.participant, s.guid, secured_ && s.guid.size() >= 12 ? s.guid.substr(0, 12) : ""};
+  session::Origin o{s.participant, s.guid,
+                    secured_ && s.guid.size() >= 12 ? s.guid.substr(0, 12) : ""};
+  if (s.participant == 0) {  // Cyclone no longer knows the writer: not remembered
+    unknown_origin_ = std::move(o);
+    return unknown_origin_;
+  }
+  if (origins_.size() >= kMaxOrigins) origins_.clear();
+  last_publication_ = info.publication_handle;
+  last_origin_ = &origins_.emplace(info.publication_handle, std::move(o)).first->second;
+  return *last_origin_;
 }
 
 void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>& stop,

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -116,18 +117,27 @@ struct Sender {
 };
 
 /// Finds senders from samples' publication handles, remembering up to `capacity` writers
-/// (then starting over): one Cyclone lookup per writer, not per sample.
+/// (then starting over): one Cyclone lookup per writer, not per sample. Per sample: the last
+/// writer's sender at the cost of a comparison (a stream comes from one writer), else one
+/// hash lookup; nothing is allocated.
 class SenderCache {
  public:
   explicit SenderCache(std::size_t capacity = 4096) : capacity_(capacity) {}
   /// The sender of a sample `reader` took; participant 0 if Cyclone no longer knows the
   /// writer.
-  const Sender& of(dds_entity_t reader, dds_instance_handle_t publication);
+  const Sender& of(dds_entity_t reader, dds_instance_handle_t publication) {
+    if (publication == last_publication_ && last_ != nullptr) return *last_;
+    return lookup(reader, publication);
+  }
 
  private:
+  const Sender& lookup(dds_entity_t reader, dds_instance_handle_t publication);
+
   std::size_t capacity_;
-  std::map<dds_instance_handle_t, Sender> known_;
+  std::unordered_map<dds_instance_handle_t, Sender> known_;
   Sender unknown_;
+  dds_instance_handle_t last_publication_ = 0;
+  const Sender* last_ = nullptr;  // known_'s entry for last_publication_
 };
 
 /// After a transient-local writer that wrote `instance` unregistered it (on this thread, just
