@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # What DDS Security costs (docs/security.md "Cost"): the same runs with and without it,
-# alternated so that both see the same machine load.
+# interleaved (insecure, secure, insecure, secure, ...) so that both see the same machine
+# load, and the medians over the rounds of each figure, with security's difference.
 #   - DeviceState latency: telehand-latency (DeviceState-sized pings at 1 kHz through a
 #     self echo), one-way p50/p99;
 #   - the haptic loop: a telehand-server + telehand-client session on loopback, the
 #     client's overruns and worst wake-up.
-# Usage: tests/bench/bench_security.sh [ROUNDS (default 3)] [SECONDS per run (default 8)]
+# Usage: tests/bench/bench_security.sh [ROUNDS (default 5)] [SECONDS per run (default 8)]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-rounds=${1:-3}
+rounds=${1:-5}
 seconds=${2:-8}
 bin=build/release
 work=$(mktemp -d /tmp/telehand-bench-security-XXXXXX)
@@ -44,6 +45,22 @@ for r in $(seq "$rounds"); do
   for mode in insecure secure; do
     read -r p50 p99 < <(latency "$mode")
     read -r over worst < <(session "$mode")
-    printf '%-6s %-9s %12s %12s %10s %14s\n' "$r" "$mode" "$p50" "$p99" "$over" "$worst"
+    printf '%-6s %-9s %12s %12s %10s %14s\n' "$r" "$mode" "$p50" "$p99" "$over" "$worst" |
+      tee -a "$work/rows"
   done
 done
+# Medians per mode, and secure against insecure.
+python3 - "$work/rows" <<'PY'
+import statistics, sys
+rows = [l.split() for l in open(sys.argv[1])]
+cols = ["p50 us", "p99 us", "overruns", "worst wake us"]
+med = {}
+for mode in ("insecure", "secure"):
+    vals = [[float(r[2 + i]) for r in rows if r[1] == mode and r[2 + i] != "?"] for i in range(4)]
+    med[mode] = [statistics.median(v) if v else float("nan") for v in vals]
+print("median    " + "".join(f"{c:>15}" for c in cols))
+for mode in ("insecure", "secure"):
+    print(f"{mode:<10}" + "".join(f"{x:>15.1f}" for x in med[mode]))
+print(f"{'secure %':<10}" + "".join(
+    f"{100 * (s - i) / i:>+14.1f}%" if i else f"{'-':>15}" for s, i in zip(med["secure"], med["insecure"])))
+PY

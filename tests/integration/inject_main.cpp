@@ -265,6 +265,73 @@ int openFlood(const dds::Options& o, uint64_t count, int participants, std::chro
   return closed == total ? 0 : 1;
 }
 
+/// Sessions opened and closed at once, over and over, from `participants` participants of
+/// this process: each keeps at most `per_participant` OPENs unanswered or sessions not yet
+/// CLOSED, so that (with the server's limits at least as large) every OPEN is taken, until
+/// `count` OPENs were sent. Prints how many sessions opened and closed.
+int openChurn(const dds::Options& o, uint64_t count, int participants, int per_participant) {
+  std::vector<std::unique_ptr<Peer>> peers;
+  for (int i = 0; i < participants; ++i) {
+    peers.push_back(std::make_unique<Peer>(o));
+    peers.back()->client_id = 0xc4c4d000 + static_cast<uint64_t>(i);
+  }
+  for (auto& p : peers) {
+    if (!p->awaitServer(10s)) {
+      std::cerr << "inject: no server\n";
+      return 1;
+    }
+  }
+  struct Load {
+    int in_flight = 0;  // OPENs sent whose session has not yet CLOSED
+    std::set<uint64_t> active;
+    std::chrono::steady_clock::time_point progress = std::chrono::steady_clock::now();
+  };
+  std::vector<Load> load(peers.size());
+  uint64_t sent = 0, opened = 0, closed = 0, lost = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto last_progress = t0;
+  while (std::chrono::steady_clock::now() - last_progress < 20s) {
+    bool idle = sent >= count;
+    for (std::size_t i = 0; i < peers.size(); ++i) {
+      Peer& p = *peers[i];
+      Load& l = load[i];
+      p.status.take(
+          [&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
+            if (st.client_id != p.client_id) return;
+            if (st.state == telehand_msg_SESSION_ACTIVE && l.active.insert(st.session_id).second) {
+              ++opened;
+              p.send(telehand_msg_CMD_CLOSE, st.session_id, 0);
+            } else if (st.state == telehand_msg_SESSION_CLOSED && l.active.erase(st.session_id)) {
+              ++closed;
+              --l.in_flight;
+              l.progress = last_progress = std::chrono::steady_clock::now();
+            }
+          },
+          4096);
+      // An OPEN the server did not take (refused, lost): given up after 5 s without progress.
+      if (l.in_flight > static_cast<int>(l.active.size()) &&
+          std::chrono::steady_clock::now() - l.progress > 5s) {
+        lost += static_cast<uint64_t>(l.in_flight) - l.active.size();
+        l.in_flight = static_cast<int>(l.active.size());
+      }
+      while (sent < count && l.in_flight < per_participant) {
+        p.send(telehand_msg_CMD_OPEN, 0);
+        ++sent;
+        ++l.in_flight;
+        l.progress = std::chrono::steady_clock::now();
+      }
+      if (l.in_flight > 0) idle = false;
+    }
+    if (idle) break;
+    std::this_thread::sleep_for(2ms);
+  }
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::cout << "sent=" << sent << " opened=" << opened << " closed=" << closed << " lost=" << lost
+            << " in " << s << " s\n"
+            << std::flush;
+  return closed == opened && sent == count ? 0 : 1;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -278,17 +345,17 @@ int main(int argc, char** argv) {
   int wait_s = 5;
   int hold_s = 2;
   int period_ms = 50;
-  const std::vector<std::string> modes{"close-unknown", "unknown-state", "nan",
-                                       "chunk-ahead",   "close",         "forge-status",
-                                       "forge-model",   "file",          "open-flood"};
+  const std::vector<std::string> modes{
+      "close-unknown", "unknown-state", "nan",  "chunk-ahead", "close",
+      "forge-status",  "forge-model",   "file", "open-flood",  "open-churn"};
   app.add_option("what", what,
                  "close-unknown | unknown-state | nan; attacks on another session: chunk-ahead "
-                 "| close | forge-status | forge-model | file; open-flood")
+                 "| close | forge-status | forge-model | file; open-flood, open-churn")
       ->required()
       ->check(CLI::IsMember(modes));
   app.add_option("--session", session,
                  "session id (attacks: 0 = the first active session another client opened)");
-  app.add_option("--count", count, "samples to send for nan; OPENs for open-flood");
+  app.add_option("--count", count, "samples to send for nan; OPENs for open-flood and open-churn");
   app.add_option("--bytes", bytes, "size of the SessionFile for file");
   app.add_option("--participants", participants, "participants sending the OPENs of open-flood")
       ->check(CLI::Range(1, 64));
@@ -297,6 +364,10 @@ int main(int argc, char** argv) {
   app.add_option("--period-ms", period_ms, "forge-status, forge-model: ms between forgeries")
       ->check(CLI::Range(0, 10000));
   app.add_option("--hold", hold_s, "open-flood: seconds to hold the sessions opened");
+  int per_participant = 4;
+  app.add_option("--per-participant", per_participant,
+                 "open-churn: sessions each participant keeps opening or open at once")
+      ->check(CLI::Range(1, 64));
   bool insecure = false;
   app::addDdsOptions(app, o, insecure, "device");
   TELEHAND_CLI_PARSE(app, argc, argv)
@@ -305,6 +376,7 @@ int main(int argc, char** argv) {
     app::resolveDdsSecurity(o, insecure, "device", "telehand-test-inject");
     if (what == "open-flood")
       return openFlood(o, count, participants, std::chrono::seconds(hold_s));
+    if (what == "open-churn") return openChurn(o, count, participants, per_participant);
     Peer peer(o);
     if (!peer.awaitServer(10s)) {
       std::cerr << "inject: no server\n";

@@ -200,7 +200,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
     cfg << "[server]\nstatus_keep_s = 2.0\n";
   }
   Process server(
-      cmd(TELEHAND_SERVER_BIN, {"--config", path("server.toml"), "--db", db, "--seconds", "60"}),
+      cmd(TELEHAND_SERVER_BIN, {"--config", path("server.toml"), "--db", db, "--seconds", "300"}),
       path("server.log"));
   // A first session and its end: what the server keeps once it has served one.
   Process warm(cmd(TELEHAND_INJECT_BIN, {"open-flood", "--count", "1", "--hold", "0"}),
@@ -249,6 +249,16 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
     after_floods.push_back(rssKb(server.pid()));
   }
   const uint64_t after_again = after_floods.back();
+  // Sessions that come and go, one after another: 640 opened and closed (16 participants,
+  // each keeping 4 opening or open, so that every OPEN is taken).
+  Process churn(cmd(TELEHAND_INJECT_BIN, {"open-churn", "--count", "640", "--participants", "16"}),
+                path("churn.log"));
+  EXPECT_TRUE(churn.wait(240s).has_value()) << churn.output();
+  // An OPEN the server refused (its limits count a session until its CLOSED is out) is given
+  // up after 5 s; nearly all are taken.
+  EXPECT_GE(matchNumber(churn.output(), R"(closed=(\d+))"), 600u) << churn.output();
+  std::this_thread::sleep_for(3s);
+  const uint64_t after_churn = rssKb(server.pid());
   EXPECT_EQ(server.stop(), 0) << server.output();
   EXPECT_NE(server.output().find("security: refused an OPEN from participant"), std::string::npos);
 
@@ -258,18 +268,30 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
             << " MB per session (4 sessions: peak " << mb(four_peak) << " MB), flood peak "
             << mb(peak) << " MB (bound baseline + 64 x per session = " << mb(bound_kb)
             << " MB), after the sessions end " << mb(after) << " MB, after a second and third "
-            << "flood " << mb(after_floods[0]) << " and " << mb(after_floods[1]) << " MB\n";
+            << "flood " << mb(after_floods[0]) << " and " << mb(after_floods[1])
+            << " MB, after 640 sessions more " << mb(after_churn) << " MB\n";
   RecordProperty("rss_baseline_kb", static_cast<int>(baseline));
   RecordProperty("rss_per_session_kb", static_cast<int>(per_session_kb));
   RecordProperty("rss_flood_peak_kb", static_cast<int>(peak));
   RecordProperty("rss_after_kb", static_cast<int>(after));
-  RecordProperty("rss_after_second_flood_kb", static_cast<int>(after_again));
+  RecordProperty("rss_after_second_flood_kb", static_cast<int>(after_floods[0]));
+  RecordProperty("rss_after_third_flood_kb", static_cast<int>(after_again));
+  RecordProperty("rss_after_churn_kb", static_cast<int>(after_churn));
   // Generous margins: the bound the limits promise, +25 %, and 1 GB whatever was measured.
   EXPECT_LT(static_cast<double>(peak), 1.25 * bound_kb);
   EXPECT_LT(peak, 1024u * 1024u);
-  EXPECT_LT(static_cast<double>(after), 1.1 * static_cast<double>(baseline) + 8.0 * 1024.0)
-      << "the ended sessions' memory went back";
-  EXPECT_LT(static_cast<double>(after_again), 1.1 * static_cast<double>(after_floods[0]))
+  // Once the sessions ended the server is back near its baseline (docs/security.md, Memory;
+  // tests/bench/bench_server_memory.sh measures 9,000 sessions a round). A flood left +30 %
+  // and 1,000 sessions one after another +70 % when the hands' pages stayed resident: here
+  // within 25 % after the floods, and within 50 % after the churn, whose first run fills
+  // caches a flood does not (Cyclone's pool of freed samples, SQLite's pages) but not in
+  // proportion to the sessions.
+  const double base_kb = static_cast<double>(baseline);
+  EXPECT_LT(static_cast<double>(after), 1.25 * base_kb) << "the first flood's memory went back";
+  EXPECT_LT(static_cast<double>(after_again), 1.25 * base_kb) << "three floods";
+  EXPECT_LT(static_cast<double>(after_churn), 1.5 * base_kb) << "640 sessions one after another";
+  // And it levels off: a further flood adds less than 1 MB.
+  EXPECT_LT(static_cast<double>(after_again), static_cast<double>(after_floods[0]) + 1024.0)
       << "the third flood left more behind than the second: something grows per session";
 }
 

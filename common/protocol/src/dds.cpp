@@ -6,6 +6,8 @@
 #include <map>
 #include <mutex>
 
+#include "cyclone_instance_fix.h"
+
 namespace telehand::dds {
 
 dds_return_t check(dds_return_t rc, const char* what) {
@@ -141,8 +143,12 @@ std::string configUri(const std::string& config) {
   return "file://" + path.string();
 }
 
-const Sender& SenderCache::of(dds_entity_t reader, dds_instance_handle_t publication) {
-  if (auto it = known_.find(publication); it != known_.end()) return it->second;
+const Sender& SenderCache::lookup(dds_entity_t reader, dds_instance_handle_t publication) {
+  if (auto it = known_.find(publication); it != known_.end()) {
+    last_publication_ = publication;
+    last_ = &it->second;
+    return it->second;
+  }
   dds_builtintopic_endpoint_t* ep = dds_get_matched_publication_data(reader, publication);
   if (!ep) return unknown_;
   Sender s;
@@ -156,7 +162,13 @@ const Sender& SenderCache::of(dds_entity_t reader, dds_instance_handle_t publica
   s.guid = hex;
   dds_builtintopic_free_endpoint(ep);
   if (known_.size() >= capacity_) known_.clear();
-  return known_.emplace(publication, std::move(s)).first->second;
+  last_publication_ = publication;
+  last_ = &known_.emplace(publication, std::move(s)).first->second;
+  return *last_;
+}
+
+void releaseUnregistered(dds_instance_handle_t instance) noexcept {
+  telehand_dds_release_unregistered(instance);
 }
 
 std::string participantConfig(const Options& options) {

@@ -52,51 +52,90 @@ ServerLink::~ServerLink() {
 }
 
 void ServerLink::publish(const telehand_msg_SessionStatus& s) {
-  if (status_writer_.write(s) < 0) counters_.publish_errors.fetch_add(1);
+  if (status_writer_.write(s) < 0) {
+    counters_.publish_errors.fetch_add(1);
+  } else if (s.session_id != 0) {
+    written_[s.session_id] |= kStatus;
+  }
 }
 void ServerLink::publish(const telehand_msg_JointModel& m) {
-  if (model_writer_.write(m) < 0) counters_.publish_errors.fetch_add(1);
+  if (model_writer_.write(m) < 0) {
+    counters_.publish_errors.fetch_add(1);
+  } else if (m.session_id != 0) {
+    written_[m.session_id] |= kModel;
+  }
 }
 void ServerLink::publish(const telehand_msg_HandState& h) {
   if (hand_writer_.write(h) < 0) counters_.publish_errors.fetch_add(1);
 }
 void ServerLink::publish(const telehand_msg_KnnModel& k) {
-  if (knn_writer_.write(k) < 0) counters_.publish_errors.fetch_add(1);
+  if (knn_writer_.write(k) < 0) {
+    counters_.publish_errors.fetch_add(1);
+  } else if (k.session_id != 0) {
+    written_[k.session_id] |= kKnn;
+  }
 }
 void ServerLink::publish(const telehand_msg_DirectForce& f) {
   if (direct_writer_.write(f) < 0) counters_.publish_errors.fetch_add(1);
 }
 void ServerLink::publish(const telehand_msg_SessionEvent& e) {
-  if (event_writer_.write(e) < 0) counters_.publish_errors.fetch_add(1);
+  if (event_writer_.write(e) < 0) {
+    counters_.publish_errors.fetch_add(1);
+  } else if (e.session_id != 0) {
+    written_[e.session_id] |= kEvent;
+  }
 }
 
 namespace {
-/// Ends a session's instance on a topic keyed by session_id.
+/// Ends a session's instance on a topic keyed by session_id; `written`: a transient-local
+/// writer that wrote it (dds::Writer::unregister).
 template <typename T>
-void unregisterSession(dds::Writer<T>& writer, uint64_t session_id) {
+void unregisterSession(dds::Writer<T>& writer, uint64_t session_id, bool written = false) {
   T key{};
   key.session_id = session_id;
-  writer.unregister(key);
+  writer.unregister(key, written);
 }
 }  // namespace
 
 void ServerLink::retire(uint64_t session_id) {
-  unregisterSession(status_writer_, session_id);
-  unregisterSession(model_writer_, session_id);
-  unregisterSession(knn_writer_, session_id);
+  const auto it = written_.find(session_id);
+  const unsigned written = it == written_.end() ? 0u : it->second;
+  if (it != written_.end()) written_.erase(it);
+  unregisterSession(status_writer_, session_id, written & kStatus);
+  unregisterSession(model_writer_, session_id, written & kModel);
+  unregisterSession(knn_writer_, session_id, written & kKnn);
   // The keyed topics without late joiners keep an instance per session all the same (and
   // SessionEvent its last 64 events): freed here too, or each session would leave ~20 KB.
-  unregisterSession(event_writer_, session_id);
+  unregisterSession(event_writer_, session_id, written & kEvent);
   unregisterSession(hand_writer_, session_id);
   unregisterSession(direct_writer_, session_id);
 }
 
-session::Origin ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
+const session::Origin& ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
+  // Per sample (1 kHz per client): the last writer's origin, or one lookup; built once per
+  // writer (DDS Security adds no work of telehand's per sample).
+  if (info.publication_handle == last_publication_ && last_origin_ != nullptr) {
+    return *last_origin_;
+  }
+  if (const auto it = origins_.find(info.publication_handle); it != origins_.end()) {
+    last_publication_ = info.publication_handle;
+    last_origin_ = &it->second;
+    return it->second;
+  }
   const dds::Sender& s = senders_.of(reader, info.publication_handle);
   // An authenticated participant's GUID begins with 48 bits of its certificate subject's
   // hash (DDS Security: the same for all participants of one identity); the hex GUID's
   // first 12 characters.
-  return {s.participant, s.guid, secured_ && s.guid.size() >= 12 ? s.guid.substr(0, 12) : ""};
+  session::Origin o{s.participant, s.guid,
+                    secured_ && s.guid.size() >= 12 ? s.guid.substr(0, 12) : ""};
+  if (s.participant == 0) {  // Cyclone no longer knows the writer: not remembered
+    unknown_origin_ = std::move(o);
+    return unknown_origin_;
+  }
+  if (origins_.size() >= kMaxOrigins) origins_.clear();
+  last_publication_ = info.publication_handle;
+  last_origin_ = &origins_.emplace(info.publication_handle, std::move(o)).first->second;
+  return *last_origin_;
 }
 
 void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>& stop,

@@ -10,6 +10,7 @@
 #include "telehand/core/technique_score.h"
 #include "telehand/core/thimble.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/session/hand_heap.h"
 #include "telehand/server/session/session_manager.h"
 
 namespace telehand::server::session {
@@ -20,7 +21,17 @@ HandRunner::HandRunner(uint64_t session_id, const sim::HandModel* hand,
     : session_id_(session_id),
       next_hand_ns_(now_ns),
       hand_deadband_(DeadbandConfig{hand_deadband_weber}) {
-  if (hand) sim_ = std::make_unique<sim::HandSim>(*hand, params, hand_config);
+  if (hand) {
+    sim_ = buildOnHandHeap<sim::HandSim>(
+        [&] { return std::make_unique<sim::HandSim>(*hand, params, hand_config); });
+  }
+}
+
+HandRunner::~HandRunner() {
+  // Freed on the thread that built it, its blocks go back to that thread's arena rather
+  // than into this thread's cache of free blocks, whence later long-lived allocations of the
+  // serving thread would be taken from among the hands' pages.
+  if (sim_) onHandHeap([&] { sim_.reset(); });
 }
 
 namespace {

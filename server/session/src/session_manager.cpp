@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <string_view>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
@@ -25,7 +26,9 @@ SessionManager::SessionManager(SessionStore& store, Outbox& out, const ServerCon
       ctx_{store_, out_, config_, stats_,
            [this](uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
                   const std::string& text,
-                  int64_t now_ns) { event(session_id, client_id, kind, text, now_ns); }} {}
+                  int64_t now_ns) { event(session_id, client_id, kind, text, now_ns); }} {
+  ended_owners_.reserve(kMaxEndedOwners);
+}
 
 SessionManager::~SessionManager() = default;
 
@@ -433,11 +436,14 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
   if (!s) {
     // A late chunk for a session that already closed still belongs in its record, if it
     // comes from the session's owner.
-    if (const auto owner = ended_owners_.find(c.session_id);
-        from.participant != 0 && owner != ended_owners_.end() && owner->second != from.guid) {
+    const auto owner =
+        std::find_if(ended_owners_.begin(), ended_owners_.end(),
+                     [&](const EndedOwner& e) { return e.session_id == c.session_id; });
+    if (from.participant != 0 && owner != ended_owners_.end() &&
+        std::string_view(owner->guid.data()) != from.guid) {
       refuse(c.session_id, 0,
              "a late RecordChunk from participant " + from.guid + ": session " +
-                 std::to_string(c.session_id) + " belonged to " + owner->second,
+                 std::to_string(c.session_id) + " belonged to " + owner->guid.data(),
              c.samples._length, now_ns);
       return;
     }
@@ -535,10 +541,11 @@ void SessionManager::tick(int64_t now_ns) {
     sessions_.erase(it);
   }
 #if defined(__GLIBC__)
-  // A session's hand is megabytes of small blocks: glibc keeps freed ones in its heap, so
-  // without this a burst of sessions (a flood of OPENs up to server.max_sessions) would
-  // hold the server's RSS at its peak after they ended.
-  if (!done.empty()) malloc_trim(0);
+  // A session's hand is megabytes of blocks (hand_heap.h): glibc keeps freed ones in its
+  // arenas, so without this a burst of sessions (a flood of OPENs up to
+  // server.max_sessions) would hold the server's RSS at its peak after they ended. Retired
+  // sessions free their samples in Cyclone: trimmed too.
+  if (!done.empty() || due > 0) malloc_trim(0);
 #endif
 }
 
@@ -552,8 +559,15 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
   }
   s.close(state, now_ns);
   if (!s.info.owner.empty()) {
-    if (ended_owners_.size() >= kMaxEndedOwners) ended_owners_.erase(ended_owners_.begin());
-    ended_owners_[s.info.id] = s.info.owner;
+    EndedOwner e;
+    e.session_id = s.info.id;
+    s.info.owner.copy(e.guid.data(), e.guid.size() - 1);
+    if (ended_owners_.size() < kMaxEndedOwners) {
+      ended_owners_.push_back(e);
+    } else {
+      ended_owners_[ended_next_] = e;
+    }
+    ended_next_ = (ended_next_ + 1) % kMaxEndedOwners;
   }
   refused_reported_ns_.erase(s.info.id);
   retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), s.info.id);

@@ -409,6 +409,9 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
       }
     }
     exec("PRAGMA journal_mode=WAL;");
+    // The page cache (SQLite's default 2 MB) grows with the records toward its size; a
+    // server's writes append at the tables' ends, which 256 KiB holds.
+    exec("PRAGMA cache_size=-256;");
     exec("PRAGMA synchronous=NORMAL;");
     if (!insert_sample_) insert_sample_ = prepare(insertSampleSql().c_str());
   } catch (...) {

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -116,19 +117,34 @@ struct Sender {
 };
 
 /// Finds senders from samples' publication handles, remembering up to `capacity` writers
-/// (then starting over): one Cyclone lookup per writer, not per sample.
+/// (then starting over): one Cyclone lookup per writer, not per sample. Per sample: the last
+/// writer's sender at the cost of a comparison (a stream comes from one writer), else one
+/// hash lookup; nothing is allocated.
 class SenderCache {
  public:
   explicit SenderCache(std::size_t capacity = 4096) : capacity_(capacity) {}
   /// The sender of a sample `reader` took; participant 0 if Cyclone no longer knows the
   /// writer.
-  const Sender& of(dds_entity_t reader, dds_instance_handle_t publication);
+  const Sender& of(dds_entity_t reader, dds_instance_handle_t publication) {
+    if (publication == last_publication_ && last_ != nullptr) return *last_;
+    return lookup(reader, publication);
+  }
 
  private:
+  const Sender& lookup(dds_entity_t reader, dds_instance_handle_t publication);
+
   std::size_t capacity_;
-  std::map<dds_instance_handle_t, Sender> known_;
+  std::unordered_map<dds_instance_handle_t, Sender> known_;
   Sender unknown_;
+  dds_instance_handle_t last_publication_ = 0;
+  const Sender* last_ = nullptr;  // known_'s entry for last_publication_
 };
+
+/// After a transient-local writer that wrote `instance` unregistered it (on this thread, just
+/// before): drops the reference to the instance's key entry that Cyclone DDS 0.10's writer
+/// history keeps (fixed upstream in 11.0; a no-op with other versions). Without it every
+/// unregistered instance keeps its key entry, about 0.5 kB, for the life of the process.
+void releaseUnregistered(dds_instance_handle_t instance) noexcept;
 
 /// Which DDS world to join.
 struct Options {
@@ -223,9 +239,16 @@ class Writer {
   /// Returns Cyclone's return code; callers on hot paths count failures instead of throwing.
   dds_return_t write(const T& sample) noexcept { return dds_write(e_.handle(), &sample); }
   /// Ends the instance `key_sample`'s key names (disposed, then freed by the writer and the
-  /// readers): a transient-local writer stops handing it to late joiners.
-  dds_return_t unregister(const T& key_sample) noexcept {
-    return dds_unregister_instance(e_.handle(), &key_sample);
+  /// readers): a transient-local writer stops handing it to late joiners. `written`: this
+  /// writer is transient-local and wrote the instance, so its history indexed it; Cyclone
+  /// DDS 0.10 then keeps the instance's key entry forever (releaseUnregistered), which this
+  /// gives back. A wrong `written` frees an entry still in use: pass it only when sure.
+  dds_return_t unregister(const T& key_sample, bool written = false) noexcept {
+    const dds_instance_handle_t instance =
+        written ? dds_lookup_instance(e_.handle(), &key_sample) : DDS_HANDLE_NIL;
+    const dds_return_t rc = dds_unregister_instance(e_.handle(), &key_sample);
+    if (rc == DDS_RETCODE_OK && instance != DDS_HANDLE_NIL) releaseUnregistered(instance);
+    return rc;
   }
   dds_entity_t handle() const noexcept { return e_.handle(); }
   uint32_t matchedReaders() const noexcept {

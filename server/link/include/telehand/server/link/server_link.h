@@ -4,6 +4,7 @@
 /// of its own so that recording never delays an echo.
 #include <atomic>
 #include <thread>
+#include <unordered_map>
 
 #include "telehand/protocol/dds.h"
 #include "telehand/protocol/dds_capture.h"
@@ -42,8 +43,8 @@ class ServerLink final : public session::Outbox {
 
  private:
   void echoLoop();
-  /// The manager's view of who wrote a sample a reader took.
-  session::Origin origin(dds_entity_t reader, const dds_sample_info_t& info);
+  /// The manager's view of who wrote a sample a reader took (valid until the next call).
+  const session::Origin& origin(dds_entity_t reader, const dds_sample_info_t& info);
 
   bool secured_;  // DDS Security: senders carry their identity (Origin::identity)
   dds::Participant participant_;
@@ -69,6 +70,17 @@ class ServerLink final : public session::Outbox {
   dds::Reader<telehand_msg_SessionFile> file_reader_;
   dds::Writer<telehand_msg_KnnModel> knn_writer_;
   dds::SenderCache senders_;
+  // Origins by publication handle (at most kMaxOrigins writers, then starting over), and the
+  // last one looked up.
+  static constexpr std::size_t kMaxOrigins = 4096;
+  std::unordered_map<dds_instance_handle_t, session::Origin> origins_;
+  dds_instance_handle_t last_publication_ = 0;
+  const session::Origin* last_origin_ = nullptr;
+  session::Origin unknown_origin_;
+  // The transient-local topics each session not yet retired was written on (kStatus...):
+  // what retire() must hand back to Cyclone (dds::Writer::unregister).
+  enum : unsigned { kStatus = 1, kModel = 2, kEvent = 4, kKnn = 8 };
+  std::unordered_map<uint64_t, unsigned> written_;
 };
 
 }  // namespace telehand::server::link

@@ -32,6 +32,10 @@ class HandRunner {
   /// joint model.
   HandRunner(uint64_t session_id, const sim::HandModel* hand, const JointModelParams& params,
              const sim::HandSimConfig& hand_config, double hand_deadband_weber, int64_t now_ns);
+  /// The hand is freed where it was built (hand_heap.h).
+  ~HandRunner();
+  HandRunner(const HandRunner&) = delete;
+  HandRunner& operator=(const HandRunner&) = delete;
 
   bool simulated() const noexcept { return sim_ != nullptr; }
   /// The session adopted a new model.

@@ -2,6 +2,7 @@
 /// The server's session logic, independent of DDS: opens and closes sessions on commands,
 /// records what clients send, computes the decimated HandState from the shared joint model,
 /// and reports bad input as events without disturbing other sessions.
+#include <array>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -124,8 +125,15 @@ class SessionManager {
   const sim::HandModel* hand_;
   std::map<uint64_t, Session> sessions_;
   std::map<uint64_t, int64_t> unknown_reported_ns_;
-  std::map<uint64_t, int64_t> refused_reported_ns_;     // per session id, bounded like unknown ids
-  std::map<uint64_t, std::string> ended_owners_;        // session id -> owner GUID, bounded
+  std::map<uint64_t, int64_t> refused_reported_ns_;  // per session id, bounded like unknown ids
+  /// Owner of an ended session (GUID hex, NUL-terminated), in a ring of kMaxEndedOwners
+  /// reserved at construction: remembering them allocates nothing per session.
+  struct EndedOwner {
+    uint64_t session_id = 0;
+    std::array<char, 40> guid{};
+  };
+  std::vector<EndedOwner> ended_owners_;
+  std::size_t ended_next_ = 0;  // where the next one goes (the oldest, once full)
   std::vector<std::pair<int64_t, uint64_t>> retiring_;  // (when, session id), in time order
   uint64_t event_seq_ = 0;
   ManagerStats stats_;

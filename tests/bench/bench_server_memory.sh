@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# The server's memory under floods of sessions (docs/security.md "Bounds"): one
+# telehand-server (with the Bullet hand), a first session and its end (the baseline: what
+# the server keeps once it has served one), then ROUNDS rounds of
+#   - a burst: 10,000 OPENs from 16 participants at once (the server opens
+#     server.max_sessions = 64 and refuses the rest), RSS sampled every 50 ms (the peak);
+#   - a churn: SESSIONS sessions opened and closed (16 participants, each keeping 4
+#     sessions opening or open, every OPEN taken);
+# and the server's RSS once each has ended and been retired (status_keep_s = 2 s).
+# Usage: tests/bench/bench_server_memory.sh [ROUNDS (3)] [SESSIONS per churn (9000)] [--secure]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+rounds=${1:-3}
+sessions=${2:-9000}
+mode=${3:-}
+bin=build/release
+work=$(mktemp -d /tmp/telehand-bench-memory-XXXXXX)
+trap 'kill $(jobs -p) 2>/dev/null || true; wait 2>/dev/null || true; rm -rf "$work"' EXIT
+net=(--dds-config deploy/cyclonedds/loopback.xml --partition "bm-$$-$RANDOM")
+if [ "$mode" = --secure ]; then
+  deploy/pki/make-pki.sh "$work/pki" >/dev/null
+  net+=(--pki "$work/pki")
+else
+  net+=(--insecure)
+fi
+printf '[server]\nstatus_keep_s = 2.0\n' >"$work/server.toml"
+"$bin/server/telehand-server" --config "$work/server.toml" --db "$work/records.db" \
+  --log-level error "${net[@]}" >"$work/server.log" 2>&1 &
+server=$!
+inject() { "$bin/tests/integration/telehand-test-inject" "$@" "${net[@]}" 2>/dev/null; }
+rss() { awk '/^VmRSS/{print $2}' "/proc/$server/status"; }
+mb() { awk -v k="$1" 'BEGIN{printf "%.1f", k / 1024}'; }
+inject open-flood --count 1 --hold 0 >/dev/null
+sleep 3
+base=$(rss)
+printf 'baseline (one session served): %s MB\n' "$(mb "$base")"
+printf '%-6s %-22s %12s %14s %10s\n' round what "peak MB" "after MB" "vs base"
+for r in $(seq "$rounds"); do
+  inject open-flood --count 10000 --participants 16 --hold 3 >"$work/flood.log" &
+  flood=$!
+  peak=0
+  while kill -0 "$flood" 2>/dev/null; do
+    now=$(rss)
+    [ "$now" -gt "$peak" ] && peak=$now
+    sleep 0.05
+  done
+  wait "$flood" || echo "flood: $(cat "$work/flood.log")"
+  sleep 3
+  after=$(rss)
+  printf '%-6s %-22s %12s %14s %9s%%\n' "$r" "burst 10000 OPENs" "$(mb "$peak")" "$(mb "$after")" \
+    "$(awk -v a="$after" -v b="$base" 'BEGIN{printf "%+.1f", 100 * (a - b) / b}')"
+  peak=0
+  inject open-churn --count "$sessions" --participants 16 >"$work/churn.log" &
+  churn=$!
+  while kill -0 "$churn" 2>/dev/null; do
+    now=$(rss)
+    [ "$now" -gt "$peak" ] && peak=$now
+    sleep 0.2
+  done
+  wait "$churn" || true
+  sleep 3
+  after=$(rss)
+  printf '%-6s %-22s %12s %14s %9s%%   (%s)\n' "$r" "churn $sessions sessions" "$(mb "$peak")" \
+    "$(mb "$after")" "$(awk -v a="$after" -v b="$base" 'BEGIN{printf "%+.1f", 100 * (a - b) / b}')" \
+    "$(tr '\n' ' ' <"$work/churn.log")"
+done
