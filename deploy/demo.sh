@@ -89,7 +89,7 @@ if [ "$lesson" = on ]; then
   echo
   echo "Lesson $lesson_id (demonstration: session $demo); the student's run: session $run in $db"
   echo "Show it:  $bin/server/telehand-records --db $db lesson show $lesson_id"
-  echo "Replay the demonstration:  $bin/client/telehand-watch ${dds[*]} --replay $demo"
+  echo "Replay the demonstration (with a server running on this record):  telehand-watch --replay $demo"
   exit 0
 fi
 
