@@ -69,6 +69,9 @@ std::vector<LessonStep> lessonSteps(const LessonPlan& plan, const ClientOptions&
          fmt::format("trial {}: attempt {} of {} on your own", trial, i + 1, plan.attempts)});
   }
   if (plan.assessment) {
+    // The finger back at rest first: an exploration judges each direction from where it
+    // starts, and the last trial leaves the joint flexed.
+    s.push_back({"rest", 0.0, 1.5, Act::kRest, 0, "rest (the finger back at rest)"});
     s.push_back({"reassessment", 0.0, o.explore_seconds, Act::kExplore, 0,
                  "reassessment (the range again, after treatment)"});
   } else {
