@@ -118,6 +118,18 @@ int runShow(SqliteStore& store, const SessionInfo& info) {
       }
     }
   }
+  // A lesson run: its lesson and its scored trials (docs/lessons.md).
+  if (const uint64_t lesson = store.sessionLesson(session_id)) {
+    const auto trials = store.trials(session_id);
+    std::cout << "lesson " << lesson << ": " << trials.size() << " trials scored"
+              << (trials.empty() ? "\n" : ":\n");
+    for (const auto& t : trials) {
+      std::cout << "  trial " << t.index << "  " << std::left << std::setw(8) << t.phase
+                << std::right << std::fixed << std::setprecision(2) << " authority " << t.authority
+                << "  samples " << t.first_seq << ".." << t.last_seq << "  overall "
+                << std::setprecision(1) << t.overall << "\n";
+    }
+  }
   return 0;
 }
 
