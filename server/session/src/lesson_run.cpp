@@ -24,7 +24,11 @@ void LessonRun::end(uint64_t last_seq, int64_t now_ns) {
   if (!in_trial_) return;
   in_trial_ = false;
   if (last_seq < current_.first_seq) return;  // ended before a sample of it was sent
-  current_.last_seq = last_seq;
+  // A trial is scored over its planned length and a margin at most: a client that never
+  // ends one cannot make the server read (and hold) minutes of record at once.
+  const auto span = static_cast<uint64_t>((plan.trial_s + kTrialMarginS) * 1000.0);
+  current_.last_seq = std::min(last_seq, current_.first_seq + span - 1);
+  current_.cut = current_.last_seq < last_seq;
   current_.deadline_ns = now_ns + kScoreWaitNs;
   waiting_.push_back(current_);
 }
@@ -42,8 +46,7 @@ void LessonRun::scoreDue(SessionContext& ctx, uint64_t session_id, uint64_t clie
       // Complete when the record holds every sample of the trial.
       uint64_t n = 0;
       try {
-        ctx.store.forEachSampleIn(session_id, it->first_seq, it->last_seq,
-                                  [&](const Sample&, bool) { ++n; });
+        n = ctx.store.countSamples(session_id, it->first_seq, it->last_seq);
       } catch (const StoreError& e) {
         ++ctx.stats.store_errors;
         spdlog::error("session {}: {}", session_id, e.what());
@@ -116,7 +119,8 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   }
   ctx.event(session_id, client_id, telehand_msg_EVENT_SCORE,
             label + ": " + technique::summaryLine(sc) +
-                (missing ? " (" + std::to_string(missing) + " samples missing)" : std::string()),
+                (missing ? " (" + std::to_string(missing) + " samples missing)" : std::string()) +
+                (t.cut ? " (its first " + std::to_string(expected / 1000) + " s)" : std::string()),
             now_ns);
   overall_.push_back(sc.overall);
 }

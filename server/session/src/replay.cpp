@@ -21,25 +21,14 @@ Replay::Replay(SessionContext& ctx, uint64_t publish_as, uint64_t source,
       params_(model),
       model_(model),
       last_tick_ns_(now_ns) {
-  // The record's extent: its first and last sequence numbers and how long it lasted.
-  const auto info = ctx.store.session(source);
-  if (!info) throw Error("session " + std::to_string(source) + " is not in the record");
-  bool first = true;
-  uint64_t first_seq = 0;
-  int64_t t0 = 0, t1 = 0;
-  // One pass for the record's extent (a demonstration is seconds to minutes long).
-  ctx.store.forEachSampleIn(source, 0, UINT64_MAX, [&](const Sample& s, bool) {
-    if (first) {
-      first_seq = s.seq;
-      t0 = s.source_time_ns;
-      first = false;
-    }
-    last_seq_ = s.seq;
-    t1 = s.source_time_ns;
-  });
-  empty_ = first;
-  first_seq_ = first_seq;
-  duration_s_ = empty_ ? 0.0 : static_cast<double>(t1 - t0) * 1e-9;
+  // The record's extent, from its first and last rows (nothing in between is read here).
+  const auto extent = ctx.store.extent(source);
+  empty_ = !extent;
+  if (extent) {
+    first_seq_ = extent->first_seq;
+    last_seq_ = extent->last_seq;
+    duration_s_ = static_cast<double>(extent->last_time_ns - extent->first_time_ns) * 1e-9;
+  }
   restart();
 }
 

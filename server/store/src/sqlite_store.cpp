@@ -698,6 +698,49 @@ void SqliteStore::forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint6
   }
 }
 
+uint64_t SqliteStore::countSamples(uint64_t session_id, uint64_t first_seq, uint64_t last_seq) {
+  if (queryInt(db_, "PRAGMA user_version") == 0) {  // schema 1: its blobs, one by one
+    uint64_t n = 0;
+    forEachSampleIn(session_id, first_seq, last_seq, [&](const Sample&, bool) { ++n; });
+    return n;
+  }
+  constexpr uint64_t kMax = static_cast<uint64_t>(std::numeric_limits<sqlite3_int64>::max());
+  Statement st(db_, "SELECT count(*) FROM samples WHERE session_id = ? AND seq >= ? AND seq <= ?");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(std::min(first_seq, kMax)));
+  sqlite3_bind_int64(st.get(), 3, static_cast<sqlite3_int64>(std::min(last_seq, kMax)));
+  return st.step() ? static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0)) : 0;
+}
+
+std::optional<SessionStore::Extent> SqliteStore::extent(uint64_t session_id) {
+  std::optional<Extent> out;
+  if (queryInt(db_, "PRAGMA user_version") == 0) {  // schema 1: its blobs, one by one
+    forEachSample(session_id, [&](const Sample& s, bool) {
+      if (!out) out = Extent{s.seq, s.seq, s.source_time_ns, s.source_time_ns};
+      out->last_seq = s.seq;
+      out->last_time_ns = s.source_time_ns;
+    });
+    return out;
+  }
+  // The first and the last row by the (session_id, seq) key: two index look-ups.
+  for (const char* order : {"ASC", "DESC"}) {
+    Statement st(db_, std::string("SELECT seq, t_ns FROM samples WHERE session_id = ? ORDER BY "
+                                  "seq ") +
+                          order + " LIMIT 1");
+    sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+    if (!st.step()) return std::nullopt;
+    const auto seq = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0));
+    const int64_t t = sqlite3_column_int64(st.get(), 1);
+    if (!out) {
+      out = Extent{seq, seq, t, t};
+    } else {
+      out->last_seq = seq;
+      out->last_time_ns = t;
+    }
+  }
+  return out;
+}
+
 uint64_t SqliteStore::createLesson(const LessonInfo& l) {
   Statement st(db_,
                "INSERT INTO lessons (name, demo_session, case_name, technique, schedule, guided, "

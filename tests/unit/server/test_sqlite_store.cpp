@@ -871,6 +871,15 @@ TEST_F(SqliteStoreTest, SchemaThreeFilesGainLessonsAndKeepThem) {
   std::vector<uint64_t> seqs;
   store.forEachSampleIn(run, 10, 14, [&](const Sample& s, bool) { seqs.push_back(s.seq); });
   EXPECT_EQ(seqs, (std::vector<uint64_t>{10, 11, 12, 13, 14}));
+  EXPECT_EQ(store.countSamples(run, 10, 14), 5u);
+  EXPECT_EQ(store.countSamples(run, 40, UINT64_MAX), 10u);
+  const auto ext = store.extent(run);
+  ASSERT_TRUE(ext.has_value());
+  EXPECT_EQ(ext->first_seq, 0u);
+  EXPECT_EQ(ext->last_seq, 49u);
+  EXPECT_EQ(ext->last_time_ns - ext->first_time_ns,
+            samples(run, 49, 50)[0].source_time_ns - samples(run, 0, 1)[0].source_time_ns);
+  EXPECT_FALSE(store.extent(run + 100).has_value());
   RawDb raw(dbPath());
   EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
 }

@@ -19,6 +19,8 @@ class LessonRun {
   /// How long a finished trial waits for the rest of its record before it is scored on what
   /// arrived (and says how much is missing).
   static constexpr int64_t kScoreWaitNs = 10'000'000'000;
+  /// A trial is scored over at most its planned length plus this.
+  static constexpr double kTrialMarginS = 30.0;
   /// How often a waiting trial's record is counted.
   static constexpr int64_t kCheckEveryNs = 250'000'000;
   /// Oscillation score events per trial at most (the trial's own always goes out).
@@ -52,6 +54,7 @@ class LessonRun {
     uint64_t first_seq = 0, last_seq = 0;
     int64_t deadline_ns = 0;
     int64_t next_check_ns = 0;
+    bool cut = false;  // longer than planned: scored over its first part
   };
   void score(SessionContext& ctx, uint64_t session_id, uint64_t client_id, double force_scale,
              const Trial& t, int64_t now_ns);

@@ -101,6 +101,15 @@ class SessionStore {
   /// Samples with first_seq <= seq <= last_seq, in sequence order.
   virtual void forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint64_t last_seq,
                                const std::function<void(const Sample&, bool valid)>& fn) = 0;
+  /// How many samples with first_seq <= seq <= last_seq the record holds (an index look-up).
+  virtual uint64_t countSamples(uint64_t session_id, uint64_t first_seq, uint64_t last_seq) = 0;
+  /// The first and last sample of a session's record (by sequence number), nullopt without
+  /// any: where a replay starts and ends, without reading what lies between.
+  struct Extent {
+    uint64_t first_seq = 0, last_seq = 0;
+    int64_t first_time_ns = 0, last_time_ns = 0;
+  };
+  virtual std::optional<Extent> extent(uint64_t session_id) = 0;
   /// Lessons: a new one gets a fresh id.
   virtual uint64_t createLesson(const LessonInfo& lesson) = 0;
   virtual std::vector<LessonInfo> listLessons() = 0;
