@@ -171,11 +171,7 @@ int runReport(SqliteStore& store, const ReportRequest& r) {
   // Each trial scored again from its record (the scores are a function of the record).
   for (const auto& t : store.trials(session)) {
     ReportTrial rt;
-    rt.label = "trial " + std::to_string(t.index) + " (" + t.phase +
-               (t.phase == "guided"
-                    ? " " + std::to_string(static_cast<int>(std::lround(100 * t.authority))) + " %"
-                    : std::string()) +
-               ")";
+    rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
     const auto samples = samplesIn(store, session, t.first_seq, t.last_seq);
     if (samples.size() < 2) continue;
     rt.series = technique::seriesFromSamples(samples, scale);

@@ -173,6 +173,12 @@ technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_s
   return t;
 }
 
+std::string trialLabel(int index, const std::string& phase, double authority) {
+  std::string label = "trial " + std::to_string(index) + " (" + phase;
+  if (phase == "guided") label += " " + std::to_string(std::lround(100 * authority)) + " %";
+  return label + ")";
+}
+
 GuideParams guideFor(const technique::Targets& t, double authority) {
   GuideParams g;
   g.authority = std::clamp(authority, 0.0, 1.0);

@@ -67,8 +67,7 @@ void HandRunner::step(const JointModel& model) {
 
 bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
                          const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
-                         telehand_msg_SessionMode mode,
-                         int64_t /*now_ns: the hand runs on device time*/, Vec3* before) {
+                         telehand_msg_SessionMode mode, Vec3* before) {
   if (sim_ && live.isNew(d)) {
     // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
     // on the way, with the thimbles moving in a straight line across the gap (jumping the

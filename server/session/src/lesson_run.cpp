@@ -78,12 +78,7 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   }
   const uint64_t expected = t.last_seq - t.first_seq + 1;
   const uint64_t missing = expected - std::min<uint64_t>(expected, samples.size());
-  const std::string label =
-      "trial " + std::to_string(t.index) + " (" + t.phase +
-      (t.phase == "guided"
-           ? " " + std::to_string(static_cast<int>(std::lround(100 * t.authority))) + " %"
-           : std::string()) +
-      ")";
+  const std::string label = lesson::trialLabel(t.index, t.phase, t.authority);
   if (samples.size() < 2000) {
     ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
               label + " not scored: " + std::to_string(samples.size()) + " of " +

@@ -108,7 +108,7 @@ void Replay::tick(int64_t now_ns) {
       const PerFinger<Vec3> grip = thimblePositions(d);
       Vec3 before = Vec3::Zero();
       if (hand_->advance(ctx_, *live_, d, grip, false, model_, telehand_msg_MODE_MOBILIZATION,
-                         now_ns, &before)) {
+                         &before)) {
         ++params_.version;
         params_.grip_offset_rad = hand_->drift().offset();
         model_ = JointModel(params_);

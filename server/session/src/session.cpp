@@ -127,7 +127,7 @@ void Session::onLive(const Sample& d, int64_t now_ns) {
     ++direct_sent_;
   }
   Vec3 before = Vec3::Zero();
-  if (hand.advance(ctx, live, d, grip, coded, model, mode, now_ns, &before)) {
+  if (hand.advance(ctx, live, d, grip, coded, model, mode, &before)) {
     ++ctx.stats.drift_corrections;
     adoptModel(params, nullptr);
     hand.reportDrift(ctx, before, params.version, now_ns);

@@ -34,6 +34,9 @@ std::map<std::string, double> decodeFigures(const std::string& text);
 technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_session,
                                      double force_scale, double settle_s = kSettleS);
 
+/// How a trial is named in events and reports: "trial 2 (guided 50 %)", "trial 3 (attempt)".
+std::string trialLabel(int index, const std::string& phase, double authority);
+
 /// The guide of a guided trial: the targets' path and period at `authority` (0..1).
 GuideParams guideFor(const technique::Targets& t, double authority);
 

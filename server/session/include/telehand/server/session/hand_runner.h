@@ -48,7 +48,7 @@ class HandRunner {
   /// the offset it had).
   bool advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
                const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
-               telehand_msg_SessionMode mode, int64_t now_ns, Vec3* before);
+               telehand_msg_SessionMode mode, Vec3* before);
   /// Report a drift correction just adopted as model `version`.
   void reportDrift(SessionContext& ctx, const Vec3& before, uint32_t version, int64_t now_ns);
   const DriftCorrector& drift() const noexcept { return drift_; }
