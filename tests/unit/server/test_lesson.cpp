@@ -331,6 +331,22 @@ TEST_F(LessonTest, BadLessonsAndPhasesAreRefusedWithAReason) {
   EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(), HasSubstr("authority"));
   phase(run, "attempt", 0.0, uint64_t{1} << 62);
   EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(), HasSubstr("beyond"));
+  // Another participant's PHASE is refused (the run belongs to whoever opened it).
+  {
+    auto c = command(telehand_msg_CMD_OPEN);
+    c.mode = telehand_msg_MODE_LESSON;
+    c.lesson_id = store_->listLessons().back().id;  // the good one
+    manager_->onCommand(c, now_ns_, Origin{11, "owner-guid", ""});
+    const uint64_t owned = out_.statuses.back().session_id;
+    auto p = command(telehand_msg_CMD_PHASE, owned);
+    copyString(p.text, "guided");
+    p.value = 1.0;
+    const uint64_t refused = manager_->stats().refused;
+    manager_->onCommand(p, now_ns_, Origin{12, "stranger-guid", ""});
+    EXPECT_EQ(manager_->stats().refused, refused + 1);
+    EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, owned).back(),
+                HasSubstr("refused a PHASE from participant stranger-guid"));
+  }
   EXPECT_EQ(open(telehand_msg_MODE_REPLAY, 0, 12345), 0u);
   EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, 0).back(), HasSubstr("no session 12345"));
 }
