@@ -40,6 +40,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
   f.bullet = h.source == telehand_msg_HAND_SOURCE_BULLET;
   f.device_rate_hz = h.device_rate_hz;
   f.device_lost = h.device_lost;
+  f.device_overruns = h.device_overruns;
   f.model_version = h.model_version;
   f.have_device = (h.seq & 1u) != 0;
   f.device_seq = h.device_seq;

@@ -124,15 +124,21 @@ TEST_F(GatewayTest, UnknownSessionIdsAreNamed) {
   WsClient c(port_);
   ASSERT_TRUE(c.ok()) << c.error();
   ASSERT_TRUE(c.waitFor("\"type\":\"hello\""));
-  for (const std::string op : {"watch", "mark", "replay"}) {
-    ASSERT_TRUE(c.send(R"({"op":")" + op + R"(","session":987654,"text":"hello"})"));
+  for (const std::string op : {"watch", "mark", "replay", "takeover"}) {
+    ASSERT_TRUE(c.send(R"({"op":")" + op + R"(","session":987654,"text":"hello","from":5})"));
     const auto e = c.waitFor("\"type\":\"error\"");
     ASSERT_TRUE(e) << op;
     EXPECT_NE(e->find("\"code\":\"unknown_session\""), std::string::npos) << op << ": " << *e;
     EXPECT_NE(e->find("987654"), std::string::npos) << op << ": " << *e;
   }
-  EXPECT_EQ(statOf(stats(), "unknown_session"), 3u);
+  EXPECT_EQ(statOf(stats(), "unknown_session"), 4u);
   EXPECT_EQ(statOf(stats(), "marks"), 0u);  // nothing was written to DDS
+  EXPECT_EQ(statOf(stats(), "takeovers"), 0u);
+  // A take-over's leading session must be an id.
+  ASSERT_TRUE(c.send(R"({"op":"takeover","session":987654,"from":"mine"})"));
+  const auto bad = c.waitFor("\"code\":\"malformed\"");
+  ASSERT_TRUE(bad);
+  EXPECT_NE(bad->find(R"(\"from\" is not a session id)"), std::string::npos) << *bad;
   // The empty store lists no records; watching nothing (0) is allowed.
   ASSERT_TRUE(c.send(R"({"op":"records"})"));
   const auto r = c.waitFor("\"type\":\"records\"");

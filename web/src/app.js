@@ -97,7 +97,7 @@ function showFigures(mcp, force, extra = {}) {
   const inBand = force >= band[0] && force <= band[1];
   $('force').textContent = `${fmt(force, 2)} N`;
   $('force').className = inBand ? 'ok' : force > band[1] ? 'bad' : 'warn';
-  for (const k of ['model', 'devhz', 'lost', 'handhz', 'seq']) {
+  for (const k of ['model', 'devhz', 'lost', 'overruns', 'handhz', 'seq']) {
     if (k in extra) $(k).textContent = extra[k];
   }
   probe.shownMcpDeg = deg(mcp[0]);
@@ -166,7 +166,8 @@ const handlers = {
       const age = s.age_ms;
       const health = s.state !== 'active' ? '–'
         : age === undefined ? 'no hand yet'
-        : `${s.hand_hz}/s ${fmt(s.delay_ms, 0)} ms${s.dev_lost ? ` lost ${s.dev_lost}` : ''}`;
+        : `${s.hand_hz}/s ${fmt(s.delay_ms, 0)} ms${s.dev_lost ? ` lost ${s.dev_lost}` : ''}`
+          + `${s.overruns ? ` overruns ${s.overruns}` : ''}`;
       const cls = s.state !== 'active' ? 'muted' : age === undefined || age > 1000 ? 'bad'
         : s.dev_lost > 0 || s.delay_ms > 300 ? 'warn' : 'ok';
       const cells = [String(s.id), s.state, s.user, s.case, s.mode, health];
@@ -174,6 +175,7 @@ const handlers = {
       tr.cells[5].className = cls;
     });
     for (const tr of rows.values()) tr.remove();
+    showTakeover();
   },
   records(m) {
     probe.records = m.sessions;
@@ -199,7 +201,9 @@ const handlers = {
     lastHand = m;
     lastHandAt = performance.now();
     probe.handFrames++;
-    probe.lastHand = { seq: m.seq, mcp: m.mcp, joints: m.joints, t_ms: m.t_ms, force: m.force };
+    probe.lastHand = {
+      seq: m.seq, mcp: m.mcp, joints: m.joints, t_ms: m.t_ms, force: m.force, overruns: m.overruns,
+    };
     hand.pose(m);
     if (live.t0 === null) live.t0 = m.t_ms;
     live.t.push((m.t_ms - live.t0) / 1000);
@@ -212,6 +216,7 @@ const handlers = {
     drawLive(false);
     showFigures(m.mcp, m.force, {
       model: `v${m.model}`, devhz: `${fmt(m.dev_hz, 0)} /s`, lost: `${m.dev_lost}`,
+      overruns: `${m.overruns}`,
       seq: `${m.seq} (device ${m.dev_seq})`,
     });
   },
@@ -221,11 +226,11 @@ const handlers = {
   },
   ack(m) {
     probe.acks.push(m);
-    $('mark-status').textContent = `sent: ${m.text}`;
+    $(m.op === 'takeover' ? 'takeover-status' : 'mark-status').textContent = `sent: ${m.text}`;
   },
   error(m) {
     probe.errors.push(m);
-    $('mark-status').textContent = `${m.code}: ${m.message}`;
+    $(lastOp === 'takeover' ? 'takeover-status' : 'mark-status').textContent = `${m.code}: ${m.message}`;
   },
   replay(m) {
     replay = m;
@@ -263,6 +268,7 @@ function watch(id) {
   $('replay-bar').hidden = true;
   $('events').replaceChildren();
   resetLive();
+  showTakeover();
   drawLive(true);
   $('title').textContent = `Live: session ${id}`;
   send({ op: 'watch', session: id });
@@ -342,6 +348,44 @@ setInterval(() => {
   if (handTimes.length === 4) $('handhz').textContent = `${fmt((handTimes[3] - handTimes[0]) / 0.75, 0)} /s`;
 }, 250);
 
+// --- take-over: a lesson run that allows it follows the supervisor's own MF-2 session ---
+let lastOp = null;
+function showTakeover() {
+  const sessions = probe.sessions || [];
+  const me = sessions.find((s) => s.id === view.session);
+  const allowed = view.mode === 'live' && me && me.takeover;
+  $('takeover-form').hidden = !allowed;
+  if (!allowed) return;
+  const sel = $('takeover-from');
+  const ids = sessions.filter((s) => s.state === 'active' && s.mode === 'mobilization' && s.id !== view.session);
+  const want = ids.map((s) => `${s.id}`).join(',');
+  if (sel.dataset.ids === want) return;  // the choice under the pointer stays
+  sel.dataset.ids = want;
+  const keep = sel.value;
+  sel.replaceChildren(...ids.map((s) => {
+    const o = document.createElement('option');
+    o.value = s.id;
+    o.textContent = `session ${s.id} (${s.user})`;
+    return o;
+  }));
+  if (ids.some((s) => `${s.id}` === keep)) sel.value = keep;
+  $('takeover-send').disabled = ids.length === 0;
+  if (!ids.length) $('takeover-status').textContent = 'open a mobilization at your MF-2 first';
+}
+$('takeover-form').addEventListener('submit', (e) => {
+  e.preventDefault();
+  const from = +$('takeover-from').value;
+  if (!from) return;
+  lastOp = 'takeover';
+  send({ op: 'takeover', session: view.session, from });
+  $('takeover-status').textContent = 'sending…';
+});
+$('takeover-back').onclick = () => {
+  lastOp = 'takeover';
+  send({ op: 'takeover', session: view.session, from: 0 });
+  $('takeover-status').textContent = 'sending…';
+};
+
 // --- marks ---
 $('mark-form').addEventListener('submit', (e) => {
   e.preventDefault();
@@ -350,6 +394,7 @@ $('mark-form').addEventListener('submit', (e) => {
     $('mark-status').textContent = view.session ? 'type a mark first' : 'watch or replay a session first';
     return;
   }
+  lastOp = 'mark';
   const msg = { op: 'mark', session: view.session, text };
   if (view.mode === 'replay') msg.at_s = replayPos;
   send(msg);

@@ -128,10 +128,10 @@ std::string plainLine(const Options& o, uint64_t id, const SessionView& v, const
     const auto& hs = *v.hand;
     const double applied = hs.applied_force_ref_n;
     s += fmt::format(
-        " rate_hz={:.1f} device_lost={} hand_hz={} hand_gaps={} source={}"
+        " rate_hz={:.1f} device_lost={} device_overruns={} hand_hz={} hand_gaps={} source={}"
         " alpha_deg={:.2f} beta_deg={:.2f} gamma_deg={:.2f} torque_nm={}"
         " thumb_f_n={} thumb_n={:.2f} index_f_n={} index_n={:.2f} applied_ref_n={:.2f} band={}",
-        hs.device_rate_hz, hs.device_lost, num(h.rate_hz, 1), v.hand_gaps,
+        hs.device_rate_hz, hs.device_lost, hs.device_overruns, num(h.rate_hz, 1), v.hand_gaps,
         token(std::string(sourceName(hs.source))), radToDeg(hs.mcp_angles_rad[0]),
         radToDeg(hs.mcp_angles_rad[1]), radToDeg(hs.mcp_angles_rad[2]), triple(hs.mcp_torque_nm, 4),
         triple(hs.fingertip_force_n[0], 2), norm3(hs.fingertip_force_n[0]),
@@ -139,7 +139,8 @@ std::string plainLine(const Options& o, uint64_t id, const SessionView& v, const
         bandName(bandOf(applied, o)));
   } else {
     s += fmt::format(
-        " rate_hz=- device_lost=- hand_hz=- hand_gaps={} source=- alpha_deg=- beta_deg=-"
+        " rate_hz=- device_lost=- device_overruns=- hand_hz=- hand_gaps={} source=- alpha_deg=-"
+        " beta_deg=-"
         " gamma_deg=- torque_nm=- thumb_f_n=- thumb_n=- index_f_n=- index_n=- applied_ref_n=-"
         " band=-",
         v.hand_gaps);
@@ -177,8 +178,9 @@ std::vector<std::string> screenLines(const Options& o, uint64_t id, const Sessio
   }
   if (v.hand) {
     const auto& hs = *v.hand;
-    out.push_back(fmt::format("device      {:7.1f} Hz sampled   {} lost on the way to the server",
-                              hs.device_rate_hz, hs.device_lost));
+    out.push_back(fmt::format(
+        "device      {:7.1f} Hz sampled   {} lost on the way to the server   {} loop overruns",
+        hs.device_rate_hz, hs.device_lost, hs.device_overruns));
     out.push_back(fmt::format("hand state  {:>7} Hz received  {} gaps   from {}", num(h.rate_hz, 1),
                               v.hand_gaps, sourceName(hs.source)));
     const auto& a = hs.mcp_angles_rad;

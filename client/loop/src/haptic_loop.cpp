@@ -171,11 +171,13 @@ StepStatus HapticLoop::step() noexcept {
   static_assert(kSafetyCapture == sample_flags::kCapture, "safety flags are the record's");
   s.flags = safe.flags | (rendered.blending ? sample_flags::kModelBlending : 0u) |
             (guarded.damping_ns_per_m > 0.0 ? sample_flags::kPassivityControl : 0u) |
-            (direct ? sample_flags::kDirectForce : 0u);
+            (direct ? sample_flags::kDirectForce : 0u) |
+            (overran_ ? sample_flags::kLoopOverrun : 0u);
   s.passivity_energy_j = static_cast<float>(energy);
   s.passivity_damping = static_cast<float>(guarded.damping_ns_per_m);
   const Vec3 applied = devices::recordTick(sample_, safe.force_n, rendered, s);
   const double force_max = std::max(safe.force_n[0].norm(), safe.force_n[1].norm());
+  overran_ = false;
   if (samples_->tryPush(s)) {
     next_seq_.store(s.seq + 1, std::memory_order_release);
   } else {
@@ -284,6 +286,7 @@ void HapticLoop::run() {
     const int64_t now = ts.tv_sec * kNsPerS + ts.tv_nsec;
     if (now > deadline) {
       bump(health_.overruns);
+      overran_ = true;
       if (now - deadline > 100 * period) deadline = now;  // after a long stall, resynchronize
       continue;
     }

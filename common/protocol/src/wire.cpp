@@ -180,6 +180,7 @@ static_assert(sample_flags::kSafetyClamped == telehand_msg_kFlagSafetyClamped &&
                   sample_flags::kSentLive == telehand_msg_kFlagSentLive &&
                   sample_flags::kDirectForce == telehand_msg_kFlagDirectForce &&
                   sample_flags::kDeadband == telehand_msg_kFlagDeadband &&
+                  sample_flags::kLoopOverrun == telehand_msg_kFlagLoopOverrun &&
                   sample_flags::kFsrFaultShift == telehand_msg_kFlagFsrFaultShift,
               "sample flags are the wire's");
 
@@ -247,6 +248,7 @@ void toWire(const HandStateFields& f, telehand_msg_HandState& out) noexcept {
   out.source = telehand_msg_HAND_SOURCE_SHARED_JOINT_MODEL;
   out.device_rate_hz = f.device_rate_hz;
   out.device_lost = f.device_lost;
+  out.device_overruns = f.device_overruns;
   out.model_version = f.model_version;
   if (!f.have_device) return;
   out.device_seq = f.device_seq;

@@ -82,6 +82,7 @@ int runLessonCreate(const LessonRequest& r) {
   l.attempts = r.attempts;
   l.trial_s = r.trial_s;
   l.assessment = r.assessment;
+  l.takeover = r.takeover;
   l.targets = server::lesson::encodeTargets(t);
   l.created_ns = wallNs();
   const uint64_t id = store.createLesson(l);
@@ -90,7 +91,8 @@ int runLessonCreate(const LessonRequest& r) {
             << "-" << t.band_max_n << " N, " << t.frequency_hz << " Hz, amplitude "
             << t.amplitude_deg << " deg, " << t.oscillations << " oscillations; " << l.guided
             << " guided + " << l.attempts << " attempts of " << l.trial_s << " s, " << l.schedule
-            << " feedback" << (l.assessment ? ", with assessment" : "") << "\n"
+            << " feedback" << (l.assessment ? ", with assessment" : "")
+            << (l.takeover ? ", a supervisor may take over" : "") << "\n"
             << "run it: telehand-client --lesson " << id << "\n";
   return 0;
 }
@@ -127,7 +129,8 @@ int runLessonShow(SqliteStore& store, uint64_t lesson_id) {
             << t.rom_min_deg[0] << ".." << t.rom_max_deg[0] << " deg, path period "
             << t.path_period_s << " s\n  plan: " << l->guided << " guided trial(s), " << l->attempts
             << " attempt(s) of " << l->trial_s << " s, " << l->schedule << " feedback"
-            << (l->assessment ? ", exploration before and after" : "") << "\n";
+            << (l->assessment ? ", exploration before and after" : "")
+            << (l->takeover ? ", a supervisor may take over the demonstration" : "") << "\n";
   const auto runs = runsOf(store, l->id);
   if (runs.empty()) std::cout << "  runs: none yet\n";
   for (const auto& s : runs) {

@@ -17,6 +17,7 @@ struct LessonRequest {
   int guided = 2, attempts = 3;
   double trial_s = 8.0;
   bool assessment = true;
+  bool takeover = false;  ///< a supervisor may take over the demonstration
 };
 /// Derives the targets from the demonstration and stores the lesson; prints its id.
 int runLessonCreate(const LessonRequest& r);

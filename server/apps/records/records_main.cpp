@@ -99,6 +99,9 @@ int main(int argc, char** argv) {
   bool no_assessment = false;
   lcreate->add_flag("--no-assessment", no_assessment,
                     "no exploration before and after (the range change is not measured)");
+  lcreate->add_flag("--takeover", lesson_req.takeover,
+                    "a supervisor may take over the demonstration: their own MF-2 session's "
+                    "movement leads the guided trials (telehand-web)");
   lcreate->add_option("--cases", lesson_req.cases_dir, "patient cases directory")
       ->capture_default_str();
   auto* llist = lesson->add_subcommand("list", "every lesson, with its runs");

@@ -65,8 +65,8 @@ std::string handFrame(const telehand_msg_HandState& h, int64_t rx_wall_ns) {
                  h.source == telehand_msg_HAND_SOURCE_BULLET ? "bullet" : "joint_model",
                  h.device_seq, ms(h.device_time_ns));
   appendNumber(out, h.device_rate_hz);
-  fmt::format_to(std::back_inserter(out), R"(,"dev_lost":{},"model":{},"mcp":)", h.device_lost,
-                 h.model_version);
+  fmt::format_to(std::back_inserter(out), R"(,"dev_lost":{},"overruns":{},"model":{},"mcp":)",
+                 h.device_lost, h.device_overruns, h.model_version);
   appendArray(out, h.mcp_angles_rad);
   out += R"(,"torque":)";
   appendArray(out, h.mcp_torque_nm);

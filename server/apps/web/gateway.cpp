@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <nlohmann/json.hpp>
 #include <random>
 #include <vector>
@@ -14,6 +15,7 @@
 #include "replay.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
+#include "telehand/protocol/lesson_plan.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/sim/hand_model.h"
 
@@ -49,6 +51,13 @@ int statsCb(mg_connection* c, void* g) {
   mg_send_http_ok(c, "application/json", static_cast<long long>(body.size()));
   mg_write(c, body.data(), body.size());
   return 200;
+}
+
+/// A lesson run whose plan (SessionStatus.lesson) lets a supervisor take over.
+bool takeoverAllowed(const telehand_msg_SessionStatus& st) {
+  if (st.mode != telehand_msg_MODE_LESSON || st.state != telehand_msg_SESSION_ACTIVE) return false;
+  const auto plan = decodePlan(std::string(st.lesson, strnlen(st.lesson, sizeof st.lesson)));
+  return plan && plan->takeover;
 }
 
 int handCb(mg_connection* c, void* path) {
@@ -294,11 +303,13 @@ std::shared_ptr<const std::string> Gateway::sessionsFrame(int64_t now_ns) {
                    st.samples_recorded, st.samples_missing, rate, s.hand_gaps);
     if (s.hand) {
       fmt::format_to(std::back_inserter(out),
-                     R"(,"age_ms":{:.1f},"delay_ms":{:.1f},"dev_hz":{},"dev_lost":{},"model":{})",
+                     R"(,"age_ms":{:.1f},"delay_ms":{:.1f},"dev_hz":{},"dev_lost":{},)"
+                     R"("overruns":{},"model":{})",
                      ms(now_ns - s.hand_rx_ns), ms(s.hand_delay_ns),
                      jsonNumber(s.hand->device_rate_hz), s.hand->device_lost,
-                     s.hand->model_version);
+                     s.hand->device_overruns, s.hand->model_version);
     }
+    if (takeoverAllowed(st)) out += R"(,"takeover":true)";
     out += '}';
   }
   fmt::format_to(std::back_inserter(out), R"(],"server_matched":{}}})",
@@ -551,6 +562,20 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
     std::optional<double> at;
     if (const auto a = j.find("at_s"); a != j.end() && a->is_number()) at = a->get<double>();
     mark(*c, *session, t->get<std::string>(), at);
+  } else if (name == "takeover") {
+    if (!needSession()) return;
+    // "from": the supervisor's own live session that leads the guide; absent or 0 gives the
+    // guide back to the lesson's demonstration.
+    uint64_t from = 0;
+    if (const auto f = j.find("from"); f != j.end() && !f->is_null()) {
+      if (!f->is_number_unsigned()) {
+        ++stats_.bad_messages;
+        push(*c, errorFrame("malformed", "\"from\" is not a session id"));
+        return;
+      }
+      from = f->get<uint64_t>();
+    }
+    takeover(*c, *session, from);
   } else if (name == "replay") {
     if (needSession()) replay(*c, *session);
   } else if (name == "records") {
@@ -630,6 +655,55 @@ void Gateway::mark(Client& c, uint64_t session, const std::string& text,
                       jsonString(clean)));
 }
 
+void Gateway::takeover(Client& c, uint64_t session, uint64_t from) {
+  std::string why;
+  bool unknown = false;
+  {
+    std::lock_guard lk(sessions_mutex_);
+    const auto it = sessions_.find(session);
+    const auto src = from ? sessions_.find(from) : sessions_.end();
+    if (it == sessions_.end() || !it->second->status) {
+      unknown = true;
+      why = fmt::format("no session {} on domain {} partition {}", session, o_.dds.domain,
+                        o_.dds.partition);
+    } else if (!takeoverAllowed(*it->second->status)) {
+      why = fmt::format("session {} is not a lesson run that allows a take-over", session);
+    } else if (from != 0 && (src == sessions_.end() || !src->second->status ||
+                             src->second->status->state != telehand_msg_SESSION_ACTIVE ||
+                             src->second->status->mode != telehand_msg_MODE_MOBILIZATION)) {
+      why = fmt::format("session {} is not an open mobilization at an MF-2", from);
+    } else if (from == session) {
+      why = "a session cannot lead itself";
+    }
+  }
+  if (!why.empty()) {
+    ++(unknown ? stats_.unknown_session : stats_.bad_messages);
+    push(c, errorFrame(unknown ? "unknown_session" : "bad_request", why));
+    return;
+  }
+  telehand_msg_SessionCommand cmd{};
+  {
+    std::lock_guard lk(command_mutex_);
+    cmd.client_id = gateway_id_;
+    cmd.request_seq = ++request_seq_;
+    cmd.source_time_ns = wallNs();
+    cmd.kind = telehand_msg_CMD_TAKEOVER;
+    cmd.session_id = session;
+    cmd.follow_session = from;
+    if (command_writer_.write(cmd) < 0) {
+      push(c, errorFrame("dds", "the take-over could not be written to DDS"));
+      return;
+    }
+  }
+  ++stats_.takeovers;
+  spdlog::info("browser {}: session {} {}", c.id, session,
+               from ? fmt::format("taken over from session {}", from) : "given back");
+  push(c, fmt::format(R"({{"type":"ack","op":"takeover","session":{},"from":{},"text":{}}})",
+                      session, from,
+                      jsonString(from ? fmt::format("take-over from session {} asked", from)
+                                      : "give-back asked")));
+}
+
 void Gateway::replay(Client& c, uint64_t session) {
   if (o_.db.empty()) {
     push(c, errorFrame("no_store", "this gateway has no record store (--db)"));
@@ -671,12 +745,12 @@ std::string Gateway::statsJson() const {
       R"({{"clients_open":{},"clients_total":{},"clients_refused":{},"writer_threads":{},)"
       R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
       R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
-      R"("dropped_slow":{}}})",
+      R"("takeovers":{},"dropped_slow":{}}})",
       stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
       stats_.writer_threads.load(), sessions, stats_.hand_states.load(), stats_.hand_frames.load(),
       stats_.hand_sent.load(), stats_.hand_coalesced.load(), stats_.messages_in.load(),
       stats_.bad_messages.load(), stats_.unknown_session.load(), stats_.marks.load(),
-      stats_.replays.load(), stats_.dropped_slow.load());
+      stats_.replays.load(), stats_.takeovers.load(), stats_.dropped_slow.load());
 }
 
 }  // namespace telehand::web

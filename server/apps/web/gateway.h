@@ -49,6 +49,7 @@ struct Stats {
   std::atomic<uint64_t> bad_messages{0};  ///< malformed, oversized or unknown requests
   std::atomic<uint64_t> unknown_session{0};
   std::atomic<uint64_t> marks{0};
+  std::atomic<uint64_t> takeovers{0};  ///< TAKEOVER commands sent
   std::atomic<uint64_t> replays{0};
   std::atomic<uint64_t> dropped_slow{0};    ///< browsers dropped for a full queue
   std::atomic<uint64_t> writer_threads{0};  ///< writer threads alive now
@@ -93,6 +94,9 @@ class Gateway {
   void handle(const std::shared_ptr<Client>& c, std::string_view text);
   void watch(const std::shared_ptr<Client>& c, uint64_t session);
   void mark(Client& c, uint64_t session, const std::string& text, std::optional<double> at_s);
+  /// Asks the server that `from`'s live movement lead lesson run `session`'s guide (0: the
+  /// demonstration again): a CMD_TAKEOVER, after the checks the gateway can make itself.
+  void takeover(Client& c, uint64_t session, uint64_t from);
   void replay(Client& c, uint64_t session);
   void records(Client& c);
   bool knownSession(uint64_t id) const;

@@ -150,11 +150,20 @@ std::map<std::string, double> decodeFigures(const std::string& text) {
 
 technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_session,
                                      double force_scale, double settle_s) {
+  return targetsFromRecord(store, demo_session, 0, UINT64_MAX, force_scale, settle_s);
+}
+
+technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_session,
+                                     uint64_t first_seq, uint64_t last_seq, double force_scale,
+                                     double settle_s) {
   const auto info = store.session(demo_session);
   if (!info) throw Error("session " + std::to_string(demo_session) + " is not in the record");
   std::vector<Sample> samples;
-  samples.reserve(info->samples);
-  store.forEachSample(demo_session, [&](const Sample& s, bool valid) {
+  if (last_seq >= first_seq) {
+    samples.reserve(
+        static_cast<std::size_t>(std::min<uint64_t>(info->samples, last_seq - first_seq + 1)));
+  }
+  store.forEachSampleIn(demo_session, first_seq, last_seq, [&](const Sample& s, bool valid) {
     if (valid) samples.push_back(s);
   });
   if (samples.size() < 3000) {
@@ -196,6 +205,7 @@ LessonPlan planOf(const store::LessonInfo& l, const technique::Targets& t, doubl
   p.attempts = l.attempts;
   p.trial_s = l.trial_s;
   p.assessment = l.assessment;
+  p.takeover = l.takeover;
   p.demo_s = demo_s;
   p.band_min_n = t.band_min_n;
   p.band_max_n = t.band_max_n;

@@ -173,6 +173,7 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
   hf.source_time_ns = wallNs();
   hf.device_rate_hz = live.rateHz();
   hf.device_lost = live.lost();
+  hf.device_overruns = live.overruns();
   hf.model_version = params.version;
   if (live.have()) {
     const auto& d = live.last();

@@ -7,7 +7,10 @@ namespace telehand::server::session {
 void LiveStream::accept(const Sample& d, bool coded) noexcept {
   deadband_coded_ = coded;
   if (!coded && have_ && d.seq > last_.seq + 1) lost_ += d.seq - last_.seq - 1;
-  if (!have_ || d.seq > last_.seq) last_ = d;
+  if (!have_ || d.seq > last_.seq) {
+    if (d.flags & sample_flags::kLoopOverrun) ++overruns_;
+    last_ = d;
+  }
   have_ = true;
   ++count_;
 }

@@ -167,6 +167,7 @@ void Session::tick(int64_t now_ns) {
     hand.publishDue(ctx, live, model, now_ns);
   }
   if (lesson) lesson->scoreDue(ctx, info.id, client_id, params.force_scale, now_ns, false);
+  followTakeover(now_ns);
   recorder.retry(ctx);
 }
 
@@ -186,12 +187,124 @@ void Session::endReplay() {
   replay.reset();
 }
 
-void Session::setGuide(double authority) {
+void Session::setGuide(double authority, int64_t now_ns) {
+  guide_authority_ = lesson ? authority : 0.0;
   JointModelParams next = params;
-  next.guide =
-      authority > 0.0 && lesson ? lesson::guideFor(lesson->targets, authority) : GuideParams{};
+  next.guide = GuideParams{};
+  if (guide_authority_ > 0.0) {
+    std::optional<technique::Targets> taken;
+    if (takeover_source_ != 0) taken = takeoverTargets(now_ns);
+    next.guide = lesson::guideFor(taken ? *taken : lesson->targets, authority);
+    next_takeover_ns_ = now_ns + kTakeoverRefreshNs;
+    if (next.guide != params.guide && taken) {
+      adoptModel(next, nullptr);
+      return announceTakeover(*taken, now_ns);
+    }
+  }
   if (next.guide == params.guide) return;
   adoptModel(next, nullptr);
+}
+
+void Session::announceTakeover(const technique::Targets& t, int64_t now_ns) {
+  char text[160];
+  std::snprintf(text, sizeof text,
+                "take-over: the guide follows session %llu: %.2f Hz, flexion amplitude %.1f deg",
+                static_cast<unsigned long long>(takeover_source_), t.frequency_hz, t.amplitude_deg);
+  ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, text, now_ns);
+}
+
+std::optional<technique::Targets> Session::takeoverTargets(int64_t now_ns) {
+  auto problem = [&](const std::string& why) -> std::optional<technique::Targets> {
+    if (why != takeover_problem_) {
+      takeover_problem_ = why;
+      ctx.event(info.id, client_id, telehand_msg_EVENT_INFO,
+                "take-over: " + why + "; the guide keeps its path", now_ns);
+    }
+    return std::nullopt;
+  };
+  std::optional<store::SessionStore::Extent> extent;
+  try {
+    extent = ctx.store.extent(takeover_source_);
+  } catch (const Error& e) {
+    return problem(std::string("session ") + std::to_string(takeover_source_) +
+                   "'s record cannot be read (" + e.what() + ")");
+  }
+  if (!extent || extent->last_seq - extent->first_seq + 1 < 3000) {
+    return problem("session " + std::to_string(takeover_source_) +
+                   " has recorded less than 3 s of movement yet");
+  }
+  const uint64_t first =
+      extent->last_seq >= kTakeoverWindow ? extent->last_seq - kTakeoverWindow + 1 : 0;
+  try {
+    technique::Targets t =
+        lesson::targetsFromRecord(ctx.store, takeover_source_, std::max(first, extent->first_seq),
+                                  extent->last_seq, params.force_scale, 0.0);
+    takeover_last_seq_ = extent->last_seq;
+    takeover_problem_.clear();
+    return t;
+  } catch (const Error& e) {
+    return problem(e.what());
+  }
+}
+
+void Session::followTakeover(int64_t now_ns) {
+  if (takeover_source_ == 0 || guide_authority_ <= 0.0 || now_ns < next_takeover_ns_) return;
+  next_takeover_ns_ = now_ns + kTakeoverRefreshNs;
+  const auto t = takeoverTargets(now_ns);
+  if (!t) return;
+  const GuideParams next = lesson::guideFor(*t, guide_authority_);
+  // A new path restarts the guide's period on the student's device (with a fade): only a
+  // change the student would feel is worth it.
+  double moved_deg = 0.0;
+  for (std::size_t k = 0; k < next.path_rad.size(); ++k) {
+    moved_deg = std::max(moved_deg, radToDeg((next.path_rad[k] - params.guide.path_rad[k]).norm()));
+  }
+  const double period_change =
+      params.guide.period_s > 0.0 ? std::abs(next.period_s / params.guide.period_s - 1.0) : 1.0;
+  if (moved_deg < kTakeoverPathDeg && period_change < kTakeoverPeriodChange) return;
+  JointModelParams p = params;
+  p.guide = next;
+  adoptModel(p, nullptr);
+  announceTakeover(*t, now_ns);
+}
+
+void Session::onTakeover(const telehand_msg_SessionCommand& cmd, const Session* source,
+                         const std::string& who, int64_t now_ns) {
+  auto refuse = [&](const std::string& why) {
+    ++ctx.stats.bad_commands;
+    ctx.event(info.id, cmd.client_id, telehand_msg_EVENT_ERROR,
+              "take-over by " + who + " refused: " + why, now_ns);
+  };
+  if (mode != telehand_msg_MODE_LESSON || !lesson) return refuse("the session runs no lesson");
+  if (!lesson->plan.takeover) {
+    return refuse("lesson " + std::to_string(lesson->info.id) +
+                  " does not allow one (telehand-records lesson create --takeover)");
+  }
+  if (closing) return refuse("the session is closing");
+  if (takeovers_ >= kMaxTakeovers) {
+    return refuse("the run has taken " + std::to_string(kMaxTakeovers) + " take-overs already");
+  }
+  if (cmd.follow_session != 0) {
+    if (!source) return refuse("session " + std::to_string(cmd.follow_session) + " is not open");
+    if (source == this) return refuse("a session cannot lead itself");
+    if (source->mode != telehand_msg_MODE_MOBILIZATION || source->closing) {
+      return refuse("session " + std::to_string(source->info.id) +
+                    " is not an open mobilization at an MF-2");
+    }
+  }
+  ++takeovers_;
+  takeover_source_ = cmd.follow_session;
+  takeover_problem_.clear();
+  if (takeover_source_ != 0) {
+    ctx.event(info.id, cmd.client_id, telehand_msg_EVENT_INFO,
+              "take-over: " + who + " leads the guided trials from session " +
+                  std::to_string(takeover_source_) + " (user " + source->info.user + ")",
+              now_ns);
+  } else {
+    ctx.event(info.id, cmd.client_id, telehand_msg_EVENT_INFO,
+              "take-over ended by " + who + ": the guided trials follow the demonstration", now_ns);
+  }
+  if (guide_authority_ > 0.0) setGuide(guide_authority_, now_ns);
 }
 
 void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
@@ -243,10 +356,10 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   endReplay();
   const uint64_t next_seq = cmd.last_seq + 1;
   if (phase == "baseline" || phase == "reassessment") {
-    setGuide(0.0);
+    setGuide(0.0, now_ns);
     hand.beginExploration(phase);
   } else if (phase == "watch") {
-    setGuide(0.0);
+    setGuide(0.0, now_ns);
     try {
       startReplay(lesson->info.demo_session, openingModel(patient),
                   cmd.value > 0.0 ? cmd.value : 1.0, now_ns);
@@ -255,12 +368,12 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
     }
   } else if (phase == "guided") {
     lesson->begin("guided", cmd.value, next_seq);
-    setGuide(cmd.value);
+    setGuide(cmd.value, now_ns);
   } else if (phase == "attempt") {
     lesson->begin("attempt", 0.0, next_seq);
-    setGuide(0.0);
+    setGuide(0.0, now_ns);
   } else {  // rest
-    setGuide(0.0);
+    setGuide(0.0, now_ns);
   }
   std::string text = "phase: " + phase;
   if (phase == "guided") {

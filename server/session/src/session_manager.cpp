@@ -137,7 +137,9 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
             now_ns);
       return;
     }
-  } else if (cmd.kind != telehand_msg_CMD_OPEN) {
+  } else if (cmd.kind != telehand_msg_CMD_OPEN && cmd.kind != telehand_msg_CMD_TAKEOVER) {
+    // A TAKEOVER comes from a supervisor, not the session's owner: the session itself
+    // decides (its lesson must allow it), and the record names who asked.
     if (Session* s = find(cmd.session_id)) {
       if (!owns(*s, from, cmd.kind == telehand_msg_CMD_PHASE ? "a PHASE" : "a CLOSE", 1, now_ns))
         return;
@@ -174,6 +176,20 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
         return;
       }
       s->onPhase(cmd, now_ns);
+      return;
+    }
+    case telehand_msg_CMD_TAKEOVER: {
+      Session* s = find(cmd.session_id);
+      if (!s) {
+        ++stats_.bad_commands;
+        event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+              "TAKEOVER for unknown session " + std::to_string(cmd.session_id), now_ns);
+        return;
+      }
+      const std::string who =
+          "participant " +
+          (from.identity.empty() ? (from.guid.empty() ? "?" : from.guid) : from.identity);
+      s->onTakeover(cmd, cmd.follow_session ? find(cmd.follow_session) : nullptr, who, now_ns);
       return;
     }
   }

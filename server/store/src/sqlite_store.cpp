@@ -25,9 +25,11 @@ namespace {
 // sample as a BLOB of the C struct's memory next to a few query columns; schema 2 keeps every
 // field of the sample in a column of its own, named as in the CSV export (sampleColumns());
 // schema 3 adds the session's owner (the DDS participant that opened it, docs/security.md);
-// schema 4 adds lessons, lesson runs and their trials (docs/lessons.md).
+// schema 4 adds lessons, lesson runs and their trials (docs/lessons.md); schema 5 whether a
+// lesson lets a supervisor take over its demonstration (lessons.takeover).
 constexpr int32_t kApplicationId = 0x54484E44;  // "THND"
-constexpr int kSchemaVersion = 4;
+constexpr int kSchemaVersion = 5;
+constexpr int kLessonSchemaVersion = 4;
 constexpr int kOwnerSchemaVersion = 3;
 constexpr int kColumnSchemaVersion = 2;
 constexpr int kBlobSchemaVersion = 1;
@@ -67,7 +69,7 @@ CREATE TABLE IF NOT EXISTS lessons (
   name TEXT NOT NULL, demo_session INTEGER NOT NULL, case_name TEXT NOT NULL,
   technique TEXT NOT NULL, schedule TEXT NOT NULL, guided INTEGER NOT NULL,
   attempts INTEGER NOT NULL, trial_s REAL NOT NULL, assessment INTEGER NOT NULL,
-  targets TEXT NOT NULL, created_ns INTEGER NOT NULL);
+  targets TEXT NOT NULL, created_ns INTEGER NOT NULL, takeover INTEGER NOT NULL DEFAULT 0);
 CREATE TABLE IF NOT EXISTS lesson_runs (
   session_id INTEGER PRIMARY KEY, lesson_id INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS trials (
@@ -318,6 +320,9 @@ SqliteStore::Layout SqliteStore::inspect() {
     if (version == kOwnerSchemaVersion && has("samples") && has("sessions")) {
       return Layout::kOwner;
     }
+    if (version == kLessonSchemaVersion && has("samples") && has("sessions") && has("lessons")) {
+      return Layout::kLessons;
+    }
     if (version != kSchemaVersion || !has("samples")) {
       throw StoreError("'" + path_ + "' carries the telehand marker but schema " +
                        std::to_string(version) +
@@ -396,11 +401,16 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
           migrateFromBlobs();
           addOwnerColumn();
           addLessonTables();
+          addTakeoverColumn();
         } else if (layout == Layout::kColumns) {
           addOwnerColumn();
           addLessonTables();
+          addTakeoverColumn();
         } else if (layout == Layout::kOwner) {
           addLessonTables();
+          addTakeoverColumn();
+        } else if (layout == Layout::kLessons) {
+          addTakeoverColumn();
         }
         exec("COMMIT");
       } catch (...) {
@@ -430,9 +440,25 @@ bool SqliteStore::hasTable(const char* name) {
 /// Schema 3 -> 4 inside the caller's transaction: the lesson tables, empty.
 void SqliteStore::addLessonTables() {
   exec(kLessonTables);
-  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  exec(("PRAGMA user_version = " + std::to_string(kLessonSchemaVersion) + ";").c_str());
   spdlog::info("record database '{}': schema {} -> {} (lessons and their trials)", path_,
-               kOwnerSchemaVersion, kSchemaVersion);
+               kOwnerSchemaVersion, kLessonSchemaVersion);
+}
+
+bool SqliteStore::hasTakeoverColumn() {
+  Statement st(db_, "SELECT name FROM pragma_table_info('lessons') WHERE name = 'takeover'");
+  return st.step();
+}
+
+/// Schema 4 -> 5 inside the caller's transaction: lessons say whether a supervisor may take
+/// over their demonstration (no, for the lessons made before).
+void SqliteStore::addTakeoverColumn() {
+  if (!hasTakeoverColumn()) {
+    exec("ALTER TABLE lessons ADD COLUMN takeover INTEGER NOT NULL DEFAULT 0;");
+  }
+  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  spdlog::info("record database '{}': schema {} -> {} (lessons may allow a take-over)", path_,
+               kLessonSchemaVersion, kSchemaVersion);
 }
 
 bool SqliteStore::hasOwnerColumn() {
@@ -744,8 +770,8 @@ std::optional<SessionStore::Extent> SqliteStore::extent(uint64_t session_id) {
 uint64_t SqliteStore::createLesson(const LessonInfo& l) {
   Statement st(db_,
                "INSERT INTO lessons (name, demo_session, case_name, technique, schedule, guided, "
-               "attempts, trial_s, assessment, targets, created_ns) "
-               "VALUES (?,?,?,?,?,?,?,?,?,?,?)");
+               "attempts, trial_s, assessment, targets, created_ns, takeover) "
+               "VALUES (?,?,?,?,?,?,?,?,?,?,?,?)");
   sqlite3_bind_text(st.get(), 1, l.name.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(l.demo_session));
   sqlite3_bind_text(st.get(), 3, l.case_name.c_str(), -1, SQLITE_TRANSIENT);
@@ -757,14 +783,19 @@ uint64_t SqliteStore::createLesson(const LessonInfo& l) {
   sqlite3_bind_int(st.get(), 9, l.assessment ? 1 : 0);
   sqlite3_bind_text(st.get(), 10, l.targets.c_str(), -1, SQLITE_TRANSIENT);
   sqlite3_bind_int64(st.get(), 11, l.created_ns);
+  sqlite3_bind_int(st.get(), 12, l.takeover ? 1 : 0);
   st.step();
   return static_cast<uint64_t>(sqlite3_last_insert_rowid(db_));
 }
 
 namespace {
-constexpr const char* kLessonSelect =
-    "SELECT id, name, demo_session, case_name, technique, schedule, guided, attempts, trial_s, "
-    "assessment, targets, created_ns FROM lessons ";
+/// `takeover`: the file's lessons have the column (a read-only file of schema 4 has not).
+std::string lessonSelect(bool takeover) {
+  return std::string(
+             "SELECT id, name, demo_session, case_name, technique, schedule, guided, attempts, "
+             "trial_s, assessment, targets, created_ns, ") +
+         (takeover ? "takeover" : "0") + " FROM lessons ";
+}
 
 LessonInfo readLesson(const Statement& st) {
   LessonInfo l;
@@ -780,6 +811,7 @@ LessonInfo readLesson(const Statement& st) {
   l.assessment = sqlite3_column_int(st.get(), 9) != 0;
   l.targets = st.text(10);
   l.created_ns = sqlite3_column_int64(st.get(), 11);
+  l.takeover = sqlite3_column_int(st.get(), 12) != 0;
   return l;
 }
 }  // namespace
@@ -787,14 +819,14 @@ LessonInfo readLesson(const Statement& st) {
 std::vector<LessonInfo> SqliteStore::listLessons() {
   std::vector<LessonInfo> out;
   if (!hasTable("lessons")) return out;  // a read-only file of an older schema
-  Statement st(db_, (std::string(kLessonSelect) + "ORDER BY id").c_str());
+  Statement st(db_, (lessonSelect(hasTakeoverColumn()) + "ORDER BY id").c_str());
   while (st.step()) out.push_back(readLesson(st));
   return out;
 }
 
 std::optional<LessonInfo> SqliteStore::lesson(uint64_t lesson_id) {
   if (!hasTable("lessons")) return std::nullopt;
-  Statement st(db_, (std::string(kLessonSelect) + "WHERE id = ?").c_str());
+  Statement st(db_, (lessonSelect(hasTakeoverColumn()) + "WHERE id = ?").c_str());
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(lesson_id));
   if (!st.step()) return std::nullopt;
   return readLesson(st);

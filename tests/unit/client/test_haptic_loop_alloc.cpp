@@ -7,6 +7,7 @@
 #include <memory>
 #include <new>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "alloc_guard.h"
@@ -39,6 +40,9 @@ class TestDevice final : public devices::Device {
       delete s;
     }
     if (fail_reads) return false;
+    if (stall_every > 0 && ++reads_ % stall_every == 0) {
+      std::this_thread::sleep_for(std::chrono::microseconds(2500));  // a slow transfer
+    }
     return inner_.read(out);
   }
   bool write(const ForceCommand& cmd) noexcept override {
@@ -50,8 +54,10 @@ class TestDevice final : public devices::Device {
 
   bool fail_reads = false;
   bool allocate_in_read = false;
+  int stall_every = 0;  ///< every n-th read takes 2.5 ms (0: none)
 
  private:
+  int reads_ = 0;
   devices::Device& inner_;
 };
 
@@ -366,6 +372,37 @@ TEST(HapticLoopAlloc, GuidanceStaysInsideTheGateFadesAsScheduledAndAllocatesNoth
   EXPECT_LE(guide_max[0], 1.0 * bound + 1e-12);
   EXPECT_LE(guide_max[1], 0.5 * bound + 1e-12);
   EXPECT_EQ(guide_max[2], 0.0);
+}
+
+// The loop at its own pace (start/stop, the monotonic clock) on a device whose every 50th
+// transfer takes 2.5 ms: each tick that ends after its deadline is counted, and the sample
+// after it says so (sample_flags::kLoopOverrun), which is how the server and the web console
+// learn of them (HandState.device_overruns).
+TEST(HapticLoopOverrun, EveryOverrunFlagsTheNextSample) {
+  SteadyClock clock;
+  const JointModelParams model = healthyIndexMcp();
+  SimulatedMf2 sim(model, OperatorConfig{}, clock);
+  TestDevice dev(sim);
+  dev.stall_every = 50;
+  loop::TeleopOptions teleop;
+  teleop.fault.enabled = false;  // the stalls are the point here, not a fault
+  HapticLoop hl(dev, clock, model, SafetyLimits{}, LoopConfig{}, teleop);
+  hl.setSession(5);
+  hl.start();
+  std::this_thread::sleep_for(std::chrono::milliseconds(600));
+  hl.stop();
+  uint64_t flagged = 0, samples = 0;
+  Sample s;
+  while (hl.samples().tryPop(s)) {
+    ++samples;
+    if (s.flags & sample_flags::kLoopOverrun) ++flagged;
+  }
+  const uint64_t overruns = hl.health().overruns.load();
+  EXPECT_GT(samples, 300u);
+  EXPECT_GE(overruns, 8u) << "about 12 stalls of 2.5 ms in 600 ticks";
+  // The last tick may have overrun with no sample after it.
+  EXPECT_GE(flagged + 1, overruns);
+  EXPECT_LE(flagged, overruns);
 }
 
 }  // namespace

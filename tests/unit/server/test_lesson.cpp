@@ -174,7 +174,7 @@ class LessonTest : public ::testing::Test {
     tickFor(200);
   }
   /// A closed demonstration of `m` (6 s) and a lesson made from it.
-  uint64_t demoLesson(const Motion& m, int guided = 1, int attempts = 2) {
+  uint64_t demoLesson(const Motion& m, int guided = 1, int attempts = 2, bool takeover = false) {
     demo_ = open(telehand_msg_MODE_MOBILIZATION);
     EXPECT_NE(demo_, 0u);
     stream(demo_, m, 0, 6000);
@@ -186,6 +186,7 @@ class LessonTest : public ::testing::Test {
     l.guided = guided;
     l.attempts = attempts;
     l.trial_s = 4.0;
+    l.takeover = takeover;
     l.targets = lesson::encodeTargets(lesson::targetsFromRecord(*store_, demo_, 0.25));
     return store_->createLesson(l);
   }
@@ -418,6 +419,89 @@ TEST_F(LessonTest, AReplayReproducesTheLiveHandStates) {
   EXPECT_EQ(out.statuses.back().state, telehand_msg_SESSION_CLOSED);
 }
 
+/// The flexion swing of a guide's path, degrees.
+double pathSpanDeg(const GuideParams& g) {
+  double lo = 1e9, hi = -1e9;
+  for (const Vec3& a : g.path_rad) {
+    lo = std::min(lo, radToDeg(a[kFlexion]));
+    hi = std::max(hi, radToDeg(a[kFlexion]));
+  }
+  return hi - lo;
+}
+
+TEST_F(LessonTest, ATakeOverLeadsTheGuideFromTheSupervisorsLiveSession) {
+  const Motion demo;  // 3 Hz, ±4 deg
+  const uint64_t allowed = demoLesson(demo, 2, 1, /*takeover=*/true);
+  const uint64_t run = open(telehand_msg_MODE_LESSON, allowed);
+  ASSERT_NE(run, 0u);
+  EXPECT_TRUE(decodePlan(out_.statuses.back().lesson)->takeover);
+  // The supervisor at their own MF-2: 2 Hz, ±8 deg.
+  Motion lead;
+  lead.hz = 2.0;
+  lead.flex_amp_deg = 8.0;
+  const uint64_t sup = open(telehand_msg_MODE_MOBILIZATION);
+  ASSERT_NE(sup, 0u);
+  stream(sup, lead, 0, 4000);
+  const Origin supervisor{21, "supervisor-guid", ""};
+  auto takeover = [&](uint64_t session, uint64_t follow) {
+    auto c = command(telehand_msg_CMD_TAKEOVER, session);
+    c.follow_session = follow;
+    manager_->onCommand(c, now_ns_, supervisor);
+  };
+  takeover(run, sup);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_INFO, run).back(),
+              HasSubstr("participant supervisor-guid leads the guided trials from session " +
+                        std::to_string(sup)));
+  // The guided trial's guide is the supervisor's movement, not the demonstration's.
+  stream(run, demo, 1, 200);
+  phase(run, "guided", 1.0, 200);
+  auto g = fromWire(out_.models.back(), nullptr);
+  ASSERT_TRUE(g.has_value());
+  EXPECT_EQ(out_.models.back().session_id, run);
+  EXPECT_DOUBLE_EQ(g->guide.authority, 1.0);
+  EXPECT_NEAR(g->guide.period_s, 1.0 / lead.hz, 0.01);
+  EXPECT_NEAR(pathSpanDeg(g->guide), 2 * lead.flex_amp_deg, 0.8);
+  EXPECT_THAT(
+      out_.textsOf(telehand_msg_EVENT_INFO, run),
+      ::testing::Contains(HasSubstr("the guide follows session " + std::to_string(sup) + ": 2.0")));
+  // The supervisor changes rhythm; within a refresh or two the guide has followed.
+  Motion faster = lead;
+  faster.hz = 2.5;
+  stream(sup, faster, 4000, 6000);
+  g = fromWire(out_.models.back(), nullptr);
+  EXPECT_NEAR(g->guide.period_s, 1.0 / faster.hz, 0.01);
+  // Given back: the demonstration's path again, from the next guided trial on.
+  takeover(run, 0);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_INFO, run).back(),
+              HasSubstr("the guided trials follow the demonstration"));
+  g = fromWire(out_.models.back(), nullptr);
+  EXPECT_NEAR(g->guide.period_s, 1.0 / demo.hz, 0.01);
+  EXPECT_NEAR(pathSpanDeg(g->guide), 2 * demo.flex_amp_deg, 0.5);
+
+  // Refused, with the reason in the session's events.
+  auto refusal = [&](uint64_t session) {
+    const auto e = out_.textsOf(telehand_msg_EVENT_ERROR, session);
+    return e.empty() ? std::string() : e.back();
+  };
+  takeover(sup, run);
+  EXPECT_THAT(refusal(sup), HasSubstr("the session runs no lesson"));
+  takeover(run, 424242);
+  EXPECT_THAT(refusal(run), HasSubstr("session 424242 is not open"));
+  takeover(run, run);
+  EXPECT_THAT(refusal(run), HasSubstr("cannot lead itself"));
+  const uint64_t other_run = open(telehand_msg_MODE_LESSON, allowed);
+  takeover(run, other_run);
+  EXPECT_THAT(refusal(run), HasSubstr("is not an open mobilization"));
+  const uint64_t closed_lesson = demoLesson(demo, 1, 1, /*takeover=*/false);
+  const uint64_t strict = open(telehand_msg_MODE_LESSON, closed_lesson);
+  ASSERT_NE(strict, 0u);
+  takeover(strict, sup);
+  EXPECT_THAT(refusal(strict), HasSubstr("does not allow one"));
+  // Bounded per run.
+  for (int i = 0; i < 40; ++i) takeover(other_run, i % 2 ? sup : 0);
+  EXPECT_THAT(refusal(other_run), HasSubstr("take-overs already"));
+}
+
 TEST(LessonPlan, RoundTripsAndRefusesWhatIsOutOfRange) {
   LessonPlan p;
   p.lesson_id = 12;
@@ -435,7 +519,15 @@ TEST(LessonPlan, RoundTripsAndRefusesWhatIsOutOfRange) {
   EXPECT_EQ(q->schedule, "faded");
   EXPECT_EQ(q->attempts, 3);
   EXPECT_NEAR(q->frequency_hz, 3.02, 1e-4);
+  EXPECT_FALSE(q->takeover);
+  p.takeover = true;
+  EXPECT_TRUE(decodePlan(encodePlan(p))->takeover);
   std::string why;
+  // A plan of an older server has no take-over key: none allowed.
+  std::string old = encodePlan(p);
+  old.erase(old.find(";takeover=1"));
+  ASSERT_TRUE(decodePlan(old, &why).has_value()) << why;
+  EXPECT_FALSE(decodePlan(old)->takeover);
   EXPECT_FALSE(decodePlan("lesson=1;schedule=loud", &why));
   EXPECT_THAT(why, HasSubstr("schedule"));
   std::string text = encodePlan(p);

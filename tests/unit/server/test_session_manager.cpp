@@ -125,6 +125,7 @@ class SessionManagerTest : public ::testing::Test {
     d.seq = seq_++;
     d.source_time_ns = now_ns_;
     d.model_version = 1;
+    d.flags = flags_;
     const PerFinger<Vec3> p = grip_model_->gripFromAngles(angles, 0.008);
     for (int k = 0; k < 2; ++k) {
       const Quat q = grip_model_->thimbleOrientation(k, angles);
@@ -197,6 +198,7 @@ class SessionManagerTest : public ::testing::Test {
   Origin from_;
   uint64_t session_ = 0;
   uint64_t seq_ = 1;
+  uint32_t flags_ = 0;  // the next samples' flags
   int64_t now_ns_ = 1'000'000'000;
   std::unique_ptr<JointModel> grip_model_;
   Vec3 angles_ = Vec3::Zero();
@@ -504,6 +506,25 @@ TEST_F(SessionManagerTest, MarkForAnUnknownSessionIsAnError) {
   ASSERT_EQ(out_.eventsOf(telehand_msg_EVENT_ERROR).size(), 1u);
   EXPECT_THAT(out_.eventsOf(telehand_msg_EVENT_ERROR)[0]->text, HasSubstr("999"));
   EXPECT_EQ(manager_->stats().bad_commands, 1u);
+}
+
+TEST_F(SessionManagerTest, TheClientsLoopOverrunsReachHandState) {
+  ASSERT_NE(open("healthy"), 0u);
+  hold(100);
+  EXPECT_EQ(out_.hands.back().device_overruns, 0u);
+  for (int i = 0; i < 7; ++i) {
+    flags_ = sample_flags::kLoopOverrun;  // the tick before this sample ran late
+    hold(1);
+    flags_ = 0;
+    hold(19);
+  }
+  // A flagged sample received twice (live and again, as a retransmission would) counts once.
+  --seq_;
+  flags_ = sample_flags::kLoopOverrun;
+  hold(1);
+  flags_ = 0;
+  hold(30);
+  EXPECT_EQ(out_.hands.back().device_overruns, 7u);
 }
 
 TEST_F(SessionManagerTest, LostSamplesAreSteppedAlongTheWayOnDeviceTime) {

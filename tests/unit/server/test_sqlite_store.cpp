@@ -486,7 +486,7 @@ TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) 
   EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'flags'"),
             std::vector<std::string>{"INTEGER"});
   EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
 }
 
 // ---- Schema 1: one blob per sample, the C struct's bytes (x86-64, little-endian) ----------
@@ -672,7 +672,7 @@ TEST_F(SqliteStoreTest, MigratesASchema1BlobFileInPlace) {
   }
   {
     RawDb raw(dbPath());
-    EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
     EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
     EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name LIKE 'samples_%'"), 0)
         << "old table dropped";
@@ -731,7 +731,7 @@ TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
       EXPECT_THAT(e.what(), HasSubstr(dbPath()));
       EXPECT_THAT(
           e.what(),
-          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 4)"));
+          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 5)"));
     }
     EXPECT_EQ(fileBytes(dbPath()), before);
     if (mode == SqliteStore::Mode::kReadWrite) {
@@ -804,7 +804,7 @@ TEST_F(SqliteStoreTest, SessionsKeepTheirOwnerAndSchemaTwoFilesGainTheColumn) {
     EXPECT_EQ(writer.session(writer.createSession(c))->owner, "carol's participant");
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
   EXPECT_EQ(raw.integer("SELECT count(*) FROM sessions WHERE owner = ''"), 2);
 }
 
@@ -881,7 +881,43 @@ TEST_F(SqliteStoreTest, SchemaThreeFilesGainLessonsAndKeepThem) {
             samples(run, 49, 50)[0].source_time_ns - samples(run, 0, 1)[0].source_time_ns);
   EXPECT_FALSE(store.extent(run + 100).has_value());
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
+}
+
+TEST_F(SqliteStoreTest, SchemaFourFilesLearnWhichLessonsAllowATakeOver) {
+  LessonInfo l;
+  l.name = "before";
+  l.demo_session = 1;
+  l.case_name = "healthy";
+  l.targets = "band_min_n=12;";
+  uint64_t old_id = 0;
+  {
+    SqliteStore store(dbPath());
+    store.createSession(info("alice"));
+    old_id = store.createLesson(l);
+  }
+  {
+    // Back to schema 4 as an older telehand left it: lessons without the column.
+    RawDb raw(dbPath());
+    raw.exec("ALTER TABLE lessons DROP COLUMN takeover; PRAGMA user_version = 4;");
+  }
+  {
+    SqliteStore reader(dbPath(), SqliteStore::Mode::kReadOnly);
+    ASSERT_TRUE(reader.lesson(old_id).has_value()) << "a reader of a schema-4 file reads it";
+    EXPECT_FALSE(reader.lesson(old_id)->takeover);
+    EXPECT_EQ(reader.listLessons().size(), 1u);
+    RawDb raw(dbPath());
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 4) << "a reader changes nothing";
+  }
+  SqliteStore store(dbPath());  // migrates 4 -> 5
+  EXPECT_FALSE(store.lesson(old_id)->takeover) << "a lesson made before allows none";
+  l.name = "after";
+  l.takeover = true;
+  const uint64_t id = store.createLesson(l);
+  EXPECT_TRUE(store.lesson(id)->takeover);
+  EXPECT_EQ(store.listLessons().back().name, "after");
+  RawDb raw(dbPath());
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
 }
 
 TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
@@ -893,7 +929,7 @@ TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
     EXPECT_EQ(store.appendSamples(id, samples(id, 0, 2), {}), 2u);
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 4);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
 }
 
 // ---- CSV ----------------------------------------------------------------------------------

@@ -48,6 +48,9 @@ inline constexpr uint32_t kPassivityControl = 64;  ///< the passivity controller
 inline constexpr uint32_t kSentLive = 128;  ///< also went out live (not withheld by the deadband)
 inline constexpr uint32_t kDirectForce = 256;  ///< rendered the server's force (direct mode)
 inline constexpr uint32_t kDeadband = 512;     ///< the live stream is deadband-coded
+/// The loop's tick before this one finished after its deadline (the loop ran late). The flag
+/// changes the sample's flags, so the deadband lets it out live.
+inline constexpr uint32_t kLoopOverrun = 1024;
 /// Bits 16..23: an FSR flagged saturated or dead; bit 16 + 4 * finger + (sensor - 1).
 inline constexpr uint32_t kFsrFaultShift = 16;
 }  // namespace sample_flags

@@ -24,6 +24,8 @@ struct LessonPlan {
   double demo_s = 0.0;  ///< the demonstration's length (the watch phase), 0..600 s
   double band_min_n = 0.0, band_max_n = 0.0;  ///< the demonstration's force band, reference N
   double frequency_hz = 0.0;                  ///< its oscillation
+  /// A supervisor may take over the demonstration (their live session leads the guide).
+  bool takeover = false;
 };
 std::string encodePlan(const LessonPlan& p);
 /// nullopt (and `why` names the key) for a plan that is malformed or out of range.

@@ -81,6 +81,7 @@ struct HandStateFields {
   bool bullet = false;
   float device_rate_hz = 0.0f;
   uint64_t device_lost = 0;
+  uint64_t device_overruns = 0;  ///< samples flagged kLoopOverrun (the client's loop ran late)
   uint32_t model_version = 0;
   /// The device sample it reflects; without one every field below stays zero on the wire.
   bool have_device = false;

@@ -217,6 +217,7 @@ class HapticLoop {
   int64_t outside_since_ns_ = 0;
   bool hold_counted_ = false;  // this clamp run already counted as a clamp hold
   bool in_outage_ = false;     // the device is not streaming (nothing rendered)
+  bool overran_ = false;       // the last tick finished late: the next sample says so
 };
 
 }  // namespace telehand::client::loop

@@ -33,6 +33,11 @@ std::map<std::string, double> decodeFigures(const std::string& text);
 /// `force_scale`. Throws Error when the record is missing, too short or not an oscillation.
 technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_session,
                                      double force_scale, double settle_s = kSettleS);
+/// The same over the samples `first_seq`..`last_seq` of the record (a live session's latest
+/// seconds: a supervisor's take-over).
+technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_session,
+                                     uint64_t first_seq, uint64_t last_seq, double force_scale,
+                                     double settle_s);
 
 /// How a trial is named in events and reports: "trial 2 (guided 50 %)", "trial 3 (attempt)".
 std::string trialLabel(int index, const std::string& phase, double authority);

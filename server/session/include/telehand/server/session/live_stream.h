@@ -29,6 +29,10 @@ class LiveStream {
   const Sample& last() const noexcept { return last_; }
   uint64_t count() const noexcept { return count_; }
   uint64_t lost() const noexcept { return lost_; }
+  /// Samples flagged sample_flags::kLoopOverrun: the client's loop ran late before them. The
+  /// flag always goes out live (docs/teleoperation.md "Deadband"); a sample lost on the way
+  /// is not counted (the record has every one).
+  uint64_t overruns() const noexcept { return overruns_; }
   float rateHz() const noexcept { return rate_hz_; }
   bool deadbandCoded() const noexcept { return deadband_coded_; }
   /// The samples the client has sent by the newest one received, or `none` without any.
@@ -39,6 +43,7 @@ class LiveStream {
   Sample last_{};
   uint64_t count_ = 0;
   uint64_t lost_ = 0;
+  uint64_t overruns_ = 0;
   bool deadband_coded_ = false;
   int64_t last_data_ns_ = 0;
   int64_t rate_window_ns_ = 0;

@@ -4,6 +4,7 @@
 /// record, the hand and, for captures and their followers, the live fit's fan-out.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -49,6 +50,11 @@ class Session {
   void close(const std::string& state, int64_t now_ns);
   /// A lesson run's or a replay's PHASE command (docs/lessons.md); errors go out as events.
   void onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  /// A TAKEOVER (docs/lessons.md "Take-over"): the guided trials follow `source`'s live
+  /// movement from now on (nullptr: the demonstration again). `who` names the requester for
+  /// the record. Refused with an event unless this is a lesson run whose lesson allows it.
+  void onTakeover(const telehand_msg_SessionCommand& cmd, const Session* source,
+                  const std::string& who, int64_t now_ns);
   /// Replay session `source` of the record as this session's HandState (a replay session's
   /// whole content, or a lesson's watch phase); throws Error when it cannot be read.
   void startReplay(uint64_t source, const JointModelParams& model, double speed, int64_t now_ns);
@@ -81,14 +87,34 @@ class Session {
   std::unique_ptr<Replay> replay;     // MODE_REPLAY, or a lesson's watch phase
 
  private:
-  /// The session's own model with the guide of `authority` (0: none), adopted and published.
-  void setGuide(double authority);
+  /// The session's own model with the guide of `authority` (0: none), adopted and published:
+  /// the demonstration's path, or under a take-over the taking-over session's latest.
+  void setGuide(double authority, int64_t now_ns);
+  /// The guide's targets from the taking-over session's latest record (kTakeoverWindow
+  /// samples), nullopt (and an event when the reason changed) when they cannot be derived.
+  std::optional<technique::Targets> takeoverTargets(int64_t now_ns);
+  /// Under a take-over, during a guided trial: follow the taking-over session's movement
+  /// (every kTakeoverRefreshNs, adopted when its path or period changed noticeably).
+  void followTakeover(int64_t now_ns);
+  void announceTakeover(const technique::Targets& t, int64_t now_ns);
   /// The replay (if any) ends; the session's own hand numbers its HandStates on from it.
   void endReplay();
   void recover(int64_t now_ns);
   /// Free the k-NN models nothing here can render any more (the model, the hand and the
   /// direct renderer's current, fading-out and waiting versions).
   void releaseKnn();
+
+  static constexpr uint64_t kTakeoverWindow = 4000;             // samples (4 s at 1 kHz)
+  static constexpr int64_t kTakeoverRefreshNs = 2'000'000'000;  // 2 s
+  static constexpr int kMaxTakeovers = 32;                      // requests per run
+  static constexpr double kTakeoverPathDeg = 1.5;               // a path moved this far is adopted
+  static constexpr double kTakeoverPeriodChange = 0.05;         // so is a period changed by 5 %
+  uint64_t takeover_source_ = 0;    // the session leading the guide (0: the demonstration)
+  int takeovers_ = 0;               // TAKEOVER requests taken
+  double guide_authority_ = 0.0;    // the guided trial's under way (0: none)
+  int64_t next_takeover_ns_ = 0;    // next refresh of the taken-over guide
+  uint64_t takeover_last_seq_ = 0;  // the source's last sample the guide was derived up to
+  std::string takeover_problem_;    // why the last derivation failed ('' : it did not)
 
   const sim::HandModel* hand_model_;
   sim::HandSimConfig hand_config_;

@@ -52,13 +52,15 @@ class SqliteStore final : public SessionStore {
   std::string location() const override { return path_; }
 
  private:
-  enum class Layout { kEmpty, kBlob, kColumns, kOwner, kCurrent };
+  enum class Layout { kEmpty, kBlob, kColumns, kOwner, kLessons, kCurrent };
   Layout inspect();
   void migrateFromBlobs();
   void addOwnerColumn();
   bool hasOwnerColumn();
   bool hasTable(const char* name);
   void addLessonTables();
+  void addTakeoverColumn();
+  bool hasTakeoverColumn();
   void exec(const char* sql);
   sqlite3_stmt* prepare(const char* sql);
 

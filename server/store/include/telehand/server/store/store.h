@@ -53,7 +53,10 @@ struct LessonInfo {
   int attempts = 3;        ///< free attempts after them
   double trial_s = 8.0;    ///< length of each trial
   bool assessment = true;  ///< exploration baseline before and reassessment after
-  std::string targets;     ///< the derived targets, as server/lesson encodes them
+  /// A supervisor may take over the demonstration: their own MF-2 session's live movement
+  /// becomes the guided trials' guide (docs/lessons.md "Take-over").
+  bool takeover = false;
+  std::string targets;  ///< the derived targets, as server/lesson encodes them
   int64_t created_ns = 0;
 };
 
