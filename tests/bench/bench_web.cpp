@@ -201,7 +201,7 @@ double typicalMax(const Phase& p) {
   if (p.window_max_ms.empty()) return p.max_ms;
   std::vector<double> w = p.window_max_ms;
   std::sort(w.begin(), w.end());
-  return w[(w.size() - 1) / 2];
+  return 0.5 * (w[(w.size() - 1) / 2] + w[w.size() / 2]);
 }
 
 /// Whether `load` lies within [min(before, after) - floor, max(before, after) + floor]; if
