@@ -58,7 +58,6 @@ uint64_t statOf(const std::string& json, const std::string& key) {
 }
 
 constexpr int kPhases = 3;  // before, browsers, after
-constexpr const char* kPhaseNames[kPhases] = {"before", "browsers", "after"};
 
 /// HandState and DeviceState as a subscriber beside the gateway and the server sees them,
 /// each reader on its own thread. DeviceState is taken best-effort with a deep history, as
