@@ -533,6 +533,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   };
   std::array<Work, kAxes> work{};
   auto fitAt = [&](double delay, bool report) {
+    bool any_spasm = false;
     for (int axis = 0; axis < kAxes; ++axis) {
       if (report && progress) progress(axis, 0.0);
       Work& wk = work[static_cast<std::size_t>(axis)];
@@ -553,17 +554,15 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
         wk.sp = fitSpasm(wk.d, kj, plain, cap, options_.spasm_penalty,
                          options_.min_speed_gain_s_per_rad, &before);
       wk.ok = true;
+      any_spasm = any_spasm || wk.sp.found;
       if (report && progress) progress(axis, 0.5);
     }
+    return any_spasm;
   };
-  // The lag was chosen by a plain cubic, without the walls, the zone and the spasm: a lag
-  // moves each sample along the curve by its rate, so it partly mimics a speed-dependent
-  // force, and a curve that misses the walls or the zone is steeper or flatter there than
-  // the data, which a lag then trades against (a random patient at 3 Hz with a 6 deg zone:
-  // lag 0 instead of 1, the zone dropped, 0.39 N off). So choose it again with each axis'
-  // shape as found (walls, zone) held and its linear parts, and the spasm's gain where it
-  // has one, solved anew per lag; refit the shapes at the new lag, at most twice.
-  auto chooseDelay = [&]() {
+  if (fitAt(out.delay_samples, true) && options_.max_delay_samples > 0) {
+    // The lag was chosen by a fit without the spasm, whose speed-dependent force a lag
+    // partly mimics: choose it again with the spasm in, each axis' shape held and its gain
+    // searched anew per lag.
     const int most = options_.max_delay_samples;
     std::vector<double> rss(static_cast<std::size_t>(most) + 1, 0.0);
     for (int k = 0; k <= most; ++k) {
@@ -571,19 +570,10 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
         const Work& wk = work[static_cast<std::size_t>(axis)];
         if (!wk.ok) continue;
         const AxisData dk = axisData(points_, rate, acc, axis, k);
-        const double kj = known_j[static_cast<std::size_t>(axis)];
-        double r = 0.0;
-        if (wk.sp.found) {
-          r = rssOf(
-              convergeGain(dk, kj, wk.sp.fit.r.curve, wk.sp.gain, wk.sp.fit.b, cap, 10).fit.r);
-        } else {
-          PiecewiseFitOptions held;
-          held.fixed_shape = &wk.sp.fit.r.curve;
-          double b = 0.0, j = 0.0, se = 0.0;
-          r = rssOf(fitAxis(dk, kj, held, b, j, se));
-        }
+        const GainFit g = convergeGain(dk, known_j[static_cast<std::size_t>(axis)],
+                                       wk.sp.fit.r.curve, wk.sp.gain, wk.sp.fit.b, cap, 10);
         rss[static_cast<std::size_t>(k)] +=
-            r / static_cast<double>(std::max<std::size_t>(dk.x.size(), 1));
+            rssOf(g.fit.r) / static_cast<double>(std::max<std::size_t>(dk.x.size(), 1));
       }
     }
     const auto best =
@@ -594,14 +584,10 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       const double den = l - 2.0 * c + r;
       delay += den > 0.0 ? std::clamp(0.5 * (l - r) / den, -0.5, 0.5) : 0.0;
     }
-    return delay;
-  };
-  fitAt(out.delay_samples, true);
-  for (int round = 0; round < 2 && options_.max_delay_samples > 0; ++round) {
-    const double delay = chooseDelay();
-    if (std::abs(delay - out.delay_samples) <= 0.05) break;
-    out.delay_samples = delay;
-    fitAt(delay, false);
+    if (std::abs(delay - out.delay_samples) > 0.05) {
+      out.delay_samples = delay;
+      fitAt(delay, false);
+    }
   }
   for (int axis = 0; axis < kAxes; ++axis) {
     AxisFit& a = out.axes[static_cast<std::size_t>(axis)];

@@ -112,13 +112,8 @@ struct FitOptions {
   /// Force below which the joint counts as lax (the neutral zone), N. About a force JND
   /// (7-10 %, docs/facts.md) of the paper's 12-16 N band.
   double neutral_force_n = 1.0;
-  /// Central difference half window for angular rates, samples (1 kHz: ±2 ms). A central
-  /// difference over ±h reads a sweep at ω low by (ωh)²/6: at 6 Hz and ±5 ms 0.6 %, and
-  /// more where the motion turns sharply, which against a damping near the cap (tens of
-  /// newtons at speed) is 0.2-0.4 N that the lag, the spasm's gain and the curve then
-  /// absorbed; at ±2 ms 0.09 %. Encoder quantization puts about 0.01 rad/s into the rate
-  /// there, a ten-thousandth of its variance.
-  int rate_half_window = 2;
+  /// Central difference half window for angular rates, samples (1 kHz: ±5 ms).
+  int rate_half_window = 5;
   /// The same for accelerations (second differences). Narrower windows let encoder
   /// quantization into the acceleration and bias the inertia toward zero (±1 ms: by half).
   int acc_half_window = 5;
