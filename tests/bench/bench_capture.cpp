@@ -17,7 +17,8 @@
 //     with its standard error; PROBE_CURVE=1 prints the curves against the truth,
 //     PROBE_TRUTH=1 the truth's own residual at lags of 0-2 samples against the fit's
 //     (a fit worse than the truth: a search problem; better: the model misses something),
-//     PROBE_NOSPASM=1 fits without the spasm term, PROBE_DUMP=FILE writes the points.
+//     PROBE_NOSPASM=1 fits without the spasm term, PROBE_RHW=H fits (and rates the truth)
+//     with rates by central differences over ±H samples, PROBE_DUMP=FILE writes the points.
 // Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]
 //          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]
 //          | --probe CASE HZ SEED]
@@ -208,6 +209,7 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   const auto cap = server::estimate::synthesizeCapture(o);
   server::estimate::FitOptions fo;
   fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
+  if (const char* h = std::getenv("PROBE_RHW")) fo.rate_half_window = std::atoi(h);
   server::estimate::CaptureFitter fitter(cap.geometry, fo);
   for (const auto& smp : cap.samples) fitter.add(smp, true);
   const int64_t t0 = now();
