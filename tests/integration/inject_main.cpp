@@ -346,12 +346,11 @@ int main(int argc, char** argv) {
   int hold_s = 2;
   int period_ms = 50;
   const std::vector<std::string> modes{
-      "close-unknown", "unknown-state", "nan",        "chunk-ahead", "close",   "forge-status",
-      "forge-model",   "file",          "open-flood", "open-churn",  "takeover"};
+      "close-unknown", "unknown-state", "nan",  "chunk-ahead", "close",
+      "forge-status",  "forge-model",   "file", "open-flood",  "open-churn"};
   app.add_option("what", what,
                  "close-unknown | unknown-state | nan; attacks on another session: chunk-ahead "
-                 "| close | forge-status | forge-model | file; open-flood, open-churn; takeover "
-                 "(a supervisor's: --session S --follow T)")
+                 "| close | forge-status | forge-model | file; open-flood, open-churn")
       ->required()
       ->check(CLI::IsMember(modes));
   app.add_option("--session", session,
@@ -369,8 +368,6 @@ int main(int argc, char** argv) {
   app.add_option("--per-participant", per_participant,
                  "open-churn: sessions each participant keeps opening or open at once")
       ->check(CLI::Range(1, 64));
-  uint64_t follow = 0;
-  app.add_option("--follow", follow, "takeover: the session that leads (0: give back)");
   bool insecure = false;
   app::addDdsOptions(app, o, insecure, "device");
   TELEHAND_CLI_PARSE(app, argc, argv)
@@ -473,16 +470,6 @@ int main(int argc, char** argv) {
         return 0;
       }
       printRefusals(peer, victim, wait);
-      return 0;
-    }
-    if (what == "takeover") {
-      telehand_msg_SessionCommand c =
-          sessionCommand(telehand_msg_CMD_TAKEOVER, peer.client_id, ++peer.request_seq, session);
-      c.follow_session = follow;
-      dds::check(peer.command.write(c), "write SessionCommand");
-      std::cout << "sent TAKEOVER of session " << session << " from session " << follow << "\n"
-                << std::flush;
-      std::this_thread::sleep_for(500ms);  // reliable: delivered before the participant goes
       return 0;
     }
     if (what == "close-unknown") {

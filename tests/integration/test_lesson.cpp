@@ -6,9 +6,7 @@
 
 #include <filesystem>
 #include <fstream>
-#include <regex>
 #include <sstream>
-#include <thread>
 
 #include "process.h"
 #include "process_test.h"
@@ -132,91 +130,6 @@ TEST_F(LessonRunTest, ClinicianDemonstratesStudentRunsItAndTheRecordHoldsTheLess
   int rows = 0;
   while (std::getline(csv, line)) ++rows;
   EXPECT_EQ(rows, 4) << "a header and three trials";
-}
-
-/// The first match of `pattern`'s group 1 in `p`'s output within `timeout` (0: none).
-uint64_t awaitNumber(const Process& p, const std::string& pattern,
-                     std::chrono::milliseconds timeout) {
-  const auto until = std::chrono::steady_clock::now() + timeout;
-  uint64_t n = 0;
-  while ((n = matchNumber(p.output(), pattern)) == 0 && std::chrono::steady_clock::now() < until)
-    std::this_thread::sleep_for(100ms);
-  return n;
-}
-
-// A supervisor at their own MF-2 takes over a lesson run's guided trials (docs/lessons.md
-// "Take-over"): the guide follows the supervisor's live movement (2 Hz) rather than the
-// demonstration's (the simulated clinician's 3 Hz). Refusals are named in the records.
-TEST_F(LessonRunTest, ASupervisorsOwnSessionLeadsTheGuidedTrialsWhenTheLessonAllowsIt) {
-  const std::string db = path("records.db");
-  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "150"}), path("server.log"));
-  Process clinician(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "6", "-q", "--user", "clinician"}),
-                    path("clinician.log"));
-  ASSERT_EQ(clinician.wait(40s), 0) << clinician.output();
-  const uint64_t demo = matchNumber(clinician.output(), R"(session (\d+) open)");
-  ASSERT_GT(demo, 0u);
-  Process create(
-      {TELEHAND_RECORDS_BIN, "--db", db, "lesson", "create", "--demo", std::to_string(demo),
-       "--guided", "2", "--attempts", "1", "--trial-seconds", "5", "--no-assessment", "--takeover"},
-      path("create.log"));
-  ASSERT_EQ(create.wait(30s), 0) << create.output();
-  const uint64_t lesson = matchNumber(create.output(), R"(lesson (\d+) )");
-  ASSERT_GT(lesson, 0u) << create.output();
-  EXPECT_NE(create.output().find("a supervisor may take over"), std::string::npos);
-
-  Process supervisor(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "60", "-q", "--user", "supervisor",
-                                               "--frequency", "2", "--no-fault-stop"}),
-                     path("supervisor.log"));
-  const uint64_t lead = awaitNumber(supervisor, R"(session (\d+) open)", 20s);
-  ASSERT_GT(lead, 0u) << supervisor.output();
-  Process student(cmd(TELEHAND_CLIENT_BIN,
-                      {"--lesson", std::to_string(lesson), "--user", "student", "--no-fault-stop"}),
-                  path("student.log"));
-  const uint64_t run = awaitNumber(student, R"(session (\d+) open: lesson)", 20s);
-  ASSERT_GT(run, 0u) << student.output();
-
-  auto takeover = [&](uint64_t session, uint64_t follow, const std::string& name) {
-    Process p(cmd(TELEHAND_INJECT_BIN, {"takeover", "--session", std::to_string(session),
-                                        "--follow", std::to_string(follow)}),
-              path(name + ".log"));
-    EXPECT_EQ(p.wait(30s), 0) << p.output();
-  };
-  takeover(lead, run, "not-a-lesson");       // the supervisor's session runs no lesson
-  takeover(run, 987654321, "unknown-lead");  // no such session
-  takeover(run, lead, "takeover");
-
-  const auto rc = student.wait(120s);
-  ASSERT_TRUE(rc.has_value()) << "the student's run did not finish\n" << student.output();
-  EXPECT_EQ(*rc, 0) << student.output();
-  EXPECT_EQ(supervisor.stop(), 0) << supervisor.output();
-  EXPECT_EQ(server.stop(), 0) << server.output();
-
-  SqliteStore store(db, SqliteStore::Mode::kReadOnly);
-  EXPECT_TRUE(store.lesson(lesson)->takeover);
-  std::string events;
-  for (const auto& e : store.events(run)) events += e.kind + ": " + e.text + "\n";
-  const std::string lead_s = std::to_string(lead);
-  EXPECT_NE(events.find("leads the guided trials from session " + lead_s), std::string::npos)
-      << events;
-  EXPECT_NE(events.find("session 987654321 is not open"), std::string::npos) << events;
-  std::string lead_events;
-  for (const auto& e : store.events(lead)) lead_events += e.kind + ": " + e.text + "\n";
-  EXPECT_NE(lead_events.find("refused: the session runs no lesson"), std::string::npos)
-      << lead_events;
-  // The guide followed the supervisor: every frequency it took is the supervisor's 2 Hz, not
-  // the demonstration's 3 Hz.
-  const std::regex follows("the guide follows session " + lead_s + R"(: ([0-9.]+) Hz)");
-  int taken = 0;
-  for (std::sregex_iterator it(events.begin(), events.end(), follows), end; it != end; ++it) {
-    const double hz = std::stod((*it)[1]);
-    EXPECT_NEAR(hz, 2.0, 0.2) << events;
-    ++taken;
-  }
-  EXPECT_GE(taken, 1) << events;
-  const auto trials = store.trials(run);
-  ASSERT_EQ(trials.size(), 3u);
-  EXPECT_EQ(trials[0].phase, "guided");
-  EXPECT_EQ(trials[1].phase, "guided");
 }
 
 }  // namespace

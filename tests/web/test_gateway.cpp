@@ -203,5 +203,105 @@ TEST_F(GatewayTest, BrowsersBeyondTheLimitAreRefused) {
   EXPECT_TRUE(drained()) << stats();
 }
 
+/// The first match of `pattern`'s group 1 in `p`'s output within `timeout` (0: none).
+uint64_t awaitNumber(const Process& p, const std::string& pattern,
+                     std::chrono::milliseconds timeout) {
+  const auto until = std::chrono::steady_clock::now() + timeout;
+  uint64_t n = 0;
+  while ((n = matchNumber(p.output(), pattern)) == 0 && std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(100ms);
+  return n;
+}
+
+// A supervisor at their own MF-2 takes over a lesson run's guided trials from the page
+// (docs/lessons.md "Take-over"): the run's guide follows the supervisor's live movement
+// (2 Hz) rather than the demonstration's (the simulated clinician's 3 Hz). The gateway
+// refuses what it can tell is wrong; the record names who took over and every guide taken.
+TEST_F(GatewayTest, ATakeOverFromThePageLeadsTheRunsGuidedTrials) {
+  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db_, "--seconds", "150"}), path("server.log"));
+  Process clinician(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "6", "-q", "--user", "clinician"}),
+                    path("clinician.log"));
+  ASSERT_EQ(clinician.wait(40s), 0) << clinician.output();
+  const uint64_t demo = matchNumber(clinician.output(), R"(session (\d+) open)");
+  ASSERT_GT(demo, 0u);
+  Process create({TELEHAND_RECORDS_BIN, "--db", db_, "lesson", "create", "--demo",
+                  std::to_string(demo), "--guided", "2", "--attempts", "1", "--trial-seconds", "5",
+                  "--no-assessment", "--takeover"},
+                 path("create.log"));
+  ASSERT_EQ(create.wait(30s), 0) << create.output();
+  const uint64_t lesson = matchNumber(create.output(), R"(lesson (\d+) )");
+  ASSERT_GT(lesson, 0u) << create.output();
+  EXPECT_NE(create.output().find("a supervisor may take over"), std::string::npos);
+
+  // --no-fault-stop: a stalled loop on a busy machine is a fault of its own, tested elsewhere.
+  Process supervisor(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "60", "-q", "--user", "supervisor",
+                                               "--frequency", "2", "--no-fault-stop"}),
+                     path("supervisor.log"));
+  const uint64_t lead = awaitNumber(supervisor, R"(session (\d+) open)", 20s);
+  ASSERT_GT(lead, 0u) << supervisor.output();
+  Process student(cmd(TELEHAND_CLIENT_BIN, {"--lesson", std::to_string(lesson), "--user", "student",
+                                            "--no-fault-stop"}),
+                  path("student.log"));
+  const uint64_t run = awaitNumber(student, R"(session (\d+) open: lesson)", 20s);
+  ASSERT_GT(run, 0u) << student.output();
+
+  WsClient c(port_);
+  ASSERT_TRUE(c.ok()) << c.error();
+  // The session list marks the run as one a supervisor may take over.
+  const auto listed = c.waitFor(R"({"id":)" + std::to_string(run) + R"(,"state":"active")", 10s);
+  ASSERT_TRUE(listed);
+  const auto entry = listed->find(R"({"id":)" + std::to_string(run));
+  EXPECT_NE(listed->find(R"("takeover":true)", entry), std::string::npos) << *listed;
+  ASSERT_TRUE(c.send(R"({"op":"watch","session":)" + std::to_string(run) + "}"));
+  ASSERT_TRUE(c.waitFor(R"("type":"watching")"));
+  // What the gateway refuses itself: the supervisor's session runs no lesson; a leading
+  // session nobody opened.
+  ASSERT_TRUE(c.send(R"({"op":"takeover","session":)" + std::to_string(lead) +
+                     R"(,"from":)" + std::to_string(run) + "}"));
+  auto e = c.waitFor(R"("type":"error")");
+  ASSERT_TRUE(e);
+  EXPECT_NE(e->find("not a lesson run that allows a take-over"), std::string::npos) << *e;
+  ASSERT_TRUE(c.send(R"({"op":"takeover","session":)" + std::to_string(run) +
+                     R"(,"from":987654321})"));
+  e = c.waitFor(R"("type":"error")");
+  ASSERT_TRUE(e);
+  EXPECT_NE(e->find("session 987654321 is not an open mobilization"), std::string::npos) << *e;
+  EXPECT_EQ(statOf(stats(), "takeovers"), 0u);
+  // The take-over: acknowledged, then the server's event in the watched run.
+  ASSERT_TRUE(c.send(R"({"op":"takeover","session":)" + std::to_string(run) + R"(,"from":)" +
+                     std::to_string(lead) + "}"));
+  EXPECT_TRUE(c.waitFor(R"("op":"takeover")"));
+  const auto taken = c.waitFor("leads the guided trials from session " + std::to_string(lead), 10s);
+  EXPECT_TRUE(taken);
+  EXPECT_EQ(statOf(stats(), "takeovers"), 1u);
+
+  const auto rc = student.wait(120s);
+  ASSERT_TRUE(rc.has_value()) << "the student's run did not finish\n" << student.output();
+  EXPECT_EQ(*rc, 0) << student.output();
+  EXPECT_EQ(supervisor.stop(), 0) << supervisor.output();
+  EXPECT_EQ(server.stop(), 0) << server.output();
+
+  server::store::SqliteStore store(db_, server::store::SqliteStore::Mode::kReadOnly);
+  EXPECT_TRUE(store.lesson(lesson)->takeover);
+  std::string events;
+  for (const auto& ev : store.events(run)) events += ev.kind + ": " + ev.text + "\n";
+  EXPECT_NE(events.find("leads the guided trials from session " + std::to_string(lead)),
+            std::string::npos)
+      << events;
+  // Every guide taken is the supervisor's 2 Hz, not the demonstration's 3 Hz.
+  const std::regex follows("the guide follows session " + std::to_string(lead) +
+                           R"(: ([0-9.]+) Hz)");
+  int guides = 0;
+  for (std::sregex_iterator it(events.begin(), events.end(), follows), end; it != end; ++it) {
+    EXPECT_NEAR(std::stod((*it)[1]), 2.0, 0.2) << events;
+    ++guides;
+  }
+  EXPECT_GE(guides, 1) << events;
+  const auto trials = store.trials(run);
+  ASSERT_EQ(trials.size(), 3u);
+  EXPECT_EQ(trials[0].phase, "guided");
+  EXPECT_EQ(trials[1].phase, "guided");
+}
+
 }  // namespace
 }  // namespace telehand::test
