@@ -636,23 +636,25 @@ void Gateway::mark(Client& c, uint64_t session, const std::string& text,
     return;
   }
   telehand_msg_SessionCommand cmd{};
-  {
-    std::lock_guard lk(command_mutex_);
-    cmd.client_id = gateway_id_;
-    cmd.request_seq = ++request_seq_;
-    cmd.source_time_ns = wallNs();
-    cmd.kind = telehand_msg_CMD_MARK;
-    cmd.session_id = session;
-    copyString(cmd.text, clean);
-    if (command_writer_.write(cmd) < 0) {
-      push(c, errorFrame("dds", "the mark could not be written to DDS"));
-      return;
-    }
+  cmd.kind = telehand_msg_CMD_MARK;
+  cmd.session_id = session;
+  copyString(cmd.text, clean);
+  if (!sendCommand(cmd)) {
+    push(c, errorFrame("dds", "the mark could not be written to DDS"));
+    return;
   }
   ++stats_.marks;
   spdlog::info("browser {} marked session {}: {}", c.id, session, clean);
   push(c, fmt::format(R"({{"type":"ack","op":"mark","session":{},"text":{}}})", session,
                       jsonString(clean)));
+}
+
+bool Gateway::sendCommand(telehand_msg_SessionCommand& cmd) {
+  std::lock_guard lk(command_mutex_);
+  cmd.client_id = gateway_id_;
+  cmd.request_seq = ++request_seq_;
+  cmd.source_time_ns = wallNs();
+  return command_writer_.write(cmd) >= 0;
 }
 
 void Gateway::takeover(Client& c, uint64_t session, uint64_t from) {
@@ -682,18 +684,12 @@ void Gateway::takeover(Client& c, uint64_t session, uint64_t from) {
     return;
   }
   telehand_msg_SessionCommand cmd{};
-  {
-    std::lock_guard lk(command_mutex_);
-    cmd.client_id = gateway_id_;
-    cmd.request_seq = ++request_seq_;
-    cmd.source_time_ns = wallNs();
-    cmd.kind = telehand_msg_CMD_TAKEOVER;
-    cmd.session_id = session;
-    cmd.follow_session = from;
-    if (command_writer_.write(cmd) < 0) {
-      push(c, errorFrame("dds", "the take-over could not be written to DDS"));
-      return;
-    }
+  cmd.kind = telehand_msg_CMD_TAKEOVER;
+  cmd.session_id = session;
+  cmd.follow_session = from;
+  if (!sendCommand(cmd)) {
+    push(c, errorFrame("dds", "the take-over could not be written to DDS"));
+    return;
   }
   ++stats_.takeovers;
   spdlog::info("browser {}: session {} {}", c.id, session,

@@ -97,6 +97,9 @@ class Gateway {
   /// Asks the server that `from`'s live movement lead lesson run `session`'s guide (0: the
   /// demonstration again): a CMD_TAKEOVER, after the checks the gateway can make itself.
   void takeover(Client& c, uint64_t session, uint64_t from);
+  /// Writes `cmd` as this gateway's next command (client id, request number, time filled
+  /// in); false when DDS refused it.
+  bool sendCommand(telehand_msg_SessionCommand& cmd);
   void replay(Client& c, uint64_t session);
   void records(Client& c);
   bool knownSession(uint64_t id) const;
