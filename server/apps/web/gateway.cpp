@@ -12,6 +12,7 @@
 
 #include "frames.h"
 #include "replay.h"
+#include "replay_hand.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
@@ -71,6 +72,9 @@ struct Gateway::Client {
   std::shared_ptr<const std::string> hand;  // the newest HandState frame not yet sent
   int64_t next_hand_ns = 0;
   std::thread writer;
+  std::mutex replay_m;                     // guards replay_thread
+  std::thread replay_thread;               // computes the replay's hand (replayHandLoop)
+  std::atomic<bool> replay_cancel{false};  // the replay's hand is no longer wanted
 };
 
 struct Gateway::Session {
@@ -96,8 +100,10 @@ Gateway::Gateway(const Options& options)
       waitset_(participant_) {
   // HandState.joint_angles_rad's order is the hand model's (the server's --list-dofs): the
   // page is told the names rather than guessing the order from the URDF.
+  hand_model_ =
+      std::make_unique<const server::sim::HandModel>(server::sim::HandModel::load(o_.hand));
   std::string dofs;
-  for (const auto& n : server::sim::HandModel::load(o_.hand).dofNames()) {
+  for (const auto& n : hand_model_->dofNames()) {
     dofs += (dofs.empty() ? "" : ",") + jsonString(n);
   }
   dofs_json_ = "[" + dofs + "]";
@@ -368,6 +374,7 @@ void Gateway::onClose(const mg_connection* conn) {
   }
   c->cv.notify_one();
   if (c->writer.joinable()) c->writer.join();
+  stopReplayHand(*c);
   --stats_.clients_open;
   spdlog::info("browser {} gone", c->id);
 }
@@ -552,7 +559,7 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
     if (const auto a = j.find("at_s"); a != j.end() && a->is_number()) at = a->get<double>();
     mark(*c, *session, t->get<std::string>(), at);
   } else if (name == "replay") {
-    if (needSession()) replay(*c, *session);
+    if (needSession()) replay(c, *session);
   } else if (name == "records") {
     records(*c);
   } else {
@@ -630,7 +637,8 @@ void Gateway::mark(Client& c, uint64_t session, const std::string& text,
                       jsonString(clean)));
 }
 
-void Gateway::replay(Client& c, uint64_t session) {
+void Gateway::replay(const std::shared_ptr<Client>& cp, uint64_t session) {
+  Client& c = *cp;
   if (o_.db.empty()) {
     push(c, errorFrame("no_store", "this gateway has no record store (--db)"));
     return;
@@ -646,7 +654,137 @@ void Gateway::replay(Client& c, uint64_t session) {
     push(c, std::move(*frame));
   } catch (const std::exception& e) {
     push(c, errorFrame("store", e.what()));
+    return;
   }
+  startReplayHand(cp, session);
+}
+
+// --- a replay's hand ---
+
+void Gateway::startReplayHand(const std::shared_ptr<Client>& c, uint64_t session) {
+  stopReplayHand(*c);  // the one this browser asked for before, if still running
+  if (stopping_.load()) return;
+  std::lock_guard lk(c->replay_m);
+  ++stats_.replay_workers;
+  c->replay_thread = std::thread([this, c, session] {
+    replayHandLoop(c, session);
+    --stats_.replay_workers;
+  });
+}
+
+void Gateway::stopReplayHand(Client& c) {
+  std::thread t;
+  {
+    std::lock_guard lk(c.replay_m);
+    t = std::move(c.replay_thread);
+  }
+  if (!t.joinable()) return;
+  c.replay_cancel.store(true);
+  replay_jobs_cv_.notify_all();
+  t.join();  // it stops within one frame's steps (a few ms)
+  c.replay_cancel.store(false);
+}
+
+void Gateway::replayHandLoop(const std::shared_ptr<Client>& cp, uint64_t session) {
+  Client& c = *cp;
+  auto stopped = [&] {
+    if (c.replay_cancel.load() || stopping_.load()) return true;
+    std::lock_guard lk(c.m);
+    return c.closing || c.close_code != 0;
+  };
+  // One core each: the rest wait their turn, saying so.
+  {
+    std::unique_lock lk(replay_jobs_mutex_);
+    bool told = false;
+    while (replay_jobs_running_ >= o_.replay_hand_jobs) {
+      if (!told) {
+        told = true;
+        lk.unlock();
+        push(c, fmt::format(R"({{"type":"replay_hand","session":{},"queued":true,"done_s":0,)"
+                            R"("frames":[]}})",
+                            session));
+        lk.lock();
+        continue;
+      }
+      replay_jobs_cv_.wait_for(lk, std::chrono::milliseconds(100));
+      if (stopped()) return;
+    }
+    ++replay_jobs_running_;
+  }
+  struct Slot {
+    Gateway& g;
+    ~Slot() {
+      {
+        std::lock_guard lk(g.replay_jobs_mutex_);
+        --g.replay_jobs_running_;
+      }
+      g.replay_jobs_cv_.notify_all();
+    }
+  } slot{*this};
+
+  // Frames go in chunks of kChunk (2 s of record at 50/s): the page poses what it has while
+  // the rest is computed.
+  constexpr std::size_t kChunk = 100;
+  std::string chunk;
+  std::size_t in_chunk = 0, sent = 0;
+  auto flush = [&](double done_s) {
+    if (in_chunk == 0) return;
+    fmt::format_to(std::back_inserter(chunk), R"(],"done_s":{:.3f}}})", done_s);
+    push(c, std::move(chunk));
+    chunk.clear();
+    sent += in_chunk;
+    stats_.replay_hand_frames += in_chunk;
+    in_chunk = 0;
+  };
+  ReplayHandOptions ho;
+  ho.cases_dir = o_.cases;
+  ho.hz = o_.replay_hand_hz;
+  ho.min_hz = std::min(10.0, o_.replay_hand_hz);
+  ho.max_frames = o_.replay_hand_frames;
+  ho.max_s = o_.replay_hand_s;
+  const ReplayHandResult r = replayHand(
+      o_.db, session, *hand_model_, ho,
+      [&](const telehand_msg_HandState& h) {
+        if (in_chunk == 0) {
+          chunk = fmt::format(R"({{"type":"replay_hand","session":{},"first":{},"frames":[)",
+                              session, sent);
+        } else {
+          chunk += ',';
+        }
+        chunk += handFrame(h, h.device_time_ns);
+        ++in_chunk;
+      },
+      [&](double done_s) {
+        if (in_chunk >= kChunk) flush(done_s);
+        return !stopped();
+      });
+  flush(r.simulated_s);
+  if (r.cancelled) return;  // a newer replay, or the browser is gone
+  std::string message;
+  if (!r.ok) {
+    message = "no hand for this replay: " + r.error;
+    spdlog::warn("browser {}: replay of session {}: {}", c.id, session, message);
+  } else if (r.cut) {
+    message = fmt::format(
+        "the hand covers the first {:.1f} s of the record's {:.1f} s (at most {:.0f} s and {} "
+        "frames of a record are simulated: --replay-hand-s)",
+        r.simulated_s, r.duration_s, o_.replay_hand_s, o_.replay_hand_frames);
+  } else {
+    message = fmt::format("the hand over the whole record ({:.1f} s, {} frames at {:g}/s)",
+                          r.duration_s, r.frames, r.hz);
+  }
+  if (r.ok) {
+    ++stats_.replay_hands;
+    spdlog::info(
+        "browser {}: replay of session {}: {} hand frames at {:g}/s over {:.1f} of "
+        "{:.1f} s, computed in {:.2f} s",
+        c.id, session, r.frames, r.hz, r.simulated_s, r.duration_s, r.compute_s);
+  }
+  push(c, fmt::format(R"({{"type":"replay_hand_end","session":{},"ok":{},"frames":{},"hz":{},)"
+                      R"("case":{},"duration_s":{:.3f},"simulated_s":{:.3f},"cut":{},)"
+                      R"("compute_s":{:.3f},"message":{}}})",
+                      session, r.ok, sent, jsonNumber(r.hz), jsonString(r.case_name), r.duration_s,
+                      r.simulated_s, r.cut, r.compute_s, jsonString(message)));
 }
 
 void Gateway::records(Client& c) {
@@ -671,12 +809,13 @@ std::string Gateway::statsJson() const {
       R"({{"clients_open":{},"clients_total":{},"clients_refused":{},"writer_threads":{},)"
       R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
       R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
-      R"("dropped_slow":{}}})",
+      R"("dropped_slow":{},"replay_hands":{},"replay_hand_frames":{},"replay_workers":{}}})",
       stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
       stats_.writer_threads.load(), sessions, stats_.hand_states.load(), stats_.hand_frames.load(),
       stats_.hand_sent.load(), stats_.hand_coalesced.load(), stats_.messages_in.load(),
       stats_.bad_messages.load(), stats_.unknown_session.load(), stats_.marks.load(),
-      stats_.replays.load(), stats_.dropped_slow.load());
+      stats_.replays.load(), stats_.dropped_slow.load(), stats_.replay_hands.load(),
+      stats_.replay_hand_frames.load(), stats_.replay_workers.load());
 }
 
 }  // namespace telehand::web

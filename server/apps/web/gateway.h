@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "telehand/protocol/dds.h"
+#include "telehand/server/sim/hand_model.h"
 
 namespace telehand::web {
 
@@ -33,7 +34,15 @@ struct Options {
   std::size_t max_message = 4096;     ///< largest message a browser may send, bytes
   std::size_t queue_depth = 512;      ///< messages waiting for one browser before it is dropped
   std::size_t replay_points = 24000;  ///< samples a replay sends at most (decimated evenly)
-  double seconds = 0.0;               ///< run this long (0 = until SIGINT/SIGTERM)
+  /// A replay's hand (replay_hand.h): the patient cases the server reads, frames per second of
+  /// record, frames in all and seconds of record at most, and how many run at once (each
+  /// takes a core while it runs; more wait their turn).
+  std::string cases;
+  double replay_hand_hz = 50.0;
+  std::size_t replay_hand_frames = 9000;
+  double replay_hand_s = 600.0;
+  std::size_t replay_hand_jobs = 1;
+  double seconds = 0.0;  ///< run this long (0 = until SIGINT/SIGTERM)
 };
 
 /// Counters /api/stats reports (tests and the benchmark read them).
@@ -52,6 +61,9 @@ struct Stats {
   std::atomic<uint64_t> replays{0};
   std::atomic<uint64_t> dropped_slow{0};    ///< browsers dropped for a full queue
   std::atomic<uint64_t> writer_threads{0};  ///< writer threads alive now
+  std::atomic<uint64_t> replay_hands{0};    ///< replays' hands computed (to their end or a bound)
+  std::atomic<uint64_t> replay_hand_frames{0};  ///< hand frames those sent
+  std::atomic<uint64_t> replay_workers{0};      ///< threads computing a replay's hand now
 };
 
 class Gateway {
@@ -93,7 +105,12 @@ class Gateway {
   void handle(const std::shared_ptr<Client>& c, std::string_view text);
   void watch(const std::shared_ptr<Client>& c, uint64_t session);
   void mark(Client& c, uint64_t session, const std::string& text, std::optional<double> at_s);
-  void replay(Client& c, uint64_t session);
+  void replay(const std::shared_ptr<Client>& c, uint64_t session);
+  /// Computes the replay's hand on a thread of the client's own, sending it as it goes.
+  void startReplayHand(const std::shared_ptr<Client>& c, uint64_t session);
+  void replayHandLoop(const std::shared_ptr<Client>& c, uint64_t session);
+  /// Stops and joins the client's replay hand thread, if any.
+  void stopReplayHand(Client& c);
   void records(Client& c);
   bool knownSession(uint64_t id) const;
 
@@ -101,6 +118,10 @@ class Gateway {
   Stats stats_;
   uint64_t gateway_id_;
   std::string dofs_json_;
+  std::unique_ptr<const server::sim::HandModel> hand_model_;
+  std::mutex replay_jobs_mutex_;
+  std::condition_variable replay_jobs_cv_;
+  std::size_t replay_jobs_running_ = 0;
   dds::Participant participant_;
   dds::Topics topics_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;
