@@ -30,9 +30,11 @@ class FrameOutbox final : public server::session::Outbox {
     telehand_msg_HandState f = h;
     f.source_time_ns = f.device_time_ns;  // record time: the replay has no wall clock of its own
     ++frames;
+    last_device_ns = f.device_time_ns;
     on_frame_(f);
   }
   std::size_t frames = 0;
+  int64_t last_device_ns = 0;
 
  private:
   const std::function<void(const telehand_msg_HandState&)>& on_frame_;
@@ -106,16 +108,19 @@ ReplayHandResult replayHand(const std::string& db, uint64_t session,
         [](uint64_t, uint64_t, telehand_msg_EventKind, const std::string&, int64_t) {}};
     JointModelParams start = server::session::openingModel(patient);
     start.guide = GuideParams{};
+    // Each tick half a millisecond past the frame's time: the sample of that millisecond is due
+    // however the replay's position adds up, and the next one is not.
     int64_t now_ns = 0;
     server::session::Replay replay(ctx, session, session, start, &hand,
                                    server::sim::HandSimConfig{}, now_ns);
     replay.setSpeed(1.0, now_ns);
     replay.play(now_ns);
     const int64_t period_ns = period_ms * 1'000'000;
+    now_ns = 500'000;
     for (;;) {
       replay.tick(now_ns);  // steps every sample due by now, then publishes one HandState
       if (replay.finished()) break;
-      if (replay.positionS() >= cover_s - 1e-9 || out.frames >= o.max_frames) {
+      if (replay.positionS() >= cover_s || out.frames >= o.max_frames) {
         r.cut = true;
         break;
       }
@@ -128,7 +133,8 @@ ReplayHandResult replayHand(const std::string& db, uint64_t session,
     r.ok = true;
     r.frames = out.frames;
     r.samples = replay.stepped();
-    r.simulated_s = std::min(replay.positionS(), r.duration_s);
+    r.simulated_s =
+        out.frames ? static_cast<double>(out.last_device_ns - extent->first_time_ns) * 1e-9 : 0.0;
   } catch (const std::exception& e) {
     r.ok = false;
     r.error = e.what();
