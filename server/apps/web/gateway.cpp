@@ -639,6 +639,7 @@ void Gateway::mark(Client& c, uint64_t session, const std::string& text,
 
 void Gateway::replay(const std::shared_ptr<Client>& cp, uint64_t session) {
   Client& c = *cp;
+  stopReplayHand(c);  // the hand of the replay before sends nothing after this one's frame
   if (o_.db.empty()) {
     push(c, errorFrame("no_store", "this gateway has no record store (--db)"));
     return;
