@@ -317,6 +317,26 @@ TEST_F(ReplayHandTest, AMissingCaseOrSessionIsAnErrorNotACrash) {
   r = replay(987654, o, frames);
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.error.find("no session 987654"), std::string::npos) << r.error;
+  // A record whose sample numbers leave a gap of a hundred million for two samples (the server
+  // writes none such): refused at once, not read page after empty page.
+  {
+    server::store::SessionInfo info;
+    info.user = "student";
+    info.case_name = "healthy";
+    info.mode = "mobilization";
+    info.state = "closed";
+    const uint64_t odd = store_->createSession(info);
+    Sample a, b;
+    a.session_id = b.session_id = odd;
+    b.seq = 100'000'000;
+    b.source_time_ns = 100'000'000'000;
+    const Sample both[] = {a, b};
+    const uint8_t valid[] = {1, 1};
+    store_->appendSamples(odd, both, valid);
+    r = replay(odd, o, frames);
+    EXPECT_FALSE(r.ok);
+    EXPECT_NE(r.error.find("span 100000001 for 2 samples"), std::string::npos) << r.error;
+  }
   r = replayHand((dir_ / "absent.db").string(), session, hand(), o,
                  [](const telehand_msg_HandState&) {}, [](double) { return true; });
   EXPECT_FALSE(r.ok);
