@@ -84,6 +84,7 @@ struct ReplayReceived {
   std::optional<std::string> replay;
   std::vector<nlohmann::json> frames;
   std::size_t chunks = 0;
+  std::size_t bytes = 0;  ///< of the chunks
   std::optional<nlohmann::json> end;
 };
 
@@ -138,6 +139,7 @@ class GatewayTest : public ProcessTest {
         EXPECT_EQ(j["first"].get<std::size_t>(), r.frames.size());
         for (auto& f : j["frames"]) r.frames.push_back(std::move(f));
         ++r.chunks;
+        r.bytes += m->size();
       }
     }
     return r;
@@ -306,9 +308,34 @@ TEST_F(GatewayTest, AReplayCarriesTheHandComputedFromTheRecord) {
   }
   // The hand follows the 16 deg flexion of the record.
   EXPECT_GT(radToDeg(mcp_max - mcp_min), 10.0);
+  EXPECT_FALSE(end["cached"].get<bool>());
+  std::cout << "4 s of record's hand: " << r.frames.size() << " frames, " << r.bytes << " bytes in "
+            << r.chunks << " chunks, computed in " << end["compute_s"] << " s\n";
+  // Another tab replaying the same record gets the same hand at once, from the cache.
+  WsClient other(port_);
+  ASSERT_TRUE(other.waitFor("\"type\":\"hello\""));
+  const ReplayReceived again = replay(other, session);
+  ASSERT_TRUE(again.end);
+  EXPECT_TRUE((*again.end)["cached"].get<bool>()) << again.end->dump();
+  EXPECT_EQ(again.frames, r.frames);
   const std::string s = stats();
   EXPECT_EQ(statOf(s, "replay_hands"), 1u) << s;
+  EXPECT_EQ(statOf(s, "replay_hand_cached"), 1u) << s;
   EXPECT_EQ(statOf(s, "replay_hand_frames"), 201u) << s;
+  // The record grows (a session still being recorded): computed afresh.
+  {
+    server::store::SqliteStore store(db_);
+    Sample extra;
+    extra.session_id = session;
+    extra.seq = 4001;
+    extra.source_time_ns = 0;
+    const uint8_t valid[] = {0};  // an invalid sample: stored, never stepped
+    store.appendSamples(session, std::span<const Sample>(&extra, 1), valid);
+  }
+  const ReplayReceived grown = replay(other, session);
+  ASSERT_TRUE(grown.end);
+  EXPECT_FALSE((*grown.end)["cached"].get<bool>()) << grown.end->dump();
+  EXPECT_EQ(grown.frames.size(), r.frames.size());
 }
 
 TEST_F(GatewayTest, ALongRecordsHandIsCutAtTheBoundWhileTheGatewayAnswers) {
@@ -335,17 +362,20 @@ TEST_F(GatewayTest, ALongRecordsHandIsCutAtTheBoundWhileTheGatewayAnswers) {
   EXPECT_NE(end["message"].get<std::string>().find("the first 20.0 s of the record's 30.0 s"),
             std::string::npos)
       << *end_text;
-  // A tab closed while its hand is computed stops it and leaves no thread behind.
+  // A tab closed while its hand is computed (another record: this one's is in the cache now)
+  // stops it and leaves no thread behind.
+  const uint64_t another = writeRecord(db_, "healthy", 30.0);
   {
     WsClient gone(port_);
     ASSERT_TRUE(gone.waitFor("\"type\":\"hello\""));
-    ASSERT_TRUE(gone.send(R"({"op":"replay","session":)" + std::to_string(session) + "}"));
+    ASSERT_TRUE(gone.send(R"({"op":"replay","session":)" + std::to_string(another) + "}"));
     ASSERT_TRUE(gone.waitFor("\"type\":\"replay_hand\""));
   }
   c.close();
   EXPECT_TRUE(drained()) << stats();
   EXPECT_EQ(statOf(stats(), "replay_workers"), 0u) << stats();
   EXPECT_EQ(statOf(stats(), "replay_hands"), 1u) << stats();
+  EXPECT_LT(statOf(stats(), "replay_hand_frames"), 1001u + 1001u) << stats();
 }
 
 TEST_F(GatewayTest, AReplayOnAMissingCaseHasNoHandAndSaysWhy) {

@@ -12,11 +12,13 @@
 
 #include "frames.h"
 #include "replay.h"
+#include "replay_cache.h"
 #include "replay_hand.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/sim/hand_model.h"
+#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::web {
 
@@ -686,6 +688,45 @@ void Gateway::stopReplayHand(Client& c) {
   c.replay_cancel.store(false);
 }
 
+namespace {
+
+/// The record as it stands (the cache's key), nullopt when it cannot be read (replayHand then
+/// says why).
+std::optional<RecordKey> recordKey(const std::string& db, uint64_t session) {
+  try {
+    server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
+    const auto info = store.session(session);
+    const auto extent = store.extent(session);
+    if (!info || !extent) return std::nullopt;
+    return RecordKey{session, info->samples, extent->last_seq};
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+}
+
+std::string handEndFrame(uint64_t session, const ReplayHandResult& r, std::size_t frames,
+                         double max_s, std::size_t max_frames, bool cached) {
+  std::string message;
+  if (!r.ok) {
+    message = "no hand for this replay: " + r.error;
+  } else if (r.cut) {
+    message = fmt::format(
+        "the hand covers the first {:.1f} s of the record's {:.1f} s (at most {:.0f} s and {} "
+        "frames of a record are simulated: --replay-hand-s)",
+        r.simulated_s, r.duration_s, max_s, max_frames);
+  } else {
+    message = fmt::format("the hand over the whole record ({:.1f} s, {} frames at {:g}/s)",
+                          r.duration_s, frames, r.hz);
+  }
+  return fmt::format(R"({{"type":"replay_hand_end","session":{},"ok":{},"frames":{},"hz":{},)"
+                     R"("case":{},"duration_s":{:.3f},"simulated_s":{:.3f},"cut":{},)"
+                     R"("compute_s":{:.3f},"cached":{},"message":{}}})",
+                     session, r.ok, frames, jsonNumber(r.hz), jsonString(r.case_name), r.duration_s,
+                     r.simulated_s, r.cut, r.compute_s, cached, jsonString(message));
+}
+
+}  // namespace
+
 void Gateway::replayHandLoop(const std::shared_ptr<Client>& cp, uint64_t session) {
   Client& c = *cp;
   auto stopped = [&] {
@@ -693,6 +734,18 @@ void Gateway::replayHandLoop(const std::shared_ptr<Client>& cp, uint64_t session
     std::lock_guard lk(c.m);
     return c.closing || c.close_code != 0;
   };
+  // A record computed before, unchanged since: sent as it was.
+  const std::optional<RecordKey> key = recordKey(o_.db, session);
+  auto fromCache = [&] {
+    const auto hit = key ? replay_cache_.find(*key) : nullptr;
+    if (!hit) return false;
+    for (const auto& chunk : hit->chunks) push(c, chunk);
+    ++stats_.replay_hand_cached;
+    push(c, handEndFrame(session, hit->result, hit->result.frames, o_.replay_hand_s,
+                         o_.replay_hand_frames, true));
+    return true;
+  };
+  if (fromCache()) return;
   // One core each: the rest wait their turn, saying so.
   {
     std::unique_lock lk(replay_jobs_mutex_);
@@ -722,15 +775,19 @@ void Gateway::replayHandLoop(const std::shared_ptr<Client>& cp, uint64_t session
       g.replay_jobs_cv_.notify_all();
     }
   } slot{*this};
+  if (fromCache()) return;  // computed while this one waited
 
   // Frames go in chunks of kChunk (2 s of record at 50/s): the page poses what it has while
   // the rest is computed.
   constexpr std::size_t kChunk = 100;
+  auto computed = std::make_shared<ComputedHand>();
   std::string chunk;
   std::size_t in_chunk = 0, sent = 0;
   auto flush = [&](double done_s) {
     if (in_chunk == 0) return;
     fmt::format_to(std::back_inserter(chunk), R"(],"done_s":{:.3f}}})", done_s);
+    computed->bytes += chunk.size();
+    computed->chunks.push_back(chunk);
     push(c, std::move(chunk));
     chunk.clear();
     sent += in_chunk;
@@ -761,31 +818,18 @@ void Gateway::replayHandLoop(const std::shared_ptr<Client>& cp, uint64_t session
       });
   flush(r.simulated_s);
   if (r.cancelled) return;  // a newer replay, or the browser is gone
-  std::string message;
-  if (!r.ok) {
-    message = "no hand for this replay: " + r.error;
-    spdlog::warn("browser {}: replay of session {}: {}", c.id, session, message);
-  } else if (r.cut) {
-    message = fmt::format(
-        "the hand covers the first {:.1f} s of the record's {:.1f} s (at most {:.0f} s and {} "
-        "frames of a record are simulated: --replay-hand-s)",
-        r.simulated_s, r.duration_s, o_.replay_hand_s, o_.replay_hand_frames);
-  } else {
-    message = fmt::format("the hand over the whole record ({:.1f} s, {} frames at {:g}/s)",
-                          r.duration_s, r.frames, r.hz);
-  }
   if (r.ok) {
     ++stats_.replay_hands;
     spdlog::info(
         "browser {}: replay of session {}: {} hand frames at {:g}/s over {:.1f} of "
         "{:.1f} s, computed in {:.2f} s",
         c.id, session, r.frames, r.hz, r.simulated_s, r.duration_s, r.compute_s);
+    computed->result = r;
+    if (key) replay_cache_.put(*key, std::move(computed));
+  } else {
+    spdlog::warn("browser {}: replay of session {}: no hand: {}", c.id, session, r.error);
   }
-  push(c, fmt::format(R"({{"type":"replay_hand_end","session":{},"ok":{},"frames":{},"hz":{},)"
-                      R"("case":{},"duration_s":{:.3f},"simulated_s":{:.3f},"cut":{},)"
-                      R"("compute_s":{:.3f},"message":{}}})",
-                      session, r.ok, sent, jsonNumber(r.hz), jsonString(r.case_name), r.duration_s,
-                      r.simulated_s, r.cut, r.compute_s, jsonString(message)));
+  push(c, handEndFrame(session, r, sent, o_.replay_hand_s, o_.replay_hand_frames, false));
 }
 
 void Gateway::records(Client& c) {
@@ -810,13 +854,15 @@ std::string Gateway::statsJson() const {
       R"({{"clients_open":{},"clients_total":{},"clients_refused":{},"writer_threads":{},)"
       R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
       R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
-      R"("dropped_slow":{},"replay_hands":{},"replay_hand_frames":{},"replay_workers":{}}})",
+      R"("dropped_slow":{},"replay_hands":{},"replay_hand_frames":{},"replay_hand_cached":{},)"
+      R"("replay_workers":{}}})",
       stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
       stats_.writer_threads.load(), sessions, stats_.hand_states.load(), stats_.hand_frames.load(),
       stats_.hand_sent.load(), stats_.hand_coalesced.load(), stats_.messages_in.load(),
       stats_.bad_messages.load(), stats_.unknown_session.load(), stats_.marks.load(),
       stats_.replays.load(), stats_.dropped_slow.load(), stats_.replay_hands.load(),
-      stats_.replay_hand_frames.load(), stats_.replay_workers.load());
+      stats_.replay_hand_frames.load(), stats_.replay_hand_cached.load(),
+      stats_.replay_workers.load());
 }
 
 }  // namespace telehand::web

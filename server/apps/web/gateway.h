@@ -16,6 +16,7 @@
 #include <string_view>
 #include <thread>
 
+#include "replay_cache.h"
 #include "telehand/protocol/dds.h"
 #include "telehand/server/sim/hand_model.h"
 
@@ -42,7 +43,8 @@ struct Options {
   std::size_t replay_hand_frames = 9000;
   double replay_hand_s = 600.0;
   std::size_t replay_hand_jobs = 1;
-  double seconds = 0.0;  ///< run this long (0 = until SIGINT/SIGTERM)
+  std::size_t replay_cache_bytes = 64u << 20;  ///< replays' hands kept to send again
+  double seconds = 0.0;                        ///< run this long (0 = until SIGINT/SIGTERM)
 };
 
 /// Counters /api/stats reports (tests and the benchmark read them).
@@ -63,6 +65,7 @@ struct Stats {
   std::atomic<uint64_t> writer_threads{0};  ///< writer threads alive now
   std::atomic<uint64_t> replay_hands{0};    ///< replays' hands computed (to their end or a bound)
   std::atomic<uint64_t> replay_hand_frames{0};  ///< hand frames those sent
+  std::atomic<uint64_t> replay_hand_cached{0};  ///< replays' hands sent from the cache
   std::atomic<uint64_t> replay_workers{0};      ///< threads computing a replay's hand now
 };
 
@@ -122,6 +125,7 @@ class Gateway {
   std::mutex replay_jobs_mutex_;
   std::condition_variable replay_jobs_cv_;
   std::size_t replay_jobs_running_ = 0;
+  ReplayHandCache replay_cache_{o_.replay_cache_bytes};
   dds::Participant participant_;
   dds::Topics topics_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;
