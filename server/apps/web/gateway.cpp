@@ -12,13 +12,10 @@
 
 #include "frames.h"
 #include "replay.h"
-#include "replay_cache.h"
-#include "replay_hand.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/sim/hand_model.h"
-#include "telehand/server/store/sqlite_store.h"
 
 namespace telehand::web {
 
@@ -75,7 +72,7 @@ struct Gateway::Client {
   int64_t next_hand_ns = 0;
   std::thread writer;
   std::mutex replay_m;                     // guards replay_thread
-  std::thread replay_thread;               // computes the replay's hand (replayHandLoop)
+  std::thread replay_thread;               // sends the replay's hand (ReplayHandService)
   std::atomic<bool> replay_cancel{false};  // the replay's hand is no longer wanted
 };
 
@@ -109,6 +106,14 @@ Gateway::Gateway(const Options& options)
     dofs += (dofs.empty() ? "" : ",") + jsonString(n);
   }
   dofs_json_ = "[" + dofs + "]";
+  ReplayHandOptions ho;
+  ho.cases_dir = o_.cases;
+  ho.hz = o_.replay_hand_hz;
+  ho.min_hz = std::min(10.0, o_.replay_hand_hz);
+  ho.max_frames = o_.replay_hand_frames;
+  ho.max_s = o_.replay_hand_s;
+  replay_hands_ = std::make_unique<ReplayHandService>(o_.db, *hand_model_, ho, o_.replay_hand_jobs,
+                                                      o_.replay_cache_bytes);
   waitset_.attach(status_reader_.handle(), 1);
   waitset_.attach(hand_reader_.handle(), 2);
   waitset_.attach(event_reader_.handle(), 3);
@@ -670,7 +675,13 @@ void Gateway::startReplayHand(const std::shared_ptr<Client>& c, uint64_t session
   std::lock_guard lk(c->replay_m);
   ++stats_.replay_workers;
   c->replay_thread = std::thread([this, c, session] {
-    replayHandLoop(c, session);
+    replay_hands_->run(
+        session, [&](std::string frame) { push(*c, std::move(frame)); },
+        [&] {
+          if (c->replay_cancel.load() || stopping_.load()) return true;
+          std::lock_guard ck(c->m);
+          return c->closing || c->close_code != 0;
+        });
     --stats_.replay_workers;
   });
 }
@@ -683,153 +694,9 @@ void Gateway::stopReplayHand(Client& c) {
   }
   if (!t.joinable()) return;
   c.replay_cancel.store(true);
-  replay_jobs_cv_.notify_all();
+  replay_hands_->wake();
   t.join();  // it stops within one frame's steps (a few ms)
   c.replay_cancel.store(false);
-}
-
-namespace {
-
-/// The record as it stands (the cache's key), nullopt when it cannot be read (replayHand then
-/// says why).
-std::optional<RecordKey> recordKey(const std::string& db, uint64_t session) {
-  try {
-    server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
-    const auto info = store.session(session);
-    const auto extent = store.extent(session);
-    if (!info || !extent) return std::nullopt;
-    return RecordKey{session, info->samples, extent->last_seq};
-  } catch (const std::exception&) {
-    return std::nullopt;
-  }
-}
-
-std::string handEndFrame(uint64_t session, const ReplayHandResult& r, std::size_t frames,
-                         double max_s, std::size_t max_frames, bool cached) {
-  std::string message;
-  if (!r.ok) {
-    message = "no hand for this replay: " + r.error;
-  } else if (r.cut) {
-    message = fmt::format(
-        "the hand covers the first {:.1f} s of the record's {:.1f} s (at most {:.0f} s and {} "
-        "frames of a record are simulated: --replay-hand-s)",
-        r.simulated_s, r.duration_s, max_s, max_frames);
-  } else {
-    message = fmt::format("the hand over the whole record ({:.1f} s, {} frames at {:g}/s)",
-                          r.duration_s, frames, r.hz);
-  }
-  return fmt::format(R"({{"type":"replay_hand_end","session":{},"ok":{},"frames":{},"hz":{},)"
-                     R"("case":{},"duration_s":{:.3f},"simulated_s":{:.3f},"cut":{},)"
-                     R"("compute_s":{:.3f},"cached":{},"message":{}}})",
-                     session, r.ok, frames, jsonNumber(r.hz), jsonString(r.case_name), r.duration_s,
-                     r.simulated_s, r.cut, r.compute_s, cached, jsonString(message));
-}
-
-}  // namespace
-
-void Gateway::replayHandLoop(const std::shared_ptr<Client>& cp, uint64_t session) {
-  Client& c = *cp;
-  auto stopped = [&] {
-    if (c.replay_cancel.load() || stopping_.load()) return true;
-    std::lock_guard lk(c.m);
-    return c.closing || c.close_code != 0;
-  };
-  // A record computed before, unchanged since: sent as it was.
-  const std::optional<RecordKey> key = recordKey(o_.db, session);
-  auto fromCache = [&] {
-    const auto hit = key ? replay_cache_.find(*key) : nullptr;
-    if (!hit) return false;
-    for (const auto& chunk : hit->chunks) push(c, chunk);
-    ++stats_.replay_hand_cached;
-    push(c, handEndFrame(session, hit->result, hit->result.frames, o_.replay_hand_s,
-                         o_.replay_hand_frames, true));
-    return true;
-  };
-  if (fromCache()) return;
-  // One core each: the rest wait their turn, saying so.
-  {
-    std::unique_lock lk(replay_jobs_mutex_);
-    bool told = false;
-    while (replay_jobs_running_ >= o_.replay_hand_jobs) {
-      if (!told) {
-        told = true;
-        lk.unlock();
-        push(c, fmt::format(R"({{"type":"replay_hand","session":{},"queued":true,"done_s":0,)"
-                            R"("frames":[]}})",
-                            session));
-        lk.lock();
-        continue;
-      }
-      replay_jobs_cv_.wait_for(lk, std::chrono::milliseconds(100));
-      if (stopped()) return;
-    }
-    ++replay_jobs_running_;
-  }
-  struct Slot {
-    Gateway& g;
-    ~Slot() {
-      {
-        std::lock_guard lk(g.replay_jobs_mutex_);
-        --g.replay_jobs_running_;
-      }
-      g.replay_jobs_cv_.notify_all();
-    }
-  } slot{*this};
-  if (fromCache()) return;  // computed while this one waited
-
-  // Frames go in chunks of kChunk (2 s of record at 50/s): the page poses what it has while
-  // the rest is computed.
-  constexpr std::size_t kChunk = 100;
-  auto computed = std::make_shared<ComputedHand>();
-  std::string chunk;
-  std::size_t in_chunk = 0, sent = 0;
-  auto flush = [&](double done_s) {
-    if (in_chunk == 0) return;
-    fmt::format_to(std::back_inserter(chunk), R"(],"done_s":{:.3f}}})", done_s);
-    computed->bytes += chunk.size();
-    computed->chunks.push_back(chunk);
-    push(c, std::move(chunk));
-    chunk.clear();
-    sent += in_chunk;
-    stats_.replay_hand_frames += in_chunk;
-    in_chunk = 0;
-  };
-  ReplayHandOptions ho;
-  ho.cases_dir = o_.cases;
-  ho.hz = o_.replay_hand_hz;
-  ho.min_hz = std::min(10.0, o_.replay_hand_hz);
-  ho.max_frames = o_.replay_hand_frames;
-  ho.max_s = o_.replay_hand_s;
-  const ReplayHandResult r = replayHand(
-      o_.db, session, *hand_model_, ho,
-      [&](const telehand_msg_HandState& h) {
-        if (in_chunk == 0) {
-          chunk = fmt::format(R"({{"type":"replay_hand","session":{},"first":{},"frames":[)",
-                              session, sent);
-        } else {
-          chunk += ',';
-        }
-        chunk += handFrame(h, h.device_time_ns);
-        ++in_chunk;
-      },
-      [&](double done_s) {
-        if (in_chunk >= kChunk) flush(done_s);
-        return !stopped();
-      });
-  flush(r.simulated_s);
-  if (r.cancelled) return;  // a newer replay, or the browser is gone
-  if (r.ok) {
-    ++stats_.replay_hands;
-    spdlog::info(
-        "browser {}: replay of session {}: {} hand frames at {:g}/s over {:.1f} of "
-        "{:.1f} s, computed in {:.2f} s",
-        c.id, session, r.frames, r.hz, r.simulated_s, r.duration_s, r.compute_s);
-    computed->result = r;
-    if (key) replay_cache_.put(*key, std::move(computed));
-  } else {
-    spdlog::warn("browser {}: replay of session {}: no hand: {}", c.id, session, r.error);
-  }
-  push(c, handEndFrame(session, r, sent, o_.replay_hand_s, o_.replay_hand_frames, false));
 }
 
 void Gateway::records(Client& c) {
@@ -860,9 +727,8 @@ std::string Gateway::statsJson() const {
       stats_.writer_threads.load(), sessions, stats_.hand_states.load(), stats_.hand_frames.load(),
       stats_.hand_sent.load(), stats_.hand_coalesced.load(), stats_.messages_in.load(),
       stats_.bad_messages.load(), stats_.unknown_session.load(), stats_.marks.load(),
-      stats_.replays.load(), stats_.dropped_slow.load(), stats_.replay_hands.load(),
-      stats_.replay_hand_frames.load(), stats_.replay_hand_cached.load(),
-      stats_.replay_workers.load());
+      stats_.replays.load(), stats_.dropped_slow.load(), replay_hands_->hands.load(),
+      replay_hands_->frames.load(), replay_hands_->cached.load(), stats_.replay_workers.load());
 }
 
 }  // namespace telehand::web

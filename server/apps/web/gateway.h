@@ -16,7 +16,7 @@
 #include <string_view>
 #include <thread>
 
-#include "replay_cache.h"
+#include "replay_service.h"
 #include "telehand/protocol/dds.h"
 #include "telehand/server/sim/hand_model.h"
 
@@ -63,10 +63,7 @@ struct Stats {
   std::atomic<uint64_t> replays{0};
   std::atomic<uint64_t> dropped_slow{0};    ///< browsers dropped for a full queue
   std::atomic<uint64_t> writer_threads{0};  ///< writer threads alive now
-  std::atomic<uint64_t> replay_hands{0};    ///< replays' hands computed (to their end or a bound)
-  std::atomic<uint64_t> replay_hand_frames{0};  ///< hand frames those sent
-  std::atomic<uint64_t> replay_hand_cached{0};  ///< replays' hands sent from the cache
-  std::atomic<uint64_t> replay_workers{0};      ///< threads computing a replay's hand now
+  std::atomic<uint64_t> replay_workers{0};  ///< threads sending a replay's hand now
 };
 
 class Gateway {
@@ -111,7 +108,6 @@ class Gateway {
   void replay(const std::shared_ptr<Client>& c, uint64_t session);
   /// Computes the replay's hand on a thread of the client's own, sending it as it goes.
   void startReplayHand(const std::shared_ptr<Client>& c, uint64_t session);
-  void replayHandLoop(const std::shared_ptr<Client>& c, uint64_t session);
   /// Stops and joins the client's replay hand thread, if any.
   void stopReplayHand(Client& c);
   void records(Client& c);
@@ -122,10 +118,7 @@ class Gateway {
   uint64_t gateway_id_;
   std::string dofs_json_;
   std::unique_ptr<const server::sim::HandModel> hand_model_;
-  std::mutex replay_jobs_mutex_;
-  std::condition_variable replay_jobs_cv_;
-  std::size_t replay_jobs_running_ = 0;
-  ReplayHandCache replay_cache_{o_.replay_cache_bytes};
+  std::unique_ptr<ReplayHandService> replay_hands_;
   dds::Participant participant_;
   dds::Topics topics_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;
