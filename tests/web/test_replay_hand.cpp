@@ -90,8 +90,10 @@ class ReplayHandTest : public ::testing::Test {
   /// A session on `case_name`, `ms` samples of `m` live and into the record, closed. The
   /// server's tick comes after every tenth sample, so its HandStates reflect samples 0, 10,
   /// 20, ...: `live` keeps them by that sample.
+  /// `lost_every`: every so many samples one never reaches the server (neither live nor in
+  /// the record: the hand steps across the gap).
   uint64_t liveSession(const std::string& case_name, const Motion& m, int ms,
-                       std::map<uint64_t, telehand_msg_HandState>& live) {
+                       std::map<uint64_t, telehand_msg_HandState>& live, int lost_every = 0) {
     auto open = command(telehand_msg_CMD_OPEN);
     open.mode = telehand_msg_MODE_MOBILIZATION;
     copyString(open.case_name, case_name);
@@ -120,10 +122,11 @@ class ReplayHandTest : public ::testing::Test {
       d.fingers[1].normal_n = static_cast<float>(m.force(t) * 0.25);
       for (int j = 0; j < 3; ++j) d.mcp_angles_rad[j] = angles[j];
       now_ns_ = t0 + i * 1'000'000LL;
-      manager_->onDeviceState(d, now_ns_);
+      const bool lost = lost_every > 0 && i % lost_every == lost_every / 2;
+      if (!lost) manager_->onDeviceState(d, now_ns_);
       if (i % 10 == 0) manager_->tick(now_ns_);
-      chunk.push_back(d);
-      if (chunk.size() == 100 || i + 1 == ms) flush(session, chunk);
+      if (!lost) chunk.push_back(d);
+      if ((chunk.size() == 100 || i + 1 == ms) && !chunk.empty()) flush(session, chunk);
     }
     auto close = command(telehand_msg_CMD_CLOSE, session);
     close.samples_sent = static_cast<uint64_t>(ms);
@@ -287,6 +290,12 @@ TEST_F(ReplayHandTest, ALongRecordIsCutAtTheBoundsAndSaysSo) {
     EXPECT_TRUE(r.cut);
     EXPECT_LE(frames.size(), 40u);
     EXPECT_GT(r.simulated_s, 2.5);
+    // At that rate too, every frame whose sample the live hand was published at is the live
+    // state (samples 0, 150, 300, ...).
+    const Worst w = compare(frames, live);
+    EXPECT_GE(w.compared, 19u);
+    EXPECT_LE(w.joints, 1e-6);
+    EXPECT_LE(w.mcp, 1e-6);
   }
   {  // the browser left: stopped between frames
     o.max_frames = 9000;
@@ -342,6 +351,27 @@ TEST_F(ReplayHandTest, AMissingCaseOrSessionIsAnErrorNotACrash) {
   EXPECT_FALSE(r.ok);
   EXPECT_FALSE(r.error.empty());
   EXPECT_TRUE(frames.empty());
+}
+
+TEST_F(ReplayHandTest, SamplesLostOnTheWayAreSteppedAcrossAsLive) {
+  // One sample in 37 never arrives, in bursts the hand catches up on by interpolation.
+  std::map<uint64_t, telehand_msg_HandState> live;
+  const uint64_t session = liveSession("lax", Motion{2.5, 25.0, 12.0, 4.0}, 4000, live, 37);
+  ASSERT_NE(session, 0u);
+  std::vector<telehand_msg_HandState> frames;
+  ReplayHandOptions o;
+  o.cases_dir = config_.cases_dir;
+  o.hz = 25.0;
+  const ReplayHandResult r = replay(session, o, frames);
+  ASSERT_TRUE(r.ok) << r.error;
+  EXPECT_EQ(r.samples, 4000u - 108u);  // samples 18, 55, ..., 3981 never arrived
+  const Worst w = compare(frames, live);
+  EXPECT_GE(w.compared, 90u);
+  EXPECT_LE(w.joints, 1e-6);
+  EXPECT_LE(w.mcp, 1e-6);
+  EXPECT_LE(w.contact, 1e-6);
+  std::cout << "lax, 1 in 37 lost: " << w.compared << " frames, worst joints " << w.joints
+            << " rad\n";
 }
 
 }  // namespace

@@ -91,12 +91,14 @@ ReplayHandResult replayHand(const std::string& db, uint64_t session,
 
     // The rate: hz, lowered (to min_hz at most) so that the whole record fits max_frames;
     // a whole number of milliseconds per frame. Then as much of the record as the bounds let.
+    const double hz = std::clamp(o.hz, 0.1, 1000.0);
+    const std::size_t max_frames = std::max<std::size_t>(o.max_frames, 2);
     const double want_hz =
-        std::clamp(std::min(o.hz, static_cast<double>(o.max_frames) / std::max(r.duration_s, 1e-3)),
-                   std::min(o.min_hz, o.hz), o.hz);
+        std::clamp(std::min(hz, static_cast<double>(max_frames) / std::max(r.duration_s, 1e-3)),
+                   std::min(o.min_hz, hz), hz);
     const int64_t period_ms = std::max<int64_t>(1, std::llround(std::ceil(1000.0 / want_hz)));
     r.hz = 1000.0 / static_cast<double>(period_ms);
-    const double cover_s = std::min(o.max_s, static_cast<double>(o.max_frames - 1) / r.hz);
+    const double cover_s = std::min(o.max_s, static_cast<double>(max_frames - 1) / r.hz);
 
     // The server's own replay (Session::startReplay), publishing every period of record.
     ServerConfig config;
@@ -120,7 +122,7 @@ ReplayHandResult replayHand(const std::string& db, uint64_t session,
     for (;;) {
       replay.tick(now_ns);  // steps every sample due by now, then publishes one HandState
       if (replay.finished()) break;
-      if (replay.positionS() >= cover_s || out.frames >= o.max_frames) {
+      if (replay.positionS() >= cover_s || out.frames >= max_frames) {
         r.cut = true;
         break;
       }
