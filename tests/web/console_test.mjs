@@ -3,7 +3,8 @@
 // stopped by PID); headless Chromium (Debian's) driven by playwright-core opens the page and
 // checks that the session appears, the hand's MCP angle follows HandState within 0.5 deg,
 // the force plot moves at >= 20 updates/s, a mark typed in the page reaches the record, and
-// a replay of the finished session scrubs to a given time and shows that sample's angle.
+// a replay of the finished session scrubs to a given time and shows that sample's angle, and
+// the whole 3D hand there (a non-MCP joint) as the gateway's replayed hand frame has it.
 // Screenshots of live and replay go to --artifacts.
 //
 // node console_test.mjs --build DIR --deploy DIR --artifacts DIR [--chromium PATH]
@@ -244,6 +245,49 @@ try {
     check(Math.abs(r.mcp - aRec) <= 0.5 && Math.abs(parseFloat(r.shown) - aRec) <= 0.01,
       `replay shows ${r.shown} for the record's ${aRec.toFixed(3)} deg`);
   }
+
+  // The replay's whole hand: the gateway runs the record through the server's hand code. A
+  // separate WebSocket (not the page's code) takes the frames the gateway sends; the page,
+  // scrubbed to the target, poses every joint from the frame nearest it.
+  await waitFor(page, () => window.telehand.replayHand?.done, null, 90000, "the replay's hand");
+  const rh = await page.evaluate(() => window.telehand.replayHand);
+  check(rh.ok && rh.frames >= 20 * Math.floor(duration), `the replay's hand: ${rh.frames} frames at ${rh.hz}/s`
+    + ` over ${rh.simulated_s?.toFixed(1)} s, computed in ${rh.compute_s?.toFixed(2)} s (${rh.message})`, JSON.stringify(rh));
+  const gw = await page.evaluate((id) => new Promise((resolve, reject) => {
+    const ws = new WebSocket(`ws://${location.host}/ws`);
+    const got = { dofs: null, frames: [], t0: null, end: null };
+    ws.onopen = () => ws.send(JSON.stringify({ op: 'replay', session: id }));
+    ws.onmessage = (e) => {
+      const m = JSON.parse(e.data);
+      if (m.type === 'hello') got.dofs = m.dofs;
+      if (m.type === 'replay') got.t0 = m.t0_ms;
+      if (m.type === 'replay_hand') got.frames.push(...m.frames.map((f) => ({ seq: f.dev_seq, t: (f.dev_t_ms - got.t0) / 1000, joints: f.joints })));
+      if (m.type === 'replay_hand_end') { got.end = m; ws.close(); resolve(got); }
+    };
+    ws.onerror = () => reject(new Error('websocket error'));
+  }), session);
+  check(gw.frames.length === rh.frames, `a second connection gets the same ${gw.frames.length} hand frames`);
+  // The joint that moves most apart from the index MCP's three.
+  let jBest = -1;
+  let jRange = 0;
+  gw.dofs.forEach((name, j) => {
+    if (name.startsWith('index_mcp')) return;
+    const a = gw.frames.map((f) => f.joints[j]);
+    const range = Math.max(...a) - Math.min(...a);
+    if (range > jRange) { jRange = range; jBest = j; }
+  });
+  if (jBest < 0) jBest = gw.dofs.findIndex((name) => !name.startsWith('index_mcp'));
+  await page.evaluate((t) => window.telehandSeek(t), target);
+  const posed = await page.evaluate((name) => ({ frame: window.telehand.replayHandFrame, deg: window.telehand.jointDeg(name),
+    mcpDeg: window.telehand.jointDeg('index_mcp_flexion') }), gw.dofs[jBest]);
+  const nearest = gw.frames.reduce((b, f) => (Math.abs(f.t - target) < Math.abs(b.t - target) ? f : b));
+  check(posed.frame && posed.frame.dev_seq === nearest.seq,
+    `scrubbed to ${target.toFixed(2)} s: the page poses the hand frame of sample ${posed.frame?.dev_seq} (nearest: ${nearest.seq} at ${nearest.t.toFixed(3)} s)`);
+  const jGw = (nearest.joints[jBest] * 180) / Math.PI;
+  const jMcp = (nearest.joints[gw.dofs.indexOf('index_mcp_flexion')] * 180) / Math.PI;
+  check(Math.abs(posed.deg - jGw) <= 0.01 && Math.abs(posed.mcpDeg - jMcp) <= 0.01,
+    `3D ${gw.dofs[jBest]} ${posed.deg.toFixed(4)} deg, the gateway's frame ${jGw.toFixed(4)} deg (it moves over `
+    + `${((jRange * 180) / Math.PI).toFixed(1)} deg in the replay); MCP flexion ${posed.mcpDeg.toFixed(3)} vs ${jMcp.toFixed(3)} deg`);
   await sleep(300);
   await page.screenshot({ path: path.join(artifacts, 'console-replay.png') });
   void server;

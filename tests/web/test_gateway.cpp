@@ -1,15 +1,20 @@
 // telehand-web's WebSocket handling, against the real program (loopback DDS, a partition of
 // its own, stopped by PID): malformed and oversized messages, unknown session ids, closed
-// tabs, the browser limit, and that none of them leaves a thread or memory behind.
+// tabs, the browser limit, and that none of them leaves a thread or memory behind; a replay's
+// hand, computed from the record, cut at its bound, or missing for want of a patient case.
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
 #include <regex>
 #include <thread>
 
 #include "process.h"
 #include "process_test.h"
+#include "telehand/core/clock.h"
+#include "telehand/core/joint_model.h"
 #include "telehand/server/store/sqlite_store.h"
 #include "ws_client.h"
 
@@ -32,6 +37,57 @@ uint64_t statOf(const std::string& json, const std::string& key) {
   return matchNumber(json, "\"" + key + "\":(\\d+)");
 }
 
+/// A closed record of `seconds` of a 3 Hz mobilization of the index MCP on `case_name`, written
+/// into the store as the server writes a session's samples.
+uint64_t writeRecord(const std::string& db, const std::string& case_name, double seconds) {
+  server::store::SqliteStore store(db);
+  server::store::SessionInfo info;
+  info.user = "student";
+  info.case_name = case_name;
+  info.mode = "mobilization";
+  info.state = "active";
+  info.started_ns = wallNs();
+  const uint64_t id = store.createSession(info);
+  const JointModel joint(healthyIndexMcp());
+  const auto n = static_cast<uint64_t>(seconds * 1000.0) + 1;
+  std::vector<Sample> batch;
+  for (uint64_t i = 0; i < n; ++i) {
+    const double t = static_cast<double>(i) * 1e-3;
+    Sample d;
+    d.session_id = id;
+    d.seq = i;
+    d.source_time_ns = info.started_ns + static_cast<int64_t>(i) * 1'000'000;
+    d.model_version = 1;
+    const Vec3 angles(degToRad(20.0 + 8.0 * std::sin(2 * M_PI * 3.0 * t)), 0.0, 0.0);
+    const PerFinger<Vec3> p = joint.gripFromAngles(angles, 0.008);
+    for (int k = 0; k < 2; ++k) {
+      const Quat q = joint.thimbleOrientation(k, angles);
+      const double qv[4] = {q.w(), q.x(), q.y(), q.z()};
+      for (int j = 0; j < 3; ++j) d.fingers[k].position_m[j] = p[k][j];
+      for (int j = 0; j < 4; ++j) d.fingers[k].orientation_q[j] = qv[j];
+    }
+    d.fingers[1].normal_n = static_cast<float>((14.0 + 2.0 * std::sin(2 * M_PI * 3.0 * t)) * 0.25);
+    for (int j = 0; j < 3; ++j) d.mcp_angles_rad[j] = angles[j];
+    batch.push_back(d);
+    if (batch.size() == 10'000 || i + 1 == n) {
+      const std::vector<uint8_t> valid(batch.size(), 1);
+      store.appendSamples(id, batch, valid);
+      batch.clear();
+    }
+  }
+  store.closeSession(id, wallNs(), n, "closed");
+  return id;
+}
+
+/// What a replay sends: the per-sample frame, its hand's chunks (frames in order), the end.
+struct ReplayReceived {
+  std::optional<std::string> replay;
+  std::vector<nlohmann::json> frames;
+  std::size_t chunks = 0;
+  std::size_t bytes = 0;  ///< of the chunks
+  std::optional<nlohmann::json> end;
+};
+
 class GatewayTest : public ProcessTest {
  protected:
   GatewayTest() : ProcessTest("web", TELEHAND_LOOPBACK_XML) {}
@@ -40,7 +96,7 @@ class GatewayTest : public ProcessTest {
     db_ = path("records.db");
     { server::store::SqliteStore store(db_); }  // an empty store
     web_.emplace(cmd(TELEHAND_WEB_BIN, {"--db", db_, "--bind", "127.0.0.1:0", "--max-clients", "8",
-                                        "--log-level", "warn"}),
+                                        "--replay-hand-s", "20", "--log-level", "warn"}),
                  path("web.log"));
     // Port 0: the system chooses; the gateway prints which.
     for (int i = 0; i < 200 && port_ == 0; ++i) {
@@ -67,6 +123,27 @@ class GatewayTest : public ProcessTest {
       std::this_thread::sleep_for(50ms);
     }
     return false;
+  }
+
+  /// Asks `c` to replay `session` and takes what comes until the hand's end.
+  static ReplayReceived replay(WsClient& c, uint64_t session) {
+    ReplayReceived r;
+    EXPECT_TRUE(c.send(R"({"op":"replay","session":)" + std::to_string(session) + "}"));
+    r.replay = c.waitFor("\"type\":\"replay\"");
+    while (!r.end) {
+      const auto m = c.waitFor("\"type\":\"replay_hand", 60s);
+      if (!m) break;
+      auto j = nlohmann::json::parse(*m);
+      if (j["type"] == "replay_hand_end") {
+        r.end = std::move(j);
+      } else {
+        EXPECT_EQ(j["first"].get<std::size_t>(), r.frames.size());
+        for (auto& f : j["frames"]) r.frames.push_back(std::move(f));
+        ++r.chunks;
+        r.bytes += m->size();
+      }
+    }
+    return r;
   }
 
   std::string db_;
@@ -225,10 +302,10 @@ TEST_F(GatewayTest, ATakeOverFromThePageLeadsTheRunsGuidedTrials) {
   ASSERT_EQ(clinician.wait(40s), 0) << clinician.output();
   const uint64_t demo = matchNumber(clinician.output(), R"(session (\d+) open)");
   ASSERT_GT(demo, 0u);
-  Process create({TELEHAND_RECORDS_BIN, "--db", db_, "lesson", "create", "--demo",
-                  std::to_string(demo), "--guided", "2", "--attempts", "1", "--trial-seconds", "5",
-                  "--no-assessment", "--takeover"},
-                 path("create.log"));
+  Process create(
+      {TELEHAND_RECORDS_BIN, "--db", db_, "lesson", "create", "--demo", std::to_string(demo),
+       "--guided", "2", "--attempts", "1", "--trial-seconds", "5", "--no-assessment", "--takeover"},
+      path("create.log"));
   ASSERT_EQ(create.wait(30s), 0) << create.output();
   const uint64_t lesson = matchNumber(create.output(), R"(lesson (\d+) )");
   ASSERT_GT(lesson, 0u) << create.output();
@@ -240,8 +317,8 @@ TEST_F(GatewayTest, ATakeOverFromThePageLeadsTheRunsGuidedTrials) {
                      path("supervisor.log"));
   const uint64_t lead = awaitNumber(supervisor, R"(session (\d+) open)", 20s);
   ASSERT_GT(lead, 0u) << supervisor.output();
-  Process student(cmd(TELEHAND_CLIENT_BIN, {"--lesson", std::to_string(lesson), "--user", "student",
-                                            "--no-fault-stop"}),
+  Process student(cmd(TELEHAND_CLIENT_BIN,
+                      {"--lesson", std::to_string(lesson), "--user", "student", "--no-fault-stop"}),
                   path("student.log"));
   const uint64_t run = awaitNumber(student, R"(session (\d+) open: lesson)", 20s);
   ASSERT_GT(run, 0u) << student.output();
@@ -257,13 +334,13 @@ TEST_F(GatewayTest, ATakeOverFromThePageLeadsTheRunsGuidedTrials) {
   ASSERT_TRUE(c.waitFor(R"("type":"watching")"));
   // What the gateway refuses itself: the supervisor's session runs no lesson; a leading
   // session nobody opened.
-  ASSERT_TRUE(c.send(R"({"op":"takeover","session":)" + std::to_string(lead) +
-                     R"(,"from":)" + std::to_string(run) + "}"));
+  ASSERT_TRUE(c.send(R"({"op":"takeover","session":)" + std::to_string(lead) + R"(,"from":)" +
+                     std::to_string(run) + "}"));
   auto e = c.waitFor(R"("type":"error")");
   ASSERT_TRUE(e);
   EXPECT_NE(e->find("not a lesson run that allows a take-over"), std::string::npos) << *e;
-  ASSERT_TRUE(c.send(R"({"op":"takeover","session":)" + std::to_string(run) +
-                     R"(,"from":987654321})"));
+  ASSERT_TRUE(
+      c.send(R"({"op":"takeover","session":)" + std::to_string(run) + R"(,"from":987654321})"));
   e = c.waitFor(R"("type":"error")");
   ASSERT_TRUE(e);
   EXPECT_NE(e->find("session 987654321 is not an open mobilization"), std::string::npos) << *e;
@@ -302,6 +379,129 @@ TEST_F(GatewayTest, ATakeOverFromThePageLeadsTheRunsGuidedTrials) {
   ASSERT_EQ(trials.size(), 3u);
   EXPECT_EQ(trials[0].phase, "guided");
   EXPECT_EQ(trials[1].phase, "guided");
+}
+
+TEST_F(GatewayTest, AReplayCarriesTheHandComputedFromTheRecord) {
+  const uint64_t session = writeRecord(db_, "healthy", 4.0);
+  WsClient c(port_);
+  ASSERT_TRUE(c.ok()) << c.error();
+  ASSERT_TRUE(c.waitFor("\"type\":\"hello\""));
+  const ReplayReceived r = replay(c, session);
+  ASSERT_TRUE(r.replay);
+  EXPECT_NE(r.replay->find("\"points\":4001"), std::string::npos);
+  ASSERT_TRUE(r.end) << web_->output();
+  const auto& end = *r.end;
+  EXPECT_TRUE(end["ok"].get<bool>()) << end.dump();
+  EXPECT_FALSE(end["cut"].get<bool>()) << end.dump();
+  EXPECT_EQ(end["case"], "healthy");
+  EXPECT_DOUBLE_EQ(end["hz"].get<double>(), 50.0);
+  EXPECT_NEAR(end["duration_s"].get<double>(), 4.0, 1e-6);
+  // 50 frames a second of record, the first sample's to the last's, each shaped as a live
+  // hand frame: all 25 joints, the spheres, the contacts, the carpus.
+  ASSERT_EQ(r.frames.size(), 201u);
+  EXPECT_EQ(end["frames"].get<std::size_t>(), r.frames.size());
+  EXPECT_GE(r.chunks, 3u);
+  double mcp_min = 1e9, mcp_max = -1e9;
+  for (std::size_t i = 0; i < r.frames.size(); ++i) {
+    const auto& f = r.frames[i];
+    EXPECT_EQ(f["source"], "bullet");
+    EXPECT_EQ(f["dev_seq"].get<uint64_t>(), std::min<uint64_t>(20 * i, 4000)) << i;
+    ASSERT_EQ(f["joints"].size(), 25u);
+    ASSERT_EQ(f["sphere"].size(), 2u);
+    ASSERT_EQ(f["contact"].size(), 2u);
+    ASSERT_EQ(f["bone0"].size(), 7u);
+    mcp_min = std::min(mcp_min, f["mcp"][0].get<double>());
+    mcp_max = std::max(mcp_max, f["mcp"][0].get<double>());
+  }
+  // The hand follows the 16 deg flexion of the record.
+  EXPECT_GT(radToDeg(mcp_max - mcp_min), 10.0);
+  EXPECT_FALSE(end["cached"].get<bool>());
+  std::cout << "4 s of record's hand: " << r.frames.size() << " frames, " << r.bytes << " bytes in "
+            << r.chunks << " chunks, computed in " << end["compute_s"] << " s\n";
+  // Another tab replaying the same record gets the same hand at once, from the cache.
+  WsClient other(port_);
+  ASSERT_TRUE(other.waitFor("\"type\":\"hello\""));
+  const ReplayReceived again = replay(other, session);
+  ASSERT_TRUE(again.end);
+  EXPECT_TRUE((*again.end)["cached"].get<bool>()) << again.end->dump();
+  EXPECT_EQ(again.frames, r.frames);
+  const std::string s = stats();
+  EXPECT_EQ(statOf(s, "replay_hands"), 1u) << s;
+  EXPECT_EQ(statOf(s, "replay_hand_cached"), 1u) << s;
+  EXPECT_EQ(statOf(s, "replay_hand_frames"), 201u) << s;
+  // The record grows (a session still being recorded): computed afresh.
+  {
+    server::store::SqliteStore store(db_);
+    Sample extra;
+    extra.session_id = session;
+    extra.seq = 4001;
+    extra.source_time_ns = 0;
+    const uint8_t valid[] = {0};  // an invalid sample: stored, never stepped
+    store.appendSamples(session, std::span<const Sample>(&extra, 1), valid);
+  }
+  const ReplayReceived grown = replay(other, session);
+  ASSERT_TRUE(grown.end);
+  EXPECT_FALSE((*grown.end)["cached"].get<bool>()) << grown.end->dump();
+  EXPECT_EQ(grown.frames.size(), r.frames.size());
+}
+
+TEST_F(GatewayTest, ALongRecordsHandIsCutAtTheBoundWhileTheGatewayAnswers) {
+  const uint64_t session = writeRecord(db_, "stiff", 30.0);  // the gateway simulates 20 s
+  WsClient c(port_);
+  ASSERT_TRUE(c.ok()) << c.error();
+  ASSERT_TRUE(c.waitFor("\"type\":\"hello\""));
+  ASSERT_TRUE(c.send(R"({"op":"replay","session":)" + std::to_string(session) + "}"));
+  ASSERT_TRUE(c.waitFor("\"type\":\"replay\""));
+  // While the hand is computed (18 s of record still to go), the gateway answers at once.
+  ASSERT_TRUE(c.waitFor("\"type\":\"replay_hand\""));
+  ASSERT_TRUE(c.send(R"({"op":"ping","t":7})"));
+  const auto pong = c.waitFor("\"type\":\"pong\"", 60s);
+  ASSERT_TRUE(pong);
+  const auto end_text = c.waitFor("\"type\":\"replay_hand_end\"", 60s);
+  ASSERT_TRUE(end_text) << "the pong came after the hand's end, or no end: " << web_->output();
+  const auto end = nlohmann::json::parse(*end_text);
+  EXPECT_TRUE(end["ok"].get<bool>()) << *end_text;
+  EXPECT_TRUE(end["cut"].get<bool>()) << *end_text;
+  EXPECT_NEAR(end["simulated_s"].get<double>(), 20.0, 1e-6) << *end_text;
+  std::cout << "20 s of record's hand: " << end["frames"] << " frames computed in "
+            << end["compute_s"] << " s\n";
+  EXPECT_EQ(end["frames"].get<std::size_t>(), 1001u) << *end_text;
+  EXPECT_NE(end["message"].get<std::string>().find("the first 20.0 s of the record's 30.0 s"),
+            std::string::npos)
+      << *end_text;
+  // A tab closed while its hand is computed (another record: this one's is in the cache now)
+  // stops it and leaves no thread behind.
+  const uint64_t another = writeRecord(db_, "healthy", 30.0);
+  {
+    WsClient gone(port_);
+    ASSERT_TRUE(gone.waitFor("\"type\":\"hello\""));
+    ASSERT_TRUE(gone.send(R"({"op":"replay","session":)" + std::to_string(another) + "}"));
+    ASSERT_TRUE(gone.waitFor("\"type\":\"replay_hand\""));
+  }
+  c.close();
+  EXPECT_TRUE(drained()) << stats();
+  EXPECT_EQ(statOf(stats(), "replay_workers"), 0u) << stats();
+  EXPECT_EQ(statOf(stats(), "replay_hands"), 1u) << stats();
+  EXPECT_LT(statOf(stats(), "replay_hand_frames"), 1001u + 1001u) << stats();
+}
+
+TEST_F(GatewayTest, AReplayOnAMissingCaseHasNoHandAndSaysWhy) {
+  const uint64_t session = writeRecord(db_, "no-such-case", 1.0);
+  WsClient c(port_);
+  ASSERT_TRUE(c.ok()) << c.error();
+  ASSERT_TRUE(c.waitFor("\"type\":\"hello\""));
+  const ReplayReceived r = replay(c, session);
+  ASSERT_TRUE(r.replay);  // the record itself replays
+  EXPECT_NE(r.replay->find("\"points\":1001"), std::string::npos);
+  ASSERT_TRUE(r.end);
+  EXPECT_FALSE((*r.end)["ok"].get<bool>()) << r.end->dump();
+  EXPECT_TRUE(r.frames.empty());
+  const std::string message = (*r.end)["message"];
+  EXPECT_NE(message.find("no hand for this replay"), std::string::npos) << message;
+  EXPECT_NE(message.find("no-such-case"), std::string::npos) << message;
+  // Still served.
+  ASSERT_TRUE(c.send(R"({"op":"ping","t":1})"));
+  EXPECT_TRUE(c.waitFor("\"type\":\"pong\""));
 }
 
 }  // namespace

@@ -14,6 +14,9 @@ const probe = {
   connected: false, mode: null, session: 0, sessions: [], lastHand: null, shownMcpDeg: null,
   handMcpDeg: null, plotUpdates: 0, handFrames: 0, events: [], errors: [], acks: [],
   replay: null, replayT: null, replayMcpDeg: null, records: [],
+  replayHand: null, replayHandFrame: null,
+  // The 3D model's angle of a joint now, degrees (tests compare it with the gateway's frames).
+  jointDeg: (name) => deg(hand.byName.get(name)?.angle ?? NaN),
 };
 window.telehand = probe;
 
@@ -27,6 +30,7 @@ let lastHand = null;     // the newest hand frame and when it came (performance.
 let lastHandAt = 0;
 let view = { mode: null, session: 0 };
 let replay = null;       // the replay frame being shown
+let replayHand = null;   // its hand: HandState frames the gateway computes from the record
 let playing = false;
 let replayPos = 0;       // seconds into the replay
 let replaySpeed = 1;
@@ -234,6 +238,10 @@ const handlers = {
   },
   replay(m) {
     replay = m;
+    replayHand = { frames: [], t: [], done: false, ok: true, cut: false, hz: 0, message: '' };
+    probe.replayHand = { frames: 0, done: false };
+    $('replay-hand').textContent = 'hand: computing…';
+    $('replay-hand').className = 'muted';
     probe.replay = { session: m.session, points: m.points, duration: m.t[m.t.length - 1] || 0 };
     $('title').textContent = `Replay: session ${m.session} (${m.info.user}, ${m.info.case}, `
       + `${m.info.mode}), ${fmt(probe.replay.duration, 1)} s`;
@@ -246,6 +254,32 @@ const handlers = {
     mcpPlot.setData([m.t, m.alpha.map(deg), m.beta.map(deg), m.gamma.map(deg)]);
     probe.plotUpdates++;
     seek(0);
+  },
+  // The replay's hand, as the gateway computes it with the server's own hand code: chunks of
+  // frames shaped as live hand frames, then how it ended.
+  replay_hand(m) {
+    if (!replay || !replayHand || view.mode !== 'replay' || m.session !== replay.session) return;
+    if (m.frames.length && m.first !== replayHand.frames.length) return;  // not this replay's
+    for (const f of m.frames) {
+      replayHand.frames.push(f);
+      replayHand.t.push((f.dev_t_ms - replay.t0_ms) / 1000);
+    }
+    probe.replayHand = { frames: replayHand.frames.length, done: false, done_s: m.done_s };
+    $('replay-hand').textContent = m.queued ? 'hand: waiting for the gateway…'
+      : `hand: ${fmt(m.done_s, 1)} of ${fmt(probe.replay.duration, 1)} s…`;
+    if (!playing) seek(replayPos);
+  },
+  replay_hand_end(m) {
+    if (!replay || !replayHand || view.mode !== 'replay' || m.session !== replay.session) return;
+    Object.assign(replayHand, { done: true, ok: m.ok, cut: m.cut, hz: m.hz, message: m.message });
+    probe.replayHand = {
+      frames: replayHand.frames.length, done: true, ok: m.ok, cut: m.cut, hz: m.hz,
+      simulated_s: m.simulated_s, compute_s: m.compute_s, message: m.message,
+    };
+    $('replay-hand').textContent = m.ok && !m.cut ? `hand: ${m.frames} frames at ${m.hz}/s` : m.message;
+    $('replay-hand').title = m.message;
+    $('replay-hand').className = !m.ok ? 'bad' : m.cut ? 'warn' : 'muted';
+    if (!playing) seek(replayPos);
   },
 };
 
@@ -265,6 +299,7 @@ function watch(id) {
   probe.session = id;
   playing = false;
   replay = null;
+  replayHand = null;
   $('replay-bar').hidden = true;
   $('events').replaceChildren();
   resetLive();
@@ -294,13 +329,37 @@ function indexAt(t) {  // the last sample at or before t
   }
   return lo;
 }
+function handFrameAt(t) {  // the replay's hand frame nearest t, if its hand reaches t
+  const ts = replayHand ? replayHand.t : [];
+  if (!ts.length) return null;
+  let lo = 0;
+  let hi = ts.length - 1;
+  while (lo < hi) {  // the last frame at or before t
+    const mid = (lo + hi + 1) >> 1;
+    if (ts[mid] <= t) lo = mid; else hi = mid - 1;
+  }
+  if (lo + 1 < ts.length && ts[lo + 1] - t < t - ts[lo]) lo++;
+  const gap = ts.length > 1 ? ts[1] - ts[0] : 0.02;
+  return Math.abs(ts[lo] - t) <= gap ? { f: replayHand.frames[lo], t: ts[lo] } : null;
+}
 function seek(t) {
   if (!replay || !replay.t.length) return;
   replayPos = Math.max(0, Math.min(t, replay.t[replay.t.length - 1]));
   const i = indexAt(replayPos);
   const mcp = [replay.alpha[i], replay.beta[i], replay.gamma[i]];
-  hand.pose({ mcp });
-  showFigures(mcp, replay.force[i], { seq: `${replay.seq[i]}`, model: '–', devhz: '–', lost: '–', handhz: '–' });
+  // The whole hand from the frame nearest this moment, as live; where the hand has not been
+  // computed (yet, or past a bound), the index MCP from the record's proxy angles.
+  const hf = handFrameAt(replayPos);
+  if (hf) {
+    hand.pose(hf.f);
+  } else {
+    hand.rest();
+    hand.pose({ mcp });
+  }
+  probe.replayHandFrame = hf ? { dev_seq: hf.f.dev_seq, t: hf.t, joints: hf.f.joints } : null;
+  showFigures(mcp, replay.force[i], {
+    seq: `${replay.seq[i]}`, model: hf ? `v${hf.f.model}` : '–', devhz: '–', lost: '–', handhz: '–',
+  });
   $('timeline').value = replayPos;
   forcePlot.redraw(false, false);
   mcpPlot.redraw(false, false);

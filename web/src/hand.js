@@ -134,7 +134,7 @@ export class Hand {
     this.dirty = true;
   }
 
-  /// Every joint at rest (a replay poses the index MCP only).
+  /// Every joint at rest (a replay where its hand was not computed poses the index MCP only).
   rest() {
     for (const j of this.joints) this.setJoint(j.name, 0);
     for (const k of [0, 1]) { this.spheres[k].visible = false; this.arrows[k].visible = false; }
@@ -151,7 +151,7 @@ export class Hand {
     this.dirty = true;
   }
 
-  /// A HandState frame (or a replay sample: mcp only).
+  /// A HandState frame, live or a replay's (or a replay sample: mcp only).
   pose(f) {
     if (Array.isArray(f.joints) && f.joints.length && this.dofs) {
       f.joints.forEach((a, i) => this.setJoint(this.dofs[i], a));

@@ -80,6 +80,9 @@ struct Gateway::Client {
   std::shared_ptr<const std::string> hand;  // the newest HandState frame not yet sent
   int64_t next_hand_ns = 0;
   std::thread writer;
+  std::mutex replay_m;                     // guards replay_thread
+  std::thread replay_thread;               // sends the replay's hand (ReplayHandService)
+  std::atomic<bool> replay_cancel{false};  // the replay's hand is no longer wanted
 };
 
 struct Gateway::Session {
@@ -105,11 +108,21 @@ Gateway::Gateway(const Options& options)
       waitset_(participant_) {
   // HandState.joint_angles_rad's order is the hand model's (the server's --list-dofs): the
   // page is told the names rather than guessing the order from the URDF.
+  hand_model_ =
+      std::make_unique<const server::sim::HandModel>(server::sim::HandModel::load(o_.hand));
   std::string dofs;
-  for (const auto& n : server::sim::HandModel::load(o_.hand).dofNames()) {
+  for (const auto& n : hand_model_->dofNames()) {
     dofs += (dofs.empty() ? "" : ",") + jsonString(n);
   }
   dofs_json_ = "[" + dofs + "]";
+  ReplayHandOptions ho;
+  ho.cases_dir = o_.cases;
+  ho.hz = o_.replay_hand_hz;
+  ho.min_hz = std::min(10.0, o_.replay_hand_hz);
+  ho.max_frames = o_.replay_hand_frames;
+  ho.max_s = o_.replay_hand_s;
+  replay_hands_ = std::make_unique<ReplayHandService>(o_.db, *hand_model_, ho, o_.replay_hand_jobs,
+                                                      o_.replay_cache_bytes);
   waitset_.attach(status_reader_.handle(), 1);
   waitset_.attach(hand_reader_.handle(), 2);
   waitset_.attach(event_reader_.handle(), 3);
@@ -379,6 +392,7 @@ void Gateway::onClose(const mg_connection* conn) {
   }
   c->cv.notify_one();
   if (c->writer.joinable()) c->writer.join();
+  stopReplayHand(*c);
   --stats_.clients_open;
   spdlog::info("browser {} gone", c->id);
 }
@@ -577,7 +591,7 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
     }
     takeover(*c, *session, from);
   } else if (name == "replay") {
-    if (needSession()) replay(*c, *session);
+    if (needSession()) replay(c, *session);
   } else if (name == "records") {
     records(*c);
   } else {
@@ -700,7 +714,9 @@ void Gateway::takeover(Client& c, uint64_t session, uint64_t from) {
                                       : "give-back asked")));
 }
 
-void Gateway::replay(Client& c, uint64_t session) {
+void Gateway::replay(const std::shared_ptr<Client>& cp, uint64_t session) {
+  Client& c = *cp;
+  stopReplayHand(c);  // the hand of the replay before sends nothing after this one's frame
   if (o_.db.empty()) {
     push(c, errorFrame("no_store", "this gateway has no record store (--db)"));
     return;
@@ -716,7 +732,41 @@ void Gateway::replay(Client& c, uint64_t session) {
     push(c, std::move(*frame));
   } catch (const std::exception& e) {
     push(c, errorFrame("store", e.what()));
+    return;
   }
+  startReplayHand(cp, session);
+}
+
+// --- a replay's hand ---
+
+void Gateway::startReplayHand(const std::shared_ptr<Client>& c, uint64_t session) {
+  stopReplayHand(*c);  // the one this browser asked for before, if still running
+  if (stopping_.load()) return;
+  std::lock_guard lk(c->replay_m);
+  ++stats_.replay_workers;
+  c->replay_thread = std::thread([this, c, session] {
+    replay_hands_->run(
+        session, [&](std::string frame) { push(*c, std::move(frame)); },
+        [&] {
+          if (c->replay_cancel.load() || stopping_.load()) return true;
+          std::lock_guard ck(c->m);
+          return c->closing || c->close_code != 0;
+        });
+    --stats_.replay_workers;
+  });
+}
+
+void Gateway::stopReplayHand(Client& c) {
+  std::thread t;
+  {
+    std::lock_guard lk(c.replay_m);
+    t = std::move(c.replay_thread);
+  }
+  if (!t.joinable()) return;
+  c.replay_cancel.store(true);
+  replay_hands_->wake();
+  t.join();  // it stops within one frame's steps (a few ms)
+  c.replay_cancel.store(false);
 }
 
 void Gateway::records(Client& c) {
@@ -741,12 +791,15 @@ std::string Gateway::statsJson() const {
       R"({{"clients_open":{},"clients_total":{},"clients_refused":{},"writer_threads":{},)"
       R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
       R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
-      R"("takeovers":{},"dropped_slow":{}}})",
+      R"("takeovers":{},"dropped_slow":{},"replay_hands":{},"replay_hand_frames":{},)"
+      R"("replay_hand_cached":{},"replay_workers":{}}})",
       stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
       stats_.writer_threads.load(), sessions, stats_.hand_states.load(), stats_.hand_frames.load(),
       stats_.hand_sent.load(), stats_.hand_coalesced.load(), stats_.messages_in.load(),
       stats_.bad_messages.load(), stats_.unknown_session.load(), stats_.marks.load(),
-      stats_.replays.load(), stats_.takeovers.load(), stats_.dropped_slow.load());
+      stats_.replays.load(), stats_.takeovers.load(), stats_.dropped_slow.load(),
+      replay_hands_->hands.load(), replay_hands_->frames.load(), replay_hands_->cached.load(),
+      stats_.replay_workers.load());
 }
 
 }  // namespace telehand::web

@@ -16,7 +16,9 @@
 #include <string_view>
 #include <thread>
 
+#include "replay_service.h"
 #include "telehand/protocol/dds.h"
+#include "telehand/server/sim/hand_model.h"
 
 namespace telehand::web {
 
@@ -33,7 +35,16 @@ struct Options {
   std::size_t max_message = 4096;     ///< largest message a browser may send, bytes
   std::size_t queue_depth = 512;      ///< messages waiting for one browser before it is dropped
   std::size_t replay_points = 24000;  ///< samples a replay sends at most (decimated evenly)
-  double seconds = 0.0;               ///< run this long (0 = until SIGINT/SIGTERM)
+  /// A replay's hand (replay_hand.h): the patient cases the server reads, frames per second of
+  /// record, frames in all and seconds of record at most, and how many run at once (each
+  /// takes a core while it runs; more wait their turn).
+  std::string cases;
+  double replay_hand_hz = 50.0;
+  std::size_t replay_hand_frames = 9000;
+  double replay_hand_s = 600.0;
+  std::size_t replay_hand_jobs = 1;
+  std::size_t replay_cache_bytes = 64u << 20;  ///< replays' hands kept to send again
+  double seconds = 0.0;                        ///< run this long (0 = until SIGINT/SIGTERM)
 };
 
 /// Counters /api/stats reports (tests and the benchmark read them).
@@ -53,6 +64,7 @@ struct Stats {
   std::atomic<uint64_t> replays{0};
   std::atomic<uint64_t> dropped_slow{0};    ///< browsers dropped for a full queue
   std::atomic<uint64_t> writer_threads{0};  ///< writer threads alive now
+  std::atomic<uint64_t> replay_workers{0};  ///< threads sending a replay's hand now
 };
 
 class Gateway {
@@ -100,7 +112,11 @@ class Gateway {
   /// Writes `cmd` as this gateway's next command (client id, request number, time filled
   /// in); false when DDS refused it.
   bool sendCommand(telehand_msg_SessionCommand& cmd);
-  void replay(Client& c, uint64_t session);
+  void replay(const std::shared_ptr<Client>& c, uint64_t session);
+  /// Computes the replay's hand on a thread of the client's own, sending it as it goes.
+  void startReplayHand(const std::shared_ptr<Client>& c, uint64_t session);
+  /// Stops and joins the client's replay hand thread, if any.
+  void stopReplayHand(Client& c);
   void records(Client& c);
   bool knownSession(uint64_t id) const;
 
@@ -108,6 +124,8 @@ class Gateway {
   Stats stats_;
   uint64_t gateway_id_;
   std::string dofs_json_;
+  std::unique_ptr<const server::sim::HandModel> hand_model_;
+  std::unique_ptr<ReplayHandService> replay_hands_;
   dds::Participant participant_;
   dds::Topics topics_;
   dds::Reader<telehand_msg_SessionStatus> status_reader_;

@@ -33,6 +33,19 @@ int main(int argc, char** argv) {
   app.add_option("--hand", o.hand, "the hand model (URDF) the server's HandState follows")
       ->check(CLI::ExistingFile)
       ->capture_default_str();
+  o.cases = std::string(TELEHAND_DEPLOY_DIR) + "/cases";
+  app.add_option("--cases", o.cases,
+                 "the patient cases the server reads (telehand-server --cases): a replay's hand "
+                 "runs on the case its session ran on")
+      ->capture_default_str();
+  app.add_option("--replay-hand-hz", o.replay_hand_hz,
+                 "a replay's hand frames per second of record, at most")
+      ->check(CLI::Range(1.0, 100.0))
+      ->capture_default_str();
+  app.add_option("--replay-hand-s", o.replay_hand_s,
+                 "seconds of a record the replay's hand is simulated for, at most")
+      ->check(CLI::Range(1.0, 3600.0))
+      ->capture_default_str();
   app.add_option("--root", o.root, "the page's files")
       ->check(CLI::ExistingDirectory)
       ->capture_default_str();

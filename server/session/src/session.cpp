@@ -16,14 +16,12 @@
 
 namespace telehand::server::session {
 
-namespace {
 JointModelParams openingModel(const PatientCase& patient) {
   JointModelParams p = patient.at(0.0);
   p.version = 1;
   p.knn = nullptr;
   return p;
 }
-}  // namespace
 
 Session::Session(SessionContext& context, const store::SessionInfo& session_info,
                  const telehand_msg_SessionCommand& cmd, const PatientCase& patient_case,

@@ -22,6 +22,10 @@
 
 namespace telehand::server::session {
 
+/// The model a session on `patient` opens with (version 1; a replay of its record starts
+/// there too, without a guide: Session::startReplay).
+JointModelParams openingModel(const PatientCase& patient);
+
 class Session {
  public:
   Session(SessionContext& ctx, const store::SessionInfo& info,
