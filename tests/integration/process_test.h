@@ -35,11 +35,23 @@ class ProcessTest : public ::testing::Test {
     if (!HasFailure()) std::filesystem::remove_all(dir_);
   }
   std::vector<std::string> dds() const {
-    if (!pki_.empty()) {
-      return {"--dds-config", dds_config_, "--partition", partition_, "--pki", pki_};
+    std::vector<std::string> v{"--dds-config", dds_config_, "--partition", partition_};
+    if (domain_ >= 0) {
+      v.push_back("--domain");
+      v.push_back(std::to_string(domain_));
     }
-    return {"--dds-config", dds_config_, "--partition", partition_, "--insecure"};
+    if (!pki_.empty()) {
+      v.push_back("--pki");
+      v.push_back(pki_);
+    } else {
+      v.push_back("--insecure");
+    }
+    return v;
   }
+  /// A DDS domain of this test process's own (ids 100..199, by PID), for tests that measure
+  /// what a participant holds: another test's participants on the same domain are
+  /// discovered (and remembered) even on another partition.
+  void useOwnDomain() { domain_ = 100 + static_cast<int>(getpid() % 100); }
   /// `bin args... --dds-config X --partition P (--insecure | --pki DIR)`
   std::vector<std::string> cmd(std::string bin, std::vector<std::string> args) const {
     std::vector<std::string> v{std::move(bin)};
@@ -57,6 +69,7 @@ class ProcessTest : public ::testing::Test {
   std::string pki_;
   std::string dir_;
   std::string partition_;
+  int domain_ = -1;  ///< -1: the configuration's
 };
 
 }  // namespace telehand::test

@@ -93,6 +93,7 @@ class GatewayTest : public ProcessTest {
   GatewayTest() : ProcessTest("web", TELEHAND_LOOPBACK_XML) {}
   void SetUp() override {
     ProcessTest::SetUp();
+    useOwnDomain();  // ClosedTabsLeaveNothingBehind measures the gateway's memory
     db_ = path("records.db");
     { server::store::SqliteStore store(db_); }  // an empty store
     web_.emplace(cmd(TELEHAND_WEB_BIN, {"--db", db_, "--bind", "127.0.0.1:0", "--max-clients", "8",
