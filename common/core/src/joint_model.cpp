@@ -322,13 +322,21 @@ JointProxy::JointProxy(const JointModelParams& initial, int64_t blend_ns)
     : current_(initial), previous_(initial), pending_(initial), blend_ns_(blend_ns) {}
 
 void JointProxy::startFade(int64_t now_ns) noexcept {
-  // A new path (or a guide where there was none) starts at its beginning; a change of
-  // authority or stiffness on the same path keeps its phase.
+  // A guide where there was none starts at its path's beginning. A guide that follows one
+  // keeps the phase the movement is at: every path starts at the same point of the movement
+  // (an upward crossing of the force's mean level, technique::deriveTargets), so a new path
+  // or period (a supervisor's take-over, refreshed as they move) goes on from where the old
+  // one was, and the version faded out keeps its own clock: no step in either target.
   const GuideParams& was = current_.params().guide;
   const GuideParams& next = pending_.params().guide;
-  if (next.active() &&
-      (!was.active() || was.period_s != next.period_s || was.path_rad != next.path_rad)) {
+  prev_guide_t0_ns_ = guide_t0_ns_;
+  if (next.active() && !was.active()) {
     guide_t0_ns_ = now_ns;
+  } else if (next.active() && was.period_s > 0.0 && next.period_s > 0.0 &&
+             was.period_s != next.period_s) {
+    double cycles = static_cast<double>(now_ns - guide_t0_ns_) * 1e-9 / was.period_s;
+    cycles -= std::floor(cycles);
+    guide_t0_ns_ = now_ns - static_cast<int64_t>(std::llround(cycles * next.period_s * 1e9));
   }
   previous_ = current_;
   current_ = pending_;
@@ -385,7 +393,8 @@ ProxyOutput JointProxy::render(const PerFinger<Vec3>& p, int64_t now_ns) noexcep
   // The previous version renders with its own drift correction: a correction fades in like
   // any other model change.
   const Vec3 old_angles = previous_.proxyAngles(p);
-  const ProxyOutput old = renderWith(previous_, p, old_angles, rates_, guide_t_s);
+  const ProxyOutput old = renderWith(previous_, p, old_angles, rates_,
+                                     static_cast<double>(now_ns - prev_guide_t0_ns_) * 1e-9);
   double gap = 0.0, now_force = 0.0;
   for (int k = 0; k < 2; ++k) {
     gap = std::max(gap, (out.force_device_n[k] - old.force_device_n[k]).norm());

@@ -374,6 +374,63 @@ TEST(HapticLoopAlloc, GuidanceStaysInsideTheGateFadesAsScheduledAndAllocatesNoth
   EXPECT_EQ(guide_max[2], 0.0);
 }
 
+// A supervisor's take-over (docs/lessons.md "Take-over"): the guide follows another
+// rhythm (2 Hz, the supervisor's) than the simulated student's own push (3 Hz), and is
+// refreshed every 2 s with a path of another amplitude and period, as the server derives it
+// from the supervisor's latest record. Each refresh goes on from the phase the movement is
+// at; the finger stays in its range, nothing faults, every force leaves through the gate.
+TEST(HapticLoopAlloc, ATakenOverGuideRefreshedAsTheSupervisorMovesStaysStable) {
+  ManualClock clock(kNsPerS);
+  const JointModelParams model = healthyIndexMcp();
+  SimulatedMf2 sim(model, OperatorConfig{}, clock);
+  TestDevice dev(sim);
+  const SafetyLimits limits{};
+  HapticLoop hl(dev, clock, model, limits);
+  hl.setSession(79);
+  const double amplitudes[] = {9.2, 11.8, 10.9, 9.6, 12.5, 8.7};
+  const double periods[] = {0.50, 0.50, 0.52, 0.49, 0.50, 0.51};
+  double lo = 1e9, hi = -1e9, max_force = 0.0;
+  std::size_t allocations = 0;
+  for (int refresh = 0; refresh < 6; ++refresh) {
+    JointModelParams next = model;
+    next.version = static_cast<uint32_t>(2 + refresh);
+    next.guide.authority = 0.67;
+    next.guide.period_s = periods[refresh];
+    for (int k = 0; k < GuideParams::kPoints; ++k) {
+      const double ph = 2.0 * M_PI * k / GuideParams::kPoints;
+      next.guide.path_rad[static_cast<std::size_t>(k)] =
+          Vec3(degToRad(65.0 + amplitudes[refresh] / 2 * std::sin(ph)), 0, 0);
+    }
+    ASSERT_TRUE(hl.models().tryPush(next));
+    for (int i = 0; i < 2000; ++i) {
+      clock.advance(kNsPerMs);
+      {
+        AllocationGuard guard;
+        hl.step();
+        allocations += guard.allocations() + guard.deallocations();
+      }
+      Sample s;
+      while (hl.samples().tryPop(s)) {
+        lo = std::min(lo, radToDeg(s.mcp_angles_rad[kFlexion]));
+        hi = std::max(hi, radToDeg(s.mcp_angles_rad[kFlexion]));
+        for (int k = 0; k < 2; ++k) {
+          const Vec3 f(s.fingers[k].command_n[0], s.fingers[k].command_n[1],
+                       s.fingers[k].command_n[2]);
+          max_force = std::max(max_force, f.norm());
+        }
+      }
+    }
+  }
+  EXPECT_EQ(allocations, 0u);
+  EXPECT_EQ(hl.health().fault.load(), 0u) << loop::faultName(hl.fault());
+  EXPECT_LE(max_force, limits.max_force_n + 1e-9);
+  EXPECT_EQ(hl.health().models_applied.load(), 6u);
+  // The student's swing and the guide's together stay a mobilization, not a runaway.
+  EXPECT_GT(lo, model.axes[kFlexion].min_deg) << lo << ".." << hi << " deg";
+  EXPECT_LT(hi, model.axes[kFlexion].max_deg) << lo << ".." << hi << " deg";
+  std::printf("flexion %.1f..%.1f deg, peak device force %.2f N\n", lo, hi, max_force);
+}
+
 // The loop at its own pace (start/stop, the monotonic clock) on a device whose every 50th
 // transfer takes 2.5 ms: each tick that ends after its deadline is counted, and the sample
 // after it says so (sample_flags::kLoopOverrun), which is how the server and the web console

@@ -300,7 +300,8 @@ class JointProxy {
   int64_t last_ns_ = 0;
   Vec3 last_angles_ = Vec3::Zero();
   Vec3 rates_ = Vec3::Zero();
-  int64_t guide_t0_ns_ = 0;  // when the guide's path (as rendered now) started
+  int64_t guide_t0_ns_ = 0;       // when the guide's path (as rendered now) started
+  int64_t prev_guide_t0_ns_ = 0;  // the same for the version being faded out
 };
 
 }  // namespace telehand
