@@ -13,6 +13,7 @@
 #include <map>
 #include <memory>
 
+#include "../support/grip_sample.h"
 #include "frames.h"
 #include "replay_hand.h"
 #include "telehand/core/clock.h"
@@ -112,15 +113,8 @@ class ReplayHandTest : public ::testing::Test {
       d.source_time_ns = kDeviceT0 + i * 1'000'000LL;
       d.model_version = 1;
       const Vec3 angles = m.angles(t);
-      const PerFinger<Vec3> p = joint.gripFromAngles(angles, 0.008);
-      for (int k = 0; k < 2; ++k) {
-        const Quat q = joint.thimbleOrientation(k, angles);
-        const double qv[4] = {q.w(), q.x(), q.y(), q.z()};
-        for (int j = 0; j < 3; ++j) d.fingers[k].position_m[j] = p[k][j];
-        for (int j = 0; j < 4; ++j) d.fingers[k].orientation_q[j] = qv[j];
-      }
+      telehand::test::setGrip(d, joint, angles);
       d.fingers[1].normal_n = static_cast<float>(m.force(t) * 0.25);
-      for (int j = 0; j < 3; ++j) d.mcp_angles_rad[j] = angles[j];
       now_ns_ = t0 + i * 1'000'000LL;
       const bool lost = lost_every > 0 && i % lost_every == lost_every / 2;
       if (!lost) manager_->onDeviceState(d, now_ns_);

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "../../support/grip_sample.h"
 #include "telehand/core/clock.h"
 #include "telehand/protocol/lesson_plan.h"
 #include "telehand/protocol/wire.h"
@@ -124,16 +125,9 @@ class LessonTest : public ::testing::Test {
       d.source_time_ns = kT0 + static_cast<int64_t>(d.seq) * 1'000'000;
       d.model_version = 1;
       const Vec3 angles(m.flexion(t), 0.0, 0.0);
-      const PerFinger<Vec3> p = joint.gripFromAngles(angles, 0.008);
-      for (int k = 0; k < 2; ++k) {
-        const Quat q = joint.thimbleOrientation(k, angles);
-        const double qv[4] = {q.w(), q.x(), q.y(), q.z()};
-        for (int j = 0; j < 3; ++j) d.fingers[k].position_m[j] = p[k][j];
-        for (int j = 0; j < 4; ++j) d.fingers[k].orientation_q[j] = qv[j];
-      }
+      telehand::test::setGrip(d, joint, angles);
       // The push on the index pad (normal force), at device scale.
       d.fingers[1].normal_n = static_cast<float>(m.force(t) * 0.25);
-      for (int j = 0; j < 3; ++j) d.mcp_angles_rad[j] = angles[j];
       manager_->onDeviceState(d, now_ns_);
       chunk.push_back(d);
       if (chunk.size() == 100) flush(session, chunk);

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "../../support/grip_sample.h"
 #include "telehand/core/clock.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/session/session_manager.h"
@@ -126,14 +127,7 @@ class SessionManagerTest : public ::testing::Test {
     d.source_time_ns = now_ns_;
     d.model_version = 1;
     d.flags = flags_;
-    const PerFinger<Vec3> p = grip_model_->gripFromAngles(angles, 0.008);
-    for (int k = 0; k < 2; ++k) {
-      const Quat q = grip_model_->thimbleOrientation(k, angles);
-      const double qv[4] = {q.w(), q.x(), q.y(), q.z()};
-      for (int i = 0; i < 3; ++i) d.fingers[k].position_m[i] = p[k][i];
-      for (int i = 0; i < 4; ++i) d.fingers[k].orientation_q[i] = qv[i];
-    }
-    for (int i = 0; i < 3; ++i) d.mcp_angles_rad[i] = angles[i];
+    telehand::test::setGrip(d, *grip_model_, angles);
     manager_->onDeviceState(d, now_ns_, from_);
     now_ns_ += 1'000'000;
     if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
