@@ -189,18 +189,15 @@ void Session::setGuide(double authority, int64_t now_ns) {
   guide_authority_ = lesson ? authority : 0.0;
   JointModelParams next = params;
   next.guide = GuideParams{};
+  std::optional<technique::Targets> taken;
   if (guide_authority_ > 0.0) {
-    std::optional<technique::Targets> taken;
     if (takeover_source_ != 0) taken = takeoverTargets(now_ns);
     next.guide = lesson::guideFor(taken ? *taken : lesson->targets, authority);
     next_takeover_ns_ = now_ns + kTakeoverRefreshNs;
-    if (next.guide != params.guide && taken) {
-      adoptModel(next, nullptr);
-      return announceTakeover(*taken, now_ns);
-    }
   }
   if (next.guide == params.guide) return;
   adoptModel(next, nullptr);
+  if (taken) announceTakeover(*taken, now_ns);
 }
 
 void Session::announceTakeover(const technique::Targets& t, int64_t now_ns) {
