@@ -3,12 +3,19 @@
 // exploration each, through the client's loop on the simulated MF-2, offline. Prints one
 // line per run and a summary; exits 1 if any run fails the suite's criteria.
 //
-//   telehand_bench_stability [--random N] [--seconds S] [--damping-sweep]
+//   telehand_bench_stability [--random N] [--seconds S] [--damping-sweep] [--late-sweep]
+//
+// --late-sweep: instead, mobilizes the healthy joint on a loop that runs late (a share of its
+// ticks 2..N ms after the one before, the device holding the last force meanwhile) without a
+// guide, under the demonstration's guide (3 Hz, the student's own rhythm) and under a
+// supervisor's take-over (2 Hz), and counts the runs (5 seeds each) that leave the joint's
+// range: where late ticks, not the guide, break the rendering (docs/lessons.md "Take-over").
 //
 // --damping-sweep: instead, renders a plain virtual damper B (N·s/m per finger, one tick late,
 // velocity low-passed at 5 ms like the proxy's) on the simulated MF-2 during a mobilization
 // and reports where it stops being stable: the measurement behind the damping cap
 // (docs/facts.md "Damping cap").
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -94,6 +101,51 @@ int dampingSweep() {
   return 0;
 }
 
+int lateSweep(double seconds) {
+  const JointModelParams m = healthyIndexMcp();
+  // Where the student's own swing lies on a loop that is never late: the guides go there.
+  const auto calm = stability::runStability(m, stability::Motion::kMobilization, 3.0, seconds, 1);
+  const double centre = 0.5 * (calm.flexion_min_deg + calm.flexion_max_deg);
+  const double amplitude = calm.flexion_max_deg - calm.flexion_min_deg;
+  struct Guide {
+    const char* name;
+    GuideParams g;
+  };
+  const Guide guides[] = {
+      {"none", GuideParams{}},
+      {"demo 3 Hz x1.00", stability::sineGuide(1.0, 3.0, centre, amplitude)},
+      {"take-over 2 Hz x0.67", stability::sineGuide(0.67, 2.0, centre, amplitude)},
+      {"take-over 2 Hz x1.00", stability::sineGuide(1.0, 2.0, centre, amplitude)}};
+  std::printf("swing without late ticks: %.1f..%.1f deg; %.0f s per run, 5 seeds\n",
+              calm.flexion_min_deg, calm.flexion_max_deg, seconds);
+  std::printf("%-22s %6s", "guide", "late");
+  const int stalls[] = {4, 8, 12, 20};
+  for (int st : stalls) std::printf("  <=%2d ms", st);
+  std::printf("   (runs that left the range)\n");
+  client::loop::TeleopOptions teleop;
+  teleop.fault.enabled = false;  // see the rendering itself, not the detector stopping it
+  for (const Guide& g : guides) {
+    for (double late : {0.05, 0.10, 0.17}) {
+      std::printf("%-22s %5.0f%%", g.name, 100.0 * late);
+      for (int st : stalls) {
+        int left = 0;
+        for (uint64_t seed = 1; seed <= 5; ++seed) {
+          stability::Extras x;
+          x.guide = g.g;
+          x.late_fraction = late;
+          x.max_stall_ms = st;
+          const auto r = stability::runStability(m, stability::Motion::kMobilization, 3.0, seconds,
+                                                 seed, teleop, x);
+          if (!r.finite || r.range_excess_deg > stability::Criteria{}.range_margin_deg) ++left;
+        }
+        std::printf("  %4d/5 ", left);
+      }
+      std::printf("\n");
+    }
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -106,8 +158,14 @@ int main(int argc, char** argv) {
       seconds = std::atof(argv[++i]);
     else if (!std::strcmp(argv[i], "--damping-sweep"))
       return dampingSweep();
+    else if (!std::strcmp(argv[i], "--late-sweep"))
+      return lateSweep(
+          i + 2 < argc && !std::strcmp(argv[i + 1], "--seconds") ? std::atof(argv[i + 2]) : 10.0);
     else {
-      std::fprintf(stderr, "usage: %s [--random N] [--seconds S] [--damping-sweep]\n", argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--random N] [--seconds S] [--damping-sweep] [--late-sweep "
+                   "[--seconds S]]\n",
+                   argv[0]);
       return 2;
     }
   }

@@ -7,6 +7,7 @@
 // (tests/bench/bench_stability.cpp).
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <string>
 
 #include "telehand/client/loop/haptic_loop.h"
@@ -33,10 +34,36 @@ struct RunResult {
   double flexion_min_deg = 1e9, flexion_max_deg = -1e9;
 };
 
+/// A guide along one period of a sine in flexion around `centre_deg`, `amplitude_deg` peak to
+/// peak, the other axes at 0.
+inline GuideParams sineGuide(double authority, double hz, double centre_deg, double amplitude_deg) {
+  GuideParams g;
+  g.authority = authority;
+  g.period_s = 1.0 / hz;
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    const double ph = 2.0 * kPi * k / GuideParams::kPoints;
+    g.path_rad[static_cast<std::size_t>(k)] =
+        Vec3(degToRad(centre_deg + amplitude_deg / 2 * std::sin(ph)), 0, 0);
+  }
+  return g;
+}
+
+/// What a run may add to the plain rendering of the joint.
+struct Extras {
+  /// A lesson's guide rendered from the start (docs/lessons.md "Feel"); inactive by default.
+  GuideParams guide{};
+  /// A loop that runs late: this share of its ticks comes 2..max_stall_ms after the one
+  /// before (uniformly, seeded by the run's seed), and the device holds the last force
+  /// meanwhile, as a busy host's loop does.
+  double late_fraction = 0.0;
+  int max_stall_ms = 1;
+};
+
 /// `patient` is rendered and is what the clinician plans against; `seconds` of 1 kHz ticks.
 inline RunResult runStability(const JointModelParams& patient, Motion motion, double freq_hz,
                               double seconds, uint64_t seed,
-                              const client::loop::TeleopOptions& teleop = {}) {
+                              const client::loop::TeleopOptions& teleop = {},
+                              const Extras& extras = {}) {
   ManualClock clock(kNsPerS);
   OperatorConfig op;
   op.frequency_hz = freq_hz;
@@ -51,12 +78,26 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
   devices::ExplorationOperator explorer(plan);
   if (motion == Motion::kExploration) dev.setOperator(&explorer);
   client::loop::HapticLoop hl(dev, clock, patient, SafetyLimits{}, LoopConfig{}, teleop);
+  if (extras.guide.active()) {
+    JointModelParams guided = patient;
+    guided.version = patient.version + 1;
+    guided.guide = extras.guide;
+    (void)hl.models().tryPush(guided);
+  }
+  std::mt19937_64 late_rng(seed * 0x9e37'79b9'7f4a'7c15ULL + 1);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
 
   RunResult r;
   Sample s;
   const int ticks = static_cast<int>(std::lround(seconds * 1000.0));
-  for (int i = 0; i < ticks; ++i) {
-    clock.advance(kNsPerMs);
+  for (int i = 0; i < ticks;) {
+    int ms = 1;
+    if (extras.late_fraction > 0.0 && unit(late_rng) < extras.late_fraction) {
+      ms = 2 + static_cast<int>(unit(late_rng) * std::max(0, extras.max_stall_ms - 1));
+      ms = std::min(ms, std::max(2, extras.max_stall_ms));
+    }
+    i += ms;
+    clock.advance(ms * kNsPerMs);
     hl.step();
     while (hl.samples().tryPop(s)) {
     }

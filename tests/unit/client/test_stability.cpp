@@ -4,6 +4,7 @@
 // tests/bench/bench_stability.cpp (docs/manual.md "Tests").
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <string>
 #include <vector>
 
@@ -43,6 +44,52 @@ TEST(Stability, RandomCasesAreStablePassiveAndUnclamped) {
     const PatientCase pc = randomPatientCase(seed);
     for (double hz : {1.0, 3.0, 6.0}) expectStable(pc.model, Motion::kMobilization, hz, seed);
     expectStable(pc.model, Motion::kExploration, 3.0, seed);
+  }
+}
+
+// A supervisor's take-over (docs/lessons.md "Take-over") leads the student at another rhythm
+// (2 Hz) than their own push (3 Hz). On a loop that runs late (a tenth of its ticks up to 8 ms
+// after the one before, the device holding the last force meanwhile, as on a busy host) it
+// stays in range and unfaulted on every shipped case and random ones, like the rendering
+// without a guide. Longer stalls break guided rendering, the demonstration's own guide first
+// (telehand_bench_stability --late-sweep; docs/lessons.md "Take-over").
+TEST(Stability, ATakeOverOnALateLoopStaysInRange) {
+  std::vector<JointModelParams> cases;
+  for (const std::string& name : shippedCases()) {
+    cases.push_back(loadPatientCaseByName(TELEHAND_DEPLOY_DIR "/cases", name).model);
+  }
+  for (uint64_t seed : {11u, 12u, 13u}) cases.push_back(randomPatientCase(seed).model);
+  for (const JointModelParams& m : cases) {
+    // The guide leads the swing the student makes on a loop that is never late.
+    const auto calm = stability::runStability(m, Motion::kMobilization, 3.0, 6.0, 1);
+    const double centre = 0.5 * (calm.flexion_min_deg + calm.flexion_max_deg);
+    const double amplitude = calm.flexion_max_deg - calm.flexion_min_deg;
+    struct Guide {
+      const char* name;
+      GuideParams g;
+    };
+    const Guide guides[] = {
+        {"none", GuideParams{}},
+        {"take-over 2 Hz x0.67", stability::sineGuide(0.67, 2.0, centre, amplitude)},
+        {"take-over 2 Hz x1", stability::sineGuide(1.0, 2.0, centre, amplitude)}};
+    for (const Guide& g : guides) {
+      stability::Extras late;
+      late.guide = g.g;
+      late.late_fraction = 0.10;
+      late.max_stall_ms = 8;
+      for (uint64_t seed : {1u, 2u, 3u}) {
+        const auto r = stability::runStability(m, Motion::kMobilization, 3.0, 10.0, seed, {}, late);
+        EXPECT_TRUE(r.finite && r.range_excess_deg <= stability::Criteria{}.range_margin_deg &&
+                    r.fault == loop::LoopFault::kNone)
+            << m.case_name.data() << ", guide " << g.name << ", seed " << seed << ": flexion "
+            << r.flexion_min_deg << ".." << r.flexion_max_deg << " deg, range excess "
+            << r.range_excess_deg << " deg, fault " << loop::faultName(r.fault) << ", " << r.clamps
+            << " clamps";
+        // Led at 2 Hz against their own 3 Hz, the student's swing stays a mobilization.
+        EXPECT_LT(r.flexion_max_deg - r.flexion_min_deg, 3.0 * std::max(amplitude, 5.0))
+            << m.case_name.data() << ", guide " << g.name << ", seed " << seed;
+      }
+    }
   }
 }
 
