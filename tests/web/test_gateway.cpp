@@ -380,6 +380,20 @@ TEST_F(GatewayTest, ATakeOverFromThePageLeadsTheRunsGuidedTrials) {
   ASSERT_EQ(trials.size(), 3u);
   EXPECT_EQ(trials[0].phase, "guided");
   EXPECT_EQ(trials[1].phase, "guided");
+  // Led at the supervisor's 2 Hz against its own 3 Hz, the student's finger stays in the
+  // healthy joint's range (-45..90 deg, a few degrees into the end walls at most) all through
+  // the guided trials (from its rest at -17 deg up into the swing): no runaway.
+  double lo = 1e9, hi = -1e9;
+  uint64_t late = 0;
+  store.forEachSampleIn(run, trials[0].first_seq, trials[1].last_seq,
+                        [&](const Sample& s, bool valid) {
+                          if (!valid) return;
+                          lo = std::min(lo, radToDeg(s.mcp_angles_rad[kFlexion]));
+                          hi = std::max(hi, radToDeg(s.mcp_angles_rad[kFlexion]));
+                          if (s.flags & sample_flags::kLoopOverrun) ++late;
+                        });
+  EXPECT_GT(lo, -50.0) << lo << ".." << hi << " deg, " << late << " late ticks";
+  EXPECT_LT(hi, 95.0) << lo << ".." << hi << " deg, " << late << " late ticks";
 }
 
 TEST_F(GatewayTest, AReplayCarriesTheHandComputedFromTheRecord) {

@@ -165,8 +165,20 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
         rtts ? static_cast<double>(u.rtt_sum_ns.load()) / static_cast<double>(rtts) / 1e3 : 0.0,
         static_cast<double>(u.rtt_max_ns.load()) / 1e3);
   }
+  const auto& ls = link.stats();
+  if (ls.resumes.load() > 0 || ls.retained_dropped.load() > 0) {
+    std::printf(
+        "  recovery: resumed %llu time(s) on a server after the server went away, %llu record "
+        "chunks sent again, %llu samples dropped unacknowledged (spill file full)\n",
+        static_cast<unsigned long long>(ls.resumes.load()),
+        static_cast<unsigned long long>(ls.chunks_resent.load()),
+        static_cast<unsigned long long>(ls.retained_dropped.load()));
+  }
   if (!closed.confirmed) {
-    std::printf("  record: the server did not confirm the close within 15 s\n");
+    std::printf(
+        "  record: no server confirmed the close within 15 s; %llu samples were not "
+        "acknowledged as stored\n",
+        static_cast<unsigned long long>(ls.retained_samples.load()));
     return 3;
   }
   std::printf("  record: %llu samples recorded, %llu missing, in %s\n",

@@ -168,9 +168,11 @@ std::vector<std::string> screenLines(const Options& o, uint64_t id, const Sessio
   out.emplace_back();
   if (v.status) {
     const auto& st = *v.status;
-    const char* state_style = st.state == telehand_msg_SESSION_ACTIVE    ? kGreen
-                              : st.state == telehand_msg_SESSION_CLOSING ? kYellow
-                                                                         : kDim;
+    const char* state_style =
+        st.state == telehand_msg_SESSION_ACTIVE ? kGreen
+        : st.state == telehand_msg_SESSION_CLOSING || st.state == telehand_msg_SESSION_SUSPENDED
+            ? kYellow
+            : kDim;
     out.push_back(fmt::format("session {}  user {}  case {}  mode {}  {}",
                               styled(std::to_string(id), kBold), printable(st.user),
                               printable(st.case_name), modeName(st.mode),

@@ -3,6 +3,7 @@
 #include <sys/prctl.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <cstring>
 #include <random>
 
@@ -14,6 +15,12 @@ namespace telehand::client::link {
 namespace {
 constexpr std::size_t kChunkSamples = 100;  // the record travels 10 chunks per second
 constexpr auto kChunkMaxAge = std::chrono::milliseconds(100);
+
+/// Where unacknowledged samples go when memory would not hold them.
+std::string spillDir() {
+  const char* tmp = std::getenv("TMPDIR");
+  return tmp && *tmp ? tmp : "/tmp";
+}
 
 uint64_t randomClientId() {
   std::random_device rd;
@@ -39,6 +46,7 @@ ClientLink::ClientLink(const dds::Options& options, loop::HapticLoop& loop)
       event_reader_(participant_, topics_.session_event, dds::qos::sessionEvent()),
       direct_reader_(participant_, topics_.direct_force, dds::qos::directForce(64)),
       client_id_(randomClientId()),
+      retained_(kRetainInMemory, kRetainOnDisk, spillDir()),
       capture_topics_(participant_),
       file_writer_(participant_, capture_topics_.session_file, dds::qos::sessionFile()),
       knn_reader_(participant_, capture_topics_.knn_model, dds::qos::knnModel()) {
@@ -118,6 +126,8 @@ void ClientLink::run() {
   pthread_setname_np(pthread_self(), "telehand-link");
   prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);  // its 0.5 ms naps are the samples' latency
   while (running_.load(std::memory_order_acquire)) {
+    pollStatus();
+    watchServer();
     pump(false);
     pollDirectForces();
     pollModels();
@@ -165,21 +175,164 @@ void ClientLink::flushChunk(bool retry_only) {
     chunk_ = {};
     chunk_.reserve(kChunkSamples);
   }
+  if (resuming_) {
+    // No server to send to: everything is kept (memory, then disk) for the one that
+    // resumes the session.
+    while (!unsent_.empty()) {
+      stats_.samples_chunked.fetch_add(unsent_.front().size(), std::memory_order_relaxed);
+      keep(std::move(unsent_.front()));
+      unsent_.pop_front();
+    }
+    return;
+  }
+  // After a resume, first what the new server's record may lack, oldest first.
+  while (resend_left_ > 0 || resending_) {
+    if (!resending_) {
+      SpillQueue::Chunk c;
+      --resend_left_;
+      try {
+        if (!retained_.pop(c)) {
+          resend_left_ = 0;
+          break;
+        }
+      } catch (const Error& e) {
+        message(e.what());
+        resend_left_ = 0;
+        break;
+      }
+      resending_ = std::move(c);
+    }
+    if (!writeChunk(*resending_)) return;
+    stats_.chunks_resent.fetch_add(1, std::memory_order_relaxed);
+    keep(std::move(*resending_));
+    resending_.reset();
+  }
   while (!unsent_.empty()) {
     auto& samples = unsent_.front();
-    telehand_msg_RecordChunk c{};
-    c.session_id = session_id_;
-    c.chunk_seq = chunk_seq_;
-    borrowSamples(c, samples);
-    if (chunk_writer_.write(c) < 0) {  // writer blocked past max_blocking: keep it, retry
-      stats_.chunk_retries.fetch_add(1, std::memory_order_relaxed);
-      return;
-    }
-    ++chunk_seq_;
+    if (!writeChunk(samples)) return;
     stats_.samples_chunked.fetch_add(samples.size(), std::memory_order_relaxed);
     stats_.chunks_sent.fetch_add(1, std::memory_order_relaxed);
+    keep(std::move(samples));
     unsent_.pop_front();
   }
+}
+
+bool ClientLink::writeChunk(const SpillQueue::Chunk& samples) {
+  telehand_msg_RecordChunk c{};
+  c.session_id = session_id_;
+  c.chunk_seq = chunk_seq_;
+  borrowSamples(c, const_cast<SpillQueue::Chunk&>(samples));
+  if (chunk_writer_.write(c) < 0) {  // writer blocked past max_blocking: keep it, retry
+    stats_.chunk_retries.fetch_add(1, std::memory_order_relaxed);
+    return false;
+  }
+  ++chunk_seq_;
+  return true;
+}
+
+void ClientLink::keep(SpillQueue::Chunk&& c) {
+  if (c.empty()) return;
+  if (c.back().seq < stored_below_) return;  // the record has it already
+  if (retained_.empty()) last_ack_ = std::chrono::steady_clock::now();
+  try {
+    retained_.push(std::move(c));
+  } catch (const Error& e) {
+    message(e.what());
+  }
+  stats_.retained_samples.store(retained_.samples(), std::memory_order_relaxed);
+  stats_.retained_on_disk_bytes.store(retained_.bytesOnDisk(), std::memory_order_relaxed);
+  stats_.retained_dropped.store(retained_.droppedSamples(), std::memory_order_relaxed);
+}
+
+void ClientLink::acknowledge(uint64_t stored_below) {
+  if (stored_below <= stored_below_) return;
+  stored_below_ = stored_below;
+  stats_.stored_below.store(stored_below, std::memory_order_relaxed);
+  try {
+    retained_.forgetBelow(stored_below);
+  } catch (const Error& e) {
+    message(e.what());
+  }
+  stats_.retained_samples.store(retained_.samples(), std::memory_order_relaxed);
+  stats_.retained_on_disk_bytes.store(retained_.bytesOnDisk(), std::memory_order_relaxed);
+}
+
+void ClientLink::pollStatus() {
+  status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t& info) {
+    if (session_id_ == 0 || st.session_id != session_id_) return;
+    const auto now = std::chrono::steady_clock::now();
+    const uint64_t sender =
+        senders_.of(status_reader_.handle(), info.publication_handle).participant;
+    if (resuming_ && st.client_id == client_id_ && st.request_seq == resume_request_ &&
+        st.state == telehand_msg_SESSION_ACTIVE) {
+      // A server took the session on: from now on it is the session's server. Its models
+      // start again from version 1; what its record lacks is sent again.
+      server_ = sender;
+      resuming_ = false;
+      model_version_ = 0;
+      waiting_knn_.reset();
+      knn_samples_.reset();
+      pending_model_.reset();
+      last_ack_ = now;
+      acknowledge(st.stored_below);
+      resend_left_ = retained_.size();
+      stats_.resumes.fetch_add(1, std::memory_order_relaxed);
+      message("resumed on a server: its record holds " + std::to_string(st.samples_recorded) +
+              " samples; sending again the " + std::to_string(retained_.samples()) +
+              " not acknowledged");
+      return;
+    }
+    if (sender != server_) {
+      // A server announcing what it recovered, or a forgery: not this session's server.
+      if (st.state != telehand_msg_SESSION_SUSPENDED) {
+        stats_.foreign_refused.fetch_add(1, std::memory_order_relaxed);
+      }
+      return;
+    }
+    last_ack_ = now;
+    acknowledge(st.stored_below);
+    if (st.state == telehand_msg_SESSION_SUSPENDED && !resuming_ && !resume_refused_) {
+      beginResume("the server stopped and suspended the session");
+    } else if (st.state == telehand_msg_SESSION_CLOSED) {
+      CloseResult r;
+      r.confirmed = true;
+      r.samples_recorded = st.samples_recorded;
+      r.samples_missing = st.samples_missing;
+      r.record = st.record;
+      closed_ = r;
+    }
+  });
+}
+
+void ClientLink::beginResume(const std::string& why) {
+  resuming_ = true;
+  next_resume_ = std::chrono::steady_clock::now();
+  message(why + ": the session goes on here and keeps every sample until a server resumes it");
+}
+
+void ClientLink::watchServer() {
+  if (session_id_ == 0 || resume_refused_) return;
+  const auto now = std::chrono::steady_clock::now();
+  if (!resuming_ && !retained_.empty() && now - last_ack_ > kAckTimeout) {
+    beginResume(
+        "no acknowledgement from the server for " +
+        std::to_string(std::chrono::duration_cast<std::chrono::seconds>(kAckTimeout).count()) +
+        " s");
+  }
+  if (!resuming_ || now < next_resume_) return;
+  next_resume_ = now + kResumeEvery;
+  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_OPEN);
+  cmd.last_seq = stats_.last_seq.load(std::memory_order_relaxed);
+  copyString(cmd.case_name, opened_case_);
+  copyString(cmd.user, "");
+  copyString(cmd.text, "");
+  resume_request_ = cmd.request_seq;
+  command_writer_.write(cmd);  // no server yet: asked again in a second
+}
+
+void ClientLink::message(std::string text) {
+  std::lock_guard lock(messages_mu_);
+  if (messages_.size() < 256) messages_.push_back(std::move(text));
 }
 
 void ClientLink::pollModels() {
@@ -276,6 +429,11 @@ void ClientLink::pollEvents() {
       return;
     }
     // Errors, and a supervisor's marks on this session (shown to the student at once).
+    if (e.kind == telehand_msg_EVENT_ERROR && e.client_id == client_id_ && resuming_ &&
+        std::string_view(e.text).starts_with("cannot resume session")) {
+      resuming_ = false;
+      resume_refused_ = true;  // what is kept stays kept; nobody will take it
+    }
     const bool others_mark = e.kind == telehand_msg_EVENT_MARK && e.client_id != client_id_;
     if (e.kind != telehand_msg_EVENT_ERROR && !others_mark) return;
     std::lock_guard lock(messages_mu_);
@@ -312,27 +470,26 @@ void ClientLink::mark(const std::string& text) {
 }
 
 CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
-  CloseResult r;
-  const uint64_t sent = stats_.samples_sent.load();
-  telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_CLOSE);
-  cmd.samples_sent = sent;
-  cmd.last_seq = sent == 0 ? 0 : stats_.last_seq.load();
-  if (command_writer_.write(cmd) < 0) return r;
+  // The CLOSE goes to the session's server once everything it lacks was sent; a server
+  // that goes away meanwhile is replaced as during the session (docs/recovery.md).
   const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (!r.confirmed && std::chrono::steady_clock::now() < deadline) {
-    status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t& info) {
-      if (st.session_id == session_id_ && st.state == telehand_msg_SESSION_CLOSED &&
-          fromServer(status_reader_.handle(), info)) {
-        r.confirmed = true;
-        r.samples_recorded = st.samples_recorded;
-        r.samples_missing = st.samples_missing;
-        r.record = st.record;
-      }
-    });
+  closed_.reset();
+  while (!closed_ && std::chrono::steady_clock::now() < deadline) {
+    pollStatus();
     pollEvents();  // the scores of a lesson's last trials come with the close
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    watchServer();
+    if (!resuming_ && (resending_ || resend_left_ > 0 || !unsent_.empty())) {
+      flushChunk(true);
+    } else if (!resuming_ && close_to_ != server_ + 1) {
+      const uint64_t sent = stats_.samples_sent.load();
+      telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_CLOSE);
+      cmd.samples_sent = sent;
+      cmd.last_seq = sent == 0 ? 0 : stats_.last_seq.load();
+      if (command_writer_.write(cmd) >= 0) close_to_ = server_ + 1;
+    }
+    if (!closed_) std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
-  return r;
+  return closed_.value_or(CloseResult{});
 }
 
 }  // namespace telehand::client::link

@@ -107,6 +107,7 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
   sv.read("max_file_bytes", c.max_file_bytes);
   sv.read("max_files_per_session", c.max_files_per_session);
   sv.read("status_keep_s", c.status_keep_s);
+  sv.read("resume_wait_s", c.resume_wait_s);
   sv.rejectUnknown();
   validateServerConfig(c, origin);
   return c;
@@ -123,6 +124,7 @@ void validateServerConfig(const ServerConfig& c, const std::string& origin) {
   requireRange(origin, "server.max_file_bytes", c.max_file_bytes, 0, 64 * 1024 * 1024);
   requireRange(origin, "server.max_files_per_session", c.max_files_per_session, 0, 1024);
   requireRange(origin, "server.status_keep_s", c.status_keep_s, 0.0, 86400.0);
+  requireRange(origin, "server.resume_wait_s", c.resume_wait_s, 0.0, 7 * 86400.0);
 }
 
 ClientConfig loadClientConfig(const std::string& path) {

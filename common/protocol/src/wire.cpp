@@ -335,6 +335,8 @@ std::string_view stateName(telehand_msg_SessionState s) noexcept {
       return "closing";
     case telehand_msg_SESSION_CLOSED:
       return "closed";
+    case telehand_msg_SESSION_SUSPENDED:
+      return "suspended";
   }
   return "unknown";
 }

@@ -6,6 +6,7 @@
 
 #include "telehand/app/cli.h"
 #include "telehand/app/dds_cli.h"
+#include "telehand/core/clock.h"
 #include "telehand/core/log.h"
 #include "telehand/server/link/server_link.h"
 #include "telehand/server/store/sqlite_store.h"
@@ -73,6 +74,10 @@ int main(int argc, char** argv) {
     server::store::SqliteStore store(cfg.db_path);
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(store, link, cfg, hand_model ? &*hand_model : nullptr);
+    if (const std::size_t n = manager.recoverFromStore(SteadyClock{}.nowNs())) {
+      spdlog::info("{} session(s) found open or suspended in {}: waiting {:g} s for their clients",
+                   n, store.location(), cfg.resume_wait_s);
+    }
     installStopSignals();
     spdlog::info("serving on DDS domain {} partition '{}', records in {}, hand {}, cases in {}",
                  dds_opts.domain, dds_opts.partition, store.location(),

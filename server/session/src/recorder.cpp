@@ -2,6 +2,9 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <iterator>
+
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 
@@ -16,6 +19,7 @@ void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
     const uint64_t added = ctx.store.appendSamples(session_id_, pending_, pending_valid_);
     recorded_ += added;
     ctx.stats.recorded_samples += added;
+    markStored(pending_);
     pending_.clear();
     pending_valid_.clear();
   } catch (const StoreError& e) {
@@ -23,6 +27,31 @@ void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
     spdlog::error("session {}: {} ({} samples kept in memory, retrying)", session_id_, e.what(),
                   pending_.size());
   }
+}
+
+void Recorder::markStored(const std::vector<Sample>& samples) {
+  // A chunk is a run of consecutive sequence numbers: one interval per run.
+  std::size_t i = 0;
+  while (i < samples.size()) {
+    uint64_t first = samples[i].seq, end = first + 1;
+    while (++i < samples.size() && samples[i].seq == end) ++end;
+    if (end <= below_) continue;
+    first = std::max(first, below_);
+    // Merge with the runs it touches.
+    auto it = above_.upper_bound(first);
+    if (it != above_.begin() && std::prev(it)->second >= first) --it;
+    while (it != above_.end() && it->first <= end) {
+      first = std::min(first, it->first);
+      end = std::max(end, it->second);
+      it = above_.erase(it);
+    }
+    above_.emplace(first, end);
+  }
+  while (!above_.empty() && above_.begin()->first <= below_) {
+    below_ = std::max(below_, above_.begin()->second);
+    above_.erase(above_.begin());
+  }
+  while (above_.size() > kMaxRuns) above_.erase(std::prev(above_.end()));
 }
 
 void Recorder::invalidSample(SessionContext& ctx, uint64_t client_id, const Sample& d,

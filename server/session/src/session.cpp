@@ -85,6 +85,7 @@ void Session::publishStatus(telehand_msg_SessionState state) {
   st.started_ns = info.started_ns;
   st.ended_ns = state == telehand_msg_SESSION_CLOSED ? wallNs() : 0;
   st.samples_recorded = recorder.recorded();
+  st.stored_below = recorder.storedBelow();
   st.samples_missing = state == telehand_msg_SESSION_CLOSED && expected > recorder.recorded()
                            ? expected - recorder.recorded()
                            : 0;
@@ -142,6 +143,17 @@ void Session::onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& val
 
 void Session::tick(int64_t now_ns) {
   live.updateRate(now_ns);
+  // The record's acknowledgement (what the client may forget) when it has grown, and at
+  // least every kHeartbeatNs: a client that hears nothing for longer knows its server went
+  // away (docs/recovery.md), even while its chunks are held up on the way.
+  if (!closing && now_ns >= next_ack_ns_ &&
+      (recorder.storedBelow() != acked_below_ ||
+       now_ns >= std::max(last_status_ns_, opened_ns) + kHeartbeatNs)) {
+    acked_below_ = recorder.storedBelow();
+    last_status_ns_ = now_ns;
+    next_ack_ns_ = now_ns + kAckPeriodNs;
+    publishStatus(telehand_msg_SESSION_ACTIVE);
+  }
   if (replay) {
     // A replay is this session's HandState while it lasts (a lesson's watch phase ends
     // with it; a replay session stays open, at its end, until its viewer closes it).

@@ -1,5 +1,6 @@
 #include "telehand/server/session/session_manager.h"
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 #if defined(__GLIBC__)
 #include <malloc.h>
@@ -64,6 +65,25 @@ void SessionManager::event(uint64_t session_id, uint64_t client_id, telehand_msg
 }
 
 namespace {
+/// The stored prefix of a session's record: every seq below the result is there (found with
+/// a binary search over index counts).
+uint64_t storedPrefix(SessionStore& store, uint64_t session_id) {
+  const auto extent = store.extent(session_id);
+  if (!extent) return 0;
+  uint64_t lo = 0, hi = extent->last_seq + 1;  // prefix of length lo holds; hi is an upper bound
+  if (store.countSamples(session_id, 0, extent->last_seq) == hi) return hi;
+  --hi;  // not all of them
+  while (lo < hi) {
+    const uint64_t mid = lo + (hi - lo + 1) / 2;
+    if (store.countSamples(session_id, 0, mid - 1) == mid) {
+      lo = mid;
+    } else {
+      hi = mid - 1;
+    }
+  }
+  return lo;
+}
+
 /// Rate-limit keys of OPEN refusals: the sender's participant handle with the top bit set,
 /// apart from session ids.
 constexpr uint64_t kOpenKey = uint64_t{1} << 63;
@@ -199,7 +219,11 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
 }
 
 void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
-                          const Origin& from) {
+                          const Origin& from, const SessionInfo* resumed) {
+  if (cmd.session_id != 0 && !resumed) {
+    resume(cmd, now_ns, from);
+    return;
+  }
   // Bounds: a flood of OPENs must not take the server's memory (each session holds a hand).
   if (sessions_.size() >= static_cast<std::size_t>(config_.max_sessions)) {
     refuse(0, cmd.client_id,
@@ -305,24 +329,46 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     }
   }
   SessionInfo info;
-  info.user = cmd.user;
-  info.case_name = case_name;
-  info.mode = std::string(modeName(cmd.mode));
-  info.state = "active";
-  info.started_ns = wallNs();
-  info.owner = from.guid;
+  uint64_t stored_below = 0;
+  std::optional<store::SessionStore::Extent> extent;
   try {
-    info.id = store_.createSession(info);
+    if (resumed) {
+      info = *resumed;
+      info.state = "active";
+      stored_below = storedPrefix(store_, info.id);
+      extent = store_.extent(info.id);
+      store_.closeSession(info.id, 0, 0, "active");
+    } else {
+      info.user = cmd.user;
+      info.case_name = case_name;
+      info.mode = std::string(modeName(cmd.mode));
+      info.state = "active";
+      info.started_ns = wallNs();
+      info.owner = from.guid;
+      info.id = store_.createSession(info);
+    }
   } catch (const StoreError& e) {
     ++stats_.store_errors;
     event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-          std::string("cannot open a session record: ") + e.what(), now_ns);
+          std::string(resumed ? "cannot resume the session's record: "
+                              : "cannot open a session record: ") +
+              e.what(),
+          now_ns);
     return;
   }
+  suspended_.erase(info.id);
   Session& s = sessions_.try_emplace(info.id, ctx_, info, cmd, patient, hand_, hand_config_, now_ns)
                    .first->second;
   s.owner = from.participant;
   s.owner_identity = from.identity;
+  if (resumed) {
+    // What the record holds: acknowledged at once, so the client sends what it lacks.
+    s.recorder.resumeFrom(resumed->samples, stored_below);
+    if (extent) {
+      s.seq_high = extent->last_seq;
+      s.have_seq = true;
+    }
+  }
   const bool wants_knn = cmd.stiffness == telehand_msg_STIFFNESS_KNN;
   if (capture) {
     s.capture.follow(cmd.follow_session, wants_knn);
@@ -352,6 +398,15 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
 
   s.publishStatus(telehand_msg_SESSION_ACTIVE);
   s.publishModel();
+  if (resumed) {
+    event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
+          "resumed: " + info.mode + " on case '" + case_name + "' for " + info.user +
+              "; the record holds " + std::to_string(resumed->samples) +
+              " samples, all below seq " + std::to_string(stored_below) +
+              ", and the client sends what it lacks",
+          now_ns);
+    return;
+  }
   event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
         "opened: " + info.mode + " on case '" + case_name + "' for " + info.user +
             (capture ? std::string(", following capture session ") +
@@ -365,6 +420,141 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
                          : std::string()) +
             (replayed ? ", replaying session " + std::to_string(replayed->id) : std::string()),
         now_ns);
+}
+
+void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
+                            const Origin& from) {
+  const uint64_t id = cmd.session_id;
+  if (Session* s = find(id)) {
+    // Still running here: its client lost sight of this server (a partition), not the
+    // reverse. Answered again, with the model, so that it goes on with this server.
+    if (!owns(*s, from, "a resume", 1, now_ns)) return;
+    s->client_id = cmd.client_id;
+    s->request_seq = cmd.request_seq;
+    s->publishStatus(telehand_msg_SESSION_ACTIVE);
+    s->publishModel();
+    event(id, cmd.client_id, telehand_msg_EVENT_INFO,
+          "resumed by its client (it was running here all along)", now_ns);
+    return;
+  }
+  const auto cannot = [&](const std::string& why) {
+    ++stats_.bad_commands;
+    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
+          "cannot resume session " + std::to_string(id) + ": " + why, now_ns);
+  };
+  std::optional<SessionInfo> info;
+  try {
+    info = store_.session(id);
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    cannot(e.what());
+    return;
+  }
+  if (!info) {
+    cannot("not in this server's record (" + store_.location() + ")");
+    return;
+  }
+  if (from.participant != 0 && !info->owner.empty() && info->owner != from.guid) {
+    refuse(id, cmd.client_id,
+           "a resume of session " + std::to_string(id) + " from participant " +
+               (from.guid.empty() ? std::string("?") : from.guid) + ": it belongs to " +
+               info->owner,
+           1, now_ns, kOpenKey | from.participant);
+    return;
+  }
+  if (info->state != "active" && info->state != "suspended") {
+    cannot("the record has it " + info->state);
+    return;
+  }
+  const auto mode = parseMode(info->mode);
+  if (!mode || *mode == telehand_msg_MODE_REPLAY || *mode == telehand_msg_MODE_LESSON) {
+    // A lesson run's trials and a replay's position lived with the server that stopped.
+    cannot(std::string("a ") + (mode ? std::string(modeName(*mode)) : info->mode) +
+           " session is not resumed; its record up to the outage is kept (closed as "
+           "interrupted)");
+    closeUnresumed(id, now_ns,
+                   "not resumed: a " + info->mode + " session does not survive its server");
+    return;
+  }
+  telehand_msg_SessionCommand c = cmd;
+  c.mode = *mode;
+  copyString(c.case_name, info->case_name);
+  copyString(c.user, info->user);
+  c.follow_session = 0;  // a follower renders the model it has
+  c.lesson_id = 0;
+  open(c, now_ns, from, &*info);
+}
+
+void SessionManager::publishRecordStatus(const SessionInfo& info, telehand_msg_SessionState state,
+                                         uint64_t client_id, uint32_t request_seq) {
+  telehand_msg_SessionStatus st{};
+  st.session_id = info.id;
+  st.client_id = client_id;
+  st.request_seq = request_seq;
+  st.source_time_ns = wallNs();
+  st.state = state;
+  st.mode = parseMode(info.mode).value_or(telehand_msg_MODE_MOBILIZATION);
+  st.started_ns = info.started_ns;
+  st.ended_ns = info.ended_ns;
+  st.samples_recorded = info.samples;
+  st.samples_missing =
+      info.samples_expected > info.samples ? info.samples_expected - info.samples : 0;
+  copyString(st.case_name, info.case_name);
+  copyString(st.user, info.user);
+  copyString(st.record, store_.location() + " session " + std::to_string(info.id));
+  out_.publish(st);
+}
+
+void SessionManager::closeUnresumed(uint64_t session_id, int64_t now_ns, const std::string& why) {
+  suspended_.erase(session_id);
+  try {
+    const auto extent = store_.extent(session_id);
+    store_.closeSession(session_id, wallNs(), extent ? extent->last_seq + 1 : 0, "interrupted");
+    store_.appendEvent(session_id, {wallNs(), "error", why});
+    if (const auto info = store_.session(session_id)) {
+      publishRecordStatus(*info, telehand_msg_SESSION_CLOSED, 0, 0);
+    }
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("session {}: {}", session_id, e.what());
+  }
+  event(session_id, 0, telehand_msg_EVENT_ERROR, why, now_ns);
+  retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), session_id);
+}
+
+std::size_t SessionManager::recoverFromStore(int64_t now_ns) {
+  std::vector<SessionInfo> all;
+  try {
+    all = store_.listSessions();
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("cannot look for sessions to recover: {}", e.what());
+    return 0;
+  }
+  std::size_t found = 0;
+  for (SessionInfo& info : all) {
+    if ((info.state != "active" && info.state != "suspended") || sessions_.count(info.id)) continue;
+    ++found;
+    const bool died = info.state == "active";  // a server that stopped suspends its sessions
+    try {
+      if (died) store_.closeSession(info.id, 0, 0, "suspended");
+      store_.appendEvent(
+          info.id,
+          {wallNs(), "info",
+           std::string(died ? "recovered: its server died" : "recovered: its server stopped") +
+               "; the record holds " + std::to_string(info.samples) + " samples; waiting " +
+               fmt::format("{:g}", config_.resume_wait_s) + " s for its client to resume it"});
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("session {}: {}", info.id, e.what());
+    }
+    info.state = "suspended";
+    suspended_[info.id] = now_ns + static_cast<int64_t>(config_.resume_wait_s * 1e9);
+    publishRecordStatus(info, telehand_msg_SESSION_SUSPENDED, 0, 0);
+    spdlog::info("session {}: recovered from the record ({} samples), waiting for its client",
+                 info.id, info.samples);
+  }
+  return found;
 }
 
 void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
@@ -529,6 +719,13 @@ void SessionManager::tick(int64_t now_ns) {
     ++due;
   }
   retiring_.erase(retiring_.begin(), retiring_.begin() + static_cast<std::ptrdiff_t>(due));
+  for (auto it = suspended_.begin(); it != suspended_.end();) {
+    const uint64_t id = it->first;
+    if (now_ns < (it++)->second) continue;
+    closeUnresumed(id, now_ns,
+                   "not resumed within " + fmt::format("{:g}", config_.resume_wait_s) +
+                       " s: closed as interrupted with what the record holds");
+  }
   const auto lookup = [this](uint64_t id) { return find(id); };
   std::vector<uint64_t> done;
   for (auto& [id, s] : sessions_) {
@@ -592,10 +789,23 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
 void SessionManager::closeAll(int64_t now_ns) {
   for (auto& [id, s] : sessions_) {
     s.recorder.retry(ctx_);
-    if (!s.closing) s.expected = s.live.sentOr(s.recorder.recorded());
-    finish(s, now_ns,
-           s.closing ? (s.recorder.recorded() >= s.expected ? "closed" : "incomplete")
-                     : "interrupted");
+    if (s.closing) {
+      finish(s, now_ns, s.recorder.recorded() >= s.expected ? "closed" : "incomplete");
+      continue;
+    }
+    // Not ended by its client: suspended, for its client to resume on the next server.
+    try {
+      store_.closeSession(id, 0, 0, "suspended");
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("session {}: {}", id, e.what());
+    }
+    event(id, s.client_id, telehand_msg_EVENT_INFO,
+          "suspended: the server stopped with " + std::to_string(s.recorder.recorded()) +
+              " samples recorded, all below seq " + std::to_string(s.recorder.storedBelow()) +
+              "; its client may resume it on the next server",
+          now_ns);
+    s.publishStatus(telehand_msg_SESSION_SUSPENDED);
   }
   sessions_.clear();
 }

@@ -1139,3 +1139,136 @@ TEST_F(OwnershipTest, LateChunksOfAnEndedSessionAreTakenFromItsOwnerOnly) {
 
 }  // namespace
 }  // namespace telehand::server::session
+
+namespace telehand::server::session {
+namespace {
+
+// Recovery (docs/recovery.md): the record's stored prefix acknowledged to the client, a
+// session suspended by a server that stops, recovered by the next one and resumed by its
+// owner (no one else) under the same id, and one nobody resumes closed as interrupted with
+// `missing` counting what the record lacks.
+class RecoveryManagerTest : public SessionManagerTest {
+ protected:
+  void chunk(uint64_t first, uint64_t count) {
+    std::vector<telehand_msg_DeviceState> samples(count);
+    for (uint64_t i = 0; i < count; ++i) {
+      samples[i].session_id = session_;
+      samples[i].seq = first + i;
+      samples[i].source_time_ns = now_ns_ + static_cast<int64_t>(i) * 1'000'000;
+      telehand::test::setGrip(samples[i], *grip_model_, Vec3::Zero());
+    }
+    telehand_msg_RecordChunk c{};
+    c.session_id = session_;
+    borrowSamples(c, samples);
+    manager_->onChunk(c, now_ns_, from_);
+  }
+  void pass(int64_t ms) {
+    for (int64_t i = 0; i < ms; i += 10) {
+      now_ns_ += 10'000'000;
+      manager_->tick(now_ns_);
+    }
+  }
+  uint64_t lastStoredBelow() const {
+    for (auto it = out_.statuses.rbegin(); it != out_.statuses.rend(); ++it) {
+      if (it->session_id == session_) return it->stored_below;
+    }
+    return 0;
+  }
+  /// The same record, served by a server started afresh.
+  void restartServer() {
+    manager_.reset();
+    manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  }
+};
+
+TEST_F(RecoveryManagerTest, ASuspendedSessionIsResumedByItsOwnerWithWhatTheRecordHolds) {
+  from_.participant = 11;
+  from_.guid = "0000aaaa";
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  chunk(200, 100);  // a chunk still on its way: the prefix stops at the gap
+  pass(600);
+  EXPECT_EQ(lastStoredBelow(), 100u);
+  chunk(100, 100);
+  pass(600);
+  EXPECT_EQ(lastStoredBelow(), 300u);
+
+  // The server stops: nothing is closed, the session waits in the record.
+  manager_->closeAll(now_ns_);
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_SUSPENDED);
+  EXPECT_EQ(store_->session(session_)->state, "suspended");
+
+  restartServer();
+  EXPECT_EQ(manager_->recoverFromStore(now_ns_), 1u);
+  EXPECT_EQ(manager_->suspendedSessions(), 1u);
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_SUSPENDED);
+
+  // Someone else asks to resume it: refused, counted.
+  auto c = command(telehand_msg_CMD_OPEN, session_);
+  c.request_seq = 9;
+  const Origin stranger{12, "0000bbbb", ""};
+  const std::size_t before = out_.statuses.size();
+  manager_->onCommand(c, now_ns_, stranger);
+  EXPECT_EQ(out_.statuses.size(), before);
+  EXPECT_EQ(manager_->stats().refused, 1u);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+
+  // Its owner does: the same id, answered with what the record holds, and a model.
+  const std::size_t models = out_.models.size();
+  manager_->onCommand(c, now_ns_, from_);
+  ASSERT_EQ(manager_->activeSessions(), 1u);
+  const auto& st = out_.statuses.back();
+  EXPECT_EQ(st.session_id, session_);
+  EXPECT_EQ(st.state, telehand_msg_SESSION_ACTIVE);
+  EXPECT_EQ(st.client_id, c.client_id);
+  EXPECT_EQ(st.request_seq, 9u);
+  EXPECT_EQ(st.stored_below, 300u);
+  EXPECT_EQ(st.samples_recorded, 300u);
+  EXPECT_GT(out_.models.size(), models);
+  EXPECT_EQ(manager_->suspendedSessions(), 0u);
+  EXPECT_EQ(store_->session(session_)->state, "active");
+
+  // The client sends what it kept (again, in part) and the rest; it closes: whole.
+  chunk(250, 150);
+  auto close = command(telehand_msg_CMD_CLOSE, session_);
+  close.samples_sent = 400;
+  manager_->onCommand(close, now_ns_, from_);
+  pass(20);
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples, 400u);
+  EXPECT_EQ(out_.statuses.back().samples_missing, 0u);
+  bool resumed = false;
+  for (const auto& e : store_->events(session_)) resumed |= e.text.starts_with("resumed: ");
+  EXPECT_TRUE(resumed);
+}
+
+TEST_F(RecoveryManagerTest, ASessionNobodyResumesIsClosedAsInterruptedCountingWhatIsMissing) {
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  chunk(150, 50);  // 100..149 never arrive
+  pass(20);
+  config_.resume_wait_s = 1.0;
+  restartServer();  // the server died: the record still says active
+  EXPECT_EQ(manager_->recoverFromStore(now_ns_), 1u);
+  pass(900);
+  EXPECT_EQ(store_->session(session_)->state, "suspended");
+  pass(200);
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "interrupted");
+  EXPECT_EQ(info->samples, 150u);
+  EXPECT_EQ(info->samples_expected, 200u);  // 50 below the last stored one are missing
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_CLOSED);
+  EXPECT_EQ(out_.statuses.back().samples_missing, 50u);
+  // Too late now: a resume is refused by name.
+  manager_->onCommand(command(telehand_msg_CMD_OPEN, session_), now_ns_, from_);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  const auto errors = out_.eventsOf(telehand_msg_EVENT_ERROR);
+  ASSERT_FALSE(errors.empty());
+  EXPECT_THAT(std::string(errors.back()->text),
+              AllOf(HasSubstr("cannot resume session " + std::to_string(session_)),
+                    HasSubstr("interrupted")));
+}
+
+}  // namespace
+}  // namespace telehand::server::session

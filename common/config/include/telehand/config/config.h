@@ -60,6 +60,10 @@ struct ServerConfig {
   int max_files_per_session = 8;
   /// How long an ended session's status stays published for late joiners, seconds.
   double status_keep_s = 60.0;
+  /// A session found open in the record when the server starts, or suspended by a server
+  /// that stopped, waits this long for its client to resume it (docs/recovery.md), then is
+  /// closed as interrupted with what the record holds, seconds.
+  double resume_wait_s = 120.0;
 };
 
 /// The ranges server config keys and their command-line flags must lie in (one table for

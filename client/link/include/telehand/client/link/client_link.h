@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "telehand/client/link/spill_queue.h"
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/knn_model.h"
 #include "telehand/devices/mf2_device.h"
@@ -37,6 +38,14 @@ struct LinkStats {
   std::atomic<uint64_t> last_seq{0};
   std::atomic<uint64_t> live_sent{0};      ///< DeviceState packets that went out (deadband)
   std::atomic<uint64_t> direct_forces{0};  ///< DirectForce packets received (direct mode)
+  /// Recovery (docs/recovery.md): sessions taken on again by a server after theirs went
+  /// away, chunks sent again to it, chunks kept until the server says they are stored.
+  std::atomic<uint64_t> resumes{0};
+  std::atomic<uint64_t> chunks_resent{0};
+  std::atomic<uint64_t> retained_samples{0};
+  std::atomic<uint64_t> retained_on_disk_bytes{0};
+  std::atomic<uint64_t> retained_dropped{0};  ///< the spill file was full: never sent again
+  std::atomic<uint64_t> stored_below{0};      ///< the server's acknowledgement
 };
 
 struct OpenRequest {
@@ -106,6 +115,17 @@ class ClientLink {
   telehand_msg_SessionCommand command(telehand_msg_CommandKind kind);
   void pump(bool final_flush);
   void flushChunk(bool force);
+  /// Write one chunk of the record; false when the writer could not take it now.
+  bool writeChunk(const SpillQueue::Chunk& samples);
+  /// Keep a sent chunk until the server acknowledges it.
+  void keep(SpillQueue::Chunk&& c);
+  /// The session's statuses: acknowledgements, a suspension, a resume's answer, the close.
+  void pollStatus();
+  void acknowledge(uint64_t stored_below);
+  /// Notice a server that went away and ask (again) for the session to be resumed.
+  void watchServer();
+  void beginResume(const std::string& why);
+  void message(std::string text);
   void pollModels();
   void pollEvents();
   void pollDirectForces();
@@ -128,6 +148,24 @@ class ClientLink {
   uint64_t chunk_seq_ = 0;
   std::vector<telehand_msg_DeviceState> chunk_;
   std::deque<std::vector<telehand_msg_DeviceState>> unsent_;  // chunks the server has not taken
+  // Recovery (docs/recovery.md). Sent chunks stay in retained_ until SessionStatus says
+  // they are stored; when the server goes away (no acknowledgement for kAckTimeout, or a
+  // SUSPENDED status) the link asks every kResumeEvery for the session to be resumed, keeps
+  // everything meanwhile, and sends the new server what its record lacks.
+  static constexpr auto kAckTimeout = std::chrono::seconds(4);
+  static constexpr auto kResumeEvery = std::chrono::seconds(1);
+  static constexpr std::size_t kRetainInMemory = 600;           // chunks: 60 s at 1 kHz
+  static constexpr uint64_t kRetainOnDisk = uint64_t{4} << 30;  // bytes: about 3.5 h more
+  SpillQueue retained_;
+  std::optional<SpillQueue::Chunk> resending_;  // taken from retained_, not yet written
+  std::size_t resend_left_ = 0;  // retained chunks still to send again after a resume
+  bool resuming_ = false;
+  bool resume_refused_ = false;
+  uint32_t resume_request_ = 0;
+  std::chrono::steady_clock::time_point last_ack_{}, next_resume_{};
+  uint64_t stored_below_ = 0;
+  uint64_t close_to_ = 0;  // the server the CLOSE went to (0: not sent)
+  std::optional<CloseResult> closed_;
   std::chrono::steady_clock::time_point chunk_started_;
   std::atomic<bool> running_{false};
   std::thread thread_;

@@ -2,6 +2,7 @@
 /// A session's record: every sample stored once, what the store refused kept and retried,
 /// and the live samples that were not finite counted and reported.
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -22,6 +23,18 @@ class Recorder {
   }
   bool drained() const noexcept { return pending_.empty(); }
   uint64_t recorded() const noexcept { return recorded_; }
+  /// Every sample with seq < this is in the record (what the client may forget,
+  /// SessionStatus.stored_below): the stored prefix of the sequence.
+  uint64_t storedBelow() const noexcept { return below_; }
+  /// A session taken on from the record (docs/recovery.md): what it already holds.
+  void resumeFrom(uint64_t recorded, uint64_t stored_below) noexcept {
+    recorded_ = recorded;
+    below_ = stored_below;
+    above_.clear();
+  }
+  /// Runs of stored sequence numbers beyond the prefix kept at most (a client's stream has a
+  /// few; past this the furthest are forgotten, which only delays the acknowledgement).
+  static constexpr std::size_t kMaxRuns = 1024;
 
   /// A live sample no device could have sent (`why`: firstInvalid's description): counted,
   /// reported at most once per 5 s.
@@ -32,7 +45,10 @@ class Recorder {
  private:
   uint64_t session_id_;
   uint64_t recorded_ = 0;
-  std::vector<Sample> pending_;  // not yet stored (store error): retried
+  void markStored(const std::vector<Sample>& samples);
+  uint64_t below_ = 0;                  // every seq < below_ is stored
+  std::map<uint64_t, uint64_t> above_;  // stored runs beyond it: first seq -> one past the last
+  std::vector<Sample> pending_;         // not yet stored (store error): retried
   std::vector<uint8_t> pending_valid_;
   uint64_t nonfinite_ = 0;
   int64_t nonfinite_reported_ns_ = INT64_MIN / 2;

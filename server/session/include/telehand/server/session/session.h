@@ -120,6 +120,12 @@ class Session {
   uint64_t takeover_last_seq_ = 0;  // the source's last sample the guide was derived up to
   std::string takeover_problem_;    // why the last derivation failed ('' : it did not)
 
+  static constexpr int64_t kAckPeriodNs = 500'000'000;    // SessionStatus.stored_below
+  static constexpr int64_t kHeartbeatNs = 1'000'000'000;  // a status at least this often
+  int64_t next_ack_ns_ = 0;
+  int64_t last_status_ns_ = 0;  // the last acknowledgement or heartbeat
+  uint64_t acked_below_ = 0;
+
   const sim::HandModel* hand_model_;
   sim::HandSimConfig hand_config_;
   int64_t next_recovery_check_ns_ = 0;

@@ -69,8 +69,17 @@ class SessionManager {
   void onFile(const telehand_msg_SessionFile& f, int64_t now_ns, const Origin& from = {});
   /// Publish due HandStates, finish closing sessions, retry unstored samples.
   void tick(int64_t now_ns);
-  /// Close every open session (server shutdown): nothing received is left unstored.
+  /// Server shutdown (docs/recovery.md): nothing received is left unstored; a session
+  /// whose CLOSE is under way is closed, every other one is suspended in the record (its
+  /// client keeps what was not acknowledged and resumes it on the next server).
   void closeAll(int64_t now_ns);
+  /// At start: every session the record holds as active or suspended (its server died or
+  /// stopped) is announced SUSPENDED and waits server.resume_wait_s for its client to resume
+  /// it (CMD_OPEN with its id), then is closed as interrupted with `missing` counting what
+  /// the record lacks. Returns how many were found.
+  std::size_t recoverFromStore(int64_t now_ns);
+  /// Sessions found in the record that wait for their client.
+  std::size_t suspendedSessions() const noexcept { return suspended_.size(); }
 
   std::size_t activeSessions() const noexcept { return sessions_.size(); }
   const ManagerStats& stats() const noexcept { return stats_; }
@@ -100,7 +109,17 @@ class SessionManager {
   static constexpr int kMaxForeignMarks = 256;
 
  private:
-  void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from);
+  /// A new session, or (`resumed`) one the record holds, taken on again with the same id.
+  void open(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from,
+            const SessionInfo* resumed = nullptr);
+  /// CMD_OPEN with a session id: its owner's client resumes it after its server went away.
+  void resume(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from);
+  /// A session of the record that will not be resumed: closed as interrupted, `missing`
+  /// counting the sequence numbers below its last stored one that the record lacks.
+  void closeUnresumed(uint64_t session_id, int64_t now_ns, const std::string& why);
+  /// SessionStatus for a session of the record that no Session runs here.
+  void publishRecordStatus(const SessionInfo& info, telehand_msg_SessionState state,
+                           uint64_t client_id, uint32_t request_seq);
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   /// True when `from` opened session `s` (or either is unknown).
   static bool owns(const Session& s, const Origin& from);
@@ -135,6 +154,7 @@ class SessionManager {
   std::vector<EndedOwner> ended_owners_;
   std::size_t ended_next_ = 0;  // where the next one goes (the oldest, once full)
   std::vector<std::pair<int64_t, uint64_t>> retiring_;  // (when, session id), in time order
+  std::map<uint64_t, int64_t> suspended_;  // sessions of the record awaiting their client: deadline
   uint64_t event_seq_ = 0;
   ManagerStats stats_;
   estimate::LiveRefitOptions refit_options_;
