@@ -146,5 +146,26 @@ TEST_F(RecoveryTest, ASessionNobodyResumesIsClosedAsInterruptedAndSaysWhatIsMiss
   EXPECT_NE(events.find("not resumed within 2 s"), std::string::npos) << events;
 }
 
+// One server per SQLite record: a second one on the same file would recover, write and close
+// the first one's sessions. It is refused by name; the first serves on.
+TEST_F(RecoveryTest, ASecondServerOnTheSameRecordIsRefused) {
+  Process first(serverCmd(60.0), path("server1.log"));
+  Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "4", "-q", "--no-fault-stop"}),
+                 path("client.log"));
+  ASSERT_GT(awaitNumber(client, R"(session (\d+) open)", 20s), 0u) << client.output();
+  Process second(serverCmd(60.0), path("server2.log"));
+  EXPECT_EQ(second.wait(20s), std::optional<int>(2)) << second.output();
+  EXPECT_NE(second.output().find(path("records.db") + " is already served by another"),
+            std::string::npos)
+      << second.output();
+  EXPECT_EQ(client.wait(30s), std::optional<int>(0)) << client.output();
+  EXPECT_EQ(first.stop(), 0) << first.output();
+  // Once the first has stopped, the record is free again.
+  Process third(serverCmd(60.0), path("server3.log"));
+  std::this_thread::sleep_for(2s);
+  EXPECT_TRUE(third.alive()) << third.output();
+  EXPECT_EQ(third.stop(), 0) << third.output();
+}
+
 }  // namespace
 }  // namespace telehand::test

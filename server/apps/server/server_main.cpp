@@ -9,6 +9,7 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/log.h"
 #include "telehand/server/link/server_link.h"
+#include "telehand/server/store/server_lock.h"
 #include "telehand/server/store/sqlite_store.h"
 
 int main(int argc, char** argv) {
@@ -72,6 +73,7 @@ int main(int argc, char** argv) {
     }
 
     server::store::SqliteStore store(cfg.db_path);
+    const server::store::ServerLock lock(cfg.db_path);  // one server per record
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(store, link, cfg, hand_model ? &*hand_model : nullptr);
     if (const std::size_t n = manager.recoverFromStore(SteadyClock{}.nowNs())) {

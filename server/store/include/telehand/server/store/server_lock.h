@@ -1,0 +1,25 @@
+#pragma once
+/// One server per SQLite record (docs/recovery.md): a server recovers the sessions its record
+/// holds open, so a second server on the same file would take on, write and close the same
+/// sessions. The server holds an exclusive lock on the file while it runs (flock, which
+/// SQLite's own locks do not see, so readers such as telehand-records are not affected); a
+/// second one is refused with a message naming the file. The lock goes with the process,
+/// however it ends.
+#include <string>
+
+namespace telehand::server::store {
+
+class ServerLock {
+ public:
+  /// Locks `db_path` (an existing file); StoreError naming it when another process holds it
+  /// or it cannot be opened.
+  explicit ServerLock(const std::string& db_path);
+  ~ServerLock();
+  ServerLock(const ServerLock&) = delete;
+  ServerLock& operator=(const ServerLock&) = delete;
+
+ private:
+  int fd_ = -1;
+};
+
+}  // namespace telehand::server::store
