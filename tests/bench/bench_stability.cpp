@@ -107,15 +107,7 @@ int lateSweep(double seconds) {
   const auto calm = stability::runStability(m, stability::Motion::kMobilization, 3.0, seconds, 1);
   const double centre = 0.5 * (calm.flexion_min_deg + calm.flexion_max_deg);
   const double amplitude = calm.flexion_max_deg - calm.flexion_min_deg;
-  struct Guide {
-    const char* name;
-    GuideParams g;
-  };
-  const Guide guides[] = {
-      {"none", GuideParams{}},
-      {"demo 3 Hz x1.00", stability::sineGuide(1.0, 3.0, centre, amplitude)},
-      {"take-over 2 Hz x0.67", stability::sineGuide(0.67, 2.0, centre, amplitude)},
-      {"take-over 2 Hz x1.00", stability::sineGuide(1.0, 2.0, centre, amplitude)}};
+  const auto guides = stability::lessonGuides(centre, amplitude, true);
   std::printf("swing without late ticks: %.1f..%.1f deg; %.0f s per run, 5 seeds\n",
               calm.flexion_min_deg, calm.flexion_max_deg, seconds);
   std::printf("%-22s %6s", "guide", "late");
@@ -124,14 +116,14 @@ int lateSweep(double seconds) {
   std::printf("   (runs that left the range)\n");
   client::loop::TeleopOptions teleop;
   teleop.fault.enabled = false;  // see the rendering itself, not the detector stopping it
-  for (const Guide& g : guides) {
+  for (const auto& g : guides) {
     for (double late : {0.05, 0.10, 0.17}) {
       std::printf("%-22s %5.0f%%", g.name, 100.0 * late);
       for (int st : stalls) {
         int left = 0;
         for (uint64_t seed = 1; seed <= 5; ++seed) {
           stability::Extras x;
-          x.guide = g.g;
+          x.guide = g.guide;
           x.late_fraction = late;
           x.max_stall_ms = st;
           const auto r = stability::runStability(m, stability::Motion::kMobilization, 3.0, seconds,

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <random>
 #include <string>
+#include <vector>
 
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/config/config.h"
@@ -45,6 +46,24 @@ inline GuideParams sineGuide(double authority, double hz, double centre_deg, dou
     g.path_rad[static_cast<std::size_t>(k)] =
         Vec3(degToRad(centre_deg + amplitude_deg / 2 * std::sin(ph)), 0, 0);
   }
+  return g;
+}
+
+/// The guides the late-loop checks compare around a swing: none, the demonstration's own
+/// (3 Hz, the student's rhythm; only `with_demonstration`) and a supervisor's take-over at
+/// 2 Hz with authority 0.67 and 1.
+struct NamedGuide {
+  const char* name;
+  GuideParams guide;
+};
+inline std::vector<NamedGuide> lessonGuides(double centre_deg, double amplitude_deg,
+                                            bool with_demonstration) {
+  std::vector<NamedGuide> g{{"none", GuideParams{}}};
+  if (with_demonstration) {
+    g.push_back({"demo 3 Hz x1.00", sineGuide(1.0, 3.0, centre_deg, amplitude_deg)});
+  }
+  g.push_back({"take-over 2 Hz x0.67", sineGuide(0.67, 2.0, centre_deg, amplitude_deg)});
+  g.push_back({"take-over 2 Hz x1.00", sineGuide(1.0, 2.0, centre_deg, amplitude_deg)});
   return g;
 }
 

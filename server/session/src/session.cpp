@@ -74,24 +74,37 @@ void Session::releaseKnn() {
   });
 }
 
-void Session::publishStatus(telehand_msg_SessionState state) {
+telehand_msg_SessionStatus statusOf(const store::SessionInfo& info, telehand_msg_SessionState state,
+                                    uint64_t client_id, uint32_t request_seq,
+                                    const std::string& location) {
   telehand_msg_SessionStatus st{};
   st.session_id = info.id;
   st.client_id = client_id;
   st.request_seq = request_seq;
   st.source_time_ns = wallNs();
   st.state = state;
-  st.mode = mode;
+  st.mode = parseMode(info.mode).value_or(telehand_msg_MODE_MOBILIZATION);
   st.started_ns = info.started_ns;
+  st.ended_ns = info.ended_ns;
+  st.samples_recorded = info.samples;
+  st.samples_missing =
+      info.samples_expected > info.samples ? info.samples_expected - info.samples : 0;
+  copyString(st.case_name, info.case_name);
+  copyString(st.user, info.user);
+  copyString(st.record, location + " session " + std::to_string(info.id));
+  return st;
+}
+
+void Session::publishStatus(telehand_msg_SessionState state) {
+  telehand_msg_SessionStatus st =
+      statusOf(info, state, client_id, request_seq, ctx.store.location());
+  st.mode = mode;
   st.ended_ns = state == telehand_msg_SESSION_CLOSED ? wallNs() : 0;
   st.samples_recorded = recorder.recorded();
   st.stored_below = recorder.storedBelow();
   st.samples_missing = state == telehand_msg_SESSION_CLOSED && expected > recorder.recorded()
                            ? expected - recorder.recorded()
                            : 0;
-  copyString(st.case_name, info.case_name);
-  copyString(st.user, info.user);
-  copyString(st.record, ctx.store.location() + " session " + std::to_string(info.id));
   if (lesson) copyString(st.lesson, encodePlan(lesson->plan));
   ctx.out.publish(st);
 }

@@ -487,22 +487,7 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
 
 void SessionManager::publishRecordStatus(const SessionInfo& info, telehand_msg_SessionState state,
                                          uint64_t client_id, uint32_t request_seq) {
-  telehand_msg_SessionStatus st{};
-  st.session_id = info.id;
-  st.client_id = client_id;
-  st.request_seq = request_seq;
-  st.source_time_ns = wallNs();
-  st.state = state;
-  st.mode = parseMode(info.mode).value_or(telehand_msg_MODE_MOBILIZATION);
-  st.started_ns = info.started_ns;
-  st.ended_ns = info.ended_ns;
-  st.samples_recorded = info.samples;
-  st.samples_missing =
-      info.samples_expected > info.samples ? info.samples_expected - info.samples : 0;
-  copyString(st.case_name, info.case_name);
-  copyString(st.user, info.user);
-  copyString(st.record, store_.location() + " session " + std::to_string(info.id));
-  out_.publish(st);
+  out_.publish(statusOf(info, state, client_id, request_seq, store_.location()));
 }
 
 void SessionManager::closeUnresumed(uint64_t session_id, int64_t now_ns, const std::string& why) {

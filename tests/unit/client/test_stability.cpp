@@ -64,17 +64,10 @@ TEST(Stability, ATakeOverOnALateLoopStaysInRange) {
     const auto calm = stability::runStability(m, Motion::kMobilization, 3.0, 6.0, 1);
     const double centre = 0.5 * (calm.flexion_min_deg + calm.flexion_max_deg);
     const double amplitude = calm.flexion_max_deg - calm.flexion_min_deg;
-    struct Guide {
-      const char* name;
-      GuideParams g;
-    };
-    const Guide guides[] = {
-        {"none", GuideParams{}},
-        {"take-over 2 Hz x0.67", stability::sineGuide(0.67, 2.0, centre, amplitude)},
-        {"take-over 2 Hz x1", stability::sineGuide(1.0, 2.0, centre, amplitude)}};
-    for (const Guide& g : guides) {
+    const auto guides = stability::lessonGuides(centre, amplitude, false);
+    for (const auto& g : guides) {
       stability::Extras late;
-      late.guide = g.g;
+      late.guide = g.guide;
       late.late_fraction = 0.10;
       late.max_stall_ms = 8;
       for (uint64_t seed : {1u, 2u, 3u}) {

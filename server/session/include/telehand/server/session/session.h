@@ -26,6 +26,12 @@ namespace telehand::server::session {
 /// there too, without a guide: Session::startReplay).
 JointModelParams openingModel(const PatientCase& patient);
 
+/// A session's SessionStatus from its record's row (what a server that does not run it can
+/// say: recovered, suspended, closed as interrupted).
+telehand_msg_SessionStatus statusOf(const store::SessionInfo& info, telehand_msg_SessionState state,
+                                    uint64_t client_id, uint32_t request_seq,
+                                    const std::string& location);
+
 class Session {
  public:
   Session(SessionContext& ctx, const store::SessionInfo& info,
