@@ -25,7 +25,9 @@ using detail::visitFields;
 // ---- Schema ---------------------------------------------------------------------------------
 //
 // SQLite's schema 5 (sqlite_store.cpp) in PostgreSQL's types: INTEGER -> BIGINT (SQLite's are
-// 64-bit), REAL -> DOUBLE PRECISION (NULL stands for NaN, as there), BLOB -> BYTEA, the
+// 64-bit), REAL -> DOUBLE PRECISION, and REAL (4 bytes) for the sample's float fields (the
+// FSRs, thimble forces, passivity: exactly what the sample holds, 48 bytes a row less; NULL
+// stands for NaN, as in SQLite), BLOB -> BYTEA, the
 // INTEGER PRIMARY KEY ids -> identity columns. Events and explorations gain an identity `id`:
 // SQLite reads them in rowid order, PostgreSQL has no rowid. samples.session_id carries no
 // foreign key: SQLite does not enforce its REFERENCES (foreign_keys is off), so neither store
@@ -87,7 +89,9 @@ std::string samplesTableSql() {
   visitFields(probe, [&](auto& v) {
     using T = std::remove_reference_t<decltype(v)>;
     sql += ",\n  " + fieldNames()[i++] +
-           (std::is_integral_v<T> ? " BIGINT NOT NULL" : " DOUBLE PRECISION");
+           (std::is_integral_v<T>      ? " BIGINT NOT NULL"
+            : std::is_same_v<T, float> ? " REAL"
+                                       : " DOUBLE PRECISION");
   });
   sql +=
       ",\n  valid INTEGER NOT NULL,\n  PRIMARY KEY (session_id, seq));\n"
@@ -106,12 +110,22 @@ std::string insertSamplesSql() {
   visitFields(probe, [&](auto& v) {
     using T = std::remove_reference_t<decltype(v)>;
     cols += ", " + fieldNames()[i++];
-    arrays += "$" + std::to_string(param++) + (std::is_integral_v<T> ? "::bigint[]" : "::float8[]");
+    arrays += "$" + std::to_string(param++) +
+              (std::is_integral_v<T>      ? "::bigint[]"
+               : std::is_same_v<T, float> ? "::real[]"
+                                          : "::float8[]");
     arrays += ", ";
   });
   arrays += "$" + std::to_string(param) + "::integer[]";
   return "INSERT INTO samples (" + cols + ", valid) SELECT $1::bigint, u.* FROM unnest(" + arrays +
          ") AS u ON CONFLICT (session_id, seq) DO NOTHING";
+}
+
+/// COPY of whole rows in PostgreSQL's binary format (copySamples() writes them).
+std::string copySamplesSql() {
+  std::string cols = "session_id";
+  for (const auto& n : fieldNames()) cols += ", " + n;
+  return "COPY samples (" + cols + ", valid) FROM STDIN (FORMAT binary)";
 }
 
 /// A page of a session's samples by key: $1 session, $2 <= seq <= $3, at most $4 rows.
@@ -129,10 +143,15 @@ constexpr std::size_t kRowsPerStatement = 8192;
 constexpr std::size_t kRowsPerPage = 8192;
 
 // Type OIDs (PostgreSQL's pg_type.dat; fixed since 7.x).
-constexpr Oid kOidBytea = 17, kOidInt8 = 20, kOidInt4 = 23, kOidText = 25, kOidFloat8 = 701;
+constexpr Oid kOidBytea = 17, kOidInt8 = 20, kOidInt4 = 23, kOidText = 25, kOidFloat4 = 700,
+              kOidFloat8 = 701;
 
 // ---- Binary values (network byte order) ----------------------------------------------------
 
+void put16(std::string& b, uint16_t v) {
+  b.push_back(static_cast<char>(v >> 8));
+  b.push_back(static_cast<char>(v & 0xff));
+}
 void put32(std::string& b, uint32_t v) {
   for (int i = 3; i >= 0; --i) b.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
 }
@@ -190,6 +209,15 @@ class ArrayParam {
     put32(bytes_, static_cast<uint32_t>(v));
   }
   /// NaN as NULL, as SQLite keeps it; ±inf as they are.
+  void float4(float v) {
+    if (std::isnan(v)) {
+      put32(bytes_, 0xffffffffu);
+      has_null_ = true;
+      return;
+    }
+    put32(bytes_, 4);
+    put32(bytes_, std::bit_cast<uint32_t>(v));
+  }
   void float8(double v) {
     if (std::isnan(v)) {
       put32(bytes_, 0xffffffffu);
@@ -233,9 +261,12 @@ class Result {
     if (len == 4) return static_cast<int32_t>(static_cast<uint32_t>(v));
     return static_cast<int16_t>(static_cast<uint16_t>(v));
   }
-  /// A float8 column; NULL reads as NaN.
+  /// A float8 or float4 column; NULL reads as NaN.
   double real(int row, int col) const {
     if (null(row, col)) return std::numeric_limits<double>::quiet_NaN();
+    if (PQgetlength(r_, row, col) == 4) {
+      return std::bit_cast<float>(static_cast<uint32_t>(getBigEndian(PQgetvalue(r_, row, col), 4)));
+    }
     return std::bit_cast<double>(getBigEndian(PQgetvalue(r_, row, col), 8));
   }
   std::string text(int row, int col) const {
@@ -549,7 +580,10 @@ uint64_t PgStore::insertSamples(uint64_t session_id, std::span<const Sample> sam
     std::size_t i = 0;
     visitFields(samples[0], [&](const auto& v) {
       using T = std::remove_cvref_t<decltype(v)>;
-      arrays[i++].start(std::is_integral_v<T> ? kOidInt8 : kOidFloat8, n);
+      arrays[i++].start(std::is_integral_v<T>      ? kOidInt8
+                        : std::is_same_v<T, float> ? kOidFloat4
+                                                   : kOidFloat8,
+                        n);
     });
     arrays[fields].start(kOidInt4, n);
   }
@@ -559,8 +593,10 @@ uint64_t PgStore::insertSamples(uint64_t session_id, std::span<const Sample> sam
       using T = std::remove_cvref_t<decltype(v)>;
       if constexpr (std::is_integral_v<T>) {
         arrays[i++].int8(static_cast<int64_t>(v));
+      } else if constexpr (std::is_same_v<T, float>) {
+        arrays[i++].float4(v);
       } else {
-        arrays[i++].float8(static_cast<double>(v));
+        arrays[i++].float8(v);
       }
     });
     arrays[fields].int4(k < valid.size() ? (valid[k] != 0 ? 1 : 0) : 1);
@@ -580,6 +616,62 @@ uint64_t PgStore::insertSamples(uint64_t session_id, std::span<const Sample> sam
                                            values.data(), lengths.data(), formats.data(), 1),
                             "INSERT INTO samples");
   return std::strtoull(PQcmdTuples(r.get()), nullptr, 10);
+}
+
+/// The fast path: the batch in one COPY (a statement of its own, so all of it or nothing).
+/// nullopt when a sequence number was stored already (a resend): nothing was stored, and the
+/// caller inserts what is new.
+std::optional<uint64_t> PgStore::copySamples(uint64_t session_id, std::span<const Sample> samples,
+                                             std::span<const uint8_t> valid) {
+  thread_local std::string buf;
+  buf.clear();
+  buf.append("PGCOPY\n\377\r\n\0", 11);
+  put32(buf, 0);  // flags
+  put32(buf, 0);  // header extension
+  const auto columns = static_cast<uint16_t>(fieldCount() + 2);
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    put16(buf, columns);
+    put32(buf, 8);
+    put64(buf, session_id);
+    visitFields(samples[k], [&](const auto& v) {
+      using T = std::remove_cvref_t<decltype(v)>;
+      if constexpr (std::is_integral_v<T>) {
+        put32(buf, 8);
+        put64(buf, static_cast<uint64_t>(static_cast<int64_t>(v)));
+      } else if (std::isnan(v)) {
+        put32(buf, 0xffffffffu);  // NULL, as SQLite keeps NaN
+      } else if constexpr (std::is_same_v<T, float>) {
+        put32(buf, 4);
+        put32(buf, std::bit_cast<uint32_t>(v));
+      } else {
+        put32(buf, 8);
+        put64(buf, std::bit_cast<uint64_t>(static_cast<double>(v)));
+      }
+    });
+    put32(buf, 4);
+    put32(buf, k < valid.size() && valid[k] == 0 ? 0 : 1);
+  }
+  put16(buf, 0xffff);  // trailer
+
+  static const std::string sql = copySamplesSql();
+  Db db(conn_, location_);
+  PGresult* start = PQexec(conn_, sql.c_str());
+  if (PQresultStatus(start) != PGRES_COPY_IN) db.check(start, sql.c_str());  // throws
+  PQclear(start);
+  const bool sent = PQputCopyData(conn_, buf.data(), static_cast<int>(buf.size())) == 1 &&
+                    PQputCopyEnd(conn_, nullptr) == 1;
+  Result r(PQgetResult(conn_));
+  while (PGresult* more = PQgetResult(conn_)) PQclear(more);
+  if (sent && PQresultStatus(r.get()) == PGRES_COMMAND_OK) {
+    return std::strtoull(PQcmdTuples(r.get()), nullptr, 10);
+  }
+  const char* state = r.get() ? PQresultErrorField(r.get(), PG_DIAG_SQLSTATE) : nullptr;
+  if (state && std::strcmp(state, "23505") == 0) return std::nullopt;  // unique_violation
+  const std::string why = oneLine(r.get() ? PQresultErrorMessage(r.get()) : PQerrorMessage(conn_));
+  if (PQstatus(conn_) != CONNECTION_OK) {
+    throw StoreError("lost the connection to record database '" + location_ + "': " + why);
+  }
+  throw StoreError("PostgreSQL on '" + location_ + "': " + why + " (in: COPY samples)");
 }
 
 uint64_t PgStore::appendSamples(uint64_t session_id, std::span<const Sample> samples,
@@ -608,6 +700,8 @@ uint64_t PgStore::appendSamples(uint64_t session_id, std::span<const Sample> sam
       valid = unique_valid;
     }
   }
+  if (const auto copied = copySamples(session_id, samples, valid)) return *copied;
+  // Some were stored before: an INSERT that skips them, in slices, in one transaction.
   if (samples.size() <= kRowsPerStatement) return insertSamples(session_id, samples, valid);
   Db db(conn_, location_);
   db.script("BEGIN");

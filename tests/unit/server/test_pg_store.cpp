@@ -67,6 +67,9 @@ TEST_F(PgStoreTest, TheSchemaIsMarkedAndHasTheSqliteColumns) {
             want);
   EXPECT_EQ(value("SELECT data_type FROM information_schema.columns WHERE table_schema = '" +
                   schema_ + "' AND table_name = 'samples' AND column_name = 'thumb_fsr1_n'"),
+            "real");
+  EXPECT_EQ(value("SELECT data_type FROM information_schema.columns WHERE table_schema = '" +
+                  schema_ + "' AND table_name = 'samples' AND column_name = 'thumb_px_m'"),
             "double precision");
   EXPECT_EQ(value("SELECT data_type FROM information_schema.columns WHERE table_schema = '" +
                   schema_ + "' AND table_name = 'samples' AND column_name = 'flags'"),

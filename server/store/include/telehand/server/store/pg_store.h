@@ -11,9 +11,12 @@
 /// telehand record are refused unmodified, the message naming the database. Read-only opens
 /// write nothing, not even the schema (the session is set default_transaction_read_only).
 ///
-/// appendSamples sends a batch as one INSERT of binary arrays (unnest), up to 8192 samples per
-/// statement and a larger batch in one transaction; a sequence number already stored, or
-/// repeated in the batch, is ignored (the first copy kept), as SQLite does. Reads page through
+/// appendSamples sends a batch as one binary COPY, a statement of its own (all of it stored, or
+/// none). When some of its sequence numbers are stored already (a client's resend after an
+/// outage: rare), the COPY fails whole and the batch goes again as INSERTs of binary arrays
+/// (unnest, 8192 samples per statement, one transaction) ON CONFLICT DO NOTHING. Either way a
+/// sequence number already stored, or repeated in the batch, is ignored (the first copy kept),
+/// as SQLite does. Reads page through
 /// the (session_id, seq) key, 8192 samples per round trip, so a long record never sits in
 /// memory whole and the callback may use the store.
 ///
@@ -80,6 +83,8 @@ class PgStore final : public SessionStore {
   void createSchema();
   void readSamples(uint64_t session_id, int64_t first, int64_t last,
                    const std::function<void(const Sample&, bool)>& fn);
+  std::optional<uint64_t> copySamples(uint64_t session_id, std::span<const Sample> samples,
+                                      std::span<const uint8_t> valid);
   uint64_t insertSamples(uint64_t session_id, std::span<const Sample> samples,
                          std::span<const uint8_t> valid);
 
