@@ -30,8 +30,20 @@ using ::testing::HasSubstr;
 using namespace store_test;
 using Mode = SessionStore::Mode;
 
+/// Where a test's record lives, and what the tests do to it behind the store's back.
+class Backend {
+ public:
+  virtual ~Backend() = default;
+  /// What --db would say.
+  virtual std::string spec() const = 0;
+  /// Says the record was written by telehand's schema `version`.
+  virtual void setSchemaVersion(int version) = 0;
+  /// Puts a table of another program where the record would be.
+  virtual void addForeignTable() = 0;
+};
+
 /// An SQLite file in a directory of its own (its parent made on opening).
-class SqliteBackend {
+class SqliteBackend final : public Backend {
  public:
   SqliteBackend() {
     static std::atomic<int> counter{0};
@@ -40,19 +52,15 @@ class SqliteBackend {
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
-  ~SqliteBackend() {
+  ~SqliteBackend() override {
     std::error_code ec;
     fs::remove_all(dir_, ec);
   }
-  /// Why this backend cannot be tested here ("" when it can); `error`: it should be and is
-  /// not.
-  static std::string skip() { return ""; }
-  static std::string error() { return ""; }
-  std::string spec() const { return (dir_ / "records" / "telehand.db").string(); }
-  /// Says the record was written by telehand's schema `version`.
-  void setSchemaVersion(int version) { sql("PRAGMA user_version = " + std::to_string(version)); }
-  /// Puts a table of another program where the record would be.
-  void addForeignTable() {
+  std::string spec() const override { return (dir_ / "records" / "telehand.db").string(); }
+  void setSchemaVersion(int version) override {
+    sql("PRAGMA user_version = " + std::to_string(version));
+  }
+  void addForeignTable() override {
     fs::create_directories(fs::path(spec()).parent_path());
     sql("CREATE TABLE inventory (item TEXT, count INTEGER); INSERT INTO inventory VALUES ('x', 1)");
   }
@@ -68,29 +76,27 @@ class SqliteBackend {
 };
 
 /// A schema of its own in the test process's PostgreSQL cluster, dropped afterwards.
-class PostgresBackend {
+class PostgresBackend final : public Backend {
  public:
   PostgresBackend() {
     static std::atomic<int> counter{0};
     schema_ = "contract_" + std::to_string(::getpid()) + "_" + std::to_string(counter++);
     cluster().exec("CREATE SCHEMA " + schema_, "telehand");
   }
-  ~PostgresBackend() {
+  ~PostgresBackend() override {
     try {
       cluster().exec("DROP SCHEMA " + schema_ + " CASCADE", "telehand");
     } catch (const std::exception& e) {
       ADD_FAILURE() << e.what();
     }
   }
-  static std::string skip() { return test::sharedPgCluster().skip; }
-  static std::string error() { return test::sharedPgCluster().error; }
-  std::string spec() const { return cluster().uri("telehand", schema_); }
-  void setSchemaVersion(int version) {
+  std::string spec() const override { return cluster().uri("telehand", schema_); }
+  void setSchemaVersion(int version) override {
     cluster().exec(
         "UPDATE " + schema_ + ".telehand_schema SET version = " + std::to_string(version),
         "telehand");
   }
-  void addForeignTable() {
+  void addForeignTable() override {
     cluster().exec("CREATE TABLE " + schema_ +
                        ".inventory (item TEXT, count INTEGER); INSERT INTO " + schema_ +
                        ".inventory VALUES ('x', 1)",
@@ -102,13 +108,19 @@ class PostgresBackend {
   std::string schema_;
 };
 
-template <class Backend>
-class SessionStoreTest : public ::testing::Test {
+enum class Kind { kSqlite, kPostgres };
+
+class SessionStoreTest : public ::testing::TestWithParam<Kind> {
  protected:
   void SetUp() override {
-    if (const auto why = Backend::skip(); !why.empty()) GTEST_SKIP() << why;
-    if (const auto why = Backend::error(); !why.empty()) FAIL() << why;
-    backend_ = std::make_unique<Backend>();
+    if (GetParam() == Kind::kSqlite) {
+      backend_ = std::make_unique<SqliteBackend>();
+      return;
+    }
+    const auto shared = test::sharedPgCluster();
+    if (!shared.skip.empty()) GTEST_SKIP() << shared.skip;
+    if (!shared.error.empty()) FAIL() << shared.error;
+    backend_ = std::make_unique<PostgresBackend>();
   }
   std::unique_ptr<SessionStore> open(Mode mode = Mode::kReadWrite) {
     return openStore(backend_->spec(), mode);
@@ -117,22 +129,18 @@ class SessionStoreTest : public ::testing::Test {
   std::unique_ptr<Backend> backend_;
 };
 
-struct BackendNames {
-  template <class T>
-  static std::string GetName(int) {
-    return std::is_same_v<T, SqliteBackend> ? "Sqlite" : "Postgres";
-  }
-};
-using Backends = ::testing::Types<SqliteBackend, PostgresBackend>;
-TYPED_TEST_SUITE(SessionStoreTest, Backends, BackendNames);
+INSTANTIATE_TEST_SUITE_P(Store, SessionStoreTest, ::testing::Values(Kind::kSqlite, Kind::kPostgres),
+                         [](const ::testing::TestParamInfo<Kind>& p) {
+                           return p.param == Kind::kSqlite ? "Sqlite" : "Postgres";
+                         });
 
-TYPED_TEST(SessionStoreTest, OpensWhatTheSpecNamesAndSaysWhere) {
+TEST_P(SessionStoreTest, OpensWhatTheSpecNamesAndSaysWhere) {
   auto store = this->open();
   EXPECT_EQ(store->location(), describeStore(this->spec()));
-  EXPECT_EQ(isPostgresUri(this->spec()), (std::is_same_v<TypeParam, PostgresBackend>));
+  EXPECT_EQ(isPostgresUri(this->spec()), GetParam() == Kind::kPostgres);
 }
 
-TYPED_TEST(SessionStoreTest, SessionIdsIncreaseAcrossReopen) {
+TEST_P(SessionStoreTest, SessionIdsIncreaseAcrossReopen) {
   uint64_t a = 0, b = 0, c = 0;
   {
     auto store = this->open();
@@ -146,7 +154,7 @@ TYPED_TEST(SessionStoreTest, SessionIdsIncreaseAcrossReopen) {
   EXPECT_GT(c, b);
 }
 
-TYPED_TEST(SessionStoreTest, NewSessionIsActiveWithItsFields) {
+TEST_P(SessionStoreTest, NewSessionIsActiveWithItsFields) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   const auto s = store->session(id);
@@ -161,7 +169,7 @@ TYPED_TEST(SessionStoreTest, NewSessionIsActiveWithItsFields) {
   EXPECT_FALSE(store->session(id + 100).has_value());
 }
 
-TYPED_TEST(SessionStoreTest, AppendCountsNewSamplesAndIgnoresDuplicates) {
+TEST_P(SessionStoreTest, AppendCountsNewSamplesAndIgnoresDuplicates) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   const auto first = samples(id, 0, 10);
@@ -174,7 +182,7 @@ TYPED_TEST(SessionStoreTest, AppendCountsNewSamplesAndIgnoresDuplicates) {
   EXPECT_EQ(store->session(id)->samples, 15u);
 }
 
-TYPED_TEST(SessionStoreTest, DuplicateKeepsTheFirstCopy) {
+TEST_P(SessionStoreTest, DuplicateKeepsTheFirstCopy) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   auto s = sample(id, 3);
@@ -187,7 +195,7 @@ TYPED_TEST(SessionStoreTest, DuplicateKeepsTheFirstCopy) {
   });
 }
 
-TYPED_TEST(SessionStoreTest, ARepeatWithinOneBatchKeepsTheFirstCopyAndItsFlag) {
+TEST_P(SessionStoreTest, ARepeatWithinOneBatchKeepsTheFirstCopyAndItsFlag) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   std::vector<Sample> batch = {sample(id, 1), sample(id, 2), sample(id, 1), sample(id, 0)};
@@ -206,7 +214,7 @@ TYPED_TEST(SessionStoreTest, ARepeatWithinOneBatchKeepsTheFirstCopyAndItsFlag) {
   EXPECT_EQ(store->session(id)->rejected, 1u);
 }
 
-TYPED_TEST(SessionStoreTest, SamplesComeBackWholeInSequenceOrder) {
+TEST_P(SessionStoreTest, SamplesComeBackWholeInSequenceOrder) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   std::vector<Sample> shuffled = {sample(id, 20), sample(id, 3), sample(id, 11), sample(id, 0),
@@ -219,7 +227,7 @@ TYPED_TEST(SessionStoreTest, SamplesComeBackWholeInSequenceOrder) {
   });
 }
 
-TYPED_TEST(SessionStoreTest, SessionsDoNotMix) {
+TEST_P(SessionStoreTest, SessionsDoNotMix) {
   auto store = this->open();
   const uint64_t a = store->createSession(info("alice"));
   const uint64_t b = store->createSession(info("bob"));
@@ -230,7 +238,7 @@ TYPED_TEST(SessionStoreTest, SessionsDoNotMix) {
   EXPECT_EQ(seqsOf(*store, a).size(), 4u);
 }
 
-TYPED_TEST(SessionStoreTest, InvalidSamplesAreKeptAndCounted) {
+TEST_P(SessionStoreTest, InvalidSamplesAreKeptAndCounted) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   auto batch = samples(id, 0, 4);
@@ -248,7 +256,7 @@ TYPED_TEST(SessionStoreTest, InvalidSamplesAreKeptAndCounted) {
   EXPECT_EQ(flags, (std::vector<bool>{true, true, false, true}));
 }
 
-TYPED_TEST(SessionStoreTest, EveryFieldRoundTripsThroughTheColumns) {
+TEST_P(SessionStoreTest, EveryFieldRoundTripsThroughTheColumns) {
   auto store = this->open();
   for (uint64_t seed : {1u, 2u, 3u, 20240611u, 0xdeadbeefu}) {
     SCOPED_TRACE("seed " + std::to_string(seed));
@@ -280,7 +288,7 @@ TYPED_TEST(SessionStoreTest, EveryFieldRoundTripsThroughTheColumns) {
   }
 }
 
-TYPED_TEST(SessionStoreTest, NonFiniteValuesRoundTrip) {
+TEST_P(SessionStoreTest, NonFiniteValuesRoundTrip) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   Sample s = sample(id, 1);
@@ -302,7 +310,7 @@ TYPED_TEST(SessionStoreTest, NonFiniteValuesRoundTrip) {
   EXPECT_EQ(n, 1);
 }
 
-TYPED_TEST(SessionStoreTest, ALargeBatchAndALongRecordComeBackWhole) {
+TEST_P(SessionStoreTest, ALargeBatchAndALongRecordComeBackWhole) {
   // More than one statement's and one read page's worth (PgStore: 8192 each).
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
@@ -322,7 +330,7 @@ TYPED_TEST(SessionStoreTest, ALargeBatchAndALongRecordComeBackWhole) {
   EXPECT_EQ(store->countSamples(id, 0, UINT64_MAX), 20'010u);
 }
 
-TYPED_TEST(SessionStoreTest, TheCallbackMayUseTheStore) {
+TEST_P(SessionStoreTest, TheCallbackMayUseTheStore) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   store->appendSamples(id, samples(id, 0, 10), {});
@@ -337,7 +345,7 @@ TYPED_TEST(SessionStoreTest, TheCallbackMayUseTheStore) {
   EXPECT_EQ(n, 10);
 }
 
-TYPED_TEST(SessionStoreTest, EventsInInsertionOrder) {
+TEST_P(SessionStoreTest, EventsInInsertionOrder) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   store->appendEvent(id, {200, "mark", "second, but earlier id"});
@@ -351,7 +359,7 @@ TYPED_TEST(SessionStoreTest, EventsInInsertionOrder) {
   EXPECT_EQ(ev[1].text, "more force");
 }
 
-TYPED_TEST(SessionStoreTest, ReachesInInsertionOrder) {
+TEST_P(SessionStoreTest, ReachesInInsertionOrder) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   store->appendReach(id, {"baseline", "flexion", 61.5, 11.25});
@@ -368,7 +376,7 @@ TYPED_TEST(SessionStoreTest, ReachesInInsertionOrder) {
   EXPECT_TRUE(store->reaches(id + 2).empty());
 }
 
-TYPED_TEST(SessionStoreTest, FilesAreKeptByNameAndReplaced) {
+TEST_P(SessionStoreTest, FilesAreKeptByNameAndReplaced) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   const std::string binary("\x00\x01\xff\n\x00z", 6);
@@ -384,7 +392,7 @@ TYPED_TEST(SessionStoreTest, FilesAreKeptByNameAndReplaced) {
   EXPECT_TRUE(store->files(id + 1).empty());
 }
 
-TYPED_TEST(SessionStoreTest, CloseRecordsEndExpectedAndState) {
+TEST_P(SessionStoreTest, CloseRecordsEndExpectedAndState) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));
   store->appendSamples(id, samples(id, 0, 8), {});
@@ -397,7 +405,7 @@ TYPED_TEST(SessionStoreTest, CloseRecordsEndExpectedAndState) {
   EXPECT_EQ(s->samples, 8u) << "two samples never arrived";
 }
 
-TYPED_TEST(SessionStoreTest, ListIsOrderedById) {
+TEST_P(SessionStoreTest, ListIsOrderedById) {
   auto store = this->open();
   const uint64_t a = store->createSession(info("alice"));
   const uint64_t b = store->createSession(info("bob"));
@@ -413,7 +421,7 @@ TYPED_TEST(SessionStoreTest, ListIsOrderedById) {
   EXPECT_EQ(list[1].state, "active");
 }
 
-TYPED_TEST(SessionStoreTest, SessionsKeepTheirOwner) {
+TEST_P(SessionStoreTest, SessionsKeepTheirOwner) {
   auto store = this->open();
   SessionInfo a = info("alice");
   a.owner = "0110ab12cd34ef56:0000001c:00000001 (device)";
@@ -424,7 +432,7 @@ TYPED_TEST(SessionStoreTest, SessionsKeepTheirOwner) {
   EXPECT_EQ(store->listSessions().front().owner, a.owner);
 }
 
-TYPED_TEST(SessionStoreTest, ReaderSeesWhatTheWriterStoredWhileItIsOpen) {
+TEST_P(SessionStoreTest, ReaderSeesWhatTheWriterStoredWhileItIsOpen) {
   auto writer = this->open();
   const uint64_t id = writer->createSession(info("alice"));
   writer->appendSamples(id, samples(id, 0, 5), {});
@@ -438,7 +446,7 @@ TYPED_TEST(SessionStoreTest, ReaderSeesWhatTheWriterStoredWhileItIsOpen) {
   EXPECT_EQ(writer->session(id)->samples, 9u);
 }
 
-TYPED_TEST(SessionStoreTest, AReadOnlyOpenOfNothingIsRefusedAndCreatesNothing) {
+TEST_P(SessionStoreTest, AReadOnlyOpenOfNothingIsRefusedAndCreatesNothing) {
   try {
     this->open(Mode::kReadOnly);
     FAIL() << "opened a record that is not there";
@@ -451,7 +459,7 @@ TYPED_TEST(SessionStoreTest, AReadOnlyOpenOfNothingIsRefusedAndCreatesNothing) {
   EXPECT_EQ(store->createSession(info("alice")), 1u);
 }
 
-TYPED_TEST(SessionStoreTest, LessonsTrialsAndSampleRanges) {
+TEST_P(SessionStoreTest, LessonsTrialsAndSampleRanges) {
   auto store = this->open();
   const uint64_t demo = store->createSession(info("alice"));
   LessonInfo l;
@@ -526,7 +534,7 @@ TYPED_TEST(SessionStoreTest, LessonsTrialsAndSampleRanges) {
   EXPECT_FALSE(store->extent(run + 100).has_value());
 }
 
-TYPED_TEST(SessionStoreTest, LessonsRememberWhetherATakeOverIsAllowed) {
+TEST_P(SessionStoreTest, LessonsRememberWhetherATakeOverIsAllowed) {
   auto store = this->open();
   LessonInfo l;
   l.name = "without";
@@ -541,7 +549,7 @@ TYPED_TEST(SessionStoreTest, LessonsRememberWhetherATakeOverIsAllowed) {
   EXPECT_EQ(store->listLessons().back().name, "with");
 }
 
-TYPED_TEST(SessionStoreTest, RefusesANewerSchemaNamingTheRecord) {
+TEST_P(SessionStoreTest, RefusesANewerSchemaNamingTheRecord) {
   uint64_t id = 0;
   {
     auto store = this->open();
@@ -564,7 +572,7 @@ TYPED_TEST(SessionStoreTest, RefusesANewerSchemaNamingTheRecord) {
   EXPECT_EQ(this->open(Mode::kReadOnly)->session(id)->samples, 10u) << "left untouched";
 }
 
-TYPED_TEST(SessionStoreTest, RefusesForeignTablesNamingTheRecord) {
+TEST_P(SessionStoreTest, RefusesForeignTablesNamingTheRecord) {
   this->backend_->addForeignTable();
   for (auto mode : {Mode::kReadWrite, Mode::kReadOnly}) {
     try {
