@@ -14,8 +14,9 @@ packages=(
   libeigen3-dev libbullet-dev libusb-1.0-0-dev libflann-dev liblz4-dev
   # hand model (URDF parser, check_urdf)
   liburdfdom-dev liburdfdom-tools
-  # records, CLI, logs, config
-  libsqlite3-dev libcli11-dev libspdlog-dev libtomlplusplus-dev
+  # records (SQLite; PostgreSQL's client library, and its server for the tests and benchmark
+  # of the PostgreSQL store), CLI, logs, config
+  libsqlite3-dev libpq-dev postgresql libcli11-dev libspdlog-dev libtomlplusplus-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
   # the emulated MF-2 (USB tests) and the fuzz targets (clang's libFuzzer)

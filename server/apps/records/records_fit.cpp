@@ -12,7 +12,7 @@
 #include "telehand/core/error.h"
 #include "telehand/server/estimate/capture_fit.h"
 #include "telehand/server/estimate/synthetic_capture.h"
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/store/open_store.h"
 
 namespace telehand::records {
 
@@ -101,11 +101,11 @@ bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates,
 }  // namespace
 
 int runFit(const FitRequest& r) {
-  using server::store::SqliteStore;
-  SqliteStore store(r.db, SqliteStore::Mode::kReadOnly);
+  const auto opened = server::store::openStore(r.db, server::store::SessionStore::Mode::kReadOnly);
+  server::store::SessionStore& store = *opened;
   const auto info = store.session(r.session);
   if (!info) {
-    std::cerr << "telehand-records: no session " << r.session << " in " << r.db << "\n";
+    std::cerr << "telehand-records: no session " << r.session << " in " << store.location() << "\n";
     return 2;
   }
   if (info->mode != "capture") {
@@ -157,7 +157,7 @@ int runFit(const FitRequest& r) {
   const std::string toml = server::estimate::patientCaseToml(
       fit, model, name,
       "fitted from capture session " + std::to_string(r.session) + " (" + info->user + ")",
-      "telehand-records fit of " + r.db + " session " + std::to_string(r.session));
+      "telehand-records fit of " + store.location() + " session " + std::to_string(r.session));
   // The file must load as a case: a fit whose force falls somewhere is refused here.
   try {
     parsePatientCase(toml, output.string());
@@ -249,8 +249,8 @@ int runSynth(const SynthRequest& r) {
     if (!r.quiet && f > 0.0 && f < 1.0)
       std::cerr << "capturing: " << static_cast<int>(f * 100) << " %\n";
   });
-  server::store::SqliteStore store(r.db);
-  const uint64_t id = server::estimate::storeCapture(store, cap, r.case_name, "synthetic",
+  const auto store = server::store::openStore(r.db);
+  const uint64_t id = server::estimate::storeCapture(*store, cap, r.case_name, "synthetic",
                                                      server::estimate::deviceFiles(o.device));
   std::cout << "session " << id << ": synthetic capture of case '" << r.case_name << "', "
             << cap.samples.size() << " samples, thimble noise " << r.noise_n << " N per axis\n";

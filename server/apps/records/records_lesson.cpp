@@ -13,6 +13,7 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/server/lesson/lesson.h"
+#include "telehand/server/store/open_store.h"
 
 namespace telehand::records {
 
@@ -30,7 +31,8 @@ double forceScaleOf(const std::string& cases_dir, const std::string& case_name) 
   }
 }
 
-std::vector<Sample> samplesIn(SqliteStore& store, uint64_t session, uint64_t first, uint64_t last) {
+std::vector<Sample> samplesIn(SessionStore& store, uint64_t session, uint64_t first,
+                              uint64_t last) {
   std::vector<Sample> out;
   store.forEachSampleIn(session, first, last, [&](const Sample& s, bool valid) {
     if (valid) out.push_back(s);
@@ -38,12 +40,12 @@ std::vector<Sample> samplesIn(SqliteStore& store, uint64_t session, uint64_t fir
   return out;
 }
 
-std::vector<Sample> allSamples(SqliteStore& store, uint64_t session) {
+std::vector<Sample> allSamples(SessionStore& store, uint64_t session) {
   return samplesIn(store, session, 0, UINT64_MAX);
 }
 
 /// Sessions that ran `lesson_id`, oldest first.
-std::vector<SessionInfo> runsOf(SqliteStore& store, uint64_t lesson_id) {
+std::vector<SessionInfo> runsOf(SessionStore& store, uint64_t lesson_id) {
   std::vector<SessionInfo> out;
   for (const auto& s : store.listSessions()) {
     if (s.mode == "lesson" && store.sessionLesson(s.id) == lesson_id) out.push_back(s);
@@ -64,9 +66,10 @@ int runLessonCreate(const LessonRequest& r) {
   if (!validSchedule(r.schedule)) {
     throw Error("--schedule '" + r.schedule + "': one of concurrent, terminal, faded, self");
   }
-  SqliteStore store(r.db, SqliteStore::Mode::kReadWrite);
+  const auto opened = openStore(r.db, SessionStore::Mode::kReadWrite);
+  SessionStore& store = *opened;
   const auto demo = store.session(r.demo);
-  if (!demo) throw Error("no session " + std::to_string(r.demo) + " in " + r.db);
+  if (!demo) throw Error("no session " + std::to_string(r.demo) + " in " + store.location());
   if (demo->mode != "mobilization") {
     throw Error("session " + std::to_string(r.demo) + " is a " + demo->mode +
                 " session: a demonstration is a mobilization");
@@ -97,10 +100,10 @@ int runLessonCreate(const LessonRequest& r) {
   return 0;
 }
 
-int runLessonList(SqliteStore& store, const std::string& db) {
+int runLessonList(SessionStore& store) {
   const auto lessons = store.listLessons();
   if (lessons.empty()) {
-    std::cout << "no lessons in " << db
+    std::cout << "no lessons in " << store.location()
               << " (make one: telehand-records lesson create --demo SESSION)\n";
     return 0;
   }
@@ -117,7 +120,7 @@ int runLessonList(SqliteStore& store, const std::string& db) {
   return 0;
 }
 
-int runLessonShow(SqliteStore& store, uint64_t lesson_id) {
+int runLessonShow(SessionStore& store, uint64_t lesson_id) {
   const auto l = store.lesson(lesson_id);
   if (!l) throw Error("no lesson " + std::to_string(lesson_id) + " in the record");
   const technique::Targets t = server::lesson::decodeTargets(l->targets);
@@ -142,7 +145,7 @@ int runLessonShow(SqliteStore& store, uint64_t lesson_id) {
   return 0;
 }
 
-int runReport(SqliteStore& store, const ReportRequest& r) {
+int runReport(SessionStore& store, const ReportRequest& r) {
   uint64_t session = r.session;
   std::optional<LessonInfo> lesson;
   if (r.lesson != 0) {

@@ -4,7 +4,7 @@
 #include <cstdint>
 #include <string>
 
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/store/store.h"
 
 namespace telehand::records {
 
@@ -21,8 +21,8 @@ struct LessonRequest {
 };
 /// Derives the targets from the demonstration and stores the lesson; prints its id.
 int runLessonCreate(const LessonRequest& r);
-int runLessonList(server::store::SqliteStore& store, const std::string& db);
-int runLessonShow(server::store::SqliteStore& store, uint64_t lesson_id);
+int runLessonList(server::store::SessionStore& store);
+int runLessonShow(server::store::SessionStore& store, uint64_t lesson_id);
 
 struct ReportRequest {
   uint64_t session = 0;  ///< a lesson run
@@ -32,6 +32,6 @@ struct ReportRequest {
 };
 /// Writes lesson-SESSION.html, lesson-SESSION-scores.csv and -oscillations.csv; prints the
 /// paths.
-int runReport(server::store::SqliteStore& store, const ReportRequest& r);
+int runReport(server::store::SessionStore& store, const ReportRequest& r);
 
 }  // namespace telehand::records

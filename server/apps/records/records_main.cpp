@@ -6,7 +6,7 @@
 #include "records_read.h"
 #include "telehand/app/cli.h"
 #include "telehand/core/error.h"
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/store/open_store.h"
 
 int main(int argc, char** argv) {
   using namespace telehand::server::store;
@@ -14,7 +14,11 @@ int main(int argc, char** argv) {
       "telehand-records: list, show, export and fit telehand session records; lessons "
       "and their reports"};
   std::string db = "records/telehand.db";
-  app.add_option("--db", db, "record database")->capture_default_str();
+  app.add_option("--db", db,
+                 "record store: an SQLite file path, or a PostgreSQL URI "
+                 "postgresql://[user@]host[:port]/dbname (postgres:// too; the password from "
+                 "~/.pgpass or PGPASSWORD rather than the URI)")
+      ->capture_default_str();
   app.require_subcommand(1);
   auto* list = app.add_subcommand("list", "list the sessions in the record database");
   auto* exp =
@@ -135,9 +139,10 @@ int main(int argc, char** argv) {
       fit_req.db = db;
       return telehand::records::runFit(fit_req);
     }
-    SqliteStore store(db, SqliteStore::Mode::kReadOnly);
-    if (*list) return telehand::records::runList(store, db);
-    if (*llist) return telehand::records::runLessonList(store, db);
+    const auto opened = openStore(db, SessionStore::Mode::kReadOnly);
+    SessionStore& store = *opened;
+    if (*list) return telehand::records::runList(store);
+    if (*llist) return telehand::records::runLessonList(store);
     if (*lshow) return telehand::records::runLessonShow(store, lesson_id);
     if (*report) {
       if ((report_req.session == 0) == (report_req.lesson == 0)) {
@@ -149,8 +154,8 @@ int main(int argc, char** argv) {
     const auto info = store.session(session_id);
     if (info && *show) return telehand::records::runShow(store, *info);
     if (!info) {
-      std::cerr << "telehand-records: no session " << session_id << " in " << db
-                << " (run 'telehand-records --db " << db << " list')\n";
+      std::cerr << "telehand-records: no session " << session_id << " in " << store.location()
+                << " (run 'telehand-records --db " << store.location() << " list')\n";
       return 2;
     }
     return telehand::records::runExport(store, session_id, out_path);

@@ -36,10 +36,10 @@ std::string missingSamples(const SessionInfo& s) {
 
 }  // namespace
 
-int runList(SqliteStore& store, const std::string& db) {
+int runList(SessionStore& store) {
   const auto sessions = store.listSessions();
   if (sessions.empty()) {
-    std::cout << "no sessions in " << db << "\n";
+    std::cout << "no sessions in " << store.location() << "\n";
     return 0;
   }
   std::cout << std::left << std::setw(6) << "id" << std::setw(14) << "user" << std::setw(14)
@@ -61,7 +61,7 @@ int runList(SqliteStore& store, const std::string& db) {
   return 0;
 }
 
-int runShow(SqliteStore& store, const SessionInfo& info) {
+int runShow(SessionStore& store, const SessionInfo& info) {
   const uint64_t session_id = info.id;
   const std::string missing = missingSamples(info);
   std::cout << "session " << info.id << ": " << info.mode << " on case '" << info.case_name
@@ -133,7 +133,7 @@ int runShow(SqliteStore& store, const SessionInfo& info) {
   return 0;
 }
 
-int runExport(SqliteStore& store, uint64_t session_id, const std::string& out_path) {
+int runExport(SessionStore& store, uint64_t session_id, const std::string& out_path) {
   // A file is written beside its destination and renamed over it only when complete: an
   // error half way (a full disk, a read error in the record) leaves no partial CSV behind.
   // Something that is not a regular file (a pipe, a terminal, a device) is written directly.

@@ -3,15 +3,15 @@
 #include <cstdint>
 #include <string>
 
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/store/store.h"
 
 namespace telehand::records {
 
 /// Every session in the store, one line each.
-int runList(server::store::SqliteStore& store, const std::string& db);
+int runList(server::store::SessionStore& store);
 /// One session: summary, events and exploration reaches.
-int runShow(server::store::SqliteStore& store, const server::store::SessionInfo& info);
+int runShow(server::store::SessionStore& store, const server::store::SessionInfo& info);
 /// One session's samples as CSV, to `out_path` or stdout.
-int runExport(server::store::SqliteStore& store, uint64_t session_id, const std::string& out_path);
+int runExport(server::store::SessionStore& store, uint64_t session_id, const std::string& out_path);
 
 }  // namespace telehand::records

@@ -9,21 +9,25 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/log.h"
 #include "telehand/server/link/server_link.h"
+#include "telehand/server/store/open_store.h"
 #include "telehand/server/store/server_lock.h"
-#include "telehand/server/store/sqlite_store.h"
 
 int main(int argc, char** argv) {
   using namespace telehand;
   CLI::App app{
       "telehand-server: authoritative session host. Opens and closes sessions on "
-      "request, records every DeviceState sample to SQLite (WAL), publishes each "
+      "request, records every DeviceState sample (SQLite, or a PostgreSQL database shared with "
+      "other servers), publishes each "
       "session's JointModel and a decimated HandState, and echoes latency probes."};
   std::string config_path, db, log_level = "info";
   dds::Options dds_opts;
   double seconds = 0.0, hand_hz = 0.0;
   app.add_option("-c,--config", config_path, "TOML file with a [server] table")
       ->check(CLI::ExistingFile);
-  app.add_option("--db", db, "record database (overrides server.db; default records/telehand.db)");
+  app.add_option("--db", db,
+                 "record store (overrides server.db; default records/telehand.db): an SQLite file "
+                 "path, or a PostgreSQL URI postgresql://[user@]host[:port]/dbname (postgres:// "
+                 "too; the password from ~/.pgpass or PGPASSWORD rather than the URI)");
   auto* hand_rate =
       app.add_option("--hand-rate", hand_hz, "HandState rate in Hz (1-1000; 60-100 recommended)");
   double hand_deadband = -1.0;
@@ -72,17 +76,19 @@ int main(int argc, char** argv) {
       throw ConfigError("no patient cases (*.toml) in '" + cfg.cases_dir + "'");
     }
 
-    server::store::SqliteStore store(cfg.db_path);
-    const server::store::ServerLock lock(cfg.db_path);  // one server per record
+    const auto store = server::store::openStore(cfg.db_path);
+    // One server per SQLite record (docs/recovery.md); a PostgreSQL record is shared.
+    std::optional<server::store::ServerLock> lock;
+    if (!server::store::isPostgresUri(cfg.db_path)) lock.emplace(cfg.db_path);
     server::link::ServerLink link(dds_opts);
-    server::session::SessionManager manager(store, link, cfg, hand_model ? &*hand_model : nullptr);
-    if (const std::size_t n = manager.recoverFromStore(SteadyClock{}.nowNs())) {
+    server::session::SessionManager manager(*store, link, cfg, hand_model ? &*hand_model : nullptr);
+    if (const std::size_t n = manager.recoverFromStore(SteadyClock{}.nowNs(), lock.has_value())) {
       spdlog::info("{} session(s) found open or suspended in {}: waiting {:g} s for their clients",
-                   n, store.location(), cfg.resume_wait_s);
+                   n, store->location(), cfg.resume_wait_s);
     }
     installStopSignals();
     spdlog::info("serving on DDS domain {} partition '{}', records in {}, hand {}, cases in {}",
-                 dds_opts.domain, dds_opts.partition, store.location(),
+                 dds_opts.domain, dds_opts.partition, store->location(),
                  hand_model ? cfg.hand_model : "none (shared joint model)", cfg.cases_dir);
 
     std::atomic<bool> stop{false};

@@ -18,6 +18,7 @@
 #include "telehand/protocol/lesson_plan.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/sim/hand_model.h"
+#include "telehand/server/store/open_store.h"
 
 namespace telehand::web {
 
@@ -725,7 +726,8 @@ void Gateway::replay(const std::shared_ptr<Client>& cp, uint64_t session) {
     auto frame = replayFrame(o_.db, session, o_.replay_points);
     if (!frame) {
       ++stats_.unknown_session;
-      push(c, errorFrame("unknown_session", fmt::format("no session {} in {}", session, o_.db)));
+      push(c, errorFrame("unknown_session", fmt::format("no session {} in {}", session,
+                                                        server::store::describeStore(o_.db))));
       return;
     }
     ++stats_.replays;

@@ -9,11 +9,12 @@
 #include "frames.h"
 #include "telehand/core/joint_model.h"
 #include "telehand/core/thimble.h"
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/store/open_store.h"
 
 namespace telehand::web {
 
-using server::store::SqliteStore;
+using server::store::openStore;
+using server::store::SessionStore;
 
 namespace {
 
@@ -38,7 +39,8 @@ void column(std::string& out, const char* name, const std::vector<double>& v) {
 
 std::optional<std::string> replayFrame(const std::string& db, uint64_t session,
                                        std::size_t max_points) {
-  SqliteStore store(db, SqliteStore::Mode::kReadOnly);
+  const auto opened = openStore(db, SessionStore::Mode::kReadOnly);
+  SessionStore& store = *opened;
   const auto info = store.session(session);
   if (!info) return std::nullopt;
   const uint64_t stride = std::max<uint64_t>(1, (info->samples + max_points - 1) / max_points);
@@ -94,10 +96,10 @@ std::optional<std::string> replayFrame(const std::string& db, uint64_t session,
 }
 
 std::string recordsFrame(const std::string& db) {
-  SqliteStore store(db, SqliteStore::Mode::kReadOnly);
+  const auto store = openStore(db, SessionStore::Mode::kReadOnly);
   std::string out = R"({"type":"records","sessions":[)";
   bool first = true;
-  for (const auto& s : store.listSessions()) {
+  for (const auto& s : store->listSessions()) {
     if (!first) out += ',';
     first = false;
     out += sessionJson(s);

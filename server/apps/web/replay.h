@@ -1,6 +1,7 @@
 #pragma once
-/// Replay frames: a recorded session read from the store (read-only, SqliteStore as
-/// telehand-records reads it), decimated evenly to at most `max_points` samples.
+/// Replay frames: a recorded session read from the store (read-only, an SQLite file or a
+/// PostgreSQL URI, opened as telehand-records opens it), decimated evenly to at most `max_points`
+/// samples.
 #include <cstdint>
 #include <optional>
 #include <string>

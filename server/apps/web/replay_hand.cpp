@@ -10,13 +10,13 @@
 #include "telehand/core/error.h"
 #include "telehand/server/session/replay.h"
 #include "telehand/server/session/session.h"
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/store/open_store.h"
 
 namespace telehand::web {
 
 namespace {
 
-using server::store::SqliteStore;
+using server::store::SessionStore;
 
 /// The replay's messages: its HandStates to `on_frame`, nothing else leaves.
 class FrameOutbox final : public server::session::Outbox {
@@ -63,7 +63,8 @@ ReplayHandResult replayHand(const std::string& db, uint64_t session,
     return r;
   };
   try {
-    SqliteStore store(db, SqliteStore::Mode::kReadOnly);
+    const auto opened = server::store::openStore(db, SessionStore::Mode::kReadOnly);
+    SessionStore& store = *opened;
     const auto info = store.session(session);
     if (!info) {
       r.error = fmt::format("no session {} in the record", session);

@@ -9,7 +9,7 @@
 #include <optional>
 
 #include "frames.h"
-#include "telehand/server/store/sqlite_store.h"
+#include "telehand/server/store/open_store.h"
 
 namespace telehand::web {
 
@@ -23,9 +23,9 @@ constexpr std::size_t kChunk = 100;
 /// says why).
 std::optional<RecordKey> recordKey(const std::string& db, uint64_t session) {
   try {
-    server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
-    const auto info = store.session(session);
-    const auto extent = store.extent(session);
+    const auto store = server::store::openStore(db, server::store::SessionStore::Mode::kReadOnly);
+    const auto info = store->session(session);
+    const auto extent = store->extent(session);
     if (!info || !extent) return std::nullopt;
     return RecordKey{session, info->samples, extent->last_seq};
   } catch (const std::exception&) {

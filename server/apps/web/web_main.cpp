@@ -13,6 +13,7 @@
 #include "telehand/app/signals.h"
 #include "telehand/core/error.h"
 #include "telehand/core/log.h"
+#include "telehand/server/store/open_store.h"
 
 int main(int argc, char** argv) {
   using namespace telehand;
@@ -28,7 +29,9 @@ int main(int argc, char** argv) {
                  "address:port to serve on (default 127.0.0.1:8080, this machine only; e.g. "
                  "0.0.0.0:8080 to open it to the network; port 0: one the system chooses, "
                  "printed at start)");
-  app.add_option("--db", o.db, "the record store to replay sessions from (telehand-server --db)");
+  app.add_option("--db", o.db,
+                 "the record store to replay sessions from (telehand-server --db): an SQLite "
+                 "file path or a PostgreSQL URI postgresql://[user@]host[:port]/dbname");
   o.hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
   app.add_option("--hand", o.hand, "the hand model (URDF) the server's HandState follows")
       ->check(CLI::ExistingFile)
@@ -91,7 +94,8 @@ int main(int argc, char** argv) {
     if (!std::filesystem::exists(std::filesystem::path(o.root) / "index.html")) {
       throw ConfigError("no index.html in '" + o.root + "' (--root)");
     }
-    if (!o.db.empty() && !std::filesystem::exists(o.db)) {  // the server may make it later
+    // The server may make the file later (a PostgreSQL store is reached when first asked).
+    if (!o.db.empty() && !server::store::isPostgresUri(o.db) && !std::filesystem::exists(o.db)) {
       std::cerr << "telehand-web: no record store '" << o.db << "' yet (--db)\n";
     }
     installStopSignals();

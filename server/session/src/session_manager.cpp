@@ -507,7 +507,7 @@ void SessionManager::closeUnresumed(uint64_t session_id, int64_t now_ns, const s
   retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), session_id);
 }
 
-std::size_t SessionManager::recoverFromStore(int64_t now_ns) {
+std::size_t SessionManager::recoverFromStore(int64_t now_ns, bool take_active) {
   std::vector<SessionInfo> all;
   try {
     all = store_.listSessions();
@@ -518,7 +518,8 @@ std::size_t SessionManager::recoverFromStore(int64_t now_ns) {
   }
   std::size_t found = 0;
   for (SessionInfo& info : all) {
-    if ((info.state != "active" && info.state != "suspended") || sessions_.count(info.id)) continue;
+    const bool takeable = info.state == "suspended" || (take_active && info.state == "active");
+    if (!takeable || sessions_.count(info.id)) continue;
     ++found;
     const bool died = info.state == "active";  // a server that stopped suspends its sessions
     try {

@@ -9,14 +9,17 @@
 #include <cstdio>
 #include <filesystem>
 #include <limits>
-#include <sstream>
 #include <type_traits>
 
+#include "sample_fields.h"
 #include "telehand/core/error.h"
 
 namespace telehand::server::store {
 
 namespace {
+
+using detail::fieldNames;
+using detail::visitFields;
 
 // ---- Schema ---------------------------------------------------------------------------------
 //
@@ -78,53 +81,6 @@ CREATE TABLE IF NOT EXISTS trials (
   overall REAL NOT NULL, figures TEXT NOT NULL,
   PRIMARY KEY (session_id, idx));
 )sql";
-
-/// Calls f(field) for every field of a sample except session_id, in sampleColumns() order.
-/// The one place that order is written down: the table, the insert, the read and the CSV
-/// all follow it.
-template <class S, class F>
-void visitFields(S& s, F&& f) {
-  f(s.seq);
-  f(s.source_time_ns);
-  f(s.model_version);
-  f(s.flags);
-  for (auto& v : s.mcp_angles_rad) f(v);
-  for (auto& v : s.mcp_torque_nm) f(v);
-  for (auto& finger : s.fingers) {
-    for (auto& v : finger.position_m) f(v);
-    for (auto& v : finger.orientation_q) f(v);
-    for (auto& v : finger.fsr_n) f(v);
-    f(finger.tangential_n);
-    f(finger.normal_n);
-    for (auto& v : finger.command_n) f(v);
-  }
-  f(s.passivity_energy_j);
-  f(s.passivity_damping);
-}
-
-/// The names visitFields() goes through, in its order.
-const std::vector<std::string>& fieldNames() {
-  static const std::vector<std::string> names = [] {
-    std::vector<std::string> n = {"seq", "t_ns", "model_version", "flags"};
-    const char* axes[3] = {"alpha", "beta", "gamma"};
-    for (const char* a : axes) n.push_back(std::string(a) + "_rad");
-    for (const char* a : axes) n.push_back("tau_" + std::string(a) + "_nm");
-    const char* xyz[3] = {"x", "y", "z"};
-    const char* wxyz[4] = {"w", "x", "y", "z"};
-    for (const std::string f : {"thumb", "index"}) {
-      for (const char* c : xyz) n.push_back(f + "_p" + c + "_m");
-      for (const char* c : wxyz) n.push_back(f + "_q" + c);
-      for (int i = 1; i <= 4; ++i) n.push_back(f + "_fsr" + std::to_string(i) + "_n");
-      n.push_back(f + "_tangential_n");
-      n.push_back(f + "_normal_n");
-      for (const char* c : xyz) n.push_back(f + "_cmd" + c + "_n");
-    }
-    n.push_back("passivity_energy_j");
-    n.push_back("passivity_damping_ns_per_m");
-    return n;
-  }();
-  return names;
-}
 
 /// Integer fields are INTEGER NOT NULL; floating-point ones REAL, NULL standing for NaN
 /// (SQLite keeps no NaN). ±inf are kept as they are.
@@ -914,23 +870,6 @@ std::vector<EventRecord> SqliteStore::events(uint64_t session_id) {
   std::vector<EventRecord> out;
   while (st.step()) out.push_back({sqlite3_column_int64(st.get(), 0), st.text(1), st.text(2)});
   return out;
-}
-
-const std::vector<std::string>& sampleColumns() {
-  static const std::vector<std::string> names = [] {
-    std::vector<std::string> n = fieldNames();
-    n.push_back("valid");
-    return n;
-  }();
-  return names;
-}
-
-std::string sampleCsvRow(const Sample& s, bool valid) {
-  std::ostringstream o;
-  o.precision(9);
-  visitFields(s, [&](const auto& v) { o << v << ','; });
-  o << (valid ? 1 : 0);
-  return o.str();
 }
 
 }  // namespace telehand::server::store

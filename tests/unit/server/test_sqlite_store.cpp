@@ -1,5 +1,7 @@
-// The SQLite session store: sessions, samples (duplicates ignored), events, CSV columns,
-// the schema marker and version, migration of schema-1 (blob) files, refusal of foreign ones.
+// The SQLite session store as a file: WAL, the schema marker and version in its header,
+// migration of older files (schema 1: blobs), refusal of foreign ones, CSV columns. What every
+// store does (sessions, samples, duplicates, events, lessons) is test_store_contract.cpp's,
+// run on SQLite and PostgreSQL alike.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <sqlite3.h>
@@ -18,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "store_samples.h"
 #include "telehand/core/error.h"
 #include "telehand/server/store/sqlite_store.h"
 
@@ -26,6 +29,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
+using namespace store_test;
 
 /// A fresh directory per test, removed afterwards.
 class SqliteStoreTest : public ::testing::Test {
@@ -49,52 +53,6 @@ class SqliteStoreTest : public ::testing::Test {
   fs::path dir_;
 };
 
-Sample sample(uint64_t session, uint64_t seq) {
-  Sample s{};
-  s.session_id = session;
-  s.seq = seq;
-  s.source_time_ns = 1'000'000'000 + static_cast<int64_t>(seq) * 1'000'000;
-  s.model_version = 1;
-  s.flags = static_cast<uint32_t>(seq % 4);
-  for (int a = 0; a < 3; ++a) {
-    s.mcp_angles_rad[a] = 0.1 * a + 0.001 * static_cast<double>(seq);
-    s.mcp_torque_nm[a] = -0.01 * a;
-  }
-  for (int k = 0; k < 2; ++k) {
-    for (int i = 0; i < 3; ++i) {
-      s.fingers[k].position_m[i] = 0.01 * (k + 1) + 0.001 * i;
-      s.fingers[k].command_n[i] = 0.5 * i - k;
-    }
-    s.fingers[k].orientation_q[0] = 1.0;
-    for (int i = 0; i < 4; ++i)
-      s.fingers[k].fsr_n[i] = static_cast<float>(seq % 7) + 0.25f * static_cast<float>(i);
-    s.fingers[k].tangential_n = 0.5f;
-    s.fingers[k].normal_n = 2.0f;
-  }
-  return s;
-}
-
-std::vector<Sample> samples(uint64_t session, uint64_t from, uint64_t to) {
-  std::vector<Sample> v;
-  for (uint64_t i = from; i < to; ++i) v.push_back(sample(session, i));
-  return v;
-}
-
-SessionInfo info(const std::string& user) {
-  SessionInfo i;
-  i.user = user;
-  i.case_name = "healthy";
-  i.mode = "mobilization";
-  i.started_ns = 1'700'000'000'000'000'000;
-  return i;
-}
-
-std::vector<uint64_t> seqsOf(SqliteStore& store, uint64_t id) {
-  std::vector<uint64_t> out;
-  store.forEachSample(id, [&](const Sample& s, bool) { out.push_back(s.seq); });
-  return out;
-}
-
 TEST_F(SqliteStoreTest, CreatesTheFileAndItsDirectoryInWalMode) {
   {
     SqliteStore store(dbPath());
@@ -110,163 +68,6 @@ TEST_F(SqliteStoreTest, CreatesTheFileAndItsDirectoryInWalMode) {
   EXPECT_STREQ(reinterpret_cast<const char*>(sqlite3_column_text(st, 0)), "wal");
   sqlite3_finalize(st);
   sqlite3_close(db);
-}
-
-TEST_F(SqliteStoreTest, SessionIdsIncreaseAcrossReopen) {
-  uint64_t a = 0, b = 0, c = 0;
-  {
-    SqliteStore store(dbPath());
-    a = store.createSession(info("alice"));
-    b = store.createSession(info("bob"));
-  }
-  SqliteStore store(dbPath());
-  c = store.createSession(info("carol"));
-  EXPECT_GT(a, 0u);
-  EXPECT_GT(b, a);
-  EXPECT_GT(c, b);
-}
-
-TEST_F(SqliteStoreTest, NewSessionIsActiveWithItsFields) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  const auto s = store.session(id);
-  ASSERT_TRUE(s.has_value());
-  EXPECT_EQ(s->id, id);
-  EXPECT_EQ(s->user, "alice");
-  EXPECT_EQ(s->case_name, "healthy");
-  EXPECT_EQ(s->mode, "mobilization");
-  EXPECT_EQ(s->state, "active");
-  EXPECT_EQ(s->started_ns, 1'700'000'000'000'000'000);
-  EXPECT_EQ(s->samples, 0u);
-  EXPECT_FALSE(store.session(id + 100).has_value());
-}
-
-TEST_F(SqliteStoreTest, AppendCountsNewSamplesAndIgnoresDuplicates) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  const auto first = samples(id, 0, 10);
-  EXPECT_EQ(store.appendSamples(id, first, {}), 10u);
-  // Overlapping resend (store-and-forward after an outage): only 10..14 are new.
-  const auto again = samples(id, 5, 15);
-  EXPECT_EQ(store.appendSamples(id, again, {}), 5u);
-  EXPECT_EQ(store.appendSamples(id, first, {}), 0u);
-  EXPECT_EQ(store.appendSamples(id, {}, {}), 0u);
-  EXPECT_EQ(store.session(id)->samples, 15u);
-}
-
-TEST_F(SqliteStoreTest, DuplicateKeepsTheFirstCopy) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  auto s = sample(id, 3);
-  store.appendSamples(id, {&s, 1}, {});
-  auto changed = s;
-  changed.fingers[0].fsr_n[0] = 99.0f;
-  store.appendSamples(id, {&changed, 1}, {});
-  store.forEachSample(id, [&](const Sample& got, bool) {
-    EXPECT_EQ(got.fingers[0].fsr_n[0], s.fingers[0].fsr_n[0]);
-  });
-}
-
-TEST_F(SqliteStoreTest, SamplesComeBackWholeInSequenceOrder) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  std::vector<Sample> shuffled = {sample(id, 20), sample(id, 3), sample(id, 11), sample(id, 0),
-                                  sample(id, 7)};
-  store.appendSamples(id, shuffled, {});
-  EXPECT_EQ(seqsOf(store, id), (std::vector<uint64_t>{0, 3, 7, 11, 20}));
-  store.forEachSample(id, [&](const Sample& got, bool valid) {
-    const Sample want = sample(id, got.seq);
-    EXPECT_TRUE(valid);
-    EXPECT_EQ(got.source_time_ns, want.source_time_ns);
-    EXPECT_EQ(got.flags, want.flags);
-    EXPECT_EQ(got.mcp_angles_rad[2], want.mcp_angles_rad[2]);
-    EXPECT_EQ(got.fingers[1].position_m[2], want.fingers[1].position_m[2]);
-    EXPECT_EQ(got.fingers[1].fsr_n[3], want.fingers[1].fsr_n[3]);
-    EXPECT_EQ(got.fingers[0].command_n[1], want.fingers[0].command_n[1]);
-  });
-}
-
-TEST_F(SqliteStoreTest, SessionsDoNotMix) {
-  SqliteStore store(dbPath());
-  const uint64_t a = store.createSession(info("alice"));
-  const uint64_t b = store.createSession(info("bob"));
-  store.appendSamples(a, samples(a, 0, 4), {});
-  store.appendSamples(b, samples(b, 0, 6), {});  // same seqs, another session: all new
-  EXPECT_EQ(store.session(a)->samples, 4u);
-  EXPECT_EQ(store.session(b)->samples, 6u);
-  EXPECT_EQ(seqsOf(store, a).size(), 4u);
-}
-
-TEST_F(SqliteStoreTest, InvalidSamplesAreKeptAndCounted) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  auto batch = samples(id, 0, 4);
-  batch[2].mcp_angles_rad[0] = std::nan("");
-  const std::vector<uint8_t> valid = {1, 1, 0, 1};
-  EXPECT_EQ(store.appendSamples(id, batch, valid), 4u);
-  EXPECT_EQ(store.session(id)->rejected, 1u);
-  std::vector<bool> flags;
-  store.forEachSample(id, [&](const Sample& s, bool ok) {
-    flags.push_back(ok);
-    if (s.seq == 2) {
-      EXPECT_TRUE(std::isnan(s.mcp_angles_rad[0]));
-    }
-  });
-  EXPECT_EQ(flags, (std::vector<bool>{true, true, false, true}));
-}
-
-TEST_F(SqliteStoreTest, EventsInInsertionOrder) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  store.appendEvent(id, {200, "mark", "second, but earlier id"});
-  store.appendEvent(id, {100, "feedback", "more force"});
-  store.appendEvent(id + 1, {150, "mark", "other session"});
-  const auto ev = store.events(id);
-  ASSERT_EQ(ev.size(), 2u);
-  EXPECT_EQ(ev[0].time_ns, 200);
-  EXPECT_EQ(ev[0].kind, "mark");
-  EXPECT_EQ(ev[1].text, "more force");
-}
-
-TEST_F(SqliteStoreTest, CloseRecordsEndExpectedAndState) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  store.appendSamples(id, samples(id, 0, 8), {});
-  store.closeSession(id, 1'700'000'100'000'000'000, 10, "closed");
-  const auto s = store.session(id);
-  ASSERT_TRUE(s);
-  EXPECT_EQ(s->state, "closed");
-  EXPECT_EQ(s->ended_ns, 1'700'000'100'000'000'000);
-  EXPECT_EQ(s->samples_expected, 10u);
-  EXPECT_EQ(s->samples, 8u) << "two samples never arrived";
-}
-
-TEST_F(SqliteStoreTest, ListIsOrderedById) {
-  SqliteStore store(dbPath());
-  const uint64_t a = store.createSession(info("alice"));
-  const uint64_t b = store.createSession(info("bob"));
-  store.appendSamples(b, samples(b, 0, 3), {});
-  store.closeSession(a, 5, 0, "abandoned");
-  const auto list = store.listSessions();
-  ASSERT_EQ(list.size(), 2u);
-  EXPECT_EQ(list[0].id, a);
-  EXPECT_EQ(list[0].user, "alice");
-  EXPECT_EQ(list[0].state, "abandoned");
-  EXPECT_EQ(list[1].id, b);
-  EXPECT_EQ(list[1].samples, 3u);
-  EXPECT_EQ(list[1].state, "active");
-}
-
-TEST_F(SqliteStoreTest, ReaderSeesWhatTheWriterStoredWhileItIsOpen) {
-  SqliteStore writer(dbPath());
-  const uint64_t id = writer.createSession(info("alice"));
-  writer.appendSamples(id, samples(id, 0, 5), {});
-  SqliteStore reader(dbPath(), SqliteStore::Mode::kReadOnly);
-  EXPECT_EQ(reader.session(id)->samples, 5u);
-  writer.appendSamples(id, samples(id, 5, 9), {});
-  EXPECT_EQ(reader.session(id)->samples, 9u);
-  EXPECT_EQ(seqsOf(reader, id).back(), 8u);
-  EXPECT_THROW(reader.createSession(info("mallory")), StoreError) << "read-only";
 }
 
 TEST_F(SqliteStoreTest, ReadOnlyOpenOfAMissingFileNamesThePath) {
@@ -309,70 +110,6 @@ TEST_F(SqliteStoreTest, ErrorsAreTelehandErrors) {
 }
 
 // ---- Columns, schema version, migration, refusal --------------------------------------------
-
-/// Every field of a sample, random, with magnitudes over many decades.
-Sample randomSample(std::mt19937_64& rng) {
-  std::uniform_real_distribution<double> mant(-1.0, 1.0);
-  std::uniform_int_distribution<int> exp64(-300, 300);
-  std::uniform_int_distribution<int> exp32(-30, 30);
-  auto d = [&] { return mant(rng) * std::pow(10.0, exp64(rng)); };
-  auto f = [&] { return static_cast<float>(mant(rng) * std::pow(10.0, exp32(rng))); };
-  Sample s{};
-  s.seq = rng();
-  s.source_time_ns = static_cast<int64_t>(rng());
-  s.model_version = static_cast<uint32_t>(rng());
-  s.flags = static_cast<uint32_t>(rng());
-  for (auto& finger : s.fingers) {
-    for (auto& v : finger.position_m) v = d();
-    for (auto& v : finger.orientation_q) v = d();
-    for (auto& v : finger.fsr_n) v = f();
-    finger.tangential_n = f();
-    finger.normal_n = f();
-    for (auto& v : finger.command_n) v = d();
-  }
-  for (auto& v : s.mcp_angles_rad) v = d();
-  for (auto& v : s.mcp_torque_nm) v = d();
-  s.passivity_energy_j = f();
-  s.passivity_damping = f();
-  return s;
-}
-
-/// Field-by-field equality; NaN equals NaN.
-template <class T>
-void expectSame(T got, T want, const char* what) {
-  if constexpr (std::is_floating_point_v<T>) {
-    if (std::isnan(want)) {
-      EXPECT_TRUE(std::isnan(got)) << what;
-      return;
-    }
-  }
-  EXPECT_EQ(got, want) << what;
-}
-
-void expectSameSample(const Sample& got, const Sample& want) {
-  expectSame(got.session_id, want.session_id, "session_id");
-  expectSame(got.seq, want.seq, "seq");
-  expectSame(got.source_time_ns, want.source_time_ns, "source_time_ns");
-  expectSame(got.model_version, want.model_version, "model_version");
-  expectSame(got.flags, want.flags, "flags");
-  for (int k = 0; k < 2; ++k) {
-    SCOPED_TRACE("finger " + std::to_string(k));
-    const auto& g = got.fingers[k];
-    const auto& w = want.fingers[k];
-    for (int i = 0; i < 3; ++i) expectSame(g.position_m[i], w.position_m[i], "position_m");
-    for (int i = 0; i < 4; ++i) expectSame(g.orientation_q[i], w.orientation_q[i], "orientation_q");
-    for (int i = 0; i < 4; ++i) expectSame(g.fsr_n[i], w.fsr_n[i], "fsr_n");
-    expectSame(g.tangential_n, w.tangential_n, "tangential_n");
-    expectSame(g.normal_n, w.normal_n, "normal_n");
-    for (int i = 0; i < 3; ++i) expectSame(g.command_n[i], w.command_n[i], "command_n");
-  }
-  for (int i = 0; i < 3; ++i)
-    expectSame(got.mcp_angles_rad[i], want.mcp_angles_rad[i], "mcp_angles_rad");
-  for (int i = 0; i < 3; ++i)
-    expectSame(got.mcp_torque_nm[i], want.mcp_torque_nm[i], "mcp_torque_nm");
-  expectSame(got.passivity_energy_j, want.passivity_energy_j, "passivity_energy_j");
-  expectSame(got.passivity_damping, want.passivity_damping, "passivity_damping");
-}
 
 /// Raw SQLite access to a record file, as another program would have it.
 class RawDb {
@@ -423,55 +160,6 @@ std::vector<std::string> dirListing(const fs::path& dir) {
   for (const auto& e : fs::directory_iterator(dir)) out.push_back(e.path().filename().string());
   std::sort(out.begin(), out.end());
   return out;
-}
-
-TEST_F(SqliteStoreTest, EveryFieldRoundTripsThroughTheColumns) {
-  SqliteStore store(dbPath());
-  for (uint64_t seed : {1u, 2u, 3u, 20240611u, 0xdeadbeefu}) {
-    SCOPED_TRACE("seed " + std::to_string(seed));
-    std::mt19937_64 rng(seed);
-    const uint64_t id = store.createSession(info("alice"));
-    std::vector<Sample> batch;
-    std::vector<uint8_t> valid;
-    for (int i = 0; i < 50; ++i) {
-      Sample s = randomSample(rng);
-      s.session_id = id;
-      s.seq = static_cast<uint64_t>(i) * 1000 + (rng() % 1000);  // distinct, in order
-      batch.push_back(s);
-      valid.push_back(static_cast<uint8_t>(rng() % 2));
-    }
-    ASSERT_EQ(store.appendSamples(id, batch, valid), batch.size());
-    std::size_t n = 0;
-    store.forEachSample(id, [&](const Sample& got, bool ok) {
-      ASSERT_LT(n, batch.size());
-      expectSameSample(got, batch[n]);
-      EXPECT_EQ(ok, valid[n] != 0);
-      ++n;
-    });
-    EXPECT_EQ(n, batch.size());
-  }
-}
-
-TEST_F(SqliteStoreTest, NonFiniteValuesRoundTrip) {
-  SqliteStore store(dbPath());
-  const uint64_t id = store.createSession(info("alice"));
-  Sample s = sample(id, 1);
-  const double inf = std::numeric_limits<double>::infinity();
-  s.mcp_angles_rad[0] = std::nan("");
-  s.mcp_angles_rad[1] = inf;
-  s.mcp_torque_nm[2] = -inf;
-  s.fingers[1].fsr_n[2] = std::numeric_limits<float>::quiet_NaN();
-  s.fingers[0].normal_n = -std::numeric_limits<float>::infinity();
-  s.passivity_damping = std::numeric_limits<float>::quiet_NaN();
-  const uint8_t invalid = 0;
-  store.appendSamples(id, {&s, 1}, {&invalid, 1});
-  int n = 0;
-  store.forEachSample(id, [&](const Sample& got, bool ok) {
-    ++n;
-    EXPECT_FALSE(ok);
-    expectSameSample(got, s);
-  });
-  EXPECT_EQ(n, 1);
 }
 
 TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) {

@@ -76,8 +76,10 @@ class SessionManager {
   /// At start: every session the record holds as active or suspended (its server died or
   /// stopped) is announced SUSPENDED and waits server.resume_wait_s for its client to resume
   /// it (CMD_OPEN with its id), then is closed as interrupted with `missing` counting what
-  /// the record lacks. Returns how many were found.
-  std::size_t recoverFromStore(int64_t now_ns);
+  /// the record lacks. Returns how many were found. `take_active` false (a record shared
+  /// by several servers, PostgreSQL): sessions still active belong to a server that may be
+  /// running; only suspended ones are taken.
+  std::size_t recoverFromStore(int64_t now_ns, bool take_active = true);
   /// Sessions found in the record that wait for their client.
   std::size_t suspendedSessions() const noexcept { return suspended_.size(); }
 

@@ -2,11 +2,12 @@
 /// SessionStore on SQLite in WAL mode: the embedded default. One writer (the server), any
 /// number of readers (telehand-records) at the same time.
 ///
-/// Schema 2: one row per sample, one column per field (the CSV names of sampleColumns()),
-/// marked in the SQLite header by application_id 0x54484e44 ("THND") and user_version 2.
-/// Opening read-write creates the schema in an empty file and migrates a schema-1 file (one
-/// blob per sample) in place, in one transaction; a file of a newer schema, or an SQLite file
-/// that is not a telehand record, is refused unmodified.
+/// Schema 5: one row per sample, one column per field (the CSV names of sampleColumns()),
+/// marked in the SQLite header by application_id 0x54484e44 ("THND") and user_version 5.
+/// Opening read-write creates the schema in an empty file and migrates an older one (schema 1:
+/// one blob per sample; 2: no owners; 3: no lessons; 4: no take-over) in place, in one
+/// transaction; a file of a newer schema, or an SQLite file that is not a telehand record, is
+/// refused unmodified.
 #include <sqlite3.h>
 
 #include <memory>
@@ -17,7 +18,6 @@ namespace telehand::server::store {
 
 class SqliteStore final : public SessionStore {
  public:
-  enum class Mode { kReadWrite, kReadOnly };
   /// Creates the file and its directory (read-write) or opens an existing one (read-only);
   /// StoreError naming the path on failure or refusal.
   explicit SqliteStore(const std::string& path, Mode mode = Mode::kReadWrite);
@@ -68,10 +68,5 @@ class SqliteStore final : public SessionStore {
   sqlite3* db_ = nullptr;
   sqlite3_stmt* insert_sample_ = nullptr;
 };
-
-/// The sample columns, in record and CSV order (README "Records").
-const std::vector<std::string>& sampleColumns();
-/// One sample as CSV fields in sampleColumns() order.
-std::string sampleCsvRow(const Sample& s, bool valid);
 
 }  // namespace telehand::server::store

@@ -1,5 +1,8 @@
 #pragma once
-/// The session record: every sample a client sent and every event, per session.
+/// The session record: every sample a client sent and every event, per session. Two
+/// implementations keep it in the same tables: SqliteStore (a file, the embedded default)
+/// and PgStore (a PostgreSQL database several servers can share); openStore()
+/// (open_store.h) picks one from what `--db` says.
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -73,6 +76,11 @@ struct TrialRecord {
 
 class SessionStore {
  public:
+  /// Read-write: the record's schema is created (or brought up to date) on opening.
+  /// Read-only: nothing is written, not even the schema; a record that is not there, or not
+  /// a telehand record, is refused.
+  enum class Mode { kReadWrite, kReadOnly };
+
   virtual ~SessionStore() = default;
   /// New session with a fresh id, larger than any the store has held.
   virtual uint64_t createSession(const SessionInfo& info) = 0;
@@ -123,8 +131,13 @@ class SessionStore {
   virtual uint64_t sessionLesson(uint64_t session_id) = 0;
   virtual void appendTrial(const TrialRecord& t) = 0;
   virtual std::vector<TrialRecord> trials(uint64_t session_id) = 0;
-  /// Where the record lives, for people.
+  /// Where the record lives, for people (a path, or a URI without its password).
   virtual std::string location() const = 0;
 };
+
+/// The sample columns, in record and CSV order (README "Records").
+const std::vector<std::string>& sampleColumns();
+/// One sample as CSV fields in sampleColumns() order.
+std::string sampleCsvRow(const Sample& s, bool valid);
 
 }  // namespace telehand::server::store

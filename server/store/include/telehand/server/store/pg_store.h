@@ -1,0 +1,103 @@
+#pragma once
+/// SessionStore on PostgreSQL (libpq): one record that several servers write and anyone reads
+/// at the same time, beside the embedded SqliteStore. The same tables and columns as SQLite's
+/// schema 5 (docs/design.md "Records"), in the schema the connection's search_path names
+/// first (`public` unless the URI says otherwise), marked by a table of its own:
+/// telehand_schema holds one row, application_id 0x54484e44 ("THND") and the schema version.
+///
+/// Opening read-write creates the tables in an empty schema, in one transaction, under an
+/// advisory lock (two programs opening it at once create them once); a schema of a newer
+/// version, one with the marker but not the tables, and one holding tables that are not a
+/// telehand record are refused unmodified, the message naming the database. Read-only opens
+/// write nothing, not even the schema (the session is set default_transaction_read_only).
+///
+/// appendSamples sends a batch as one binary COPY, a statement of its own (all of it stored, or
+/// none). When some of its sequence numbers are stored already (a client's resend after an
+/// outage: rare), the COPY fails whole and the batch goes again as INSERTs of binary arrays
+/// (unnest, 8192 samples per statement, one transaction) ON CONFLICT DO NOTHING. Either way a
+/// sequence number already stored, or repeated in the batch, is ignored (the first copy kept),
+/// as SQLite does. Reads page through
+/// the (session_id, seq) key, 8192 samples per round trip, so a long record never sits in
+/// memory whole and the callback may use the store.
+///
+/// One connection, used by one thread at a time (calls are serialised). A connection that
+/// broke is re-established on the next call; the failed call threw StoreError and the
+/// server's recorder retries what it could not store.
+#include <cstdint>
+#include <mutex>
+#include <string>
+
+#include "telehand/server/store/store.h"
+
+struct pg_conn;
+
+namespace telehand::server::store {
+
+class PgStore final : public SessionStore {
+ public:
+  /// The schema version this program writes and reads (SQLite's user_version, the same).
+  static constexpr int kSchemaVersion = 5;
+
+  /// `uri`: libpq's connection URI, postgresql://[user[:password]@][host][:port][/dbname]
+  /// [?param=value&...] (postgres:// too). StoreError naming the URI, without its password,
+  /// when it is malformed, the server cannot be reached or the database is refused.
+  explicit PgStore(const std::string& uri, Mode mode = Mode::kReadWrite);
+  ~PgStore() override;
+  PgStore(const PgStore&) = delete;
+  PgStore& operator=(const PgStore&) = delete;
+
+  uint64_t createSession(const SessionInfo& info) override;
+  uint64_t appendSamples(uint64_t session_id, std::span<const Sample> samples,
+                         std::span<const uint8_t> valid) override;
+  void appendEvent(uint64_t session_id, const EventRecord& e) override;
+  void appendReach(uint64_t session_id, const Reach& r) override;
+  std::vector<Reach> reaches(uint64_t session_id) override;
+  void closeSession(uint64_t session_id, int64_t ended_ns, uint64_t samples_expected,
+                    const std::string& state) override;
+  std::vector<SessionInfo> listSessions() override;
+  std::optional<SessionInfo> session(uint64_t session_id) override;
+  void forEachSample(uint64_t session_id,
+                     const std::function<void(const Sample&, bool)>& fn) override;
+  std::vector<EventRecord> events(uint64_t session_id) override;
+  void appendFile(uint64_t session_id, const SessionFile& f) override;
+  std::vector<SessionFile> files(uint64_t session_id) override;
+  void forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint64_t last_seq,
+                       const std::function<void(const Sample&, bool)>& fn) override;
+  uint64_t countSamples(uint64_t session_id, uint64_t first_seq, uint64_t last_seq) override;
+  std::optional<Extent> extent(uint64_t session_id) override;
+  uint64_t createLesson(const LessonInfo& lesson) override;
+  std::vector<LessonInfo> listLessons() override;
+  std::optional<LessonInfo> lesson(uint64_t lesson_id) override;
+  void setSessionLesson(uint64_t session_id, uint64_t lesson_id) override;
+  uint64_t sessionLesson(uint64_t session_id) override;
+  void appendTrial(const TrialRecord& t) override;
+  std::vector<TrialRecord> trials(uint64_t session_id) override;
+  /// The URI with its password replaced by ***.
+  std::string location() const override { return location_; }
+
+ private:
+  enum class Layout { kEmpty, kCurrent };
+  void connect();
+  void prepare();
+  Layout inspect();
+  void createSchema();
+  void readSamples(uint64_t session_id, int64_t first, int64_t last,
+                   const std::function<void(const Sample&, bool)>& fn);
+  std::optional<uint64_t> copySamples(uint64_t session_id, std::span<const Sample> samples,
+                                      std::span<const uint8_t> valid);
+  uint64_t insertSamples(uint64_t session_id, std::span<const Sample> samples,
+                         std::span<const uint8_t> valid);
+
+  std::string uri_;  ///< as given, password and all: never shown
+  std::string location_;
+  Mode mode_;
+  std::recursive_mutex mutex_;
+  pg_conn* conn_ = nullptr;
+  bool prepared_ = false;  ///< the sample statements are prepared on this connection
+};
+
+/// `uri` with the password of its user part and any password parameter replaced by ***: what
+/// messages and logs may show of a connection URI.
+std::string redactUri(const std::string& uri);
+
+}  // namespace telehand::server::store
