@@ -454,12 +454,28 @@ PgStore::~PgStore() { PQfinish(conn_); }
 
 void PgStore::connect() {
   if (conn_ && PQstatus(conn_) == CONNECTION_OK) return;
+  const auto now = std::chrono::steady_clock::now();
+  if (conn_ && now < retry_at_) {
+    // The server calls the store on its DDS thread: while the database is away, calls fail
+    // at once instead of each waiting out a connection attempt.
+    throw StoreError("record database '" + location_ + "' is unreachable (" + last_error_ +
+                     "); the next attempt within " + std::to_string(kRetryPause.count()) + " s");
+  }
   if (conn_) {
     PQreset(conn_);
   } else {
-    // The URI's own settings come after these defaults and override them.
-    const char* keys[] = {"connect_timeout", "fallback_application_name", "dbname", nullptr};
-    const char* values[] = {"10", "telehand", uri_.c_str(), nullptr};
+    // The URI's own settings come after these defaults and override them: a connection
+    // attempt gives up after 5 s, a connection whose server stopped answering after about
+    // 10 s (TCP keepalives, tcp_user_timeout) rather than the kernel's minutes.
+    const char* keys[] = {"connect_timeout",
+                          "keepalives_idle",
+                          "keepalives_interval",
+                          "keepalives_count",
+                          "tcp_user_timeout",
+                          "fallback_application_name",
+                          "dbname",
+                          nullptr};
+    const char* values[] = {"5", "10", "5", "2", "10000", "telehand", uri_.c_str(), nullptr};
     conn_ = PQconnectdbParams(keys, values, 1);
     if (!conn_)
       throw StoreError("cannot connect to record database '" + location_ + "': no memory");
@@ -471,6 +487,8 @@ void PgStore::connect() {
         why.find("database") != std::string::npos) {
       why += " (create it first: createdb, or CREATE DATABASE)";
     }
+    last_error_ = why;
+    retry_at_ = std::chrono::steady_clock::now() + kRetryPause;
     throw StoreError("cannot connect to record database '" + location_ + "': " + why);
   }
   prepared_ = false;
