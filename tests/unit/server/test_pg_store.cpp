@@ -284,7 +284,9 @@ TEST_F(PgStoreTest, AMissingDatabaseIsNamedAndSaysHowToMakeIt) {
 
 TEST(PgStoreUri, ABadUriIsNamedWithoutThePassword) {
   for (const std::string& bad : {std::string("postgresql://alice:s3cret@host:port/db"),
-                                 std::string("postgresql://alice:s3cret@host/db?nonsense=1")}) {
+                                 std::string("postgresql://alice:s3cret@host/db?nonsense=1"),
+                                 std::string("postgresql://alice:s3cret%zz@host/db"),
+                                 std::string("postgresql://h/db?password=s3cret%zz")}) {
     try {
       openStore(bad);
       ADD_FAILURE() << "opened " << describeStore(bad);
@@ -307,6 +309,8 @@ TEST(PgStoreUri, PasswordsAreRedacted) {
             "postgresql:///telehand?host=/run/pg&sslpassword=***");
   EXPECT_EQ(redactUri("postgresql://a:b@h1:5432,h2:5433/x"),
             "postgresql://a:***@h1:5432,h2:5433/x");
+  EXPECT_EQ(redactUri("postgresql://a:p@ss@h/x"), "postgresql://a:***@h/x");
+  EXPECT_EQ(redactUri("postgresql://a:p?w@h"), "postgresql://a:***@h");
   EXPECT_EQ(describeStore("records/telehand.db"), "records/telehand.db");
   EXPECT_EQ(describeStore("postgresql://a:b@h/x"), "postgresql://a:***@h/x");
 }
