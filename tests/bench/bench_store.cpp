@@ -22,17 +22,22 @@
 //          [--async-commit (PostgreSQL with synchronous_commit off: commits do not wait for
 //          the WAL flush, SQLite's durability in WAL mode)] [--dir DIR]
 #include <spdlog/spdlog.h>
+#include <sys/resource.h>
 #include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <random>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -191,12 +196,61 @@ Result measure(const std::string& spec, const Options& o, bool shared, bool pace
   return all;
 }
 
-void bench(const char* name, const std::string& spec, const Options& o) {
+/// CPU seconds a process has used: itself, and its children it has reaped (/proc/PID/stat).
+double cpuSeconds(pid_t pid, bool with_reaped) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string line;
+  if (!std::getline(in, line)) return 0.0;
+  // After the command's closing parenthesis: state ppid ... utime(14) stime(15) cutime(16)
+  // cstime(17), counted from field 3.
+  std::istringstream f(line.substr(line.rfind(')') + 2));
+  std::vector<std::string> v;
+  for (std::string w; f >> w && v.size() < 15;) v.push_back(w);
+  if (v.size() < 15) return 0.0;
+  const double tick = static_cast<double>(sysconf(_SC_CLK_TCK));
+  double t = std::stod(v[11]) + std::stod(v[12]);
+  if (with_reaped) t += std::stod(v[13]) + std::stod(v[14]);
+  return t / tick;
+}
+
+/// CPU seconds of a PostgreSQL server: the postmaster, the backends it reaped, and the
+/// processes still running under it (background writer, WAL writer, checkpointer, backends).
+double serverCpuSeconds(pid_t postmaster) {
+  if (postmaster <= 0) return 0.0;
+  double t = cpuSeconds(postmaster, true);
+  for (const auto& e : std::filesystem::directory_iterator("/proc")) {
+    const std::string name = e.path().filename().string();
+    if (name.empty() || !std::isdigit(static_cast<unsigned char>(name[0]))) continue;
+    std::ifstream in(e.path() / "stat");
+    std::string line;
+    if (!std::getline(in, line)) continue;
+    std::istringstream f(line.substr(line.rfind(')') + 2));
+    std::string state;
+    long ppid = 0;
+    f >> state >> ppid;
+    if (ppid == postmaster) t += cpuSeconds(static_cast<pid_t>(std::stol(name)), false);
+  }
+  return t;
+}
+
+double selfCpuSeconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<double>(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+         static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-6;
+}
+
+/// `postmaster`: the PostgreSQL server's PID when it is this program's, for its CPU time.
+void bench(const char* name, const std::string& spec, const Options& o, pid_t postmaster) {
   const double need = o.sessions * o.rate;
   for (const bool shared : {false, true}) {
     const char* shape = shared ? "shared" : "server";
     for (const bool paced : {false, true}) {
+      const double cpu0 = selfCpuSeconds() + serverCpuSeconds(postmaster);
       Result r = measure(spec, o, shared, paced);
+      // The backends of the closed connections exit and are reaped by the postmaster.
+      if (postmaster > 0) std::this_thread::sleep_for(std::chrono::milliseconds(300));
+      const double cpu = selfCpuSeconds() + serverCpuSeconds(postmaster) - cpu0;
       if (paced) {
         // Kept up: every sample due stored, and no round finished a period late.
         std::printf("%-10s %-6s paced     %9llu of %9llu due stored, worst lag %8.2f ms", name,
@@ -210,6 +264,13 @@ void bench(const char* name, const std::string& spec, const Options& o) {
       }
       std::printf("  append p50 %7.2f p99 %7.2f max %8.2f ms", quantile(r.latency_ns, 0.5),
                   quantile(r.latency_ns, 0.99), quantile(r.latency_ns, 1.0));
+      // CPU per sample, the writer's and the database server's: what a core holds, whatever
+      // else the machine runs meanwhile.
+      if (r.samples > 0 && (postmaster > 0 || std::strcmp(name, "sqlite") == 0)) {
+        std::printf("  CPU %5.1f us/sample (%4.0fk samples/s per core)",
+                    cpu / static_cast<double>(r.samples) * 1e6,
+                    static_cast<double>(r.samples) / cpu * 1e-3);
+      }
       if (r.errors) std::printf("  ERRORS %llu", static_cast<unsigned long long>(r.errors));
       std::printf("\n");
       std::fflush(stdout);
@@ -233,7 +294,7 @@ int main(int argc, char** argv) {
     if (a == "--quick") {
       o.quick = true;
       o.sessions = 8;
-      o.seconds = 1.0;
+      o.seconds = 0.5;
     } else if (a == "--backend") {
       o.backend = next();
     } else if (a == "--sessions") {
@@ -262,14 +323,14 @@ int main(int argc, char** argv) {
     return 2;
   }
   spdlog::set_level(spdlog::level::warn);
-  std::printf("%d sessions x %.0f samples/s = %.0f samples/s in %zu-sample chunks, %.0f s each\n",
+  std::printf("%d sessions x %.0f samples/s = %.0f samples/s in %zu-sample chunks, %g s each\n",
               o.sessions, o.rate, o.sessions * o.rate, kChunk, o.seconds);
   try {
     if (o.backend != "postgres") {
       namespace fs = std::filesystem;
       const fs::path dir = fs::path(o.dir.empty() ? fs::temp_directory_path().string() : o.dir) /
                            ("telehand-bench-store-" + std::to_string(getpid()));
-      bench("sqlite", (dir / "records.db").string(), o);
+      bench("sqlite", (dir / "records.db").string(), o, 0);
       std::error_code ec;
       fs::remove_all(dir, ec);
     }
@@ -290,7 +351,7 @@ int main(int argc, char** argv) {
         uri += std::string(uri.find('?') == std::string::npos ? "?" : "&") +
                "options=-csynchronous_commit%3Doff";
       }
-      bench(o.async_commit ? "pg-async" : "postgresql", uri, o);
+      bench(o.async_commit ? "pg-async" : "postgresql", uri, o, cluster ? cluster->pid() : 0);
     }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "telehand_bench_store: %s\n", e.what());

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -391,33 +392,76 @@ class Db {
 
 // ---- URIs -----------------------------------------------------------------------------------
 
-std::string redactUri(const std::string& uri) {
-  std::string out = uri;
-  const auto scheme = out.find("://");
+namespace {
+
+/// Where a URI holds secrets: the password of its user part, the values of parameters named
+/// *password (password, sslpassword). (offset, length) pairs, in order.
+std::vector<std::pair<std::size_t, std::size_t>> secretSpans(const std::string& uri) {
+  std::vector<std::pair<std::size_t, std::size_t>> spans;
+  const auto scheme = uri.find("://");
   if (scheme != std::string::npos) {
-    // libpq's reading: the user part ends at the first '@' before any '/'.
+    // libpq's user part ends at the first '@' before any '/'; up to the last one here, so
+    // that a password with an '@' left unencoded is not shown in part.
     const std::size_t from = scheme + 3;
-    const std::size_t end = out.find_first_of("@/", from);
-    if (end != std::string::npos && out[end] == '@') {
-      const std::size_t colon = out.find(':', from);
-      if (colon != std::string::npos && colon < end) out.replace(colon + 1, end - colon - 1, "***");
+    const std::size_t slash = uri.find('/', from);
+    const std::size_t at = uri.rfind('@', slash);
+    if (at != std::string::npos && at >= from) {
+      const std::size_t colon = uri.find(':', from);
+      if (colon != std::string::npos && colon < at) spans.emplace_back(colon + 1, at - colon - 1);
     }
   }
-  // Parameters that are passwords (password, sslpassword): their values.
-  std::size_t q = out.find('?');
-  while (q != std::string::npos && q + 1 < out.size()) {
+  for (std::size_t q = uri.find('?'); q != std::string::npos && q + 1 < uri.size();) {
     const std::size_t key = q + 1;
-    const std::size_t eq = out.find('=', key);
-    const std::size_t amp = out.find('&', key);
+    const std::size_t eq = uri.find('=', key);
+    const std::size_t amp = uri.find('&', key);
     if (eq != std::string::npos && (amp == std::string::npos || eq < amp)) {
-      const std::string name = out.substr(key, eq - key);
+      const std::string name = uri.substr(key, eq - key);
       if (name.size() >= 8 && name.compare(name.size() - 8, 8, "password") == 0) {
-        const std::size_t value_end = amp == std::string::npos ? out.size() : amp;
-        out.replace(eq + 1, value_end - eq - 1, "***");
+        spans.emplace_back(eq + 1, (amp == std::string::npos ? uri.size() : amp) - eq - 1);
       }
     }
-    q = out.find('&', key);
+    q = amp;
   }
+  return spans;
+}
+
+std::string percentDecoded(const std::string& s) {
+  std::string out;
+  for (std::size_t k = 0; k < s.size(); ++k) {
+    if (s[k] == '%' && k + 2 < s.size() && std::isxdigit(static_cast<unsigned char>(s[k + 1])) &&
+        std::isxdigit(static_cast<unsigned char>(s[k + 2]))) {
+      out += static_cast<char>(std::stoi(s.substr(k + 1, 2), nullptr, 16));
+      k += 2;
+    } else {
+      out += s[k];
+    }
+  }
+  return out;
+}
+
+/// `text` (a libpq message, which may quote part of the URI) with every secret of `uri` in
+/// it, as written or percent-decoded, replaced by ***.
+std::string scrub(std::string text, const std::string& uri) {
+  for (const auto& [at, len] : secretSpans(uri)) {
+    const std::string raw = uri.substr(at, len);
+    for (const std::string& secret : {raw, percentDecoded(raw)}) {
+      if (secret.empty()) continue;
+      for (std::size_t i = text.find(secret); i != std::string::npos;
+           i = text.find(secret, i + 3)) {
+        text.replace(i, secret.size(), "***");
+      }
+    }
+  }
+  return text;
+}
+
+}  // namespace
+
+std::string redactUri(const std::string& uri) {
+  std::string out = uri;
+  const auto spans = secretSpans(uri);
+  for (auto it = spans.rbegin(); it != spans.rend(); ++it)
+    out.replace(it->first, it->second, "***");
   return out;
 }
 
@@ -428,7 +472,7 @@ PgStore::PgStore(const std::string& uri, Mode mode)
   char* err = nullptr;
   PQconninfoOption* opts = PQconninfoParse(uri.c_str(), &err);
   if (!opts) {
-    const std::string why = err ? oneLine(err) : "out of memory";
+    const std::string why = err ? scrub(oneLine(err), uri) : "out of memory";
     PQfreemem(err);
     throw StoreError("bad record database URI '" + location_ + "': " + why);
   }
@@ -454,23 +498,41 @@ PgStore::~PgStore() { PQfinish(conn_); }
 
 void PgStore::connect() {
   if (conn_ && PQstatus(conn_) == CONNECTION_OK) return;
+  const auto now = std::chrono::steady_clock::now();
+  if (conn_ && now < retry_at_) {
+    // The server calls the store on its DDS thread: while the database is away, calls fail
+    // at once instead of each waiting out a connection attempt.
+    throw StoreError("record database '" + location_ + "' is unreachable (" + last_error_ +
+                     "); the next attempt within " + std::to_string(kRetryPause.count()) + " s");
+  }
   if (conn_) {
     PQreset(conn_);
   } else {
-    // The URI's own settings come after these defaults and override them.
-    const char* keys[] = {"connect_timeout", "fallback_application_name", "dbname", nullptr};
-    const char* values[] = {"10", "telehand", uri_.c_str(), nullptr};
+    // The URI's own settings come after these defaults and override them: a connection
+    // attempt gives up after 5 s, a connection whose server stopped answering after about
+    // 10 s (TCP keepalives, tcp_user_timeout) rather than the kernel's minutes.
+    const char* keys[] = {"connect_timeout",
+                          "keepalives_idle",
+                          "keepalives_interval",
+                          "keepalives_count",
+                          "tcp_user_timeout",
+                          "fallback_application_name",
+                          "dbname",
+                          nullptr};
+    const char* values[] = {"5", "10", "5", "2", "10000", "telehand", uri_.c_str(), nullptr};
     conn_ = PQconnectdbParams(keys, values, 1);
     if (!conn_)
       throw StoreError("cannot connect to record database '" + location_ + "': no memory");
     PQsetNoticeProcessor(conn_, noticeToLog, nullptr);
   }
   if (PQstatus(conn_) != CONNECTION_OK) {
-    std::string why = oneLine(PQerrorMessage(conn_));
+    std::string why = scrub(oneLine(PQerrorMessage(conn_)), uri_);
     if (why.find("does not exist") != std::string::npos &&
         why.find("database") != std::string::npos) {
       why += " (create it first: createdb, or CREATE DATABASE)";
     }
+    last_error_ = why;
+    retry_at_ = std::chrono::steady_clock::now() + kRetryPause;
     throw StoreError("cannot connect to record database '" + location_ + "': " + why);
   }
   prepared_ = false;

@@ -21,8 +21,11 @@
 /// memory whole and the callback may use the store.
 ///
 /// One connection, used by one thread at a time (calls are serialised). A connection that
-/// broke is re-established on the next call; the failed call threw StoreError and the
-/// server's recorder retries what it could not store.
+/// broke is re-established on the next call, and after a failed attempt calls fail at once
+/// for 5 s before the next; the failed calls threw StoreError and the server's recorder
+/// retries what it could not store. Unless the URI says otherwise, an attempt to connect gives
+/// up after 5 s and a connection whose server stopped answering after about 10 s.
+#include <chrono>
 #include <cstdint>
 #include <mutex>
 #include <string>
@@ -93,6 +96,10 @@ class PgStore final : public SessionStore {
   Mode mode_;
   std::recursive_mutex mutex_;
   pg_conn* conn_ = nullptr;
+  /// After a failed attempt to connect again, calls fail at once until retry_at_.
+  static constexpr std::chrono::seconds kRetryPause{5};
+  std::chrono::steady_clock::time_point retry_at_{};
+  std::string last_error_;
   bool prepared_ = false;  ///< the sample statements are prepared on this connection
 };
 
