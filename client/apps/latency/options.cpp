@@ -27,6 +27,12 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
                  "auto: a server echo if one matches within 2 s, else self; server; self")
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "server", "self"}));
+  app.add_option("--take", s.take,
+                 "how samples are taken, by the pong reader and a self or --echo-only echo: "
+                 "listener (inside Cyclone's receive thread, as ddsperf does) or waitset (a "
+                 "thread of ours, woken per sample, as the server's serve loop)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"listener", "waitset"}));
   auto* echo_only = app.add_flag("--echo-only", s.echo_only,
                                  "only echo pings (the other end of a probe) until "
                                  "SIGINT/SIGTERM or --seconds");

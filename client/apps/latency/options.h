@@ -12,6 +12,10 @@ struct Settings {
   double rate_hz = 1000.0;
   double warmup_s = 1.0;
   std::string echo = "auto";
+  /// How the probe's pong reader and a self echo take samples: "listener" (inside Cyclone's
+  /// receive thread, as ddsperf does) or "waitset" (a thread woken by a waitset, as
+  /// telehand-server's serve loop takes DeviceState).
+  std::string take = "listener";
   bool echo_only = false;
   bool compare = false;
   bool quiet = false;

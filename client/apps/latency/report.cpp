@@ -32,6 +32,12 @@ void printPing(const Settings& s, const PingResult& r, std::size_t size_of, uint
       "+ 4 B header\n",
       size_of, ser, xcdr);
   std::printf("  QoS        best-effort, keep-last 1, volatile (qos::latencyProbe)\n");
+  std::printf("  take       %s\n",
+              s.take == "listener"
+                  ? "listener: pongs (and a self echo's pings) are taken inside Cyclone's "
+                    "receive thread"
+                  : "waitset: pongs (and a self echo's pings) are taken on threads a waitset "
+                    "wakes");
   std::printf(
       "  host       %ld CPUs online, load average %.2f at start (other load inflates "
       "the tail)\n",
@@ -91,9 +97,12 @@ void printCompare(const Settings& s, const PingResult& r, const DdsperfResult& d
       "             its pooled figures are above. Both: one-way = RTT/2, ddsperf's rank "
       "rule.\n"
       "  delivery   ddsperf answers and times pongs in a listener on Cyclone's receive\n"
-      "             thread; telehand's echo and probe take samples on waitset threads,\n"
-      "             as the product does (one thread wake-up more per direction).\n",
-      r.seconds_count);
+      "             thread; %s\n",
+      r.seconds_count,
+      s.take == "listener"
+          ? "so does telehand (--take listener; a server echo answers in one too)"
+          : "telehand takes on waitset threads (--take waitset), one thread\n"
+            "             wake-up more per direction (a server echo answers in a listener)");
   std::printf("\n  %-14s %10s %10s %17s\n", "one-way, us", "telehand", "ddsperf",
               "telehand/ddsperf");
   const auto row = [](const char* name, double a, double b) {
@@ -135,8 +144,8 @@ void writeJson(std::ostream& o, const Settings& s, const PingResult& r, std::siz
   o.precision(6);
   o << "{\n  \"tool\": \"telehand-latency\",\n  \"definition\": \"one-way = RTT/2\",\n"
     << "  \"settings\": {\"seconds\": " << s.seconds << ", \"rate_hz\": " << s.rate_hz
-    << ", \"warmup_s\": " << s.warmup_s << ", \"domain\": " << s.dds.domain
-    << ", \"partition\": " << jsonString(r.partition)
+    << ", \"warmup_s\": " << s.warmup_s << ", \"take\": " << jsonString(s.take)
+    << ", \"domain\": " << s.dds.domain << ", \"partition\": " << jsonString(r.partition)
     << ", \"dds_config\": " << jsonString(s.dds_config) << "},\n"
     << "  \"host\": {\"cpus\": " << sysconf(_SC_NPROCESSORS_ONLN)
     << ", \"load_avg_1min_at_start\": " << r.load_at_start << "},\n"
