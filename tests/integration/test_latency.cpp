@@ -1,7 +1,7 @@
 // telehand-latency as a process: round trips through a self echo taken either way (listener,
-// waitset) and through telehand-server's echo, checked by the JSON it writes. No timing is
-// asserted (figures belong to docs/performance.md): only that pings come back, each counted
-// once, and that what the server says it echoed covers them.
+// waitset), through telehand-server's echo and in rounds with ddsperf, checked by the JSON it
+// writes. No timing is asserted (figures belong to docs/performance.md): only that pings come
+// back, each counted once, and that what the server says it echoed covers them.
 #include <chrono>
 #include <fstream>
 #include <sstream>
@@ -83,6 +83,34 @@ TEST_F(LatencyTest, EchoOnlyStopsAfterItsSecondsAndSaysHowManyItAnswered) {
   EXPECT_NE(echo.output().find("(take: listener)"), std::string::npos) << echo.output();
   EXPECT_NE(echo.output().find("echo stopped after 0 echoes, 0 write errors"), std::string::npos)
       << echo.output();
+}
+
+TEST_F(LatencyTest, RoundsTakeTurnsWithDdsperfAndAddUp) {
+  useOwnDomain();  // ddsperf sees every ddsperf of its domain, whatever the partition
+  Process p(cmd(TELEHAND_LATENCY_BIN,
+                {"--echo", "self", "--compare-ddsperf", "--rounds", "2", "--seconds", "2", "--rate",
+                 "200", "--warmup", "0.2", "-q", "--json", path("rounds.json")}),
+            path("rounds.log"));
+  const auto rc = p.wait(90s);
+  ASSERT_TRUE(rc.has_value()) << "telehand-latency did not finish\n" << p.output();
+  ASSERT_EQ(*rc, 0) << p.output();
+  const std::string json = readFile("rounds.json");
+  EXPECT_NE(json.find("\"rounds\": 2"), std::string::npos) << json;
+  // Two rounds of 1 s at 200 Hz each: the pings of both are counted once.
+  EXPECT_EQ(matchNumber(json, "\"sent\": (\\d+)"), 400u) << json;
+  EXPECT_GT(matchNumber(json, "\"received\": (\\d+)"), 200u) << json;
+  // Each round's ddsperf reported at least one second after its warm-up.
+  EXPECT_GE(matchNumber(json, "\"ddsperf\": \\{.*\"seconds\": (\\d+)"), 2u) << json;
+  EXPECT_NE(p.output().find("in 2 rounds taking turns with telehand"), std::string::npos)
+      << p.output();
+}
+
+TEST_F(LatencyTest, RoundsShorterThanASecondAreRefused) {
+  Process p(cmd(TELEHAND_LATENCY_BIN, {"--compare-ddsperf", "--rounds", "3", "--seconds", "2"}),
+            path("short.log"));
+  EXPECT_EQ(p.wait(30s), 2) << p.output();
+  EXPECT_NE(p.output().find("--seconds 2 / --rounds 3 is under 1 s"), std::string::npos)
+      << p.output();
 }
 
 TEST_F(LatencyTest, AnUnknownTakeIsRefused) {

@@ -95,6 +95,41 @@ bool awaitEcho(const dds::Writer<Sample>& ping, const dds::Reader<Sample>& pong,
 
 }  // namespace
 
+void finish(PingResult& r) {
+  r.received = r.rtt_ns.size();
+  r.seconds_count = r.seconds.size();
+  r.per_second = aggregateSeconds(r.seconds);
+  std::vector<int64_t> sorted = r.rtt_ns;
+  r.pooled = summarize(sorted);
+  r.wake_p99_us = r.wake_max_us = 0;
+  if (!r.wake_late_ns.empty()) {
+    std::vector<int64_t> wake = r.wake_late_ns;
+    std::sort(wake.begin(), wake.end());
+    r.wake_p99_us = static_cast<double>(wake[wake.size() - (wake.size() + 99) / 100]) / 1e3;
+    r.wake_max_us = static_cast<double>(wake.back()) / 1e3;
+  }
+}
+
+void merge(PingResult& into, const PingResult& round) {
+  into.echo_desc = round.echo_desc;
+  into.partition = round.partition;
+  into.warmup_pings += round.warmup_pings;
+  into.planned += round.planned;
+  into.sent += round.sent;
+  into.late += round.late;
+  into.duplicates += round.duplicates;
+  into.foreign += round.foreign;
+  into.write_errors += round.write_errors;
+  into.overruns += round.overruns;
+  into.measured_s += round.measured_s;
+  into.interrupted = into.interrupted || round.interrupted;
+  into.rtt_ns.insert(into.rtt_ns.end(), round.rtt_ns.begin(), round.rtt_ns.end());
+  into.seconds.insert(into.seconds.end(), round.seconds.begin(), round.seconds.end());
+  into.wake_late_ns.insert(into.wake_late_ns.end(), round.wake_late_ns.begin(),
+                           round.wake_late_ns.end());
+  finish(into);
+}
+
 PingResult runPinger(const Settings& s, Progress& progress) {
   PingResult r;
   const int64_t period_ns = static_cast<int64_t>(std::llround(1e9 / s.rate_hz));
@@ -305,35 +340,25 @@ PingResult runPinger(const Settings& s, Progress& progress) {
     }
   }
 
-  std::vector<int64_t> all;
-  all.reserve(r.sent);
+  r.rtt_ns.reserve(r.sent);
   const auto per_second_n = static_cast<std::size_t>(std::llround(s.rate_hz));
-  std::vector<Summary> secs;
   std::vector<int64_t> bucket;
   bucket.reserve(per_second_n);
   for (std::size_t i = 0; i < r.sent; ++i) {
     if (rtt_ns[i] >= 0) {
-      all.push_back(rtt_ns[i]);
+      r.rtt_ns.push_back(rtt_ns[i]);
       bucket.push_back(rtt_ns[i]);
       if (rtt_ns[i] > period_ns) ++r.late;
     }
     // Seconds by send index, as ddsperf reports by wall second; a short last one is dropped.
     if ((i + 1) % per_second_n == 0) {
-      secs.push_back(summarize(bucket));
+      r.seconds.push_back(summarize(bucket));
       bucket.clear();
     }
   }
-  r.received = all.size();
-  r.seconds_count = secs.size();
-  r.per_second = aggregateSeconds(secs);
-  r.pooled = summarize(all);
-  std::vector<int64_t> wake(wake_late_ns.begin(),
-                            wake_late_ns.begin() + static_cast<std::ptrdiff_t>(sent_total));
-  if (!wake.empty()) {
-    std::sort(wake.begin(), wake.end());
-    r.wake_p99_us = static_cast<double>(wake[wake.size() - (wake.size() + 99) / 100]) / 1e3;
-    r.wake_max_us = static_cast<double>(wake.back()) / 1e3;
-  }
+  r.wake_late_ns.assign(wake_late_ns.begin(),
+                        wake_late_ns.begin() + static_cast<std::ptrdiff_t>(sent_total));
+  finish(r);
   return r;
 }
 

@@ -27,6 +27,12 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
                  "auto: a server echo if one matches within 2 s, else self; server; self")
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "server", "self"}));
+  auto* rounds = app.add_option("--rounds", s.rounds,
+                                "with --compare-ddsperf: alternate telehand and ddsperf this "
+                                "many times, --seconds/rounds each (each with its warm-up), so "
+                                "that a shared machine's changing load falls on both alike")
+                     ->capture_default_str()
+                     ->check(CLI::Range(1, 100));
   app.add_option("--take", s.take,
                  "how samples are taken, by the pong reader and a self or --echo-only echo: "
                  "listener (inside Cyclone's receive thread, as ddsperf does) or waitset (a "
@@ -44,6 +50,7 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
   app.add_option("--json", s.json_path, "also write the results to this JSON file");
   app.add_flag("-q,--quiet", s.quiet, "no progress lines on stderr");
   echo_only->excludes(compare);
+  rounds->needs(compare);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

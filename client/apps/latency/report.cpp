@@ -47,6 +47,12 @@ void printPing(const Settings& s, const PingResult& r, std::size_t size_of, uint
       "TIMER_ABSTIME, 1 ns timer slack%s\n",
       s.rate_hz, s.seconds, s.warmup_s,
       r.interrupted ? fmt::format("; INTERRUPTED after {:.1f} s", r.measured_s).c_str() : "");
+  if (s.rounds > 1) {
+    std::printf(
+        "  rounds     %d, taking turns with ddsperf: %g s measured each, after its own %g s "
+        "warm-up\n",
+        s.rounds, s.seconds / s.rounds, s.warmup_s);
+  }
   const uint64_t lost = r.sent - r.received;
   std::printf(
       "  pings      %llu sent, %llu answered, %llu lost (%.3f %%), %llu late (RTT > %g "
@@ -73,8 +79,10 @@ void printPing(const Settings& s, const PingResult& r, std::size_t size_of, uint
 
 void printCompare(const Settings& s, const PingResult& r, const DdsperfResult& d,
                   const std::string& path, uint32_t size) {
-  std::printf("\nddsperf baseline (%s), run after telehand in the same domain and config:\n",
-              path.c_str());
+  std::printf("\nddsperf baseline (%s), run %s in the same domain and config:\n", path.c_str(),
+              s.rounds > 1
+                  ? fmt::format("in {} rounds taking turns with telehand", s.rounds).c_str()
+                  : "after telehand");
   std::printf("  pong       %s\n", d.pong_cmd.c_str());
   std::printf("  ping       %s\n", d.ping_cmd.c_str());
   std::printf(
@@ -145,7 +153,8 @@ void writeJson(std::ostream& o, const Settings& s, const PingResult& r, std::siz
   o << "{\n  \"tool\": \"telehand-latency\",\n  \"definition\": \"one-way = RTT/2\",\n"
     << "  \"settings\": {\"seconds\": " << s.seconds << ", \"rate_hz\": " << s.rate_hz
     << ", \"warmup_s\": " << s.warmup_s << ", \"take\": " << jsonString(s.take)
-    << ", \"domain\": " << s.dds.domain << ", \"partition\": " << jsonString(r.partition)
+    << ", \"rounds\": " << s.rounds << ", \"domain\": " << s.dds.domain
+    << ", \"partition\": " << jsonString(r.partition)
     << ", \"dds_config\": " << jsonString(s.dds_config) << "},\n"
     << "  \"host\": {\"cpus\": " << sysconf(_SC_NPROCESSORS_ONLN)
     << ", \"load_avg_1min_at_start\": " << r.load_at_start << "},\n"
