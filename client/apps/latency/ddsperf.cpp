@@ -77,6 +77,17 @@ std::optional<std::pair<double, Summary>> parsePingLine(const std::string& line,
 
 }  // namespace
 
+void merge(DdsperfResult& into, const DdsperfResult& round) {
+  into.pong_cmd = round.pong_cmd;
+  into.ping_cmd = round.ping_cmd;
+  into.seconds.insert(into.seconds.end(), round.seconds.begin(), round.seconds.end());
+  into.warmup_lines += round.warmup_lines;
+  into.foreign_lines += round.foreign_lines;
+  into.timeouts += round.timeouts;
+  into.interrupted = into.interrupted || round.interrupted;
+  into.aggregate = aggregateSeconds(into.seconds);
+}
+
 DdsperfResult runDdsperf(const Settings& s, const std::string& path, uint32_t size,
                          Progress& progress) {
   DdsperfResult r;

@@ -20,6 +20,9 @@ struct DdsperfResult {
   bool interrupted = false;
 };
 
+/// Adds a later round's per-second reports to `into` (--rounds) and recomputes the aggregate.
+void merge(DdsperfResult& into, const DdsperfResult& round);
+
 /// Runs ddsperf (`path`) pong and ping with `size`-byte samples and aggregates the ping's
 /// per-second reports after the warm-up.
 DdsperfResult runDdsperf(const Settings& s, const std::string& path, uint32_t size,

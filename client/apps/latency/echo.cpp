@@ -36,23 +36,39 @@ int runEcho(const Settings& s, bool seconds_given) {
   dds::Topic<Sample> pong_topic(participant, dds::topic::kLatencyPong);
   dds::Reader<Sample> ping_reader(participant, ping_topic, dds::qos::latencyProbe());
   dds::Writer<Sample> pong_writer(participant, pong_topic, dds::qos::latencyProbe());
-  dds::WaitSet waitset(participant);
-  waitset.attach(ping_reader.handle(), 1);
   if (!s.quiet) {
     std::cerr << "telehand-latency: echoing on domain " << s.dds.domain << ", partition '"
-              << s.dds.partition << "' "
+              << s.dds.partition << "' (take: " << s.take << ") "
               << (seconds_given ? fmt::format("for {:g} s", s.seconds) : "until SIGINT/SIGTERM")
               << "\n";
   }
   const int64_t end_ns =
       seconds_given ? monoNs() + static_cast<int64_t>(s.seconds * 1e9) : INT64_MAX;
+  const auto running = [&] { return !g_stop_requested.load() && monoNs() < end_ns; };
   uint64_t echoes = 0, write_errors = 0;
-  // A 100 ms timeout bounds how long a signal waits to be seen; data wakes the waitset.
-  while (!g_stop_requested.load() && monoNs() < end_ns) {
-    waitset.wait(100ms);
+  // Answers every ping waiting with the same sample: a loaned take and a best-effort write,
+  // nothing allocated or locked here. As a listener this runs on Cyclone's receive thread;
+  // the pong writer is best-effort keep-last 1, so the write never waits for an
+  // acknowledgement or for room in its history, and no reader of this process reads the pong
+  // topic, so the write cannot call back into a listener of ours.
+  const auto answer = [&]() noexcept {
     echoes += ping_reader.take([&](const Sample& x, const dds_sample_info_t&) {
       if (pong_writer.write(x) < 0) ++write_errors;
     });
+  };
+  if (s.take == "listener") {
+    dds::DataListener listener(ping_reader.handle(), answer);
+    // This thread only watches for the end; 50 ms bounds how long a signal waits to be seen.
+    while (running()) std::this_thread::sleep_for(50ms);
+    listener.detach();  // waits for an answer under way: the counters are final after it
+  } else {
+    dds::WaitSet waitset(participant);
+    waitset.attach(ping_reader.handle(), 1);
+    // A 100 ms timeout bounds how long a signal waits to be seen; data wakes the waitset.
+    while (running()) {
+      waitset.wait(100ms);
+      answer();
+    }
   }
   if (!s.quiet) {
     std::cerr << "telehand-latency: echo stopped after " << echoes << " echoes, " << write_errors
@@ -78,6 +94,41 @@ bool awaitEcho(const dds::Writer<Sample>& ping, const dds::Reader<Sample>& pong,
 }
 
 }  // namespace
+
+void finish(PingResult& r) {
+  r.received = r.rtt_ns.size();
+  r.seconds_count = r.seconds.size();
+  r.per_second = aggregateSeconds(r.seconds);
+  std::vector<int64_t> sorted = r.rtt_ns;
+  r.pooled = summarize(sorted);
+  r.wake_p99_us = r.wake_max_us = 0;
+  if (!r.wake_late_ns.empty()) {
+    std::vector<int64_t> wake = r.wake_late_ns;
+    std::sort(wake.begin(), wake.end());
+    r.wake_p99_us = static_cast<double>(wake[wake.size() - (wake.size() + 99) / 100]) / 1e3;
+    r.wake_max_us = static_cast<double>(wake.back()) / 1e3;
+  }
+}
+
+void merge(PingResult& into, const PingResult& round) {
+  into.echo_desc = round.echo_desc;
+  into.partition = round.partition;
+  into.warmup_pings += round.warmup_pings;
+  into.planned += round.planned;
+  into.sent += round.sent;
+  into.late += round.late;
+  into.duplicates += round.duplicates;
+  into.foreign += round.foreign;
+  into.write_errors += round.write_errors;
+  into.overruns += round.overruns;
+  into.measured_s += round.measured_s;
+  into.interrupted = into.interrupted || round.interrupted;
+  into.rtt_ns.insert(into.rtt_ns.end(), round.rtt_ns.begin(), round.rtt_ns.end());
+  into.seconds.insert(into.seconds.end(), round.seconds.begin(), round.seconds.end());
+  into.wake_late_ns.insert(into.wake_late_ns.end(), round.wake_late_ns.begin(),
+                           round.wake_late_ns.end());
+  finish(into);
+}
 
 PingResult runPinger(const Settings& s, Progress& progress) {
   PingResult r;
@@ -127,8 +178,8 @@ PingResult runPinger(const Settings& s, Progress& progress) {
     dds::Options o = s.dds;
     o.partition = s.dds.partition + ".latency-" + std::to_string(getpid());
     std::vector<std::string> argv = {
-        "/proc/self/exe",         "--echo-only", "--quiet",  "--domain",
-        std::to_string(o.domain), "--partition", o.partition};
+        "/proc/self/exe", "--echo-only", "--quiet", "--domain", std::to_string(o.domain),
+        "--partition",    o.partition,   "--take",  s.take};
     if (!s.dds_config.empty()) {
       argv.push_back("--dds-config");
       argv.push_back(s.dds_config);
@@ -163,40 +214,53 @@ PingResult runPinger(const Settings& s, Progress& progress) {
   dds::GuardCondition wake_guard(ep->participant);
 
   const uint64_t warmup = r.warmup_pings;
-  std::string receiver_error;  // read only after join
-  std::thread receiver([&] {
-    pthread_setname_np(pthread_self(), "lat-recv");
-    prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
-    try {
-      dds::WaitSet ws(ep->participant);
-      ws.attach(ep->pong.handle(), 1);
-      ws.attach(wake_guard.handle(), 2);
-      while (receiving.load(std::memory_order_acquire)) {
-        ws.wait(100ms);
-        ep->pong.take([&](const Sample& x, const dds_sample_info_t&) {
-          const int64_t now = monoNs();
-          if (x.session_id != run_id || x.seq >= total) {
-            foreign.fetch_add(1, std::memory_order_relaxed);
-            return;
-          }
-          if (x.seq < warmup) return;
-          int64_t& slot = rtt_ns[x.seq - warmup];
-          if (slot >= 0) {
-            duplicates.fetch_add(1, std::memory_order_relaxed);
-            return;
-          }
-          slot = now - x.source_time_ns;
-          received.fetch_add(1, std::memory_order_relaxed);
-          int64_t m = window_max_rtt.load(std::memory_order_relaxed);
-          while (slot > m && !window_max_rtt.compare_exchange_weak(m, slot)) {
-          }
-        });
+  // Takes every pong waiting and stores its RTT at its sequence number: a loaned take, stores
+  // into preallocated slots and relaxed atomics, nothing allocated, locked or written. As a
+  // listener it runs on Cyclone's receive thread; Cyclone never overlaps two calls for one
+  // reader, and the waitset thread is the only caller otherwise.
+  const auto take_pongs = [&]() noexcept {
+    ep->pong.take([&](const Sample& x, const dds_sample_info_t&) {
+      const int64_t now = monoNs();
+      if (x.session_id != run_id || x.seq >= total) {
+        foreign.fetch_add(1, std::memory_order_relaxed);
+        return;
       }
-    } catch (const std::exception& e) {
-      receiver_error = e.what();
-      g_stop_requested.store(true);  // ends the pinger; the error is reported after the join
-    }
-  });
+      if (x.seq < warmup) return;
+      int64_t& slot = rtt_ns[x.seq - warmup];
+      if (slot >= 0) {
+        duplicates.fetch_add(1, std::memory_order_relaxed);
+        return;
+      }
+      slot = now - x.source_time_ns;
+      received.fetch_add(1, std::memory_order_relaxed);
+      int64_t m = window_max_rtt.load(std::memory_order_relaxed);
+      while (slot > m && !window_max_rtt.compare_exchange_weak(m, slot)) {
+      }
+    });
+  };
+  std::optional<dds::DataListener<decltype(take_pongs)>> pong_listener;
+  std::thread receiver;
+  std::string receiver_error;  // read only after join
+  if (s.take == "listener") {
+    pong_listener.emplace(ep->pong.handle(), take_pongs);
+  } else {
+    receiver = std::thread([&] {
+      pthread_setname_np(pthread_self(), "lat-recv");
+      prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+      try {
+        dds::WaitSet ws(ep->participant);
+        ws.attach(ep->pong.handle(), 1);
+        ws.attach(wake_guard.handle(), 2);
+        while (receiving.load(std::memory_order_acquire)) {
+          ws.wait(100ms);
+          take_pongs();
+        }
+      } catch (const std::exception& e) {
+        receiver_error = e.what();
+        g_stop_requested.store(true);  // ends the pinger; the error is reported after the join
+      }
+    });
+  }
 
   std::atomic<bool> pinging{true};
   uint64_t write_errors = 0, overruns = 0;
@@ -253,9 +317,13 @@ PingResult runPinger(const Settings& s, Progress& progress) {
   r.sent = sent_total > r.warmup_pings ? sent_total - r.warmup_pings : 0;
   const int64_t drain_end = monoNs() + std::chrono::nanoseconds(kDrain).count();
   while (received.load() < r.sent && monoNs() < drain_end) std::this_thread::sleep_for(5ms);
-  receiving.store(false, std::memory_order_release);
-  wake_guard.trigger();
-  receiver.join();
+  // After this no pong is taken, and every RTT stored is visible here.
+  pong_listener.reset();
+  if (receiver.joinable()) {
+    receiving.store(false, std::memory_order_release);
+    wake_guard.trigger();
+    receiver.join();
+  }
   progress.done();
   if (!receiver_error.empty()) throw Error("pong receiver failed: " + receiver_error);
   r.interrupted = g_stop_requested.load();
@@ -272,35 +340,25 @@ PingResult runPinger(const Settings& s, Progress& progress) {
     }
   }
 
-  std::vector<int64_t> all;
-  all.reserve(r.sent);
+  r.rtt_ns.reserve(r.sent);
   const auto per_second_n = static_cast<std::size_t>(std::llround(s.rate_hz));
-  std::vector<Summary> secs;
   std::vector<int64_t> bucket;
   bucket.reserve(per_second_n);
   for (std::size_t i = 0; i < r.sent; ++i) {
     if (rtt_ns[i] >= 0) {
-      all.push_back(rtt_ns[i]);
+      r.rtt_ns.push_back(rtt_ns[i]);
       bucket.push_back(rtt_ns[i]);
       if (rtt_ns[i] > period_ns) ++r.late;
     }
     // Seconds by send index, as ddsperf reports by wall second; a short last one is dropped.
     if ((i + 1) % per_second_n == 0) {
-      secs.push_back(summarize(bucket));
+      r.seconds.push_back(summarize(bucket));
       bucket.clear();
     }
   }
-  r.received = all.size();
-  r.seconds_count = secs.size();
-  r.per_second = aggregateSeconds(secs);
-  r.pooled = summarize(all);
-  std::vector<int64_t> wake(wake_late_ns.begin(),
-                            wake_late_ns.begin() + static_cast<std::ptrdiff_t>(sent_total));
-  if (!wake.empty()) {
-    std::sort(wake.begin(), wake.end());
-    r.wake_p99_us = static_cast<double>(wake[wake.size() - (wake.size() + 99) / 100]) / 1e3;
-    r.wake_max_us = static_cast<double>(wake.back()) / 1e3;
-  }
+  r.wake_late_ns.assign(wake_late_ns.begin(),
+                        wake_late_ns.begin() + static_cast<std::ptrdiff_t>(sent_total));
+  finish(r);
   return r;
 }
 

@@ -32,7 +32,17 @@ struct PingResult {
   Summary pooled;
   Summary per_second;  // aggregated like ddsperf's output, for the comparison
   std::size_t seconds_count = 0;
+  std::vector<int64_t> rtt_ns;        // answered pings' RTTs, in send order
+  std::vector<Summary> seconds;       // per second of sending
+  std::vector<int64_t> wake_late_ns;  // per ping sent, warm-up included
 };
+
+/// Recomputes the figures (received, pooled, per_second, wake_*) from the raw vectors.
+void finish(PingResult& r);
+
+/// Adds a later round's pings to `into` (--rounds): counters add up, the raw vectors are
+/// joined and the figures recomputed; the echo and partition are the round's.
+void merge(PingResult& into, const PingResult& round);
 
 /// Pings through a server's echo or one of its own; then the figures.
 PingResult runPinger(const Settings& s, Progress& progress);

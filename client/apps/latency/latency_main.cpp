@@ -44,6 +44,12 @@ int main(int argc, char** argv) {
           fmt::format("--seconds x --rate asks for {:.0f} pings; keep it under 1e7", samples));
     }
     if (s.seconds * s.rate_hz < 1) throw ConfigError("--seconds x --rate is less than one ping");
+    if (s.rounds > 1 && s.seconds / s.rounds < 1) {
+      throw ConfigError(fmt::format(
+          "--seconds {:g} / --rounds {} is under 1 s: each round needs whole seconds for the "
+          "per-second figures",
+          s.seconds, s.rounds));
+    }
     std::string ddsperf_path;
     if (s.compare) {
       const auto found = app::findProgram(s.ddsperf);
@@ -64,16 +70,41 @@ int main(int argc, char** argv) {
     const uint32_t ddsperf_size = std::max(ser, kDdsperfMinSize);
 
     Progress progress(s.quiet);
-    const PingResult r = runPinger(s, progress);
-    printPing(s, r, sizeof(Sample), ser, xcdr);
-    std::fflush(stdout);
-    if (r.received == 0 && !r.interrupted) {
-      throw Error("no pong came back: the echo matched but did not answer");
-    }
-
+    // --rounds: telehand and ddsperf take turns, each round measuring seconds / rounds.
+    Settings round = s;
+    round.seconds = s.seconds / s.rounds;
+    PingResult r;
     std::optional<DdsperfResult> d;
-    if (s.compare && !r.interrupted) {
-      d = runDdsperf(s, ddsperf_path, ddsperf_size, progress);
+    bool printed = false;
+    const auto print_ping = [&] {
+      printPing(s, r, sizeof(Sample), ser, xcdr);
+      std::fflush(stdout);
+      printed = true;
+    };
+    for (int i = 0; i < s.rounds; ++i) {
+      const PingResult ri = runPinger(round, progress);
+      if (i == 0) {
+        r = ri;
+      } else {
+        merge(r, ri);
+      }
+      if (ri.received == 0 && !ri.interrupted) {
+        print_ping();
+        throw Error("no pong came back: the echo matched but did not answer");
+      }
+      // With one round telehand's figures are out before ddsperf starts.
+      if (i + 1 == s.rounds || r.interrupted) print_ping();
+      if (!s.compare || r.interrupted) break;
+      const DdsperfResult di = runDdsperf(round, ddsperf_path, ddsperf_size, progress);
+      if (d) {
+        merge(*d, di);
+      } else {
+        d = di;
+      }
+      if (d->interrupted) break;
+    }
+    if (!printed) print_ping();
+    if (d) {
       if (d->interrupted) {
         std::cerr << "telehand-latency: interrupted; ddsperf comparison skipped\n";
       } else {

@@ -27,6 +27,18 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
                  "auto: a server echo if one matches within 2 s, else self; server; self")
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "server", "self"}));
+  auto* rounds = app.add_option("--rounds", s.rounds,
+                                "with --compare-ddsperf: alternate telehand and ddsperf this "
+                                "many times, --seconds/rounds each (each with its warm-up), so "
+                                "that a shared machine's changing load falls on both alike")
+                     ->capture_default_str()
+                     ->check(CLI::Range(1, 100));
+  app.add_option("--take", s.take,
+                 "how samples are taken, by the pong reader and a self or --echo-only echo: "
+                 "listener (inside Cyclone's receive thread, as ddsperf does) or waitset (a "
+                 "thread of ours, woken per sample, as the server's serve loop)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"listener", "waitset"}));
   auto* echo_only = app.add_flag("--echo-only", s.echo_only,
                                  "only echo pings (the other end of a probe) until "
                                  "SIGINT/SIGTERM or --seconds");
@@ -38,6 +50,7 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
   app.add_option("--json", s.json_path, "also write the results to this JSON file");
   app.add_flag("-q,--quiet", s.quiet, "no progress lines on stderr");
   echo_only->excludes(compare);
+  rounds->needs(compare);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

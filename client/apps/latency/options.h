@@ -11,7 +11,14 @@ struct Settings {
   double seconds = 10.0;
   double rate_hz = 1000.0;
   double warmup_s = 1.0;
+  /// --compare-ddsperf: alternate telehand and ddsperf this many times, each for
+  /// seconds / rounds (plus its own warm-up), so that both meet the same load over the run.
+  int rounds = 1;
   std::string echo = "auto";
+  /// How the probe's pong reader and a self echo take samples: "listener" (inside Cyclone's
+  /// receive thread, as ddsperf does) or "waitset" (a thread woken by a waitset, as
+  /// telehand-server's serve loop takes DeviceState).
+  std::string take = "listener";
   bool echo_only = false;
   bool compare = false;
   bool quiet = false;

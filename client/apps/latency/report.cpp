@@ -32,6 +32,12 @@ void printPing(const Settings& s, const PingResult& r, std::size_t size_of, uint
       "+ 4 B header\n",
       size_of, ser, xcdr);
   std::printf("  QoS        best-effort, keep-last 1, volatile (qos::latencyProbe)\n");
+  std::printf("  take       %s\n",
+              s.take == "listener"
+                  ? "listener: pongs (and a self echo's pings) are taken inside Cyclone's "
+                    "receive thread"
+                  : "waitset: pongs (and a self echo's pings) are taken on threads a waitset "
+                    "wakes");
   std::printf(
       "  host       %ld CPUs online, load average %.2f at start (other load inflates "
       "the tail)\n",
@@ -41,6 +47,12 @@ void printPing(const Settings& s, const PingResult& r, std::size_t size_of, uint
       "TIMER_ABSTIME, 1 ns timer slack%s\n",
       s.rate_hz, s.seconds, s.warmup_s,
       r.interrupted ? fmt::format("; INTERRUPTED after {:.1f} s", r.measured_s).c_str() : "");
+  if (s.rounds > 1) {
+    std::printf(
+        "  rounds     %d, taking turns with ddsperf: %g s measured each, after its own %g s "
+        "warm-up\n",
+        s.rounds, s.seconds / s.rounds, s.warmup_s);
+  }
   const uint64_t lost = r.sent - r.received;
   std::printf(
       "  pings      %llu sent, %llu answered, %llu lost (%.3f %%), %llu late (RTT > %g "
@@ -67,8 +79,10 @@ void printPing(const Settings& s, const PingResult& r, std::size_t size_of, uint
 
 void printCompare(const Settings& s, const PingResult& r, const DdsperfResult& d,
                   const std::string& path, uint32_t size) {
-  std::printf("\nddsperf baseline (%s), run after telehand in the same domain and config:\n",
-              path.c_str());
+  std::printf("\nddsperf baseline (%s), run %s in the same domain and config:\n", path.c_str(),
+              s.rounds > 1
+                  ? fmt::format("in {} rounds taking turns with telehand", s.rounds).c_str()
+                  : "after telehand");
   std::printf("  pong       %s\n", d.pong_cmd.c_str());
   std::printf("  ping       %s\n", d.ping_cmd.c_str());
   std::printf(
@@ -91,9 +105,12 @@ void printCompare(const Settings& s, const PingResult& r, const DdsperfResult& d
       "             its pooled figures are above. Both: one-way = RTT/2, ddsperf's rank "
       "rule.\n"
       "  delivery   ddsperf answers and times pongs in a listener on Cyclone's receive\n"
-      "             thread; telehand's echo and probe take samples on waitset threads,\n"
-      "             as the product does (one thread wake-up more per direction).\n",
-      r.seconds_count);
+      "             thread; %s\n",
+      r.seconds_count,
+      s.take == "listener"
+          ? "so does telehand (--take listener; a server echo answers in one too)"
+          : "telehand takes on waitset threads (--take waitset), one thread\n"
+            "             wake-up more per direction (a server echo answers in a listener)");
   std::printf("\n  %-14s %10s %10s %17s\n", "one-way, us", "telehand", "ddsperf",
               "telehand/ddsperf");
   const auto row = [](const char* name, double a, double b) {
@@ -135,7 +152,8 @@ void writeJson(std::ostream& o, const Settings& s, const PingResult& r, std::siz
   o.precision(6);
   o << "{\n  \"tool\": \"telehand-latency\",\n  \"definition\": \"one-way = RTT/2\",\n"
     << "  \"settings\": {\"seconds\": " << s.seconds << ", \"rate_hz\": " << s.rate_hz
-    << ", \"warmup_s\": " << s.warmup_s << ", \"domain\": " << s.dds.domain
+    << ", \"warmup_s\": " << s.warmup_s << ", \"take\": " << jsonString(s.take)
+    << ", \"rounds\": " << s.rounds << ", \"domain\": " << s.dds.domain
     << ", \"partition\": " << jsonString(r.partition)
     << ", \"dds_config\": " << jsonString(s.dds_config) << "},\n"
     << "  \"host\": {\"cpus\": " << sysconf(_SC_NPROCESSORS_ONLN)

@@ -1,7 +1,5 @@
 #include "telehand/server/link/server_link.h"
 
-#include <pthread.h>
-
 #include "telehand/core/clock.h"
 
 namespace telehand::server::link {
@@ -29,9 +27,7 @@ ServerLink::ServerLink(const dds::Options& options)
       ping_reader_(participant_, topics_.latency_ping, dds::qos::latencyProbe()),
       pong_writer_(participant_, topics_.latency_pong, dds::qos::latencyProbe()),
       wake_(participant_),
-      echo_stop_(participant_),
       waitset_(participant_),
-      echo_waitset_(participant_),
       capture_topics_(participant_),
       file_reader_(participant_, capture_topics_.session_file, dds::qos::sessionFile()),
       knn_writer_(participant_, capture_topics_.knn_model, dds::qos::knnModel()) {
@@ -40,16 +36,12 @@ ServerLink::ServerLink(const dds::Options& options)
   waitset_.attach(command_reader_.handle(), kCommands);
   waitset_.attach(device_reader_.handle(), kDevice);
   waitset_.attach(chunk_reader_.handle(), kChunks);
-  echo_waitset_.attach(echo_stop_.handle(), kWake);
-  echo_waitset_.attach(ping_reader_.handle(), kDevice);
-  echo_thread_ = std::thread([this] { echoLoop(); });
+  // Last: the echo answers as soon as the rest of the link exists.
+  echo_.emplace(ping_reader_.handle(), Echo{this});
 }
 
-ServerLink::~ServerLink() {
-  echo_running_.store(false);
-  echo_stop_.trigger();
-  if (echo_thread_.joinable()) echo_thread_.join();
-}
+// Before any member goes: waits for an echo under way, and no echo runs after.
+ServerLink::~ServerLink() { echo_.reset(); }
 
 void ServerLink::publish(const telehand_msg_SessionStatus& s) {
   if (status_writer_.write(s) < 0) {
@@ -175,14 +167,15 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
   manager.closeAll(now);
 }
 
-void ServerLink::echoLoop() {
-  pthread_setname_np(pthread_self(), "telehand-echo");
-  while (echo_running_.load(std::memory_order_acquire)) {
-    echo_waitset_.wait(std::chrono::milliseconds(200));
-    ping_reader_.take([&](const telehand_msg_DeviceState& s, const dds_sample_info_t&) {
-      if (pong_writer_.write(s) >= 0) counters_.echoes.fetch_add(1, std::memory_order_relaxed);
-    });
-  }
+// On Cyclone's receive thread (dds::DataListener): a loaned take, a best-effort write of the
+// same sample and an atomic counter. Nothing here allocates, locks or waits, and the
+// latency-probe writer is best-effort keep-last 1, so the write never waits for an
+// acknowledgement or for room in its history. Nothing in this process reads the pong topic,
+// so the write cannot call back into a listener of ours.
+void ServerLink::echo() noexcept {
+  ping_reader_.take([&](const telehand_msg_DeviceState& s, const dds_sample_info_t&) {
+    if (pong_writer_.write(s) >= 0) counters_.echoes.fetch_add(1, std::memory_order_relaxed);
+  });
 }
 
 }  // namespace telehand::server::link

@@ -306,6 +306,47 @@ class Reader {
   Entity e_;
 };
 
+/// Calls `fn()` each time samples arrive on a reader, from inside Cyclone: on the receive
+/// thread that stored them for a remote writer, on the writing thread for a writer of this
+/// process (a DATA_AVAILABLE listener). No thread wakes up between the network and `fn`, which
+/// is what a waitset would add. While attached, a waitset on the reader is not triggered by
+/// data (the listener consumes the status) and the reader must be taken from `fn` alone.
+///
+/// `fn` holds up Cyclone's delivery of every other sample while it runs: it must be short,
+/// must not throw (std::terminate), allocate per call, lock what another thread holds long,
+/// or write to a reliable writer (which may wait for acknowledgements this very thread
+/// delivers). Taking and writing best-effort samples is what it is for. Calls for one reader
+/// never overlap. Neither copyable nor movable: Cyclone holds its address.
+template <typename Fn>
+class DataListener {
+ public:
+  DataListener(dds_entity_t reader, Fn fn) : reader_(reader), fn_(std::move(fn)) {
+    dds_listener_t* l = dds_create_listener(this);
+    // reset_on_invoke: the status is consumed by the call (no waitset wakes for it).
+    dds_lset_data_available_arg(l, &DataListener::invoke, this, true);
+    const dds_return_t rc = dds_set_listener(reader_, l);
+    dds_delete_listener(l);
+    check(rc, "set data-available listener");
+  }
+  ~DataListener() { detach(); }
+  DataListener(const DataListener&) = delete;
+  DataListener& operator=(const DataListener&) = delete;
+
+  /// Removes the listener. Cyclone waits for a call under way to return, so `fn`'s effects
+  /// are visible to the caller afterwards and `fn` is never called again. Never call this
+  /// from `fn` itself (it would wait for itself).
+  void detach() noexcept {
+    if (reader_ > 0) dds_set_listener(reader_, nullptr);
+    reader_ = 0;
+  }
+
+ private:
+  static void invoke(dds_entity_t, void* self) noexcept { static_cast<DataListener*>(self)->fn_(); }
+
+  dds_entity_t reader_;
+  Fn fn_;
+};
+
 /// Wakes a waitset from another thread (shutdown, new work).
 class GuardCondition {
  public:

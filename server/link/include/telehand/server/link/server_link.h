@@ -1,9 +1,10 @@
 #pragma once
 /// The server's DDS side: takes commands, live device states and record chunks, hands them
-/// to the SessionManager, publishes what it produces, and echoes latency probes on a thread
-/// of its own so that recording never delays an echo.
+/// to the SessionManager, publishes what it produces, and echoes latency probes inside
+/// Cyclone's receive thread (a DATA_AVAILABLE listener, as ddsperf answers its pings), so
+/// that neither recording nor a thread wake-up delays an echo.
 #include <atomic>
-#include <thread>
+#include <optional>
 #include <unordered_map>
 
 #include "telehand/protocol/dds.h"
@@ -42,7 +43,12 @@ class ServerLink final : public session::Outbox {
   const LinkCounters& counters() const noexcept { return counters_; }
 
  private:
-  void echoLoop();
+  /// Answers the pings waiting in ping_reader_ (the echo listener's call).
+  void echo() noexcept;
+  struct Echo {
+    ServerLink* link;
+    void operator()() const noexcept { link->echo(); }
+  };
   /// The manager's view of who wrote a sample a reader took (valid until the next call).
   const session::Origin& origin(dds_entity_t reader, const dds_sample_info_t& info);
 
@@ -60,11 +66,7 @@ class ServerLink final : public session::Outbox {
   dds::Reader<telehand_msg_DeviceState> ping_reader_;
   dds::Writer<telehand_msg_DeviceState> pong_writer_;
   dds::GuardCondition wake_;
-  dds::GuardCondition echo_stop_;
   dds::WaitSet waitset_;
-  dds::WaitSet echo_waitset_;
-  std::atomic<bool> echo_running_{true};
-  std::thread echo_thread_;
   LinkCounters counters_;
   dds::CaptureTopics capture_topics_;
   dds::Reader<telehand_msg_SessionFile> file_reader_;
@@ -81,6 +83,8 @@ class ServerLink final : public session::Outbox {
   // what retire() must hand back to Cyclone (dds::Writer::unregister).
   enum : unsigned { kStatus = 1, kModel = 2, kEvent = 4, kKnn = 8 };
   std::unordered_map<uint64_t, unsigned> written_;
+  // Last member: attached when everything it uses exists, detached first.
+  std::optional<dds::DataListener<Echo>> echo_;
 };
 
 }  // namespace telehand::server::link
