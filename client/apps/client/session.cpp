@@ -181,9 +181,10 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
         static_cast<unsigned long long>(ls.retained_samples.load()));
     return 3;
   }
-  std::printf("  record: %llu samples recorded, %llu missing, in %s\n",
+  std::printf("  record: %llu samples recorded, %llu missing, in %s; sent %s\n",
               static_cast<unsigned long long>(closed.samples_recorded),
-              static_cast<unsigned long long>(closed.samples_missing), closed.record.c_str());
+              static_cast<unsigned long long>(closed.samples_missing), closed.record.c_str(),
+              link.recordDigest().text().c_str());
   return closed.samples_missing == 0 && closed.samples_recorded == sent ? 0 : 3;
 }
 

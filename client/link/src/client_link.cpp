@@ -77,8 +77,16 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
   cmd.stiffness = req.stiffness;
   cmd.lesson_id = req.lesson_id;
   dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
+  // Asked again, the same request, every second until answered: a server discovered after
+  // the first write (a pool whose assigned server had not matched yet) hears it then; the
+  // server that made the session answers a repeat with the same session.
+  auto next_ask = std::chrono::steady_clock::now() + std::chrono::seconds(1);
 
   while (std::chrono::steady_clock::now() < deadline) {
+    if (std::chrono::steady_clock::now() >= next_ask) {
+      next_ask += std::chrono::seconds(1);
+      command_writer_.write(cmd);
+    }
     status_reader_.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t& info) {
       if (st.client_id == client_id_ && st.request_seq == cmd.request_seq) {
         session_id_ = st.session_id;
@@ -153,6 +161,7 @@ void ClientLink::pump(bool final_flush) {
     stats_.samples_sent.fetch_add(1, std::memory_order_relaxed);
     stats_.last_seq.store(s.seq, std::memory_order_relaxed);
     if (chunk_.empty()) chunk_started_ = std::chrono::steady_clock::now();
+    record_digest_.add(fromWire(w));  // the sample as the record will decode it
     chunk_.push_back(w);
     if (chunk_.size() == kChunkSamples) flushChunk(false);
   }
@@ -286,6 +295,16 @@ void ClientLink::pollStatus() {
       // A server announcing what it recovered, or a forgery: not this session's server.
       if (st.state != telehand_msg_SESSION_SUSPENDED) {
         stats_.foreign_refused.fetch_add(1, std::memory_order_relaxed);
+      } else if (!resume_refused_ && st.request_seq == 0) {
+        // Another server holds the session for its client (a server of the pool took it
+        // over from one whose lease ran out, or recovered it from the record): ask for it to
+        // be resumed now rather than after kAckTimeout or the next kResumeEvery. Whoever runs
+        // the session answers; if that is still this session's server, nothing changes.
+        if (!resuming_) {
+          beginResume("a server announced the session suspended (its server went away)");
+        } else {
+          next_resume_ = now;
+        }
       }
       return;
     }

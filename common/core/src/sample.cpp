@@ -2,6 +2,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <limits>
+#include <type_traits>
 
 namespace telehand {
 
@@ -80,6 +82,37 @@ PerFinger<Vec3> thimblePositions(const Sample& s) noexcept {
     p[k] = Vec3(s.fingers[k].position_m[0], s.fingers[k].position_m[1], s.fingers[k].position_m[2]);
   }
   return p;
+}
+
+}  // namespace telehand
+
+namespace telehand {
+
+void SampleDigest::add(const Sample& s) noexcept {
+  uint64_t h = 0xcbf29ce484222325ULL;  // FNV-1a, 64 bit
+  const auto mix = [&h](const void* p, std::size_t n) {
+    const auto* b = static_cast<const unsigned char*>(p);
+    for (std::size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 0x100000001b3ULL;
+  };
+  visitSampleFields(s, [&](const auto& v) {
+    using T = std::remove_cvref_t<decltype(v)>;
+    if constexpr (std::is_floating_point_v<T>) {
+      // One NaN for all: the record keeps a NaN as NULL and reads back the canonical one.
+      const T x = std::isnan(v) ? std::numeric_limits<T>::quiet_NaN() : v;
+      mix(&x, sizeof x);
+    } else {
+      mix(&v, sizeof v);
+    }
+  });
+  ++count;
+  sum += h;
+}
+
+std::string SampleDigest::text() const {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%llu samples, digest %016llx",
+                static_cast<unsigned long long>(count), static_cast<unsigned long long>(sum));
+  return buf;
 }
 
 }  // namespace telehand

@@ -28,6 +28,10 @@ int main(int argc, char** argv) {
   auto* show = app.add_subcommand(
       "show", "one session: summary, events (marks, errors, scores) and exploration reaches");
   show->add_option("session", session_id, "session id (see 'list')")->required();
+  bool digest = false;
+  show->add_flag("--digest", digest,
+                 "also read every sample and print the record's digest (telehand-client prints "
+                 "the digest of what it sent: equal digests, equal samples)");
   exp->add_option("session", session_id, "session id (see 'list')")->required();
   exp->add_option("-o,--output", out_path, "CSV file to write (default: stdout)");
   telehand::records::FitRequest fit_req;
@@ -152,7 +156,7 @@ int main(int argc, char** argv) {
       return telehand::records::runReport(store, report_req);
     }
     const auto info = store.session(session_id);
-    if (info && *show) return telehand::records::runShow(store, *info);
+    if (info && *show) return telehand::records::runShow(store, *info, digest);
     if (!info) {
       std::cerr << "telehand-records: no session " << session_id << " in " << store.location()
                 << " (run 'telehand-records --db " << store.location() << " list')\n";

@@ -61,7 +61,7 @@ int runList(SessionStore& store) {
   return 0;
 }
 
-int runShow(SessionStore& store, const SessionInfo& info) {
+int runShow(SessionStore& store, const SessionInfo& info, bool digest) {
   const uint64_t session_id = info.id;
   const std::string missing = missingSamples(info);
   std::cout << "session " << info.id << ": " << info.mode << " on case '" << info.case_name
@@ -69,6 +69,14 @@ int runShow(SessionStore& store, const SessionInfo& info) {
             << formatTime(info.started_ns) << "\n  samples " << info.samples << " (missing "
             << missing << ", flagged invalid " << info.rejected << ")\n";
   if (!info.owner.empty()) std::cout << "  opened by participant " << info.owner << "\n";
+  if (const std::string server = store.poolOwner(session_id); !server.empty()) {
+    std::cout << "  served by " << server << " (pool)\n";
+  }
+  if (digest) {
+    SampleDigest d;
+    store.forEachSample(session_id, [&](const Sample& s, bool) { d.add(s); });
+    std::cout << "  record holds " << d.text() << "\n";
+  }
   const auto events = store.events(session_id);
   std::cout << "events (" << events.size() << "):\n";
   for (const auto& e : events) {

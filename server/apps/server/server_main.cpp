@@ -1,4 +1,6 @@
 // telehand-server: hosts sessions, keeps every record, publishes joint models and hand state.
+#include <unistd.h>
+
 #include <csignal>
 #include <iostream>
 #include <optional>
@@ -47,6 +49,16 @@ int main(int argc, char** argv) {
   app.add_option("--cases", cases, "directory of patient cases (*.toml)")->capture_default_str();
   app.add_flag("--list-dofs", list_dofs,
                "print the hand's joint rotations in HandState.joint_angles_rad order and exit");
+  bool pool = false;
+  std::string pool_id;
+  app.add_flag("--pool", pool,
+               "serve as one server of a pool sharing the record (docs/pool.md): always so on "
+               "PostgreSQL; on an SQLite file, every server of the pool gives --pool");
+  app.add_option("--pool-id", pool_id,
+                 "this server's name in the pool (default: host:pid); unique in the pool")
+      ->check([](const std::string& v) {
+        return v.empty() || v.size() > 64 ? std::string("1 to 64 characters") : std::string();
+      });
   app.add_option("--seconds", seconds, "stop after this many seconds (0 = until Ctrl-C)");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")
       ->capture_default_str();
@@ -77,12 +89,45 @@ int main(int argc, char** argv) {
     }
 
     const auto store = server::store::openStore(cfg.db_path);
-    // One server per SQLite record (docs/recovery.md); a PostgreSQL record is shared.
+    // One server per SQLite record (docs/recovery.md), or a pool of them on one machine; a
+    // PostgreSQL record is shared by a pool (docs/pool.md).
+    const bool shared = server::store::isPostgresUri(cfg.db_path);
+    if (shared) pool = true;
     std::optional<server::store::ServerLock> lock;
-    if (!server::store::isPostgresUri(cfg.db_path)) lock.emplace(cfg.db_path);
+    if (!shared) lock.emplace(cfg.db_path, pool);
+    if (pool && pool_id.empty()) {
+      char host[256] = {};
+      gethostname(host, sizeof host - 1);
+      pool_id = std::string(host) + ":" + std::to_string(getpid());
+    }
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(*store, link, cfg, hand_model ? &*hand_model : nullptr);
-    if (const std::size_t n = manager.recoverFromStore(SteadyClock{}.nowNs(), lock.has_value())) {
+    // The lease is renewed on a thread (and a connection) of its own as well as by the serve
+    // loop: a loop held up for a moment (closing sessions, a busy record) keeps its sessions.
+    std::jthread beat;
+    if (pool) {
+      // The pool takes on what the record holds open as orphans, a share per server.
+      manager.joinPool(pool_id);
+      spdlog::info("serving as '{}' in the pool on {}", pool_id, store->location());
+      beat = std::jthread([db_spec = cfg.db_path, pool_id](std::stop_token token) {
+        std::unique_ptr<server::store::SessionStore> own;
+        int64_t reported_ns = 0;
+        while (!token.stop_requested()) {
+          try {
+            if (!own) own = server::store::openStore(db_spec);
+            own->poolHeartbeat(pool_id, 0, server::session::SessionManager::kPoolLeaseNs);
+          } catch (const Error& e) {
+            if (const int64_t now = SteadyClock{}.nowNs(); now - reported_ns > 5'000'000'000) {
+              reported_ns = now;
+              spdlog::error("pool: cannot renew the lease: {}", e.what());
+            }
+            own.reset();
+          }
+          std::this_thread::sleep_for(
+              std::chrono::nanoseconds(server::session::SessionManager::kPoolHeartbeatNs));
+        }
+      });
+    } else if (const std::size_t n = manager.recoverFromStore(SteadyClock{}.nowNs())) {
       spdlog::info("{} session(s) found open or suspended in {}: waiting {:g} s for their clients",
                    n, store->location(), cfg.resume_wait_s);
     }
@@ -107,6 +152,11 @@ int main(int argc, char** argv) {
     });
     const auto tick = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / cfg.hand_state_hz));
     link.serve(manager, stop, tick);
+    if (beat.joinable()) {
+      beat.request_stop();
+      beat.join();
+    }
+    manager.leavePool();  // its sessions suspended: the others take them on at once
     stop.store(true);
     stopper.request_stop();
     stopper.join();

@@ -3,7 +3,9 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
@@ -249,6 +251,25 @@ void HandRunner::endExploration(SessionContext& ctx, uint64_t client_id, int64_t
       phase + ": " + Exploration::summary(reached, baseline ? decltype(baseline_){} : baseline_),
       now_ns);
   if (baseline) baseline_ = reached;
+}
+
+std::string HandRunner::checkpoint() const {
+  if (!sim_) return {};
+  std::vector<double> v = {static_cast<double>(hand_seq_), treatment_s_};
+  const std::vector<double> state = sim_->saveState();
+  v.insert(v.end(), state.begin(), state.end());
+  return {reinterpret_cast<const char*>(v.data()), v.size() * sizeof(double)};
+}
+
+bool HandRunner::restore(const std::string& data) {
+  if (!sim_ || data.size() % sizeof(double) != 0 || data.size() < 3 * sizeof(double)) return false;
+  std::vector<double> v(data.size() / sizeof(double));
+  std::memcpy(v.data(), data.data(), data.size());
+  if (!std::isfinite(v[0]) || v[0] < 0.0 || !std::isfinite(v[1])) return false;
+  if (!sim_->restoreState(std::vector<double>(v.begin() + 2, v.end()))) return false;
+  hand_seq_ = std::max(hand_seq_, static_cast<uint64_t>(v[0]));
+  treatment_s_ = v[1];
+  return true;
 }
 
 }  // namespace telehand::server::session

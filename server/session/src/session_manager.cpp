@@ -137,6 +137,11 @@ bool SessionManager::owns(Session& s, const Origin& from, const char* what, uint
 
 void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
                                const Origin& from) {
+  // In a pool every server hears every command: one for a session another server runs is
+  // that server's (an OPEN goes through the record's assignment, a resume to the claimer).
+  if (cmd.kind != telehand_msg_CMD_OPEN && cmd.session_id != 0 && elsewhere(cmd.session_id)) {
+    return;
+  }
   if (cmd.kind == telehand_msg_CMD_MARK) {
     // Anyone the access control lets write commands (a device, a supervisor) may mark a
     // session; another participant's mark is kept attributed to it, never acts on the
@@ -223,6 +228,30 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   if (cmd.session_id != 0 && !resumed) {
     resume(cmd, now_ns, from);
     return;
+  }
+  const std::string open_key = fmt::format("{}:{:x}:{}", from.guid.empty() ? "?" : from.guid,
+                                           cmd.client_id, cmd.request_seq);
+  if (!resumed) {
+    if (const auto it = answered_opens_.find(open_key); it != answered_opens_.end()) {
+      // The same request again (its answer was lost, or it came before the client saw it):
+      // the session it made, announced again.
+      if (Session* again = find(it->second)) {
+        again->publishStatus(telehand_msg_SESSION_ACTIVE);
+        again->publishModel();
+      }
+      return;
+    }
+  }
+  if (pooled() && !resumed) {
+    // The record assigns the OPEN to the least-loaded server of the pool, once: the others
+    // stay silent.
+    try {
+      if (store_.poolAssign(open_key) != pool_id_) return;
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("an OPEN from participant {}: {}", from.guid, e.what());
+      return;
+    }
   }
   // Bounds: a flood of OPENs must not take the server's memory (each session holds a hand).
   if (sessions_.size() >= static_cast<std::size_t>(config_.max_sessions)) {
@@ -346,6 +375,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       info.started_ns = wallNs();
       info.owner = from.guid;
       info.id = store_.createSession(info);
+      if (pooled()) store_.poolClaim(info.id, pool_id_, open_key);
     }
   } catch (const StoreError& e) {
     ++stats_.store_errors;
@@ -357,16 +387,39 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     return;
   }
   suspended_.erase(info.id);
+  if (!resumed) {
+    answered_opens_[open_key] = info.id;
+    answered_order_.push_back(open_key);
+    if (answered_order_.size() > kMaxAnsweredOpens) {
+      answered_opens_.erase(answered_order_.front());
+      answered_order_.erase(answered_order_.begin());
+    }
+  }
   Session& s = sessions_.try_emplace(info.id, ctx_, info, cmd, patient, hand_, hand_config_, now_ns)
                    .first->second;
   s.owner = from.participant;
   s.owner_identity = from.identity;
+  std::string hand_from;
   if (resumed) {
     // What the record holds: acknowledged at once, so the client sends what it lacks.
     s.recorder.resumeFrom(resumed->samples, stored_below);
     if (extent) {
       s.seq_high = extent->last_seq;
       s.have_seq = true;
+    }
+    // The hand goes on from the last checkpoint its server kept, if any.
+    try {
+      if (const auto cp = store_.checkpoint(info.id); cp && s.hand.simulated()) {
+        hand_from = s.hand.restore(cp->data)
+                        ? fmt::format(
+                              "; the hand goes on from its checkpoint at seq {} ({:.2f} s "
+                              "old)",
+                              cp->seq, static_cast<double>(wallNs() - cp->time_ns) * 1e-9)
+                        : "; the hand's checkpoint does not fit this hand: it starts afresh";
+      }
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      hand_from = std::string("; the hand's checkpoint cannot be read: ") + e.what();
     }
   }
   const bool wants_knn = cmd.stiffness == telehand_msg_STIFFNESS_KNN;
@@ -403,9 +456,12 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
           "resumed: " + info.mode + " on case '" + case_name + "' for " + info.user +
               "; the record holds " + std::to_string(resumed->samples) +
               " samples, all below seq " + std::to_string(stored_below) +
-              ", and the client sends what it lacks",
+              ", and the client sends what it lacks" + hand_from,
           now_ns);
     return;
+  }
+  if (pooled()) {
+    event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO, "owner: server " + pool_id_, now_ns);
   }
   event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
         "opened: " + info.mode + " on case '" + case_name + "' for " + info.user +
@@ -437,6 +493,7 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
           "resumed by its client (it was running here all along)", now_ns);
     return;
   }
+  if (elsewhere(id)) return;  // pool: the server that claimed it answers
   const auto cannot = [&](const std::string& why) {
     ++stats_.bad_commands;
     event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
@@ -581,6 +638,7 @@ bool inSeqWindow(Session& s, uint64_t seq) {
 void SessionManager::onSample(const Sample& d, int64_t now_ns, const Origin& from) {
   Session* s = find(d.session_id);
   if (!s) {
+    if (elsewhere(d.session_id)) return;  // another server's of the pool
     ++stats_.unknown_session_samples;
     unknownSession(d.session_id, "DeviceState", now_ns);
     return;
@@ -599,6 +657,11 @@ void SessionManager::onSample(const Sample& d, int64_t now_ns, const Origin& fro
 void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
                              const Origin& from) {
   Session* s = find(c.session_id);
+  if (!s && elsewhere(c.session_id) &&
+      std::none_of(ended_owners_.begin(), ended_owners_.end(),
+                   [&](const EndedOwner& e) { return e.session_id == c.session_id; })) {
+    return;  // another server's of the pool (a late chunk goes to the server that closed it)
+  }
   if (s && !owns(*s, from, "a RecordChunk", c.samples._length, now_ns)) return;
   std::vector<Sample> samples = samplesFromWire(c);
   // A sample no device could have sent is stored flagged invalid (the record keeps what
@@ -660,6 +723,7 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
 void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns, const Origin& from) {
   Session* s = find(f.session_id);
   if (!s) {
+    if (elsewhere(f.session_id)) return;
     unknownSession(f.session_id, "SessionFile", now_ns);
     return;
   }
@@ -697,6 +761,7 @@ void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns, c
 }
 
 void SessionManager::tick(int64_t now_ns) {
+  if (pooled() && now_ns >= next_pool_ns_) poolTick(now_ns);
   // Ended sessions leave the transient-local topics once late joiners had their chance.
   std::size_t due = 0;
   while (due < retiring_.size() && retiring_[due].first <= now_ns) {
@@ -749,6 +814,20 @@ void SessionManager::tick(int64_t now_ns) {
 }
 
 void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state) {
+  if (pooled()) {
+    // Only the owner closes a session's record: one that another server took over while
+    // this one was too slow to renew its lease is left to that server.
+    try {
+      if (!store_.poolClaim(s.info.id, pool_id_).won) {
+        spdlog::warn("session {}: another server of the pool owns it now; not closed here",
+                     s.info.id);
+        return;
+      }
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("session {}: {}", s.info.id, e.what());
+    }
+  }
   s.hand.endExploration(ctx_, s.client_id, now_ns);
   if (s.capture.follows()) {
     if (Session* capture = find(s.capture.follows())) capture->capture.removeFollower(s.info.id);
@@ -794,6 +873,123 @@ void SessionManager::closeAll(int64_t now_ns) {
     s.publishStatus(telehand_msg_SESSION_SUSPENDED);
   }
   sessions_.clear();
+}
+
+// ---- Pool (docs/pool.md) --------------------------------------------------------------------
+
+bool SessionManager::elsewhere(uint64_t session_id) const {
+  return pooled() && !sessions_.count(session_id) && !suspended_.count(session_id);
+}
+
+void SessionManager::joinPool(const std::string& server) {
+  pool_id_ = server;
+  next_pool_ns_ = 0;
+  // The first heartbeat now: the lease must run before any OPEN can be assigned here.
+  store_.poolHeartbeat(pool_id_, 0, kPoolLeaseNs);
+}
+
+void SessionManager::leavePool() {
+  if (!pooled()) return;
+  try {
+    store_.poolLeave(pool_id_);
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("cannot leave the pool: {}", e.what());
+  }
+}
+
+void SessionManager::poolTick(int64_t now_ns) {
+  next_pool_ns_ = now_ns + kPoolHeartbeatNs;
+  std::vector<uint64_t> mine, orphans;
+  const int64_t t0 = SteadyClock{}.nowNs();
+  try {
+    mine = store_.poolHeartbeat(pool_id_, sessions_.size() + suspended_.size(), kPoolLeaseNs);
+    orphans = store_.poolOrphans();
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("pool: {}", e.what());
+    return;
+  }
+  const int64_t t1 = SteadyClock{}.nowNs();
+  if (last_beat_ns_ != 0 && t1 - last_beat_ns_ > kPoolLeaseNs / 2) {
+    spdlog::warn(
+        "pool: {:.0f} ms between two renewals of the lease ({:.0f} ms in the record); "
+        "its sessions are taken over past {:.0f} ms",
+        static_cast<double>(t1 - last_beat_ns_) * 1e-6, static_cast<double>(t1 - t0) * 1e-6,
+        static_cast<double>(kPoolLeaseNs) * 1e-6);
+  }
+  last_beat_ns_ = t1;
+  const auto owned = [&](uint64_t id) { return std::binary_search(mine.begin(), mine.end(), id); };
+  // Sessions another server took over while this one did not renew its lease in time: let go,
+  // writing nothing more (their clients follow the new owner).
+  for (auto it = sessions_.begin(); it != sessions_.end();) {
+    if (owned(it->first)) {
+      ++it;
+      continue;
+    }
+    spdlog::warn("session {}: taken over by another server of the pool; let go here", it->first);
+    it = sessions_.erase(it);
+  }
+  std::erase_if(suspended_, [&](const auto& kv) { return !owned(kv.first); });
+  int claims = 0;
+  for (uint64_t id : orphans) {
+    if (claims >= kMaxClaimsPerBeat) break;
+    if (sessions_.count(id) || suspended_.count(id)) continue;
+    store::PoolClaim claim;
+    try {
+      claim = store_.poolClaim(id, pool_id_);
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("pool: session {}: {}", id, e.what());
+      continue;
+    }
+    if (!claim.won) continue;
+    ++claims;
+    takeOver(id, claim, now_ns);
+  }
+  if (now_ns >= next_checkpoint_ns_) {
+    next_checkpoint_ns_ = now_ns + kCheckpointNs;
+    for (auto& [id, s] : sessions_) {
+      if (!s.hand.simulated() || s.closing) continue;
+      try {
+        store_.putCheckpoint(id, {s.seq_high, wallNs(), s.hand.checkpoint()});
+      } catch (const StoreError& e) {
+        ++stats_.store_errors;
+        spdlog::error("session {}: checkpoint: {}", id, e.what());
+      }
+    }
+  }
+}
+
+void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim, int64_t now_ns) {
+  std::optional<SessionInfo> info;
+  try {
+    info = store_.session(session_id);
+    if (!info) return;
+    const std::string why =
+        claim.previous.empty()
+            ? "owner: server " + pool_id_ + " took the session on (it had no owner in the pool)"
+            : fmt::format(
+                  "owner: server {} took the session over from server {}, whose lease ran out "
+                  "at {} ({:.0f} ms before; record clock {})",
+                  pool_id_, claim.previous, claim.previous_lease_until_ns,
+                  static_cast<double>(claim.now_ns - claim.previous_lease_until_ns) * 1e-6,
+                  claim.now_ns);
+    if (info->state == "active") store_.closeSession(session_id, 0, 0, "suspended");
+    store_.appendEvent(session_id, {wallNs(), "info",
+                                    why + "; the record holds " + std::to_string(info->samples) +
+                                        " samples; waiting for its client to resume it"});
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("session {}: {}", session_id, e.what());
+    return;
+  }
+  info->state = "suspended";
+  suspended_[session_id] = now_ns + static_cast<int64_t>(config_.resume_wait_s * 1e9);
+  // Its client hears SUSPENDED from a server that is not its own and asks to resume at once.
+  publishRecordStatus(*info, telehand_msg_SESSION_SUSPENDED, 0, 0);
+  spdlog::info("session {}: taken over from {} ({} samples in the record)", session_id,
+               claim.previous.empty() ? "nobody" : claim.previous, info->samples);
 }
 
 }  // namespace telehand::server::session

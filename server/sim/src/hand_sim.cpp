@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <mutex>
 
 #include "telehand/core/error.h"
@@ -680,6 +681,92 @@ void HandSim::readContacts() {
       std::clamp(pinch_n_ + shortfall_n, config_.pinch_preload_n, config_.max_pinch_n);
   const double tau = want > pinch_n_ ? config_.grip_rise_s : config_.grip_fall_s;
   pinch_n_ += (want - pinch_n_) * std::min(1.0, config_.dt_s / tau);
+}
+
+namespace {
+constexpr double kStateMagic = 24061.0;  // the first number of a saved state
+constexpr std::size_t kPerBody = 13;     // origin, rotation (x y z w), linear, angular velocity
+constexpr std::size_t kPerGrip = 8;      // bone (-1: none), anchor in the bone, normal, force
+
+void saveBody(const btRigidBody& b, std::vector<double>& out) {
+  const btTransform& t = b.getCenterOfMassTransform();
+  const btQuaternion q = t.getRotation();
+  const btVector3 v = b.getLinearVelocity(), w = b.getAngularVelocity();
+  for (double x : {t.getOrigin().x(), t.getOrigin().y(), t.getOrigin().z(), q.x(), q.y(), q.z(),
+                   q.w(), v.x(), v.y(), v.z(), w.x(), w.y(), w.z()}) {
+    out.push_back(x);
+  }
+}
+
+void restoreBody(btRigidBody& b, const double* p) {
+  btTransform t;
+  t.setOrigin(btVector3(p[0], p[1], p[2]));
+  t.setRotation(btQuaternion(p[3], p[4], p[5], p[6]));
+  b.setCenterOfMassTransform(t);
+  b.setLinearVelocity(btVector3(p[7], p[8], p[9]));
+  b.setAngularVelocity(btVector3(p[10], p[11], p[12]));
+  b.activate(true);
+}
+}  // namespace
+
+std::vector<double> HandSim::saveState() const {
+  const Impl& im = *impl_;
+  std::vector<double> out;
+  out.reserve(4 + kPerBody * (im.bodies.size() + 2) + 2 * kPerGrip);
+  out.push_back(kStateMagic);
+  out.push_back(static_cast<double>(im.bodies.size()));
+  out.push_back(time_s_);
+  out.push_back(pinch_n_);
+  for (const auto& b : im.bodies) saveBody(*b, out);
+  for (const auto& sp : im.spheres) saveBody(*sp, out);
+  for (const auto& g : im.grips) {
+    int bone = -1;
+    for (std::size_t i = 0; i < im.bodies.size(); ++i) {
+      if (g.rows && im.bodies[i].get() == g.bone) bone = static_cast<int>(i);
+    }
+    out.push_back(bone);
+    for (int i = 0; i < 3; ++i) out.push_back(g.anchor_local[i]);
+    for (int i = 0; i < 3; ++i) out.push_back(g.normal[i]);
+    out.push_back(g.normal_n);
+  }
+  return out;
+}
+
+bool HandSim::restoreState(const std::vector<double>& state) {
+  Impl& im = *impl_;
+  const std::size_t bodies = im.bodies.size();
+  if (state.size() != 4 + kPerBody * (bodies + 2) + 2 * kPerGrip || state[0] != kStateMagic ||
+      state[1] != static_cast<double>(bodies)) {
+    return false;
+  }
+  for (double x : state) {
+    if (!std::isfinite(x)) return false;
+  }
+  time_s_ = state[2];
+  pinch_n_ = state[3];
+  const double* p = state.data() + 4;
+  for (std::size_t i = 0; i < bodies; ++i, p += kPerBody) {
+    if (im.bodies[i]->getInvMass() != 0.0) restoreBody(*im.bodies[i], p);
+  }
+  for (auto& sp : im.spheres) {
+    restoreBody(*sp, p);
+    p += kPerBody;
+  }
+  for (int k = 0; k < 2; ++k, p += kPerGrip) {
+    Impl::Grip& g = im.grips[k];
+    if (g.rows) im.world.removeConstraint(g.rows.get());
+    g = {};
+    const int bone = static_cast<int>(p[0]);
+    if (bone < 0 || static_cast<std::size_t>(bone) >= bodies) continue;
+    g.bone = im.bodies[static_cast<std::size_t>(bone)].get();
+    g.anchor_local = Vec3(p[1], p[2], p[3]);
+    g.normal = Vec3(p[4], p[5], p[6]);
+    g.normal_n = p[7];
+    g.rows = std::make_unique<PadGrip>(*im.spheres[k], *g.bone);
+    im.world.addConstraint(g.rows.get(), false);
+  }
+  for (std::size_t i = 0; i < bodies; ++i) im.wakeChain(static_cast<int>(i));
+  return true;
 }
 
 Vec3 HandSim::mcpAngles() const {

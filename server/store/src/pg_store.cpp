@@ -78,6 +78,28 @@ CREATE TABLE trials (
   PRIMARY KEY (session_id, idx));
 )sql";
 
+// Schema 6's tables: a pool of servers on one record (docs/pool.md), times on the database's
+// own clock (every server asks it, so the hosts' clocks need not agree).
+constexpr const char* kPoolTables = R"sql(
+CREATE TABLE pool_servers (
+  server TEXT PRIMARY KEY, lease_until_ns BIGINT NOT NULL, started_ns BIGINT NOT NULL);
+CREATE TABLE session_owners (
+  session_id BIGINT PRIMARY KEY, server TEXT NOT NULL, since_ns BIGINT NOT NULL);
+CREATE TABLE pool_opens (
+  open_key TEXT PRIMARY KEY, server TEXT NOT NULL, at_ns BIGINT NOT NULL,
+  session_id BIGINT NOT NULL DEFAULT 0);
+CREATE TABLE checkpoints (
+  session_id BIGINT PRIMARY KEY, seq BIGINT NOT NULL, time_ns BIGINT NOT NULL,
+  data BYTEA NOT NULL);
+)sql";
+constexpr int kTakeoverSchemaVersion = 5;  // schema 5: the same without the pool's tables
+constexpr const char* kPoolTableNames[] = {"checkpoints", "pool_opens", "pool_servers",
+                                           "session_owners"};
+/// The record's clock, ns since the epoch.
+constexpr const char* kNowSql = "(extract(epoch from clock_timestamp()) * 1e9)::bigint";
+/// pool_* transactions take this advisory lock: claims and assignments one at a time.
+constexpr int64_t kPoolLockId = 0x54484E44504F4F4C;  // "THNDPOOL"
+
 /// Every table of the current schema; telehand_schema marks it.
 constexpr const char* kTables[] = {"events", "explorations",   "lesson_runs",   "lessons",
                                    "meta",   "samples",        "session_files", "sessions",
@@ -487,7 +509,10 @@ PgStore::PgStore(const std::string& uri, Mode mode)
                          "' is not a telehand record database (its schema is empty)");
       }
       createSchema();
+    } else if (layout == Layout::kTakeover && mode_ == Mode::kReadWrite) {
+      createSchema();  // schema 5 -> 6
     }
+    pool_tables_ = layout != Layout::kTakeover || mode_ == Mode::kReadWrite;
   } catch (...) {
     PQfinish(conn_);
     throw;
@@ -592,6 +617,12 @@ PgStore::Layout PgStore::inspect() {
   for (const char* n : kTables) {
     if (!has(n)) missing += (missing.empty() ? "" : ", ") + std::string(n);
   }
+  if (version == kTakeoverSchemaVersion && missing.empty()) return Layout::kTakeover;
+  if (version == kSchemaVersion) {
+    for (const char* n : kPoolTableNames) {
+      if (!has(n)) missing += (missing.empty() ? "" : ", ") + std::string(n);
+    }
+  }
   if (version != kSchemaVersion || !missing.empty()) {
     throw StoreError("'" + location_ + "' carries the telehand marker but schema " +
                      std::to_string(version) +
@@ -609,8 +640,15 @@ void PgStore::createSchema() {
   db.script("BEGIN");
   try {
     db.run("SELECT pg_advisory_xact_lock($1)", {int8Param(kApplicationId)});
-    if (inspect() == Layout::kEmpty) {
+    const Layout layout = inspect();
+    if (layout == Layout::kTakeover) {
+      db.script(kPoolTables);
+      db.run("UPDATE telehand_schema SET version = $1", {int4Param(kSchemaVersion)});
+      spdlog::info("record database '{}': schema {} -> {} (a pool of servers on one record)",
+                   location_, kTakeoverSchemaVersion, kSchemaVersion);
+    } else if (layout == Layout::kEmpty) {
       db.script(kOtherTables);
+      db.script(kPoolTables);
       db.script(samplesTableSql().c_str());
       db.script(
           "CREATE TABLE telehand_schema (application_id BIGINT NOT NULL, version INTEGER NOT "
@@ -1075,6 +1113,195 @@ std::vector<TrialRecord> PgStore::trials(uint64_t session_id) {
     out.push_back(std::move(t));
   }
   return out;
+}
+
+// ---- Pool (docs/pool.md) --------------------------------------------------------------------
+
+namespace {
+/// Orphans: sessions still open whose owner's lease ran out, or which have had no owner for
+/// 5 s (a session is created a moment before its creator claims it).
+const std::string kOrphansSql =
+    std::string(
+        "SELECT s.id FROM sessions s LEFT JOIN session_owners o ON o.session_id = s.id "
+        "LEFT JOIN pool_servers p ON p.server = o.server, (SELECT ") +
+    kNowSql +
+    " AS t) now WHERE s.state IN ('active', 'suspended') AND "
+    "((o.server IS NULL AND s.started_ns < now.t - 5000000000) OR "
+    "(o.server IS NOT NULL AND (p.lease_until_ns IS NULL OR p.lease_until_ns < now.t))) "
+    "ORDER BY s.id";
+const std::string kMembersSql =
+    std::string(
+        "SELECT p.server, p.lease_until_ns, "
+        "(SELECT count(*) FROM session_owners o JOIN sessions s ON s.id = o.session_id "
+        " WHERE o.server = p.server AND s.state IN ('active', 'suspended')) + "
+        "(SELECT count(*) FROM pool_opens q WHERE q.server = p.server AND q.session_id = "
+        "0 AND q.at_ns > now.t - 10000000000) AS load FROM pool_servers p, (SELECT ") +
+    kNowSql + " AS t) now WHERE p.lease_until_ns >= now.t ORDER BY load, p.server";
+}  // namespace
+
+std::vector<uint64_t> PgStore::poolHeartbeat(const std::string& server, uint64_t sessions,
+                                             int64_t lease_ns) {
+  (void)sessions;  // the load is counted from the owners, not taken on a server's word
+  std::lock_guard lock(mutex_);
+  connect();
+  Db db(conn_, location_);
+  db.run((std::string("INSERT INTO pool_servers (server, lease_until_ns, started_ns) SELECT $1, "
+                      "t + $2, t FROM (SELECT ") +
+          kNowSql +
+          " AS t) now ON CONFLICT (server) DO UPDATE SET lease_until_ns = "
+          "excluded.lease_until_ns")
+             .c_str(),
+         {textParam(server), int8Param(lease_ns)});
+  const Result r = db.run(
+      "SELECT o.session_id FROM session_owners o JOIN sessions s ON s.id = o.session_id "
+      "WHERE o.server = $1 AND s.state IN ('active', 'suspended') ORDER BY o.session_id",
+      {textParam(server)});
+  std::vector<uint64_t> out;
+  for (int i = 0; i < r.rows(); ++i) out.push_back(static_cast<uint64_t>(r.integer(i, 0)));
+  return out;
+}
+
+void PgStore::poolLeave(const std::string& server) {
+  std::lock_guard lock(mutex_);
+  connect();
+  Db(conn_, location_).run("DELETE FROM pool_servers WHERE server = $1", {textParam(server)});
+}
+
+std::vector<PoolMember> PgStore::poolMembers() {
+  if (!pool_tables_) return {};  // a read-only record of schema 5
+  std::lock_guard lock(mutex_);
+  connect();
+  const Result r = Db(conn_, location_).run(kMembersSql.c_str());
+  std::vector<PoolMember> out;
+  for (int i = 0; i < r.rows(); ++i) {
+    out.push_back({r.text(i, 0), static_cast<uint64_t>(r.integer(i, 2)), r.integer(i, 1)});
+  }
+  return out;
+}
+
+std::string PgStore::poolAssign(const std::string& open_key) {
+  std::lock_guard lock(mutex_);
+  connect();
+  Db db(conn_, location_);
+  db.script("BEGIN");
+  try {
+    db.run("SELECT pg_advisory_xact_lock($1)", {int8Param(kPoolLockId)});
+    std::string server;
+    const Result m = db.run(kMembersSql.c_str());
+    const Result had = db.run("SELECT server, session_id FROM pool_opens WHERE open_key = $1",
+                              {textParam(open_key)});
+    bool keep = false;
+    if (had.rows() > 0) {
+      // Assigned before: that answer, unless its server's lease ran out before it made the
+      // session (then the OPEN, asked again, goes to a live one).
+      server = had.text(0, 0);
+      keep = had.integer(0, 1) != 0;
+      for (int i = 0; i < m.rows() && !keep; ++i) keep = m.text(i, 0) == server;
+    }
+    if (!keep) {
+      if (m.rows() == 0) {
+        throw StoreError("no server of the pool on " + location_ + " holds a lease");
+      }
+      server = m.text(0, 0);
+      db.run((std::string("INSERT INTO pool_opens (open_key, server, at_ns) VALUES ($1, $2, ") +
+              kNowSql +
+              ") ON CONFLICT (open_key) DO UPDATE SET server = excluded.server, at_ns = "
+              "excluded.at_ns")
+                 .c_str(),
+             {textParam(open_key), textParam(server)});
+      db.run((std::string("DELETE FROM pool_opens WHERE at_ns < ") + kNowSql + " - 3600000000000")
+                 .c_str());
+    }
+    db.script("COMMIT");
+    return server;
+  } catch (...) {
+    PQclear(PQexec(conn_, "ROLLBACK"));
+    throw;
+  }
+}
+
+PoolClaim PgStore::poolClaim(uint64_t session_id, const std::string& server,
+                             const std::string& open_key) {
+  std::lock_guard lock(mutex_);
+  connect();
+  Db db(conn_, location_);
+  db.script("BEGIN");
+  try {
+    db.run("SELECT pg_advisory_xact_lock($1)", {int8Param(kPoolLockId)});
+    PoolClaim c;
+    c.now_ns = db.run((std::string("SELECT ") + kNowSql).c_str()).integer(0, 0);
+    const Param id = int8Param(static_cast<int64_t>(session_id));
+    const Result o = db.run(
+        "SELECT o.server, p.lease_until_ns FROM session_owners o LEFT JOIN pool_servers p ON "
+        "p.server = o.server WHERE o.session_id = $1",
+        {id});
+    const bool owned = o.rows() > 0;
+    if (owned) {
+      c.previous = o.text(0, 0);
+      c.previous_lease_until_ns = o.integer(0, 1);
+    }
+    if (!(owned && c.previous != server && c.previous_lease_until_ns >= c.now_ns)) {
+      if (!owned || c.previous != server) {
+        db.run(
+            "INSERT INTO session_owners (session_id, server, since_ns) VALUES ($1, $2, $3) "
+            "ON CONFLICT (session_id) DO UPDATE SET server = excluded.server, "
+            "since_ns = excluded.since_ns",
+            {id, textParam(server), int8Param(c.now_ns)});
+      }
+      if (!open_key.empty()) {
+        db.run("UPDATE pool_opens SET session_id = $1 WHERE open_key = $2",
+               {id, textParam(open_key)});
+      }
+      c.won = true;
+    }
+    db.script("COMMIT");
+    return c;
+  } catch (...) {
+    PQclear(PQexec(conn_, "ROLLBACK"));
+    throw;
+  }
+}
+
+std::vector<uint64_t> PgStore::poolOrphans() {
+  std::lock_guard lock(mutex_);
+  connect();
+  const Result r = Db(conn_, location_).run(kOrphansSql.c_str());
+  std::vector<uint64_t> out;
+  for (int i = 0; i < r.rows(); ++i) out.push_back(static_cast<uint64_t>(r.integer(i, 0)));
+  return out;
+}
+
+std::string PgStore::poolOwner(uint64_t session_id) {
+  if (!pool_tables_) return {};  // a read-only record of schema 5
+  std::lock_guard lock(mutex_);
+  connect();
+  const Result r = Db(conn_, location_)
+                       .run("SELECT server FROM session_owners WHERE session_id = $1",
+                            {int8Param(static_cast<int64_t>(session_id))});
+  return r.rows() > 0 ? r.text(0, 0) : std::string();
+}
+
+void PgStore::putCheckpoint(uint64_t session_id, const Checkpoint& c) {
+  std::lock_guard lock(mutex_);
+  connect();
+  Db(conn_, location_)
+      .run(
+          "INSERT INTO checkpoints (session_id, seq, time_ns, data) VALUES ($1, $2, $3, $4) "
+          "ON CONFLICT (session_id) DO UPDATE SET seq = excluded.seq, time_ns = "
+          "excluded.time_ns, data = excluded.data",
+          {int8Param(static_cast<int64_t>(session_id)), int8Param(clampSeq(c.seq)),
+           int8Param(c.time_ns), byteaParam(c.data)});
+}
+
+std::optional<Checkpoint> PgStore::checkpoint(uint64_t session_id) {
+  if (!pool_tables_) return std::nullopt;  // a read-only record of schema 5
+  std::lock_guard lock(mutex_);
+  connect();
+  const Result r = Db(conn_, location_)
+                       .run("SELECT seq, time_ns, data FROM checkpoints WHERE session_id = $1",
+                            {int8Param(static_cast<int64_t>(session_id))});
+  if (r.rows() == 0) return std::nullopt;
+  return Checkpoint{static_cast<uint64_t>(r.integer(0, 0)), r.integer(0, 1), r.text(0, 2)};
 }
 
 }  // namespace telehand::server::store

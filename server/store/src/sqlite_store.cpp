@@ -12,6 +12,7 @@
 #include <type_traits>
 
 #include "sample_fields.h"
+#include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 
 namespace telehand::server::store {
@@ -31,7 +32,8 @@ using detail::visitFields;
 // schema 4 adds lessons, lesson runs and their trials (docs/lessons.md); schema 5 whether a
 // lesson lets a supervisor take over its demonstration (lessons.takeover).
 constexpr int32_t kApplicationId = 0x54484E44;  // "THND"
-constexpr int kSchemaVersion = 5;
+constexpr int kSchemaVersion = 6;
+constexpr int kTakeoverSchemaVersion = 5;
 constexpr int kLessonSchemaVersion = 4;
 constexpr int kOwnerSchemaVersion = 3;
 constexpr int kColumnSchemaVersion = 2;
@@ -80,6 +82,21 @@ CREATE TABLE IF NOT EXISTS trials (
   authority REAL NOT NULL, first_seq INTEGER NOT NULL, last_seq INTEGER NOT NULL,
   overall REAL NOT NULL, figures TEXT NOT NULL,
   PRIMARY KEY (session_id, idx));
+)sql";
+
+// Schema 6's tables: a pool of servers on one record (addPoolTables() adds them to an older
+// file). Times on the record's clock (for an SQLite file, the host's wall clock).
+constexpr const char* kPoolTables = R"sql(
+CREATE TABLE IF NOT EXISTS pool_servers (
+  server TEXT PRIMARY KEY, lease_until_ns INTEGER NOT NULL, started_ns INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS session_owners (
+  session_id INTEGER PRIMARY KEY, server TEXT NOT NULL, since_ns INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS pool_opens (
+  open_key TEXT PRIMARY KEY, server TEXT NOT NULL, at_ns INTEGER NOT NULL,
+  session_id INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE IF NOT EXISTS checkpoints (
+  session_id INTEGER PRIMARY KEY, seq INTEGER NOT NULL, time_ns INTEGER NOT NULL,
+  data BLOB NOT NULL);
 )sql";
 
 /// Integer fields are INTEGER NOT NULL; floating-point ones REAL, NULL standing for NaN
@@ -279,6 +296,9 @@ SqliteStore::Layout SqliteStore::inspect() {
     if (version == kLessonSchemaVersion && has("samples") && has("sessions") && has("lessons")) {
       return Layout::kLessons;
     }
+    if (version == kTakeoverSchemaVersion && has("samples") && has("lessons")) {
+      return Layout::kTakeover;
+    }
     if (version != kSchemaVersion || !has("samples")) {
       throw StoreError("'" + path_ + "' carries the telehand marker but schema " +
                        std::to_string(version) +
@@ -350,6 +370,7 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
         if (layout == Layout::kEmpty) {
           exec(kOtherTables);
           exec(kLessonTables);
+          exec(kPoolTables);
           exec(samplesTableSql().c_str());
           exec(("PRAGMA application_id = " + std::to_string(kApplicationId) + ";").c_str());
           exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
@@ -358,15 +379,21 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
           addOwnerColumn();
           addLessonTables();
           addTakeoverColumn();
+          addPoolTables();
         } else if (layout == Layout::kColumns) {
           addOwnerColumn();
           addLessonTables();
           addTakeoverColumn();
+          addPoolTables();
         } else if (layout == Layout::kOwner) {
           addLessonTables();
           addTakeoverColumn();
+          addPoolTables();
         } else if (layout == Layout::kLessons) {
           addTakeoverColumn();
+          addPoolTables();
+        } else if (layout == Layout::kTakeover) {
+          addPoolTables();
         }
         exec("COMMIT");
       } catch (...) {
@@ -412,9 +439,18 @@ void SqliteStore::addTakeoverColumn() {
   if (!hasTakeoverColumn()) {
     exec("ALTER TABLE lessons ADD COLUMN takeover INTEGER NOT NULL DEFAULT 0;");
   }
-  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  exec(("PRAGMA user_version = " + std::to_string(kTakeoverSchemaVersion) + ";").c_str());
   spdlog::info("record database '{}': schema {} -> {} (lessons may allow a take-over)", path_,
-               kLessonSchemaVersion, kSchemaVersion);
+               kLessonSchemaVersion, kTakeoverSchemaVersion);
+}
+
+/// Schema 5 -> 6 inside the caller's transaction: the pool's tables, empty (the sessions
+/// recorded before have no owner in them; a pool takes them on as it takes orphans).
+void SqliteStore::addPoolTables() {
+  exec(kPoolTables);
+  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  spdlog::info("record database '{}': schema {} -> {} (a pool of servers on one record)", path_,
+               kTakeoverSchemaVersion, kSchemaVersion);
 }
 
 bool SqliteStore::hasOwnerColumn() {
@@ -870,6 +906,209 @@ std::vector<EventRecord> SqliteStore::events(uint64_t session_id) {
   std::vector<EventRecord> out;
   while (st.step()) out.push_back({sqlite3_column_int64(st.get(), 0), st.text(1), st.text(2)});
   return out;
+}
+
+// ---- Pool (docs/pool.md) --------------------------------------------------------------------
+// The record's clock for an SQLite file is the host's wall clock: the servers sharing one file
+// run on one machine.
+
+template <class F>
+auto SqliteStore::transaction(F&& fn) {
+  exec("BEGIN IMMEDIATE");
+  try {
+    if constexpr (std::is_void_v<decltype(fn())>) {
+      fn();
+      exec("COMMIT");
+    } else {
+      auto r = fn();
+      exec("COMMIT");
+      return r;
+    }
+  } catch (...) {
+    sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+    throw;
+  }
+}
+
+namespace {
+void bindText(sqlite3_stmt* st, int i, const std::string& v) {
+  sqlite3_bind_text(st, i, v.c_str(), -1, SQLITE_TRANSIENT);
+}
+void bindInt(sqlite3_stmt* st, int i, int64_t v) { sqlite3_bind_int64(st, i, v); }
+
+/// Orphans: sessions still open whose owner's lease ran out, or which have had no owner for
+/// 5 s (a session is created a moment before its creator claims it).
+constexpr const char* kOrphansSql =
+    "SELECT s.id FROM sessions s LEFT JOIN session_owners o ON o.session_id = s.id "
+    "LEFT JOIN pool_servers p ON p.server = o.server "
+    "WHERE s.state IN ('active', 'suspended') AND "
+    "((o.server IS NULL AND s.started_ns < ?1 - 5000000000) OR "
+    "(o.server IS NOT NULL AND (p.lease_until_ns IS NULL OR p.lease_until_ns < ?1))) "
+    "ORDER BY s.id";
+/// Members whose lease runs, least loaded first.
+constexpr const char* kMembersSql =
+    "SELECT p.server, p.lease_until_ns, "
+    "(SELECT count(*) FROM session_owners o JOIN sessions s ON s.id = o.session_id "
+    " WHERE o.server = p.server AND s.state IN ('active', 'suspended')) + "
+    "(SELECT count(*) FROM pool_opens q WHERE q.server = p.server AND q.session_id = 0 "
+    " AND q.at_ns > ?1 - 10000000000) AS load "
+    "FROM pool_servers p WHERE p.lease_until_ns >= ?1 ORDER BY load, p.server";
+}  // namespace
+
+std::vector<uint64_t> SqliteStore::poolHeartbeat(const std::string& server, uint64_t sessions,
+                                                 int64_t lease_ns) {
+  (void)sessions;  // the load is counted from the owners, not taken on a server's word
+  return transaction([&] {
+    const int64_t now = wallNs();
+    {
+      Statement st(db_,
+                   "INSERT INTO pool_servers (server, lease_until_ns, started_ns) VALUES (?,?,?) "
+                   "ON CONFLICT(server) DO UPDATE SET lease_until_ns = excluded.lease_until_ns");
+      bindText(st.get(), 1, server);
+      bindInt(st.get(), 2, now + lease_ns);
+      bindInt(st.get(), 3, now);
+      st.step();
+    }
+    Statement st(db_,
+                 "SELECT o.session_id FROM session_owners o JOIN sessions s ON s.id = "
+                 "o.session_id WHERE o.server = ? AND s.state IN ('active', 'suspended') "
+                 "ORDER BY o.session_id");
+    bindText(st.get(), 1, server);
+    std::vector<uint64_t> out;
+    while (st.step()) out.push_back(static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0)));
+    return out;
+  });
+}
+
+void SqliteStore::poolLeave(const std::string& server) {
+  Statement st(db_, "DELETE FROM pool_servers WHERE server = ?");
+  bindText(st.get(), 1, server);
+  st.step();
+}
+
+std::vector<PoolMember> SqliteStore::poolMembers() {
+  std::vector<PoolMember> out;
+  if (!hasTable("pool_servers")) return out;  // a read-only file of an older schema
+  Statement st(db_, kMembersSql);
+  bindInt(st.get(), 1, wallNs());
+  while (st.step()) {
+    out.push_back({st.text(0), static_cast<uint64_t>(sqlite3_column_int64(st.get(), 2)),
+                   sqlite3_column_int64(st.get(), 1)});
+  }
+  return out;
+}
+
+std::string SqliteStore::poolAssign(const std::string& open_key) {
+  return transaction([&] {
+    const auto members = poolMembers();
+    {
+      // Assigned before: that answer, unless its server's lease ran out before it made the
+      // session (then the OPEN, asked again, goes to a live one).
+      Statement st(db_, "SELECT server, session_id FROM pool_opens WHERE open_key = ?");
+      bindText(st.get(), 1, open_key);
+      if (st.step()) {
+        const std::string had = st.text(0);
+        const bool alive = std::any_of(members.begin(), members.end(),
+                                       [&](const PoolMember& m) { return m.server == had; });
+        if (alive || sqlite3_column_int64(st.get(), 1) != 0) return had;
+      }
+    }
+    if (members.empty()) {
+      throw StoreError("no server of the pool on " + path_ + " holds a lease");
+    }
+    const int64_t now = wallNs();
+    Statement st(
+        db_,
+        "INSERT INTO pool_opens (open_key, server, at_ns) VALUES (?,?,?) ON "
+        "CONFLICT(open_key) DO UPDATE SET server = excluded.server, at_ns = excluded.at_ns");
+    bindText(st.get(), 1, open_key);
+    bindText(st.get(), 2, members.front().server);
+    bindInt(st.get(), 3, now);
+    st.step();
+    Statement prune(db_, "DELETE FROM pool_opens WHERE at_ns < ?");  // OPENs of an hour ago
+    bindInt(prune.get(), 1, now - int64_t{3600} * 1'000'000'000);
+    prune.step();
+    return members.front().server;
+  });
+}
+
+PoolClaim SqliteStore::poolClaim(uint64_t session_id, const std::string& server,
+                                 const std::string& open_key) {
+  return transaction([&] {
+    PoolClaim c;
+    c.now_ns = wallNs();
+    bool owned = false;
+    {
+      Statement st(db_,
+                   "SELECT o.server, p.lease_until_ns FROM session_owners o LEFT JOIN "
+                   "pool_servers p ON p.server = o.server WHERE o.session_id = ?");
+      bindInt(st.get(), 1, static_cast<int64_t>(session_id));
+      if (st.step()) {
+        owned = true;
+        c.previous = st.text(0);
+        c.previous_lease_until_ns = sqlite3_column_int64(st.get(), 1);
+      }
+    }
+    if (owned && c.previous != server && c.previous_lease_until_ns >= c.now_ns) return c;
+    if (!owned || c.previous != server) {
+      Statement st(db_,
+                   "INSERT INTO session_owners (session_id, server, since_ns) VALUES (?,?,?) "
+                   "ON CONFLICT(session_id) DO UPDATE SET server = excluded.server, "
+                   "since_ns = excluded.since_ns");
+      bindInt(st.get(), 1, static_cast<int64_t>(session_id));
+      bindText(st.get(), 2, server);
+      bindInt(st.get(), 3, c.now_ns);
+      st.step();
+    }
+    if (!open_key.empty()) {
+      Statement st(db_, "UPDATE pool_opens SET session_id = ? WHERE open_key = ?");
+      bindInt(st.get(), 1, static_cast<int64_t>(session_id));
+      bindText(st.get(), 2, open_key);
+      st.step();
+    }
+    c.won = true;
+    return c;
+  });
+}
+
+std::vector<uint64_t> SqliteStore::poolOrphans() {
+  Statement st(db_, kOrphansSql);
+  bindInt(st.get(), 1, wallNs());
+  std::vector<uint64_t> out;
+  while (st.step()) out.push_back(static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0)));
+  return out;
+}
+
+std::string SqliteStore::poolOwner(uint64_t session_id) {
+  if (!hasTable("session_owners")) return {};
+  Statement st(db_, "SELECT server FROM session_owners WHERE session_id = ?");
+  bindInt(st.get(), 1, static_cast<int64_t>(session_id));
+  return st.step() ? st.text(0) : std::string();
+}
+
+void SqliteStore::putCheckpoint(uint64_t session_id, const Checkpoint& c) {
+  Statement st(db_,
+               "INSERT INTO checkpoints (session_id, seq, time_ns, data) VALUES (?,?,?,?) "
+               "ON CONFLICT(session_id) DO UPDATE SET seq = excluded.seq, "
+               "time_ns = excluded.time_ns, data = excluded.data");
+  bindInt(st.get(), 1, static_cast<int64_t>(session_id));
+  bindInt(st.get(), 2, static_cast<int64_t>(c.seq));
+  bindInt(st.get(), 3, c.time_ns);
+  sqlite3_bind_blob(st.get(), 4, c.data.data(), static_cast<int>(c.data.size()), SQLITE_TRANSIENT);
+  st.step();
+}
+
+std::optional<Checkpoint> SqliteStore::checkpoint(uint64_t session_id) {
+  if (!hasTable("checkpoints")) return std::nullopt;
+  Statement st(db_, "SELECT seq, time_ns, data FROM checkpoints WHERE session_id = ?");
+  bindInt(st.get(), 1, static_cast<int64_t>(session_id));
+  if (!st.step()) return std::nullopt;
+  Checkpoint c;
+  c.seq = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0));
+  c.time_ns = sqlite3_column_int64(st.get(), 1);
+  const auto* b = static_cast<const char*>(sqlite3_column_blob(st.get(), 2));
+  c.data.assign(b ? b : "", static_cast<std::size_t>(sqlite3_column_bytes(st.get(), 2)));
+  return c;
 }
 
 }  // namespace telehand::server::store

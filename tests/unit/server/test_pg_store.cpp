@@ -56,10 +56,10 @@ TEST_F(PgStoreTest, TheSchemaIsMarkedAndHasTheSqliteColumns) {
   { PgStore store(uri()); }
   EXPECT_EQ(value("SELECT application_id FROM " + table("telehand_schema")),
             std::to_string(0x54484E44));
-  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "5");
+  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "6");
   EXPECT_EQ(value("SELECT count(*) FROM " + table("telehand_schema")), "1");
   EXPECT_THAT(value("SELECT obj_description('" + table("telehand_schema") + "'::regclass)"),
-              HasSubstr("telehand session records, schema 5"));
+              HasSubstr("telehand session records, schema 6"));
   std::string want = "session_id";
   for (const auto& c : sampleColumns()) want += "," + c;
   EXPECT_EQ(value("SELECT string_agg(column_name, ',' ORDER BY ordinal_position) FROM "
@@ -105,7 +105,7 @@ TEST_F(PgStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
     } catch (const StoreError& e) {
       EXPECT_THAT(e.what(), HasSubstr(uri()));
       EXPECT_THAT(e.what(), HasSubstr("was written by a newer telehand (schema 9, this program "
-                                      "knows up to 5); it was left untouched"));
+                                      "knows up to 6); it was left untouched"));
     }
   }
   EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "9");
@@ -128,6 +128,30 @@ TEST_F(PgStoreTest, RefusesAnotherProgramsTablesAndLeavesThemUntouched) {
   EXPECT_EQ(value("SELECT x FROM " + table("samples")), "42");
   EXPECT_EQ(value("SELECT count(*) FROM pg_tables WHERE schemaname = '" + schema_ + "'"), "1")
       << "nothing created beside it";
+}
+
+// Schema 5 (before the pool): a reader reads it as it is, a writer adds the pool's tables.
+TEST_F(PgStoreTest, ASchema5RecordGainsThePoolTables) {
+  uint64_t id = 0;
+  {
+    PgStore store(uri());
+    id = store.createSession({});
+  }
+  sql("DROP TABLE " + table("pool_servers") + ", " + table("session_owners") + ", " +
+      table("pool_opens") + ", " + table("checkpoints"));
+  sql("UPDATE " + table("telehand_schema") + " SET version = 5");
+  {
+    PgStore reader(uri(), SessionStore::Mode::kReadOnly);
+    EXPECT_TRUE(reader.session(id).has_value());
+    EXPECT_EQ(reader.poolOwner(id), "");
+    EXPECT_FALSE(reader.checkpoint(id).has_value());
+    EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "5")
+        << "a reader changes nothing";
+  }
+  PgStore store(uri());
+  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "6");
+  EXPECT_TRUE(store.poolClaim(id, "a").won);
+  EXPECT_EQ(store.poolOwner(id), "a");
 }
 
 TEST_F(PgStoreTest, RefusesAMarkerThatIsNotTelehandsOrLacksTheTables) {

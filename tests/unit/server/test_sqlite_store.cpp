@@ -174,7 +174,7 @@ TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) 
   EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'flags'"),
             std::vector<std::string>{"INTEGER"});
   EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
 }
 
 // ---- Schema 1: one blob per sample, the C struct's bytes (x86-64, little-endian) ----------
@@ -360,7 +360,7 @@ TEST_F(SqliteStoreTest, MigratesASchema1BlobFileInPlace) {
   }
   {
     RawDb raw(dbPath());
-    EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
     EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
     EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name LIKE 'samples_%'"), 0)
         << "old table dropped";
@@ -419,7 +419,7 @@ TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
       EXPECT_THAT(e.what(), HasSubstr(dbPath()));
       EXPECT_THAT(
           e.what(),
-          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 5)"));
+          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 6)"));
     }
     EXPECT_EQ(fileBytes(dbPath()), before);
     if (mode == SqliteStore::Mode::kReadWrite) {
@@ -492,7 +492,7 @@ TEST_F(SqliteStoreTest, SessionsKeepTheirOwnerAndSchemaTwoFilesGainTheColumn) {
     EXPECT_EQ(writer.session(writer.createSession(c))->owner, "carol's participant");
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
   EXPECT_EQ(raw.integer("SELECT count(*) FROM sessions WHERE owner = ''"), 2);
 }
 
@@ -569,7 +569,7 @@ TEST_F(SqliteStoreTest, SchemaThreeFilesGainLessonsAndKeepThem) {
             samples(run, 49, 50)[0].source_time_ns - samples(run, 0, 1)[0].source_time_ns);
   EXPECT_FALSE(store.extent(run + 100).has_value());
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
 }
 
 TEST_F(SqliteStoreTest, SchemaFourFilesLearnWhichLessonsAllowATakeOver) {
@@ -597,7 +597,7 @@ TEST_F(SqliteStoreTest, SchemaFourFilesLearnWhichLessonsAllowATakeOver) {
     RawDb raw(dbPath());
     EXPECT_EQ(raw.integer("PRAGMA user_version"), 4) << "a reader changes nothing";
   }
-  SqliteStore store(dbPath());  // migrates 4 -> 5
+  SqliteStore store(dbPath());  // migrates 4 -> 6
   EXPECT_FALSE(store.lesson(old_id)->takeover) << "a lesson made before allows none";
   l.name = "after";
   l.takeover = true;
@@ -605,7 +605,7 @@ TEST_F(SqliteStoreTest, SchemaFourFilesLearnWhichLessonsAllowATakeOver) {
   EXPECT_TRUE(store.lesson(id)->takeover);
   EXPECT_EQ(store.listLessons().back().name, "after");
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
 }
 
 TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
@@ -617,7 +617,7 @@ TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
     EXPECT_EQ(store.appendSamples(id, samples(id, 0, 2), {}), 2u);
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 5);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
 }
 
 // ---- CSV ----------------------------------------------------------------------------------

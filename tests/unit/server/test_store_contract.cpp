@@ -129,6 +129,64 @@ class SessionStoreTest : public ::testing::TestWithParam<Kind> {
   std::unique_ptr<Backend> backend_;
 };
 
+// A pool of servers on one record (docs/pool.md): leases, the least-loaded assignment of
+// OPENs, one owner per session, orphans, checkpoints.
+TEST_P(SessionStoreTest, APoolAssignsOpensToTheLeastLoadedAndGivesEachSessionOneOwner) {
+  auto store = this->open();
+  constexpr int64_t kMinute = 60'000'000'000;
+  EXPECT_TRUE(store->poolHeartbeat("a", 0, kMinute).empty());
+  EXPECT_TRUE(store->poolHeartbeat("b", 0, kMinute).empty());
+  ASSERT_EQ(store->poolMembers().size(), 2u);
+  EXPECT_EQ(store->poolAssign("open-1"), "a");  // a tie goes by name
+  EXPECT_EQ(store->poolAssign("open-1"), "a") << "an OPEN is assigned once";
+  EXPECT_EQ(store->poolAssign("open-2"), "b") << "a has an OPEN pending";
+  const uint64_t s1 = store->createSession(info("alice"));
+  const PoolClaim first = store->poolClaim(s1, "a", "open-1");
+  EXPECT_TRUE(first.won);
+  EXPECT_EQ(first.previous, "");
+  EXPECT_EQ(store->poolOwner(s1), "a");
+  EXPECT_FALSE(store->poolClaim(s1, "b").won) << "a's lease runs";
+  EXPECT_EQ(store->poolOwner(s1), "a");
+  EXPECT_EQ(store->poolHeartbeat("a", 1, kMinute), std::vector<uint64_t>{s1});
+  const auto members = store->poolMembers();
+  ASSERT_EQ(members.size(), 2u);
+  EXPECT_EQ(members[0].sessions + members[1].sessions, 2u) << "s1 and open-2";
+  // A session nobody owns (created long ago, e.g. by a server before the pool): an orphan.
+  const uint64_t s2 = store->createSession(info("bob"));
+  EXPECT_EQ(store->poolOrphans(), std::vector<uint64_t>{s2});
+  // a stops renewing: its lease runs out and its session becomes an orphan b may take.
+  store->poolHeartbeat("a", 1, -1'000'000);
+  const auto orphans = store->poolOrphans();
+  EXPECT_EQ(orphans, (std::vector<uint64_t>{s1, s2}));
+  const PoolClaim taken = store->poolClaim(s1, "b");
+  EXPECT_TRUE(taken.won);
+  EXPECT_EQ(taken.previous, "a");
+  EXPECT_LT(taken.previous_lease_until_ns, taken.now_ns);
+  EXPECT_FALSE(store->poolClaim(s1, "a").won) << "b's lease runs now";
+  EXPECT_TRUE(store->poolHeartbeat("a", 1, kMinute).empty()) << "a learns it lost s1";
+  EXPECT_EQ(store->poolHeartbeat("b", 1, kMinute), std::vector<uint64_t>{s1});
+  EXPECT_EQ(store->poolAssign("open-3"), "a") << "now the least loaded";
+  store->closeSession(s1, 1, 0, "closed");
+  EXPECT_TRUE(store->poolHeartbeat("b", 0, kMinute).empty()) << "a closed session is owned no more";
+  EXPECT_EQ(store->poolOrphans(), std::vector<uint64_t>{s2});
+  store->poolLeave("b");
+  ASSERT_EQ(store->poolMembers().size(), 1u);
+  EXPECT_EQ(store->poolMembers()[0].server, "a");
+  store->poolLeave("a");
+  EXPECT_THROW(store->poolAssign("open-4"), StoreError) << "no server holds a lease";
+
+  EXPECT_FALSE(store->checkpoint(s2).has_value());
+  std::string blob(3000, '\0');
+  for (std::size_t i = 0; i < blob.size(); ++i) blob[i] = static_cast<char>(i * 7);
+  store->putCheckpoint(s2, {41, 123, blob});
+  store->putCheckpoint(s2, {42, 456, blob + "x"});
+  const auto cp = store->checkpoint(s2);
+  ASSERT_TRUE(cp.has_value());
+  EXPECT_EQ(cp->seq, 42u);
+  EXPECT_EQ(cp->time_ns, 456);
+  EXPECT_EQ(cp->data, blob + "x");
+}
+
 INSTANTIATE_TEST_SUITE_P(Store, SessionStoreTest, ::testing::Values(Kind::kSqlite, Kind::kPostgres),
                          [](const ::testing::TestParamInfo<Kind>& p) {
                            return p.param == Kind::kSqlite ? "Sqlite" : "Postgres";
@@ -565,7 +623,7 @@ TEST_P(SessionStoreTest, RefusesANewerSchemaNamingTheRecord) {
       EXPECT_THAT(e.what(), HasSubstr(describeStore(this->spec())));
       EXPECT_THAT(
           e.what(),
-          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 5)"));
+          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 6)"));
     }
   }
   this->backend_->setSchemaVersion(5);

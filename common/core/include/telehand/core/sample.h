@@ -55,6 +55,43 @@ inline constexpr uint32_t kLoopOverrun = 1024;
 inline constexpr uint32_t kFsrFaultShift = 16;
 }  // namespace sample_flags
 
+/// Calls f(field) for every field of a sample except session_id, in the record's column
+/// order (the SQLite and PostgreSQL tables, their inserts and reads, the CSV export and the
+/// digest below all follow it). The one place that order is written down.
+template <class S, class F>
+void visitSampleFields(S& s, F&& f) {
+  f(s.seq);
+  f(s.source_time_ns);
+  f(s.model_version);
+  f(s.flags);
+  for (auto& v : s.mcp_angles_rad) f(v);
+  for (auto& v : s.mcp_torque_nm) f(v);
+  for (auto& finger : s.fingers) {
+    for (auto& v : finger.position_m) f(v);
+    for (auto& v : finger.orientation_q) f(v);
+    for (auto& v : finger.fsr_n) f(v);
+    f(finger.tangential_n);
+    f(finger.normal_n);
+    for (auto& v : finger.command_n) f(v);
+  }
+  f(s.passivity_energy_j);
+  f(s.passivity_damping);
+}
+
+/// A digest of a set of samples that does not depend on the order they came in: the count,
+/// and the sum (mod 2^64) of each sample's FNV-1a hash over its fields in
+/// visitSampleFields() order (every NaN hashed as one). A client's digest of what it sent
+/// and a record's digest of what it holds are equal when the record holds every sample,
+/// field for field (`telehand-client`'s summary, `telehand-records show`).
+struct SampleDigest {
+  uint64_t count = 0;
+  uint64_t sum = 0;
+  void add(const Sample& s) noexcept;
+  /// "N samples, digest 0123456789abcdef"
+  std::string text() const;
+  bool operator==(const SampleDigest&) const = default;
+};
+
 /// Names the first field of a sample that is not finite, or nullopt when all are.
 std::optional<std::string> firstNonFinite(const Sample& s);
 

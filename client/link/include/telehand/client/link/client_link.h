@@ -100,6 +100,10 @@ class ClientLink {
   void sendFiles(const std::vector<mf2::NamedFile>& files);
 
   const LinkStats& stats() const noexcept { return stats_; }
+  /// The digest of every sample handed to the record (core/sample.h SampleDigest): equal to
+  /// `telehand-records show`'s of the session when the record holds them all, field for
+  /// field. Read it after stop().
+  const SampleDigest& recordDigest() const noexcept { return record_digest_; }
   uint64_t sessionId() const noexcept { return session_id_; }
   uint64_t clientId() const noexcept { return client_id_; }
   /// Events for this session or client (errors from the server), formatted; drained on read.
@@ -170,6 +174,7 @@ class ClientLink {
   std::atomic<bool> running_{false};
   std::thread thread_;
   LinkStats stats_;
+  SampleDigest record_digest_;  // the link thread's
   std::mutex messages_mu_;
   std::vector<std::string> messages_;
   std::vector<std::string> scores_;  // under messages_mu_

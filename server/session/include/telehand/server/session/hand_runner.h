@@ -61,6 +61,13 @@ class HandRunner {
   /// Score and store the exploration phase under way, if any.
   void endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns);
 
+  /// The hand's state as a checkpoint (docs/pool.md): the Bullet hand's bodies, grips and
+  /// time, the HandState numbering and the treatment time, as bytes ('' without a hand).
+  std::string checkpoint() const;
+  /// Go on from a checkpoint() of a hand of the same model; false (nothing changed) when it
+  /// does not fit.
+  bool restore(const std::string& data);
+
   /// Time the pads pressed the joint (recovery).
   double treatmentS() const noexcept { return treatment_s_; }
   uint64_t published() const noexcept { return hand_seq_; }

@@ -80,6 +80,23 @@ class SessionManager {
   /// by several servers, PostgreSQL): sessions still active belong to a server that may be
   /// running; only suspended ones are taken.
   std::size_t recoverFromStore(int64_t now_ns, bool take_active = true);
+  /// Serve as one server of a pool sharing the record (docs/pool.md), named `server` in it:
+  /// the server renews its lease every kPoolHeartbeatNs, takes the OPENs the record assigns
+  /// it (the least loaded), checkpoints its sessions' hands every kCheckpointNs, takes over
+  /// the sessions of a server whose lease ran out (announcing them SUSPENDED, so that their
+  /// clients resume them here at once, the hand from its checkpoint), lets go of a session
+  /// another server took over, and keeps out of the other servers' sessions.
+  void joinPool(const std::string& server);
+  /// A server of a pool that stops: its lease ends at once (after closeAll()).
+  void leavePool();
+  bool pooled() const noexcept { return !pool_id_.empty(); }
+  const std::string& poolId() const noexcept { return pool_id_; }
+  static constexpr int64_t kPoolHeartbeatNs = 200'000'000;
+  static constexpr int64_t kPoolLeaseNs = 800'000'000;
+  static constexpr int64_t kCheckpointNs = 500'000'000;
+  /// Orphans one server claims per heartbeat: the others get their share of a dead one's.
+  static constexpr int kMaxClaimsPerBeat = 2;
+
   /// Sessions found in the record that wait for their client.
   std::size_t suspendedSessions() const noexcept { return suspended_.size(); }
 
@@ -139,6 +156,13 @@ class SessionManager {
   /// Error about a session id nobody opened, at most once per id per 5 s.
   void unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns);
   Session* find(uint64_t session_id);
+  /// Pool: heartbeat, let go of sessions lost, claim orphans, checkpoint hands.
+  void poolTick(int64_t now_ns);
+  /// Pool: a session this server just claimed from the record (its owner's lease ran out).
+  void takeOver(uint64_t session_id, const store::PoolClaim& claim, int64_t now_ns);
+  /// Pool: a session that no Session runs here and that this server does not wait for
+  /// belongs to another server of the pool; what comes for it is none of this one's business.
+  bool elsewhere(uint64_t session_id) const;
 
   SessionStore& store_;
   Outbox& out_;
@@ -161,6 +185,15 @@ class SessionManager {
   ManagerStats stats_;
   estimate::LiveRefitOptions refit_options_;
   sim::HandSimConfig hand_config_;
+  /// OPENs answered (sender, client id, request number -> session): a client asks again
+  /// until answered, and a repeat gets the session it made, not another one. Bounded.
+  std::map<std::string, uint64_t> answered_opens_;
+  std::vector<std::string> answered_order_;  // oldest first, for the bound
+  static constexpr std::size_t kMaxAnsweredOpens = 1024;
+  std::string pool_id_;  // '' : not in a pool
+  int64_t last_beat_ns_ = 0;
+  int64_t next_pool_ns_ = 0;
+  int64_t next_checkpoint_ns_ = 0;
   SessionContext ctx_;  // for the sessions' parts: the members above
 };
 

@@ -73,6 +73,13 @@ class HandSim {
   void resetMcp(const Vec3& angles_rad);
 
   void step();
+  /// What moves, as numbers: every bone's and sphere's pose and velocity, the pads' grips,
+  /// the squeeze and the time. A server keeps it as a session's checkpoint; another one,
+  /// with the same hand model, goes on from it (restoreState).
+  std::vector<double> saveState() const;
+  /// Go on from a saveState() of a hand of the same model; false, with nothing changed, when
+  /// the state does not fit this hand (another model, a truncated checkpoint).
+  bool restoreState(const std::vector<double>& state);
   double timeS() const noexcept { return time_s_; }
 
   /// MCP angles (flexion, abduction, axial), rates, and the passive torque applied last step.

@@ -39,7 +39,7 @@ namespace telehand::server::store {
 class PgStore final : public SessionStore {
  public:
   /// The schema version this program writes and reads (SQLite's user_version, the same).
-  static constexpr int kSchemaVersion = 5;
+  static constexpr int kSchemaVersion = 6;
 
   /// `uri`: libpq's connection URI, postgresql://[user[:password]@][host][:port][/dbname]
   /// [?param=value&...] (postgres:// too). StoreError naming the URI, without its password,
@@ -75,11 +75,22 @@ class PgStore final : public SessionStore {
   uint64_t sessionLesson(uint64_t session_id) override;
   void appendTrial(const TrialRecord& t) override;
   std::vector<TrialRecord> trials(uint64_t session_id) override;
+  std::vector<uint64_t> poolHeartbeat(const std::string& server, uint64_t sessions,
+                                      int64_t lease_ns) override;
+  void poolLeave(const std::string& server) override;
+  std::vector<PoolMember> poolMembers() override;
+  std::string poolAssign(const std::string& open_key) override;
+  PoolClaim poolClaim(uint64_t session_id, const std::string& server,
+                      const std::string& open_key = {}) override;
+  std::vector<uint64_t> poolOrphans() override;
+  std::string poolOwner(uint64_t session_id) override;
+  void putCheckpoint(uint64_t session_id, const Checkpoint& c) override;
+  std::optional<Checkpoint> checkpoint(uint64_t session_id) override;
   /// The URI with its password replaced by ***.
   std::string location() const override { return location_; }
 
  private:
-  enum class Layout { kEmpty, kCurrent };
+  enum class Layout { kEmpty, kTakeover, kCurrent };
   void connect();
   void prepare();
   Layout inspect();
@@ -100,7 +111,9 @@ class PgStore final : public SessionStore {
   static constexpr std::chrono::seconds kRetryPause{5};
   std::chrono::steady_clock::time_point retry_at_{};
   std::string last_error_;
-  bool prepared_ = false;  ///< the sample statements are prepared on this connection
+  bool prepared_ = false;
+  bool pool_tables_ = true;  ///< false: a read-only record of schema 5 (no pool tables)  ///< the
+                             ///< sample statements are prepared on this connection
 };
 
 /// `uri` with the password of its user part and any password parameter replaced by ***: what

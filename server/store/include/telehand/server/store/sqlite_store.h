@@ -49,10 +49,25 @@ class SqliteStore final : public SessionStore {
   uint64_t sessionLesson(uint64_t session_id) override;
   void appendTrial(const TrialRecord& t) override;
   std::vector<TrialRecord> trials(uint64_t session_id) override;
+  std::vector<uint64_t> poolHeartbeat(const std::string& server, uint64_t sessions,
+                                      int64_t lease_ns) override;
+  void poolLeave(const std::string& server) override;
+  std::vector<PoolMember> poolMembers() override;
+  std::string poolAssign(const std::string& open_key) override;
+  PoolClaim poolClaim(uint64_t session_id, const std::string& server,
+                      const std::string& open_key = {}) override;
+  std::vector<uint64_t> poolOrphans() override;
+  std::string poolOwner(uint64_t session_id) override;
+  void putCheckpoint(uint64_t session_id, const Checkpoint& c) override;
+  std::optional<Checkpoint> checkpoint(uint64_t session_id) override;
   std::string location() const override { return path_; }
 
  private:
-  enum class Layout { kEmpty, kBlob, kColumns, kOwner, kLessons, kCurrent };
+  enum class Layout { kEmpty, kBlob, kColumns, kOwner, kLessons, kTakeover, kCurrent };
+  void addPoolTables();
+  /// BEGIN IMMEDIATE ... COMMIT around fn (ROLLBACK when it throws).
+  template <class F>
+  auto transaction(F&& fn);
   Layout inspect();
   void migrateFromBlobs();
   void addOwnerColumn();

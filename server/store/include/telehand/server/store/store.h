@@ -74,6 +74,28 @@ struct TrialRecord {
   std::string figures;   ///< the scores, as server/lesson encodes them
 };
 
+/// A server of a pool sharing one record (docs/pool.md), as the record sees it.
+struct PoolMember {
+  std::string server;
+  uint64_t sessions = 0;       ///< sessions it owns that are active or suspended
+  int64_t lease_until_ns = 0;  ///< the record's clock
+};
+
+/// The outcome of a claim on a session (SessionStore::poolClaim).
+struct PoolClaim {
+  bool won = false;
+  std::string previous;                 ///< its owner before ('' : none)
+  int64_t previous_lease_until_ns = 0;  ///< when that owner's lease ran out (0: no lease)
+  int64_t now_ns = 0;                   ///< the record's clock at the claim
+};
+
+/// The last saved state of a session's hand (the server's checkpoint).
+struct Checkpoint {
+  uint64_t seq = 0;  ///< the last sample it had taken
+  int64_t time_ns = 0;
+  std::string data;
+};
+
 class SessionStore {
  public:
   /// Read-write: the record's schema is created (or brought up to date) on opening.
@@ -131,6 +153,38 @@ class SessionStore {
   virtual uint64_t sessionLesson(uint64_t session_id) = 0;
   virtual void appendTrial(const TrialRecord& t) = 0;
   virtual std::vector<TrialRecord> trials(uint64_t session_id) = 0;
+
+  // ---- A pool of servers on one record (docs/pool.md) -------------------------------------
+  // A server's lease is a row with a time on the record's own clock (PostgreSQL's for a
+  // shared database, the host's for an SQLite file several servers of one machine share);
+  // the sessions it owns live as long as it renews it. Every change is one transaction, so
+  // two servers never both win a session.
+
+  /// Renew `server`'s lease until the record's now + `lease_ns`, with its load; returns the
+  /// ids of the sessions the record says it owns (a server that was too slow to renew learns
+  /// here which of its sessions another one took over).
+  virtual std::vector<uint64_t> poolHeartbeat(const std::string& server, uint64_t sessions,
+                                              int64_t lease_ns) = 0;
+  /// A server that stops: its lease ends now (its sessions are suspended by then).
+  virtual void poolLeave(const std::string& server) = 0;
+  /// The servers whose lease runs, least loaded first (load: sessions owned that are active or
+  /// suspended, plus OPENs assigned to it in the last 10 s that made no session yet).
+  virtual std::vector<PoolMember> poolMembers() = 0;
+  /// Assign the OPEN `open_key` to the least-loaded server whose lease runs (ties: by name),
+  /// once: the first caller decides, later ones read the answer. Returns the server.
+  virtual std::string poolAssign(const std::string& open_key) = 0;
+  /// Make `server` the owner of `session_id` when nobody owns it, it does already, or its
+  /// owner's lease has run out; `open_key` (if any) is the OPEN that made the session.
+  virtual PoolClaim poolClaim(uint64_t session_id, const std::string& server,
+                              const std::string& open_key = {}) = 0;
+  /// Sessions active or suspended whose owner's lease has run out, or that have no owner.
+  virtual std::vector<uint64_t> poolOrphans() = 0;
+  /// The owner of a session ('' : none).
+  virtual std::string poolOwner(uint64_t session_id) = 0;
+  /// The hand's state of a session, replacing the one kept before.
+  virtual void putCheckpoint(uint64_t session_id, const Checkpoint& c) = 0;
+  virtual std::optional<Checkpoint> checkpoint(uint64_t session_id) = 0;
+
   /// Where the record lives, for people (a path, or a URI without its password).
   virtual std::string location() const = 0;
 };

@@ -1,0 +1,192 @@
+// A pool of three telehand-servers on one record (docs/pool.md), real processes over loopback
+// DDS: twelve simulated MF-2 sessions are spread over the pool by the record's assignment (the
+// least-loaded server takes each OPEN), the owner of four of them is killed (SIGKILL) in the
+// middle, and the others take its sessions over from the record, each hand from its
+// checkpoint. Every session ends closed with every sample its client sent, field for field
+// (the client's digest of what it sent against the record's), and the record's owner events
+// say who owned each session when. The same on an SQLite file the servers share and on
+// PostgreSQL (a throw-away cluster, tests/support/pg_cluster.h).
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <unistd.h>
+
+#include <fstream>
+#include <map>
+#include <memory>
+#include <regex>
+#include <thread>
+
+#include "../support/pg_cluster.h"
+#include "process.h"
+#include "process_test.h"
+#include "telehand/core/clock.h"
+#include "telehand/server/store/open_store.h"
+
+namespace telehand::test {
+namespace {
+
+using namespace std::chrono_literals;
+
+class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::string> {
+ protected:
+  PoolTest() : ProcessTest("pool", TELEHAND_LOOPBACK_XML) {}
+
+  static constexpr int kServers = 3;
+  static constexpr int kSessions = 12;
+
+  std::vector<std::string> serverCmd(const std::string& db, int k) {
+    {
+      std::ofstream cfg(path("server.toml"));
+      cfg << "[server]\nresume_wait_s = 60\n";
+    }
+    return cmd(TELEHAND_SERVER_BIN, {"--config", path("server.toml"), "--db", db, "--pool",
+                                     "--pool-id", "s" + std::to_string(k), "--seconds", "150"});
+  }
+
+  static std::string await(Process& p, const std::string& pattern,
+                           std::chrono::milliseconds timeout) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    std::smatch m;
+    while (std::chrono::steady_clock::now() < deadline) {
+      const std::string out = p.output();
+      if (std::regex_search(out, m, std::regex(pattern))) return m[1];
+      std::this_thread::sleep_for(50ms);
+    }
+    return {};
+  }
+
+  void run(const std::string& db) {
+    std::vector<std::unique_ptr<Process>> servers;
+    for (int k = 1; k <= kServers; ++k) {
+      servers.push_back(
+          std::make_unique<Process>(serverCmd(db, k), path("server" + std::to_string(k) + ".log")));
+      ASSERT_FALSE(await(*servers.back(), R"(serving as '(s\d)')", 30s).empty())
+          << servers.back()->output();
+    }
+    std::vector<std::unique_ptr<Process>> clients;
+    std::vector<uint64_t> ids;
+    for (int i = 0; i < kSessions; ++i) {
+      clients.push_back(std::make_unique<Process>(
+          cmd(TELEHAND_CLIENT_BIN,
+              {"--seconds", "20", "-q", "--no-fault-stop", "--seed", std::to_string(11 + i)}),
+          path("client" + std::to_string(i) + ".log")));
+      const std::string id = await(*clients.back(), R"(session (\d+) open)", 30s);
+      ASSERT_FALSE(id.empty()) << clients.back()->output();
+      ids.push_back(std::stoull(id));
+    }
+    // Who owns what: the record's assignment spreads them evenly.
+    std::map<std::string, std::vector<uint64_t>> owned;
+    {
+      const auto store = server::store::openStore(db, server::store::SessionStore::Mode::kReadOnly);
+      for (uint64_t id : ids) owned[store->poolOwner(id)].push_back(id);
+    }
+    ASSERT_EQ(owned.size(), static_cast<std::size_t>(kServers));
+    for (const auto& [server, sessions] : owned) {
+      EXPECT_EQ(sessions.size(), static_cast<std::size_t>(kSessions / kServers)) << server;
+    }
+    std::this_thread::sleep_for(4s);
+    const std::string victim = owned.begin()->first;
+    const int v = victim.back() - '1';
+    const int64_t killed_ns = wallNs();
+    ASSERT_EQ(::kill(servers[static_cast<std::size_t>(v)]->pid(), SIGKILL), 0);
+    ASSERT_TRUE(servers[static_cast<std::size_t>(v)]->wait(10s).has_value());
+
+    std::map<uint64_t, std::string> digests;
+    std::map<uint64_t, uint64_t> sent;
+    for (std::size_t i = 0; i < clients.size(); ++i) {
+      const auto rc = clients[i]->wait(90s);
+      const std::string out = clients[i]->output();
+      ASSERT_TRUE(rc.has_value()) << "client " << i << " did not finish\n" << out;
+      EXPECT_EQ(*rc, 0) << out;
+      sent[ids[i]] = matchNumber(out, R"((\d+) samples sent)");
+      std::smatch m;
+      if (std::regex_search(out, m, std::regex(R"(sent (\d+ samples, digest [0-9a-f]+))"))) {
+        digests[ids[i]] = m[1];
+      }
+      EXPECT_GT(sent[ids[i]], 19000u) << out;  // the loop never stopped: 20 s at 1 kHz
+    }
+    for (int k = 0; k < kServers; ++k) {
+      if (k != v) EXPECT_EQ(servers[static_cast<std::size_t>(k)]->stop(), 0);
+    }
+
+    const auto store = server::store::openStore(db, server::store::SessionStore::Mode::kReadOnly);
+    double worst_claim_s = 0.0, worst_resume_s = 0.0;
+    for (uint64_t id : ids) {
+      const auto info = store->session(id);
+      ASSERT_TRUE(info.has_value());
+      EXPECT_EQ(info->state, "closed") << id;
+      EXPECT_EQ(info->samples, sent[id]) << id;
+      EXPECT_EQ(info->samples_expected, sent[id]) << id;
+      SampleDigest d;
+      store->forEachSample(id, [&](const Sample& s, bool) { d.add(s); });
+      EXPECT_EQ(d.text(), digests[id]) << "session " << id << ": the record holds what was sent";
+      // Owner events: the OPEN's owner, then (the victim's sessions) one take-over by another
+      // server, after the victim's lease had run out.
+      std::vector<store_event> owners;
+      int64_t resumed_ns = 0;
+      std::string all;
+      for (const auto& e : store->events(id)) {
+        all += e.kind + ": " + e.text + "\n";
+        if (e.text.rfind("owner: server ", 0) == 0) owners.push_back({e.time_ns, e.text});
+        if (e.text.rfind("resumed: ", 0) == 0 && resumed_ns == 0) resumed_ns = e.time_ns;
+      }
+      const bool victims =
+          std::find(owned[victim].begin(), owned[victim].end(), id) != owned[victim].end();
+      ASSERT_EQ(owners.size(), victims ? 2u : 1u) << all;
+      if (!victims) {
+        // Not taken over: its first owner to the end.
+        EXPECT_EQ(owners[0].text, "owner: server " + store->poolOwner(id)) << all;
+        continue;
+      }
+      EXPECT_EQ(owners[0].text, "owner: server " + victim) << all;
+      std::smatch m;
+      ASSERT_TRUE(std::regex_search(
+          owners[1].text, m,
+          std::regex(R"(owner: server (s\d) took the session over from server (s\d), whose lease )"
+                     R"(ran out at (\d+) .*record clock (\d+)\))")))
+          << owners[1].text;
+      EXPECT_NE(m[1].str(), victim);
+      EXPECT_EQ(m[1].str(), store->poolOwner(id));
+      EXPECT_EQ(m[2].str(), victim);
+      const int64_t lease_end = std::stoll(m[3]), claimed = std::stoll(m[4]);
+      EXPECT_GE(claimed, lease_end) << "one owner at every moment";
+      worst_claim_s = std::max(worst_claim_s, static_cast<double>(claimed - killed_ns) * 1e-9);
+      EXPECT_GT(resumed_ns, claimed) << all;
+      worst_resume_s = std::max(worst_resume_s, static_cast<double>(resumed_ns - killed_ns) * 1e-9);
+      EXPECT_NE(all.find("the hand goes on from its checkpoint"), std::string::npos) << all;
+    }
+    std::cout << "pool on " << GetParam() << ": killed " << victim << " (sessions";
+    for (uint64_t id : owned[victim]) std::cout << " " << id;
+    std::cout << "); taken over within " << worst_claim_s << " s, resumed by their clients within "
+              << worst_resume_s << " s of the kill\n";
+    EXPECT_LE(worst_claim_s, 2.0);
+    EXPECT_LE(worst_resume_s, 2.0);
+  }
+
+  struct store_event {
+    int64_t time_ns;
+    std::string text;
+  };
+};
+
+TEST_P(PoolTest, AKilledServersSessionsAreTakenOverAndEndComplete) {
+  useOwnDomain();
+  if (GetParam() == "sqlite") {
+    run(path("records.db"));
+    return;
+  }
+  const auto shared = sharedPgCluster();
+  if (!shared.skip.empty()) GTEST_SKIP() << shared.skip;
+  ASSERT_TRUE(shared.error.empty()) << shared.error;
+  const std::string schema = "pool_" + std::to_string(getpid());
+  shared.cluster->exec("CREATE SCHEMA " + schema, "telehand");
+  run("postgresql://telehand@/telehand?host=" + shared.cluster->dir() +
+      "&options=-csearch_path%3D" + schema);
+  shared.cluster->exec("DROP SCHEMA " + schema + " CASCADE", "telehand");
+}
+
+INSTANTIATE_TEST_SUITE_P(Store, PoolTest, ::testing::Values("sqlite", "postgresql"),
+                         [](const auto& info) { return info.param; });
+
+}  // namespace
+}  // namespace telehand::test
