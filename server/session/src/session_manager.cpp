@@ -462,6 +462,16 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   }
   if (pooled()) {
     event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO, "owner: server " + pool_id_, now_ns);
+    // A first checkpoint at once: a server that dies before its next one still leaves the
+    // hand's starting state to whoever takes the session over.
+    if (s.hand.simulated()) {
+      try {
+        store_.putCheckpoint(s.info.id, {0, wallNs(), s.hand.checkpoint()});
+      } catch (const StoreError& e) {
+        ++stats_.store_errors;
+        spdlog::error("session {}: checkpoint: {}", s.info.id, e.what());
+      }
+    }
   }
   event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
         "opened: " + info.mode + " on case '" + case_name + "' for " + info.user +

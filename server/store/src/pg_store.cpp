@@ -1135,7 +1135,7 @@ const std::string kMembersSql =
         "(SELECT count(*) FROM session_owners o JOIN sessions s ON s.id = o.session_id "
         " WHERE o.server = p.server AND s.state IN ('active', 'suspended')) + "
         "(SELECT count(*) FROM pool_opens q WHERE q.server = p.server AND q.session_id = "
-        "0 AND q.at_ns > now.t - 10000000000) AS load FROM pool_servers p, (SELECT ") +
+        "0 AND q.at_ns > now.t - 60000000000) AS load FROM pool_servers p, (SELECT ") +
     kNowSql + " AS t) now WHERE p.lease_until_ns >= now.t ORDER BY load, p.server";
 }  // namespace
 

@@ -951,7 +951,7 @@ constexpr const char* kMembersSql =
     "(SELECT count(*) FROM session_owners o JOIN sessions s ON s.id = o.session_id "
     " WHERE o.server = p.server AND s.state IN ('active', 'suspended')) + "
     "(SELECT count(*) FROM pool_opens q WHERE q.server = p.server AND q.session_id = 0 "
-    " AND q.at_ns > ?1 - 10000000000) AS load "
+    " AND q.at_ns > ?1 - 60000000000) AS load "
     "FROM pool_servers p WHERE p.lease_until_ns >= ?1 ORDER BY load, p.server";
 }  // namespace
 

@@ -168,7 +168,7 @@ class SessionStore {
   /// A server that stops: its lease ends now (its sessions are suspended by then).
   virtual void poolLeave(const std::string& server) = 0;
   /// The servers whose lease runs, least loaded first (load: sessions owned that are active or
-  /// suspended, plus OPENs assigned to it in the last 10 s that made no session yet).
+  /// suspended, plus OPENs assigned to it in the last 60 s that made no session yet).
   virtual std::vector<PoolMember> poolMembers() = 0;
   /// Assign the OPEN `open_key` to the least-loaded server whose lease runs (ties: by name),
   /// once: the first caller decides, later ones read the answer. Returns the server.
