@@ -543,6 +543,35 @@ TEST(CaptureFitTruth, PerturbedJoints) {
   }
 }
 
+/// Random patients with a spasm whose first fit kept it: choosing the lag again (with the
+/// spasm in) and fitting at that lag must not leave the capture explained worse. Searched
+/// anew from the first fit, the shape and gain could end in a poorer optimum where the
+/// spasm no longer pays for itself and was dropped: random patient 25 at 3 Hz (seed 2)
+/// came out 1.43 N off on its axial axis, random patient 32 at 2 Hz (seed 4) 0.70 N, each
+/// with 1.45-1.48 N RMS residual against the 1.43 N noise. The fit now starts afresh when
+/// the earlier start does not pay, and keeps the first lag's fits when the new lag's explain
+/// the capture worse. Patients 40 and 41 (spasms of their own, not looked at while making the
+/// change) at 2 and 4 Hz hold the same limits.
+TEST(CaptureFitTruth, SpasmIsNotLostWhenTheLagIsChosenAgain) {
+  struct Run {
+    uint64_t patient;
+    double hz;
+    uint64_t seed;
+  };
+  for (const Run& run : {Run{25, 3.0, 2}, Run{32, 2.0, 4}, Run{41, 2.0, 6}, Run{41, 4.0, 6},
+                         Run{40, 2.0, 6}, Run{40, 4.0, 6}}) {
+    const PatientCase pc = randomPatientCase(run.patient);
+    const std::string what = "random-" + std::to_string(run.patient) + " " +
+                             std::to_string(run.hz).substr(0, 3) + " Hz seed " +
+                             std::to_string(run.seed);
+    ASSERT_GT(pc.model.speed_gain_s_per_rad, 0.0) << what;
+    const CaseRun r = runCase(pc.model, run.hz, run.seed, kPaperNoiseN, true);
+    expectWithin(pc.model, r, what, 0.3, 0.5);
+    for (std::size_t i = 0; i < kAxes; ++i)
+      EXPECT_LT(r.fit.axes[i].rms_n, 1.45) << what << " " << kAxisNames[i];
+  }
+}
+
 /// A fast capture leans on the dynamic terms, a slow one hardly: the fit reports how much.
 TEST(CaptureFitTruth, DynamicTermsAreReported) {
   const JointModelParams truth = shippedCase("healthy");
