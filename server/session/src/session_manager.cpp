@@ -794,6 +794,18 @@ void SessionManager::tick(int64_t now_ns) {
     if (s.capture.capturing() && !s.closing)
       s.capture.refit(ctx_, s, lookup, refit_options_.knn, now_ns);
     s.recoverIfDue(now_ns);
+    if (pooled() && s.closing && s.recorder.drained() && s.recorder.recorded() < s.expected &&
+        s.expected > 0 && now_ns >= s.recount_ns) {
+      // The record is the judge of what it holds: a server that had the session before may
+      // have stored some of the samples this one is waiting for.
+      s.recount_ns = now_ns + 500'000'000;
+      try {
+        s.recorder.recountFrom(store_.countSamples(id, 0, s.expected - 1));
+      } catch (const StoreError& e) {
+        ++stats_.store_errors;
+        spdlog::error("session {}: {}", id, e.what());
+      }
+    }
     if (s.closing && ((s.recorder.recorded() >= s.expected && s.recorder.drained()) ||
                       now_ns >= s.close_deadline_ns)) {
       done.push_back(id);

@@ -1179,13 +1179,29 @@ std::vector<PoolMember> PgStore::poolMembers() {
   return out;
 }
 
-std::string PgStore::poolAssign(const std::string& open_key) {
-  std::lock_guard lock(mutex_);
-  connect();
-  Db db(conn_, location_);
+namespace {
+/// fn(db) in one transaction holding the pool's advisory lock: the pool's changes one at a
+/// time across every server (ROLLBACK when fn throws).
+template <class F>
+auto inPoolTransaction(PGconn* conn, const Db& db, F&& fn) {
   db.script("BEGIN");
   try {
     db.run("SELECT pg_advisory_xact_lock($1)", {int8Param(kPoolLockId)});
+    auto r = fn();
+    db.script("COMMIT");
+    return r;
+  } catch (...) {
+    PQclear(PQexec(conn, "ROLLBACK"));
+    throw;
+  }
+}
+}  // namespace
+
+std::string PgStore::poolAssign(const std::string& open_key) {
+  std::lock_guard lock(mutex_);
+  connect();
+  const Db db(conn_, location_);
+  return inPoolTransaction(conn_, db, [&] {
     std::string server;
     const Result m = db.run(kMembersSql.c_str());
     const Result had = db.run("SELECT server, session_id FROM pool_opens WHERE open_key = $1",
@@ -1212,22 +1228,16 @@ std::string PgStore::poolAssign(const std::string& open_key) {
       db.run((std::string("DELETE FROM pool_opens WHERE at_ns < ") + kNowSql + " - 3600000000000")
                  .c_str());
     }
-    db.script("COMMIT");
     return server;
-  } catch (...) {
-    PQclear(PQexec(conn_, "ROLLBACK"));
-    throw;
-  }
+  });
 }
 
 PoolClaim PgStore::poolClaim(uint64_t session_id, const std::string& server,
                              const std::string& open_key) {
   std::lock_guard lock(mutex_);
   connect();
-  Db db(conn_, location_);
-  db.script("BEGIN");
-  try {
-    db.run("SELECT pg_advisory_xact_lock($1)", {int8Param(kPoolLockId)});
+  const Db db(conn_, location_);
+  return inPoolTransaction(conn_, db, [&] {
     PoolClaim c;
     c.now_ns = db.run((std::string("SELECT ") + kNowSql).c_str()).integer(0, 0);
     const Param id = int8Param(static_cast<int64_t>(session_id));
@@ -1254,12 +1264,8 @@ PoolClaim PgStore::poolClaim(uint64_t session_id, const std::string& server,
       }
       c.won = true;
     }
-    db.script("COMMIT");
     return c;
-  } catch (...) {
-    PQclear(PQexec(conn_, "ROLLBACK"));
-    throw;
-  }
+  });
 }
 
 std::vector<uint64_t> PgStore::poolOrphans() {

@@ -49,7 +49,10 @@ telehand_msg_SessionCommand openCmd(uint64_t client, telehand_msg_SessionMode mo
                                     telehand_msg_StiffnessKind kind) {
   telehand_msg_SessionCommand c{};
   c.client_id = client;
-  c.request_seq = 1;
+  // Each command a request of its own, as a client numbers them (a repeated OPEN is
+  // answered with the session it made).
+  static uint32_t next_request = 0;
+  c.request_seq = ++next_request;
   c.kind = telehand_msg_CMD_OPEN;
   c.mode = mode;
   c.follow_session = follow;

@@ -70,7 +70,10 @@ std::string format(const char* fmt, double a, double b = 0.0) {
 telehand_msg_SessionCommand command(telehand_msg_CommandKind kind, uint64_t session_id = 0) {
   telehand_msg_SessionCommand c{};
   c.client_id = 7;
-  c.request_seq = 1;
+  // Each command a request of its own, as a client numbers them (a repeated OPEN is
+  // answered with the session it made).
+  static uint32_t next_request = 0;
+  c.request_seq = ++next_request;
   c.kind = kind;
   c.session_id = session_id;
   return c;
@@ -197,6 +200,36 @@ class SessionManagerTest : public ::testing::Test {
   std::unique_ptr<JointModel> grip_model_;
   Vec3 angles_ = Vec3::Zero();
 };
+
+// A client asks again, with the same request, until it hears an answer (a server of a pool
+// may not have matched its first OPEN): a repeat gets the session the request made, announced
+// again, and never a second one; a new request makes a new session.
+TEST_F(SessionManagerTest, ARepeatedOpenGetsTheSessionItMadeAndNoOther) {
+  auto c = command(telehand_msg_CMD_OPEN);
+  copyString(c.case_name, "healthy");
+  copyString(c.user, "student");
+  manager_->onCommand(c, now_ns_, from_);
+  ASSERT_EQ(manager_->activeSessions(), 1u);
+  const uint64_t first = out_.statuses.back().session_id;
+  const std::size_t statuses = out_.statuses.size();
+  manager_->onCommand(c, now_ns_, from_);
+  manager_->onCommand(c, now_ns_, from_);
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+  EXPECT_EQ(store_->listSessions().size(), 1u);
+  ASSERT_EQ(out_.statuses.size(), statuses + 2);
+  EXPECT_EQ(out_.statuses.back().session_id, first);
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_ACTIVE);
+  EXPECT_EQ(out_.statuses.back().request_seq, c.request_seq);
+  // The same request number from another participant is another request.
+  const Origin other{13, "0000cccc", ""};
+  manager_->onCommand(c, now_ns_, other);
+  EXPECT_EQ(manager_->activeSessions(), 2u);
+  auto again = command(telehand_msg_CMD_OPEN);
+  copyString(again.case_name, "healthy");
+  copyString(again.user, "student");
+  manager_->onCommand(again, now_ns_, from_);
+  EXPECT_EQ(manager_->activeSessions(), 3u);
+}
 
 TEST_F(SessionManagerTest, OpeningACasePublishesItsJointModel) {
   const uint64_t id = open("stiff");

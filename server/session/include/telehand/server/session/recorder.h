@@ -1,6 +1,7 @@
 #pragma once
 /// A session's record: every sample stored once, what the store refused kept and retried,
 /// and the live samples that were not finite counted and reported.
+#include <algorithm>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -32,6 +33,10 @@ class Recorder {
     below_ = stored_below;
     above_.clear();
   }
+  /// What the record holds, counted there: in a pool another server may have stored some
+  /// of this session's samples (before it let go of the session), which this recorder did
+  /// not count as new.
+  void recountFrom(uint64_t in_record) noexcept { recorded_ = std::max(recorded_, in_record); }
   /// Runs of stored sequence numbers beyond the prefix kept at most (a client's stream has a
   /// few; past this the furthest are forgotten, which only delays the acknowledgement).
   static constexpr std::size_t kMaxRuns = 1024;

@@ -87,6 +87,7 @@ class Session {
   // closing
   bool closing = false;
   uint64_t expected = 0;
+  int64_t recount_ns = 0;  // pool: when the record's own count is read next while closing
   int64_t close_deadline_ns = 0;
 
   LiveStream live;
