@@ -173,6 +173,14 @@ void releaseUnregistered(dds_instance_handle_t instance) noexcept {
 
 std::string participantConfig(const Options& options) {
   std::string uri = configUri(options.config);
+  if (options.lease_s > 0.0) {
+    char lease[160];
+    std::snprintf(lease, sizeof lease,
+                  "<CycloneDDS><Domain Id=\"any\"><Discovery><LeaseDuration>%.3f s</LeaseDuration>"
+                  "</Discovery></Domain></CycloneDDS>",
+                  options.lease_s);
+    uri = uri.empty() ? std::string(lease) : uri + "," + lease;
+  }
   if (options.pki.empty()) return uri;
 #ifndef TELEHAND_DDS_SECURITY_LIBDIR
   throw ConfigError(

@@ -100,6 +100,9 @@ int main(int argc, char** argv) {
       gethostname(host, sizeof host - 1);
       pool_id = std::string(host) + ":" + std::to_string(getpid());
     }
+    // A pool's server announces a 3 s lease (Cyclone's is 10 s): after one dies, the clients'
+    // reliable writers stop waiting for its readers that much sooner (docs/pool.md).
+    if (pool) dds_opts.lease_s = 3.0;
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(*store, link, cfg, hand_model ? &*hand_model : nullptr);
     // The lease is renewed on a thread (and a connection) of its own as well as by the serve

@@ -156,6 +156,10 @@ struct Options {
   /// participant authenticates as. Empty `pki`: unsecured.
   std::string pki;
   std::string identity;
+  /// The lease this participant announces, seconds (0: Cyclone's, 10 s): how long the others
+  /// keep its readers matched after it died. A pool's servers announce a short one, so that a
+  /// dead server's readers stop holding up the clients' reliable writers (docs/pool.md).
+  double lease_s = 0.0;
 };
 
 /// The Cyclone config a participant with these options is created with: `config` as

@@ -92,7 +92,7 @@ class SessionManager {
   bool pooled() const noexcept { return !pool_id_.empty(); }
   const std::string& poolId() const noexcept { return pool_id_; }
   static constexpr int64_t kPoolHeartbeatNs = 200'000'000;
-  static constexpr int64_t kPoolLeaseNs = 800'000'000;
+  static constexpr int64_t kPoolLeaseNs = 1'000'000'000;
   static constexpr int64_t kCheckpointNs = 500'000'000;
   /// Orphans one server claims per heartbeat: the others get their share of a dead one's.
   static constexpr int kMaxClaimsPerBeat = 2;
