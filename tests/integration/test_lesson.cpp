@@ -4,8 +4,10 @@
 // then the record is checked end to end and the report written. Stopped by PID, reaped.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <regex>
 #include <sstream>
 
 #include "process.h"
@@ -130,6 +132,197 @@ TEST_F(LessonRunTest, ClinicianDemonstratesStudentRunsItAndTheRecordHoldsTheLess
   int rows = 0;
   while (std::getline(csv, line)) ++rows;
   EXPECT_EQ(rows, 4) << "a header and three trials";
+  // The only run in the record: nothing earlier in the student's learning curve.
+  EXPECT_NE(report.output().find("0 runs in the learning curve"), std::string::npos)
+      << report.output();
+
+  // The lesson as the record lists and shows it: its id, demonstration, plan, targets (those
+  // `lesson create` derived) and its run.
+  Process list({TELEHAND_RECORDS_BIN, "--db", db, "lesson", "list"}, path("list.log"));
+  ASSERT_EQ(list.wait(30s), 0) << list.output();
+  const std::string listed = list.output();
+  EXPECT_NE(listed.find("schedule"), std::string::npos) << listed;
+  std::smatch row;
+  ASSERT_TRUE(std::regex_search(listed, row,
+                                std::regex(R"((?:^|\n)(\d+) +(\d+) +(\S+) +terminal +1\+2 +1 +)"
+                                           R"(mobilization by clinician on (\S+)\n)")))
+      << listed;
+  EXPECT_EQ(std::stoull(row[1]), lesson);
+  EXPECT_EQ(std::stoull(row[2]), demo);
+  EXPECT_EQ(row[3], row[4]) << "the case, in its column and in the name";
+  const std::string case_name = row[3];
+
+  Process show({TELEHAND_RECORDS_BIN, "--db", db, "lesson", "show", std::to_string(lesson)},
+               path("show.log"));
+  ASSERT_EQ(show.wait(30s), 0) << show.output();
+  const std::string shown = show.output();
+  for (const std::string& want :
+       {"lesson " + std::to_string(lesson) + ": mobilization by clinician on " + case_name + "\n",
+        "  demonstration: session " + std::to_string(demo) + " on case " + case_name +
+            " (mobilization)\n",
+        std::string("  plan: 1 guided trial(s), 2 attempt(s) of 4.00 s, terminal feedback, "
+                    "exploration before and after\n"),
+        "  run: session " + std::to_string(run) + " by student, closed, 3 trials scored"}) {
+    EXPECT_NE(shown.find(want), std::string::npos) << want << "\n" << shown;
+  }
+  // The targets: the band and frequency `lesson create` printed.
+  const std::regex targets(R"(force (\d+\.\d\d)-(\d+\.\d\d) N.*?, (\d+\.\d\d) Hz, amplitude )"
+                           R"((\d+\.\d\d) deg)");
+  std::smatch made, held;
+  const std::string created = create.output();
+  ASSERT_TRUE(std::regex_search(created, made, targets)) << created;
+  ASSERT_TRUE(std::regex_search(shown, held, targets)) << shown;
+  for (int i = 1; i <= 4; ++i) EXPECT_EQ(made[i], held[i]) << i << "\n" << created << shown;
+  EXPECT_NE(shown.find("  targets: force " + made[1].str() + "-" + made[2].str() + " N (peak "),
+            std::string::npos)
+      << shown;
+  // The run's mean overall score: the record's trials'.
+  double mean = 0.0;
+  for (const auto& t : trials) mean += t.overall / static_cast<double>(trials.size());
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(shown, m, std::regex(R"(mean overall (\d+)\n)"))) << shown;
+  EXPECT_NEAR(std::stod(m[1]), mean, 0.51) << shown;
+
+  // A report of a session that ran no lesson: refused, saying why.
+  Process not_a_run(
+      {TELEHAND_RECORDS_BIN, "--db", db, "report", std::to_string(demo), "-o", path("report")},
+      path("not-a-run.log"));
+  const auto not_rc = not_a_run.wait(30s);
+  ASSERT_TRUE(not_rc.has_value());
+  EXPECT_EQ(*not_rc, 2) << not_a_run.output();
+  EXPECT_NE(not_a_run.output().find("session " + std::to_string(demo) +
+                                    " is not a lesson run (mode mobilization)"),
+            std::string::npos)
+      << not_a_run.output();
+  EXPECT_FALSE(std::filesystem::exists(path("report") + "/lesson-" + std::to_string(lesson) +
+                                       "-session-" + std::to_string(demo) + ".html"));
+}
+
+/// One concurrent-feedback bar the student's client printed during a trial.
+struct Bar {
+  std::string bar;
+  double trough_n = 0.0, peak_n = 0.0, frequency_hz = 0.0, error_hz = 0.0;
+};
+
+std::vector<Bar> barsIn(const std::string& out) {
+  static const std::regex line(
+      R"(\n  force ([-\[\]|.]+) +(\d+\.\d)- *(\d+\.\d) N   frequency (\d+\.\d\d) Hz \(([+-]\d+\.\d\d)\)(?=\n))");
+  std::vector<Bar> bars;
+  for (std::sregex_iterator it(out.begin(), out.end(), line), end; it != end; ++it) {
+    const std::smatch& m = *it;
+    bars.push_back({m[1], std::stod(m[2]), std::stod(m[3]), std::stod(m[4]), std::stod(m[5])});
+  }
+  return bars;
+}
+
+// The other feedback schedules on the student's side: concurrent (the aim and a bar of the
+// last oscillation against the band once a second during every trial, the scores only after
+// the last) and self-requested (the scores after the trials the student asked for only).
+TEST_F(LessonRunTest, ConcurrentBarsDuringTrialsAndSelfRequestedFeedbackAfterAskedTrials) {
+  const std::string db = path("records.db");
+  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "120"}), path("server.log"));
+  Process clinician(
+      cmd(TELEHAND_CLIENT_BIN, {"--seconds", "5", "-q", "--user", "clinician", "--no-fault-stop"}),
+      path("clinician.log"));
+  ASSERT_EQ(clinician.wait(40s), 0) << clinician.output();
+  const uint64_t demo = matchNumber(clinician.output(), R"(session (\d+) open)");
+  ASSERT_GT(demo, 0u);
+  // Trials of 4 s as above: a trial is scored from 2 s of record, which a loop slowed by a busy
+  // machine takes longer to send.
+  auto create = [&](const std::string& schedule) {
+    Process p({TELEHAND_RECORDS_BIN, "--db", db, "lesson", "create", "--demo", std::to_string(demo),
+               "--guided", "0", "--attempts", "2", "--trial-seconds", "4", "--schedule", schedule,
+               "--no-assessment"},
+              path("create-" + schedule + ".log"));
+    EXPECT_EQ(p.wait(30s), 0) << p.output();
+    return p.output();
+  };
+  const std::string concurrent = create("concurrent");
+  const std::string self = create("self");
+  const uint64_t concurrent_id = matchNumber(concurrent, R"(lesson (\d+) )");
+  const uint64_t self_id = matchNumber(self, R"(lesson (\d+) )");
+  ASSERT_GT(concurrent_id, 0u) << concurrent;
+  ASSERT_GT(self_id, 0u) << self;
+  std::smatch band;
+  ASSERT_TRUE(std::regex_search(concurrent, band,
+                                std::regex(R"(force (\d+\.\d\d)-(\d+\.\d\d) N, (\d+\.\d\d) Hz)")))
+      << concurrent;
+  const double band_min = std::stod(band[1]), band_max = std::stod(band[2]),
+               target_hz = std::stod(band[3]);
+  // A student 2 N too hard and 0.5 Hz too fast (--no-fault-stop: see the test above).
+  auto student = [&](uint64_t lesson, std::vector<std::string> extra, const std::string& log) {
+    std::vector<std::string> args{"--lesson",
+                                  std::to_string(lesson),
+                                  "--user",
+                                  "student",
+                                  "--watch-speed",
+                                  "2",
+                                  "--force-bias",
+                                  "2",
+                                  "--frequency-error",
+                                  "0.5",
+                                  "--no-fault-stop"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    Process p(cmd(TELEHAND_CLIENT_BIN, args), path(log));
+    const auto rc = p.wait(60s);
+    EXPECT_TRUE(rc.has_value()) << "the run did not finish\n" << p.output();
+    EXPECT_EQ(rc.value_or(-1), 0) << p.output();
+    return p.output();
+  };
+
+  // Concurrent: the aim at each trial's start, the demonstration's band and frequency.
+  const std::string c_out = student(concurrent_id, {}, "student-concurrent.log");
+  const std::regex aim(R"(aim: (\d+\.\d)-(\d+\.\d) N at (\d+\.\d\d) Hz \(the demonstration's\))");
+  std::size_t aims = 0;
+  for (std::sregex_iterator it(c_out.begin(), c_out.end(), aim), end; it != end; ++it, ++aims) {
+    // The same figures, to the digits each prints.
+    EXPECT_NEAR(std::stod((*it)[1]), band_min, 0.051) << it->str();
+    EXPECT_NEAR(std::stod((*it)[2]), band_max, 0.051) << it->str();
+    EXPECT_NEAR(std::stod((*it)[3]), target_hz, 0.011) << it->str();
+  }
+  EXPECT_EQ(aims, 2u) << c_out;
+  // Bars during both trials (once a second from the first oscillation on).
+  const std::size_t trial2 = c_out.find("trial 2: attempt 2 of 2");
+  ASSERT_NE(trial2, std::string::npos) << c_out;
+  const auto bars = barsIn(c_out);
+  const auto bars_late = barsIn(c_out.substr(trial2));
+  EXPECT_GE(bars.size() - bars_late.size(), 1u) << "bars during trial 1\n" << c_out;
+  EXPECT_GE(bars_late.size(), 1u) << "bars during trial 2\n" << c_out;
+  // Each bar: 30 columns from 0 to 1.5x the band's top; the last peak '|' where it belongs,
+  // the frequency error against the target, the band's bottom '[' unless a mark covers it.
+  const double full = 1.5 * band_max;
+  auto col = [&](double n) { return std::clamp(static_cast<int>(n / full * 30), 0, 29); };
+  for (const Bar& b : bars) {
+    ASSERT_EQ(b.bar.size(), 30u) << b.bar;
+    const auto peak = static_cast<int>(b.bar.find('|'));
+    EXPECT_NEAR(peak, col(b.peak_n), 1) << b.bar << " peak " << b.peak_n;
+    EXPECT_LE(b.trough_n, b.peak_n) << b.bar;
+    EXPECT_NEAR(b.frequency_hz - target_hz, b.error_hz, 0.011) << b.bar;
+    if (col(b.peak_n) != col(band_min) && col(band_min) != col(b.trough_n)) {
+      EXPECT_EQ(b.bar[static_cast<std::size_t>(col(band_min))], '[') << b.bar;
+    }
+  }
+  // The scores: after the last trial only.
+  EXPECT_EQ(c_out.find("feedback: trial 1 ("), std::string::npos) << c_out;
+  EXPECT_NE(c_out.find("feedback: trial 2 (attempt)"), std::string::npos) << c_out;
+  EXPECT_NE(c_out.find("2 of 2 trials run"), std::string::npos) << c_out;
+
+  // Self-requested: the student asks after trial 2 only.
+  const std::string s_out = student(self_id, {"--request-feedback", "2"}, "student-self.log");
+  EXPECT_TRUE(barsIn(s_out).empty()) << s_out;
+  EXPECT_EQ(s_out.find("aim: "), std::string::npos) << s_out;
+  EXPECT_EQ(s_out.find("feedback: trial 1 ("), std::string::npos) << s_out;
+  EXPECT_NE(s_out.find("feedback: trial 2 (attempt)"), std::string::npos) << s_out;
+  EXPECT_NE(s_out.find("2 of 2 trials run"), std::string::npos) << s_out;
+  EXPECT_EQ(server.stop(), 0) << server.output();
+
+  // Both runs scored both trials in the record, whatever the client showed.
+  SqliteStore store(db, SqliteStore::Mode::kReadOnly);
+  for (const std::string& out : {c_out, s_out}) {
+    const uint64_t run = matchNumber(out, R"(session (\d+) open: lesson)");
+    ASSERT_GT(run, 0u) << out;
+    EXPECT_EQ(store.trials(run).size(), 2u) << out;
+  }
 }
 
 }  // namespace

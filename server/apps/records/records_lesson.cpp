@@ -8,6 +8,7 @@
 #include <map>
 #include <sstream>
 
+#include "lesson_history.h"
 #include "report.h"
 #include "telehand/config/config.h"
 #include "telehand/core/clock.h"
@@ -42,22 +43,6 @@ std::vector<Sample> samplesIn(SessionStore& store, uint64_t session, uint64_t fi
 
 std::vector<Sample> allSamples(SessionStore& store, uint64_t session) {
   return samplesIn(store, session, 0, UINT64_MAX);
-}
-
-/// Sessions that ran `lesson_id`, oldest first.
-std::vector<SessionInfo> runsOf(SessionStore& store, uint64_t lesson_id) {
-  std::vector<SessionInfo> out;
-  for (const auto& s : store.listSessions()) {
-    if (s.mode == "lesson" && store.sessionLesson(s.id) == lesson_id) out.push_back(s);
-  }
-  return out;
-}
-
-double meanOverall(const std::vector<TrialRecord>& trials) {
-  if (trials.empty()) return 0.0;
-  double sum = 0.0;
-  for (const auto& t : trials) sum += t.overall;
-  return sum / static_cast<double>(trials.size());
 }
 
 }  // namespace
@@ -192,13 +177,9 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   for (const auto& [dir, deg] : before) {
     if (after.count(dir)) in.ranges.push_back({dir, deg, after[dir]});
   }
-  // The learning curve: this user's runs of lessons, oldest first, up to this one.
-  for (const auto& s : store.listSessions()) {
-    if (s.mode != "lesson" || s.user != info->user || s.id > session) continue;
-    const auto trials = store.trials(s.id);
-    if (trials.empty()) continue;
-    in.history.emplace_back("session " + std::to_string(s.id), meanOverall(trials));
-  }
+  // The learning curve: this user's earlier runs of lessons, oldest first (this one is added
+  // by the page as "this lesson").
+  in.history = learningHistory(store, info->user, session);
   std::filesystem::create_directories(r.out_dir);
   const std::string base =
       (std::filesystem::path(r.out_dir) /

@@ -8,6 +8,8 @@
 #include <atomic>
 #include <cmath>
 #include <filesystem>
+#include <functional>
+#include <limits>
 #include <map>
 #include <memory>
 #include <string>
@@ -411,6 +413,161 @@ TEST_F(LessonTest, AReplayReproducesTheLiveHandStates) {
   // At its end the replay session closes by itself.
   EXPECT_EQ(out.statuses.back().session_id, replay);
   EXPECT_EQ(out.statuses.back().state, telehand_msg_SESSION_CLOSED);
+}
+
+/// A replay of `source` opened on a server of its own on the same record that publishes a
+/// HandState every millisecond (every sample stepped is seen), driven 1 ms a tick.
+class ReplayViewer {
+ public:
+  ReplayViewer(
+      SqliteStore& store, const ServerConfig& config, uint64_t source, int64_t& now_ns,
+      std::function<telehand_msg_SessionCommand(telehand_msg_CommandKind, uint64_t)> command)
+      : config_(everyMs(config)),
+        manager_(store, out, config_, &hand()),
+        now_ns_(now_ns),
+        command_(std::move(command)) {
+    auto c = command_(telehand_msg_CMD_OPEN, 0);
+    c.mode = telehand_msg_MODE_REPLAY;
+    c.follow_session = source;
+    manager_.onCommand(c, now_ns_);
+    if (!out.statuses.empty()) id = out.statuses.back().session_id;
+  }
+  void control(const char* what, double value) {
+    auto p = command_(telehand_msg_CMD_PHASE, id);
+    copyString(p.text, what);
+    p.value = value;
+    manager_.onCommand(p, now_ns_);
+  }
+  void run(int ms) {
+    for (int i = 0; i < ms; ++i) {
+      now_ns_ += 1'000'000;
+      manager_.tick(now_ns_);
+    }
+  }
+  /// The device sample the latest HandState reflects.
+  uint64_t lastDeviceSeq() const { return out.hands.empty() ? 0 : out.hands.back().device_seq; }
+  bool closed() const {
+    for (const auto& s : out.statuses) {
+      if (s.session_id == id && s.state == telehand_msg_SESSION_CLOSED) return true;
+    }
+    return false;
+  }
+  Outbox out;
+  uint64_t id = 0;
+
+ private:
+  static ServerConfig everyMs(ServerConfig c) {
+    c.hand_state_hz = 1000.0;
+    return c;
+  }
+  ServerConfig config_;
+  SessionManager manager_;
+  int64_t& now_ns_;
+  std::function<telehand_msg_SessionCommand(telehand_msg_CommandKind, uint64_t)> command_;
+};
+
+TEST_F(LessonTest, ALoopedReplayStartsOverAtItsEndWithTheSameStates) {
+  const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+  ASSERT_NE(live, 0u);
+  Motion m;
+  m.flex_amp_deg = 8.0;
+  stream(live, m, 0, 2000);
+  close(live, 2000);
+  ReplayViewer v(*store_, config_, live, now_ns_,
+                 [this](telehand_msg_CommandKind k, uint64_t s) { return command(k, s); });
+  ASSERT_NE(v.id, 0u);
+  v.control("loop", 1.0);
+  v.control("speed", 2.0);
+  v.run(2500);  // 5 s of record at 2x: the 2 s record two and a half times
+  EXPECT_FALSE(v.closed()) << "a looping replay does not end with its record";
+  // The passes: the reflected sample runs up to the record's end, then from the start. The tick
+  // that steps the last sample (1999) starts over at once, so the last state a pass shows is
+  // within that tick's samples (2 at 2x) of it.
+  std::vector<std::map<uint64_t, telehand_msg_HandState>> passes(1);
+  uint64_t prev_seq = 0, prev_device = 0;
+  bool ordered = true;
+  for (const auto& h : v.out.hands) {
+    if (h.session_id != v.id) continue;
+    if (h.seq <= prev_seq && prev_seq != 0) ordered = false;
+    prev_seq = h.seq;
+    if (h.device_seq < prev_device) {
+      EXPECT_GE(prev_device, 1997u) << "a pass starts over only at the record's end";
+      passes.emplace_back();
+    }
+    prev_device = h.device_seq;
+    passes.back()[h.device_seq] = h;
+  }
+  EXPECT_TRUE(ordered) << "the HandStates' own sequence goes on across the loops";
+  ASSERT_EQ(passes.size(), 3u) << "two starts over in 5 s of a 2 s record";
+  EXPECT_GE(passes[0].rbegin()->first, 1997u);
+  EXPECT_GE(passes[1].rbegin()->first, 1997u);
+  EXPECT_LT(passes[1].begin()->first, 5u) << "the second pass starts at the record's start";
+  EXPECT_LT(passes[2].begin()->first, 5u);
+  EXPECT_NEAR(static_cast<double>(passes[2].rbegin()->first), 1000.0, 10.0)
+      << "half-way through the third pass";
+  // Each pass on a fresh hand: the same states for the same samples.
+  std::size_t compared = 0;
+  double worst = 0.0;
+  for (std::size_t p = 1; p < passes.size(); ++p) {
+    for (const auto& [seq, h] : passes[p]) {
+      const auto it = passes[0].find(seq);
+      if (it == passes[0].end()) continue;
+      ++compared;
+      for (int i = 0; i < 3; ++i) {
+        worst = std::max(worst, std::abs(h.mcp_angles_rad[i] - it->second.mcp_angles_rad[i]));
+      }
+      for (int j = 0; j < h.dof_count; ++j) {
+        worst = std::max(worst, std::abs(h.joint_angles_rad[j] - it->second.joint_angles_rad[j]));
+      }
+    }
+  }
+  EXPECT_GT(compared, 1000u);
+  EXPECT_LE(worst, 1e-9) << "over " << compared << " states";
+  // Loop off: it plays to the end of the pass it is in and closes.
+  v.control("loop", 0.0);
+  v.run(600);
+  EXPECT_TRUE(v.closed()) << "the end of the record, loop off";
+  EXPECT_EQ(v.out.hands.back().device_seq, 1999u);
+  // Every sample of the record stepped the hand in each of the three passes.
+  EXPECT_THAT(v.out.textsOf(telehand_msg_EVENT_INFO, v.id),
+              ::testing::Contains(HasSubstr("the end of the record (6000 samples replayed)")));
+}
+
+TEST_F(LessonTest, AReplaySpeedOutsideAQuarterToTwiceIsClampedAndNotANumberRefused) {
+  const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+  ASSERT_NE(live, 0u);
+  stream(live, Motion{}, 0, 4000);
+  close(live, 4000);
+  ReplayViewer v(*store_, config_, live, now_ns_,
+                 [this](telehand_msg_CommandKind k, uint64_t s) { return command(k, s); });
+  ASSERT_NE(v.id, 0u);
+  // Record time played over `ms` of the server's time, from the samples reflected (1 ms apart).
+  auto played = [&](int ms) {
+    const uint64_t before = v.lastDeviceSeq();
+    v.run(ms);
+    return static_cast<double>(v.lastDeviceSeq() - before);
+  };
+  EXPECT_NEAR(played(200), 200.0, 3.0) << "1x at the start";
+  v.control("speed", 10.0);
+  EXPECT_NEAR(played(400), 800.0, 3.0) << "10x: 2x";
+  v.control("speed", 0.5);
+  EXPECT_NEAR(played(400), 200.0, 3.0) << "0.5x, within the range, as asked";
+  v.control("speed", 0.01);
+  EXPECT_NEAR(played(400), 100.0, 3.0) << "0.01x: 0.25x";
+  v.control("speed", 0.0);
+  EXPECT_NEAR(played(400), 100.0, 3.0) << "0x: 0.25x (a pause is 'pause')";
+  v.control("speed", -2.0);
+  EXPECT_NEAR(played(400), 100.0, 3.0) << "-2x: 0.25x (no playing backwards)";
+  v.control("speed", 2.0);
+  EXPECT_NEAR(played(200), 400.0, 3.0) << "2x, the top of the range";
+  const std::size_t errors = v.out.textsOf(telehand_msg_EVENT_ERROR, v.id).size();
+  v.control("speed", std::nan(""));
+  v.control("speed", std::numeric_limits<double>::infinity());
+  const auto refused = v.out.textsOf(telehand_msg_EVENT_ERROR, v.id);
+  ASSERT_EQ(refused.size(), errors + 2) << "NaN and infinity refused";
+  EXPECT_THAT(refused.back(), HasSubstr("the speed is not a number"));
+  EXPECT_NEAR(played(200), 400.0, 3.0) << "the speed before them kept: 2x";
+  EXPECT_FALSE(v.closed());
 }
 
 /// The flexion swing of a guide's path, degrees.
