@@ -1,0 +1,274 @@
+#include "telehand/core/tissue_model.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+namespace telehand {
+
+const char* techniqueName(Technique t) noexcept {
+  return t == Technique::kMassage ? "massage" : "mobilization";
+}
+
+bool parseTechnique(const char* text, Technique* out) noexcept {
+  if (text == nullptr) return false;
+  if (std::strcmp(text, "mobilization") == 0) {
+    *out = Technique::kMobilization;
+    return true;
+  }
+  if (std::strcmp(text, "massage") == 0) {
+    *out = Technique::kMassage;
+    return true;
+  }
+  return false;
+}
+
+namespace {
+bool in(double v, double lo, double hi) { return std::isfinite(v) && v >= lo && v <= hi; }
+double smoothstep(double e0, double e1, double x) noexcept {
+  if (e1 <= e0) return x < e0 ? 0.0 : 1.0;
+  const double t = std::clamp((x - e0) / (e1 - e0), 0.0, 1.0);
+  return t * t * (3.0 - 2.0 * t);
+}
+// d smoothstep / dx.
+double smoothstepSlope(double e0, double e1, double x) noexcept {
+  if (e1 <= e0 || x <= e0 || x >= e1) return 0.0;
+  const double t = (x - e0) / (e1 - e0);
+  return 6.0 * t * (1.0 - t) / (e1 - e0);
+}
+}  // namespace
+
+const char* invalidTissueParam(const TissueParams& p) noexcept {
+  using P = TissueParams;
+  if (!allFinite(p.origin_m) || p.origin_m.cwiseAbs().maxCoeff() > 1.0) return "origin_m";
+  const double qn = p.orientation.coeffs().norm();
+  if (!std::isfinite(qn) || std::abs(qn - 1.0) > 1e-3) return "orientation";
+  if (!in(p.thickness_m, 0.0, P::kMaxLengthM)) return "thickness_m";
+  if (!in(p.pad_radius_m, 0.0, P::kMaxLengthM)) return "pad_radius_m";
+  if (!in(p.half_extent_m, 0.001, P::kMaxLengthM)) return "half_extent_m";
+  if (!in(p.stiffness_n_per_m_pow, 0.0, P::kMaxStiffness)) return "stiffness";
+  if (!in(p.exponent, P::kMinExponent, P::kMaxExponent)) return "exponent";
+  if (!in(p.damping_s_per_m, 0.0, P::kMaxDamping)) return "damping";
+  if (!in(p.lateral_stiffness_n_per_m, 0.0, P::kMaxLateral)) return "lateral_stiffness";
+  if (!in(p.mu_static, 0.0, P::kMaxMu)) return "mu_static";
+  if (!in(p.mu_kinetic, 0.0, p.mu_static)) return "mu_kinetic";
+  if (!in(p.viscous_n_s_per_m, 0.0, P::kMaxViscous)) return "viscous";
+  if (!in(p.patch_x_m, -P::kMaxLengthM, P::kMaxLengthM)) return "patch_x_m";
+  if (!in(p.patch_y_m, -P::kMaxLengthM, P::kMaxLengthM)) return "patch_y_m";
+  if (!in(p.patch_radius_m, 0.0, P::kMaxLengthM)) return "patch_radius_m";
+  if (!in(p.patch_stiffness_factor, 0.1, P::kMaxPatchFactor)) return "patch_stiffness_factor";
+  if (!in(p.patch_friction_factor, 0.1, P::kMaxPatchFactor)) return "patch_friction_factor";
+  if (!in(p.patch_rim_m, 0.0, P::kMaxLengthM)) return "patch_rim_m";
+  return nullptr;
+}
+
+TissueParams tissueCase(const char* name) noexcept {
+  // docs/massage.md "Cases": healthy is anchored at the paper's 10 N at a 6 mm press
+  // (k = 10 / 0.006^1.5); the others are stated departures from it.
+  TissueParams p;
+  if (name == nullptr) return p;
+  if (std::strcmp(name, "oedema") == 0) {
+    p.thickness_m = 0.018;
+    p.stiffness_n_per_m_pow = 2.5e5;
+    p.exponent = 2.0;  // soft at first, stiffening sooner as the fluid is pushed aside
+    p.damping_s_per_m = 1.2;
+    p.lateral_stiffness_n_per_m = 500.0;
+  } else if (std::strcmp(name, "scar") == 0) {
+    p.patch_x_m = 0.004;
+    p.patch_y_m = -0.003;
+    p.patch_radius_m = 0.006;
+    p.patch_stiffness_factor = 2.5;
+    p.patch_friction_factor = 2.0;
+  } else if (std::strcmp(name, "hypertonic") == 0) {
+    p.stiffness_n_per_m_pow = 4.0e4;
+    p.exponent = 1.4;
+    p.damping_s_per_m = 0.5;
+    p.lateral_stiffness_n_per_m = 1200.0;
+    p.mu_static = 0.6;
+    p.mu_kinetic = 0.45;
+  }
+  return p;
+}
+
+Vec3 TissueModel::toWeb(const Vec3& p_device) const noexcept {
+  return p_.orientation.conjugate() * (p_device - p_.origin_m);
+}
+
+Vec3 TissueModel::fromWeb(const Vec3& p_web) const noexcept {
+  return p_.origin_m + p_.orientation * p_web;
+}
+
+Vec3 TissueModel::normalAxis() const noexcept { return p_.orientation * Vec3::UnitZ(); }
+
+double TissueModel::depthOf(int finger, const Vec3& p_device) const noexcept {
+  const Vec3 w = toWeb(p_device);
+  const double surface = 0.5 * p_.thickness_m + p_.pad_radius_m;
+  // Thumb on the dorsal surface (from +z), index on the palmar one (from −z).
+  return finger == kThumb ? surface - w.z() : w.z() + surface;
+}
+
+double TissueModel::patchWeight(double x_m, double y_m) const noexcept {
+  if (p_.patch_radius_m <= 0.0) return 0.0;
+  const double r = std::hypot(x_m - p_.patch_x_m, y_m - p_.patch_y_m);
+  const double half = 0.5 * p_.patch_rim_m;
+  return 1.0 - smoothstep(p_.patch_radius_m - half, p_.patch_radius_m + half, r);
+}
+
+Vec3 TissueModel::patchGradient(double x_m, double y_m) const noexcept {
+  if (p_.patch_radius_m <= 0.0) return Vec3::Zero();
+  const double dx = x_m - p_.patch_x_m, dy = y_m - p_.patch_y_m;
+  const double r = std::hypot(dx, dy);
+  if (r <= 0.0) return Vec3::Zero();
+  const double half = 0.5 * p_.patch_rim_m;
+  const double s = -smoothstepSlope(p_.patch_radius_m - half, p_.patch_radius_m + half, r);
+  return Vec3(s * dx / r, s * dy / r, 0.0);
+}
+
+double TissueModel::normalForceN(double depth_m, double depth_rate_m_s, double x_m,
+                                 double y_m) const noexcept {
+  if (!(depth_m > 0.0)) return 0.0;
+  const double w = patchWeight(x_m, y_m);
+  const double k = p_.stiffness_n_per_m_pow * (1.0 + w * (p_.patch_stiffness_factor - 1.0));
+  const double elastic = k * std::pow(depth_m, p_.exponent);
+  return std::max(elastic * (1.0 + p_.damping_s_per_m * depth_rate_m_s), 0.0);
+}
+
+double TissueModel::normalEnergyJ(double depth_m, double x_m, double y_m) const noexcept {
+  if (!(depth_m > 0.0)) return 0.0;
+  const double w = patchWeight(x_m, y_m);
+  const double k = p_.stiffness_n_per_m_pow * (1.0 + w * (p_.patch_stiffness_factor - 1.0));
+  return k * std::pow(depth_m, p_.exponent + 1.0) / (p_.exponent + 1.0);
+}
+
+double TissueModel::depthForForce(double force_n, double x_m, double y_m) const noexcept {
+  if (!(force_n > 0.0)) return 0.0;
+  const double w = patchWeight(x_m, y_m);
+  const double k = p_.stiffness_n_per_m_pow * (1.0 + w * (p_.patch_stiffness_factor - 1.0));
+  if (!(k > 0.0)) return 0.0;
+  return std::pow(force_n / k, 1.0 / p_.exponent);
+}
+
+TissueContact tissueContact(const TissueModel& m, int finger, const Vec3& p_device,
+                            const Vec3& v_device, TissueAnchor& anchor) noexcept {
+  const TissueParams& p = m.params();
+  TissueContact c;
+  const Vec3 w = m.toWeb(p_device);
+  const Vec3 v = p.orientation.conjugate() * v_device;
+  const double depth = m.depthOf(finger, p_device);
+  const bool over = std::abs(w.x()) <= p.half_extent_m && std::abs(w.y()) <= p.half_extent_m;
+  c.point_w = Vec3(w.x(), w.y(), finger == kThumb ? 0.5 * p.thickness_m : -0.5 * p.thickness_m);
+  if (!(depth > 0.0) || !over || !allFinite(w) || !allFinite(v)) {
+    anchor.attached = false;
+    return c;
+  }
+  // + pressing in: the thumb moves toward −z, the index toward +z.
+  const double rate = finger == kThumb ? -v.z() : v.z();
+  c.depth_m = depth;
+  c.depth_rate_m_s = rate;
+  const double fn = m.normalForceN(depth, rate, w.x(), w.y());
+  const double side = finger == kThumb ? 1.0 : -1.0;  // the skin pushes the finger back out
+  c.normal_n = p.orientation * Vec3(0.0, 0.0, side * fn);
+
+  if (!anchor.attached) {
+    anchor.x_m = w.x();
+    anchor.y_m = w.y();
+    anchor.attached = true;
+  }
+  // A stiffer patch stores more energy at the same depth: its rim pushes the finger out of it
+  // with the slope of that energy (-dV/dx), or the web would return more energy than it took
+  // from a finger that presses beside the patch and lets go inside it.
+  const Vec3 rim = -(p.patch_stiffness_factor - 1.0) * p.stiffness_n_per_m_pow *
+                   std::pow(depth, p.exponent + 1.0) / (p.exponent + 1.0) *
+                   m.patchGradient(w.x(), w.y());
+  const double g = 1.0 + m.patchWeight(w.x(), w.y()) * (p.patch_friction_factor - 1.0);
+  const double kt = p.lateral_stiffness_n_per_m;
+  const double limit_static = p.mu_static * g * fn;
+  const double limit_kinetic = p.mu_kinetic * g * fn;
+  double sx = w.x() - anchor.x_m, sy = w.y() - anchor.y_m;
+  const double stretch = std::hypot(sx, sy);
+  c.sticking = true;
+  if (kt * stretch > limit_static) {
+    // Slip: the anchor follows to where the spring pulls with the kinetic limit.
+    c.sticking = false;
+    const double keep = kt > 0.0 && stretch > 0.0 ? limit_kinetic / (kt * stretch) : 0.0;
+    sx *= keep;
+    sy *= keep;
+    anchor.x_m = w.x() - sx;
+    anchor.y_m = w.y() - sy;
+  }
+  const Vec3 ft_w(-kt * sx - p.viscous_n_s_per_m * v.x() + rim.x(),
+                  -kt * sy - p.viscous_n_s_per_m * v.y() + rim.y(), 0.0);
+  c.tangential_n = p.orientation * ft_w;
+  return c;
+}
+
+TissueProxy::TissueProxy(const TissueParams& initial, double force_scale, int64_t blend_ns) noexcept
+    : current_(initial), previous_(initial), scale_(force_scale), blend_ns_(blend_ns) {}
+
+void TissueProxy::setParams(const TissueParams& next, double force_scale) noexcept {
+  scale_ = force_scale;
+  if (next == current_.params()) return;
+  previous_ = current_;
+  current_ = TissueModel(next);
+  blending_ = blend_ns_ > 0;
+  fade_started_ = false;
+}
+
+void TissueProxy::reset() noexcept {
+  anchor_ = {};
+  have_last_ = false;
+  v_ = {Vec3::Zero(), Vec3::Zero()};
+}
+
+TissueOutput TissueProxy::render(const PerFinger<Vec3>& p, int64_t t_ns) noexcept {
+  if (have_last_ && t_ns > last_ns_) {
+    const double dt = static_cast<double>(t_ns - last_ns_) * 1e-9;
+    constexpr double kTau = 0.005;  // as the joint proxy's rates: encoder noise
+    for (int k = 0; k < 2; ++k) v_[k] += (dt / (kTau + dt)) * ((p[k] - last_p_[k]) / dt - v_[k]);
+  } else if (have_last_ && t_ns < last_ns_) {
+    v_ = {Vec3::Zero(), Vec3::Zero()};
+  }
+  if (!have_last_ || t_ns != last_ns_) {
+    have_last_ = true;
+    last_ns_ = t_ns;
+    last_p_ = p;
+  }
+  return renderWith(p, v_, t_ns);
+}
+
+TissueOutput TissueProxy::renderWith(const PerFinger<Vec3>& p, const PerFinger<Vec3>& v,
+                                     int64_t t_ns) noexcept {
+  TissueOutput out;
+  double weight = 1.0;
+  if (blending_) {
+    if (!fade_started_) {
+      fade_started_ = true;
+      fade_start_ns_ = t_ns;
+    }
+    weight = std::clamp(static_cast<double>(t_ns - fade_start_ns_) / static_cast<double>(blend_ns_),
+                        0.0, 1.0);
+    if (weight >= 1.0) blending_ = false;
+  }
+  out.blending = blending_;
+  for (int k = 0; k < 2; ++k) {
+    // The previous set sees the same anchor (a copy: the current set advances it).
+    TissueAnchor old_anchor = anchor_[k];
+    TissueContact c = tissueContact(current_, k, p[k], v[k], anchor_[k]);
+    if (weight < 1.0) {
+      const TissueContact o = tissueContact(previous_, k, p[k], v[k], old_anchor);
+      c.normal_n = weight * c.normal_n + (1.0 - weight) * o.normal_n;
+      c.tangential_n = weight * c.tangential_n + (1.0 - weight) * o.tangential_n;
+    }
+    out.contact[k] = c;
+    out.force_device_n[k] = c.force() * scale_;
+    const TissueParams& tp = current_.params();
+    const double stretch2 = anchor_[k].attached ? std::pow(c.point_w.x() - anchor_[k].x_m, 2) +
+                                                      std::pow(c.point_w.y() - anchor_[k].y_m, 2)
+                                                : 0.0;
+    out.potential_j += scale_ * (current_.normalEnergyJ(c.depth_m, c.point_w.x(), c.point_w.y()) +
+                                 0.5 * tp.lateral_stiffness_n_per_m * stretch2);
+  }
+  return out;
+}
+
+}  // namespace telehand
