@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "telehand/core/error.h"
 #include "telehand/devices/record.h"
@@ -41,6 +42,7 @@ HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
       clock_(clock),
       config_(config),
       proxy_(initial_model, teleop.blend_ns),
+      tissue_(initial_model.tissue, initial_model.force_scale, teleop.blend_ns),
       gate_(limits),
       samples_(std::make_unique<SampleRing>()),
       models_(std::make_unique<ModelRing>()),
@@ -60,6 +62,7 @@ StepStatus HapticLoop::step() noexcept {
   JointModelParams next;
   while (models_->tryPop(next)) {
     proxy_.setModel(next);
+    tissue_.setParams(next.tissue, next.force_scale);
     bump(health_.models_applied);
     health_.model_version.store(next.version, std::memory_order_relaxed);
   }
@@ -101,7 +104,11 @@ StepStatus HapticLoop::step() noexcept {
   // On the sample's clock: the rates difference positions over the time between them (a
   // repeated sample is not a still finger, a resumed one not a jump within one tick).
   const ProxyOutput rendered = proxy_.render(p, sample_.time_ns);
-  stored_energy_j_ = rendered.potential_j;
+  // The web is stepped whatever the technique (its friction anchors follow the fingers); a
+  // massage renders it instead of the joint.
+  const TissueOutput web = tissue_.render(p, sample_.time_ns);
+  const bool massage = proxy_.model().params().technique == Technique::kMassage;
+  stored_energy_j_ = massage ? web.potential_j : rendered.potential_j;
   health_.guide_nm.store(rendered.guide_ref_nm.cwiseAbs().maxCoeff(), std::memory_order_relaxed);
   health_.guide_authority.store(proxy_.model().params().guide.authority, std::memory_order_relaxed);
   const bool direct = direct_.load(std::memory_order_relaxed);
@@ -110,7 +117,9 @@ StepStatus HapticLoop::step() noexcept {
     if (df.device_seq >= direct_force_.device_seq) direct_force_ = df;  // reordered: keep newest
     bump(health_.direct_forces);
   }
-  const PerFinger<Vec3>& request = direct ? direct_force_.force_n : rendered.force_device_n;
+  const PerFinger<Vec3>& request = direct    ? direct_force_.force_n
+                                   : massage ? web.force_device_n
+                                             : rendered.force_device_n;
   PassivityOutput guarded = passivity_.control(request);
   // After a fault nothing is rendered: zero, still through the gate (its rate limit).
   const bool faulted = health_.fault.load(std::memory_order_relaxed) != 0;
@@ -151,9 +160,17 @@ StepStatus HapticLoop::step() noexcept {
   // a device that is not streaming has no angles to judge, and in direct mode nothing is
   // rendered until the server's first force arrives (a round trip after the start).
   const bool rendering = !direct || health_.direct_forces.load(std::memory_order_relaxed) > 0;
+  const double depth = std::max(web.contact[0].depth_m, web.contact[1].depth_m);
+  double excess = 0.0;
+  if (massage) {
+    excess = depth > kWebRunawayDepthM ? 1e9 : 0.0;
+  } else {
+    excess = allFinite(rendered.angles_rad) ? proxy_.model().rangeExcessDeg(rendered.angles_rad)
+                                            : std::numeric_limits<double>::infinity();
+  }
   if (!faulted && actuators && fault_limits_.enabled && fresh && !outage && rendering &&
       !(safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) &&
-      detectFault(now, (safe.flags & kSafetyClamped) != 0, rendered.angles_rad)) {
+      detectFault(now, (safe.flags & kSafetyClamped) != 0, excess)) {
     status = StepStatus::kSafetyFault;
   }
   if (faulted) status = StepStatus::kSafetyFault;
@@ -176,6 +193,18 @@ StepStatus HapticLoop::step() noexcept {
   s.passivity_energy_j = static_cast<float>(energy);
   s.passivity_damping = static_cast<float>(guarded.damping_ns_per_m);
   const Vec3 applied = devices::recordTick(sample_, safe.force_n, rendered, s);
+  if (massage) {
+    double normal = 0.0;
+    for (int k = 0; k < 2; ++k) {
+      s.fingers[k].contact_depth_m = web.contact[k].depth_m;
+      const Vec3 f = web.contact[k].force();
+      for (int i = 0; i < 3; ++i) s.fingers[k].tissue_force_n[i] = f[i];
+      normal = std::max(normal, web.contact[k].normal_n.norm());
+    }
+    health_.web_depth_m.store(depth, std::memory_order_relaxed);
+    health_.web_normal_ref_n.store(normal, std::memory_order_relaxed);
+  }
+  health_.massage.store(massage, std::memory_order_relaxed);
   const double force_max = std::max(safe.force_n[0].norm(), safe.force_n[1].norm());
   overran_ = false;
   if (samples_->tryPush(s)) {
@@ -194,7 +223,7 @@ StepStatus HapticLoop::step() noexcept {
   return status;
 }
 
-bool HapticLoop::detectFault(int64_t now, bool clamped, const Vec3& angles) noexcept {
+bool HapticLoop::detectFault(int64_t now, bool clamped, double excess_deg) noexcept {
   const FaultLimits& lim = fault_limits_;
   LoopFault fault = LoopFault::kNone;
   // Clamp onsets in a leaky bucket that drains storm_onsets per second.
@@ -221,11 +250,10 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, const Vec3& angles) noex
       fault = LoopFault::kSustainedClamp;
     }
   }
-  // How far the rendered angles are past the model's range.
-  const bool finite = allFinite(angles);
-  const double excess = proxy_.model().rangeExcessDeg(angles);
-  raise(health_.range_excess_max_deg, finite ? excess : 1e9);
-  const bool outside = !finite || excess > lim.range_margin_deg;
+  // How far the rendering is past its range.
+  const bool finite = std::isfinite(excess_deg);
+  raise(health_.range_excess_max_deg, finite ? excess_deg : 1e9);
+  const bool outside = !finite || excess_deg > lim.range_margin_deg;
   // A finger that starts (or resumes) away from the joint, before the grip is on it, is not
   // running away: the timer arms once the rendered angles have been within the margin.
   if (!outside) in_range_seen_ = true;

@@ -23,6 +23,11 @@ std::optional<std::string> firstNonFinite(const Sample& s) {
     }
     if (!std::isfinite(f.tangential_n)) return finger + ".tangential_n";
     if (!std::isfinite(f.normal_n)) return finger + ".normal_n";
+    if (!std::isfinite(f.contact_depth_m)) return finger + ".contact_depth_m";
+    for (int i = 0; i < 3; ++i) {
+      if (!std::isfinite(f.tissue_force_n[i]))
+        return finger + ".tissue_force_n[" + std::to_string(i) + "]";
+    }
   }
   for (int i = 0; i < 3; ++i) {
     if (!std::isfinite(s.mcp_angles_rad[i])) return "mcp_angles_rad[" + std::to_string(i) + "]";
@@ -64,6 +69,13 @@ std::optional<std::string> firstInvalid(const Sample& s) {
     if (std::abs(f.tangential_n) > b::kThimbleForceN)
       return out(finger + ".tangential_n", f.tangential_n);
     if (std::abs(f.normal_n) > b::kThimbleForceN) return out(finger + ".normal_n", f.normal_n);
+    if (f.contact_depth_m < 0.0 || f.contact_depth_m > b::kDepthM)
+      return out(finger + ".contact_depth_m", f.contact_depth_m);
+    for (int i = 0; i < 3; ++i) {
+      if (std::abs(f.tissue_force_n[i]) > b::kThimbleForceN) {
+        return out(finger + ".tissue_force_n[" + std::to_string(i) + "]", f.tissue_force_n[i]);
+      }
+    }
   }
   for (int i = 0; i < 3; ++i) {
     if (std::abs(s.mcp_angles_rad[i]) > b::kAngleRad) {

@@ -79,6 +79,9 @@ TissueParams tissueCase(const char* name) noexcept {
     p.patch_radius_m = 0.006;
     p.patch_stiffness_factor = 2.5;
     p.patch_friction_factor = 2.0;
+    // A rim narrower than this pushes a circling finger sideways harder than the device
+    // renders (5 N asked on a 6 mm circle with a 2 mm rim).
+    p.patch_rim_m = 0.0045;
   } else if (std::strcmp(name, "hypertonic") == 0) {
     p.stiffness_n_per_m_pow = 4.0e4;
     p.exponent = 1.4;

@@ -55,6 +55,31 @@ void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointMo
     for (int i = 0; i < 3; ++i)
       out.guide_path_rad[k][i] = g.path_rad[static_cast<std::size_t>(k)][i];
   }
+  out.technique = p.technique == Technique::kMassage ? telehand_msg_TECHNIQUE_MASSAGE
+                                                     : telehand_msg_TECHNIQUE_MOBILIZATION;
+  const TissueParams& t = p.tissue;
+  telehand_msg_TissueModel& w = out.tissue;
+  for (int i = 0; i < 3; ++i) w.origin_m[i] = t.origin_m[i];
+  w.orientation_q[0] = t.orientation.w();
+  w.orientation_q[1] = t.orientation.x();
+  w.orientation_q[2] = t.orientation.y();
+  w.orientation_q[3] = t.orientation.z();
+  w.thickness_m = t.thickness_m;
+  w.pad_radius_m = t.pad_radius_m;
+  w.half_extent_m = t.half_extent_m;
+  w.stiffness_n_per_m_pow = t.stiffness_n_per_m_pow;
+  w.exponent = t.exponent;
+  w.damping_s_per_m = t.damping_s_per_m;
+  w.lateral_stiffness_n_per_m = t.lateral_stiffness_n_per_m;
+  w.mu_static = t.mu_static;
+  w.mu_kinetic = t.mu_kinetic;
+  w.viscous_n_s_per_m = t.viscous_n_s_per_m;
+  w.patch_x_m = t.patch_x_m;
+  w.patch_y_m = t.patch_y_m;
+  w.patch_radius_m = t.patch_radius_m;
+  w.patch_stiffness_factor = t.patch_stiffness_factor;
+  w.patch_friction_factor = t.patch_friction_factor;
+  w.patch_rim_m = t.patch_rim_m;
 }
 
 std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::string* why) {
@@ -136,6 +161,37 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
       return bad("guide_path_rad point " + std::to_string(k) + " is not finite or beyond ±180 deg");
     }
   }
+  if (m.technique != telehand_msg_TECHNIQUE_MOBILIZATION &&
+      m.technique != telehand_msg_TECHNIQUE_MASSAGE) {
+    return bad("technique is neither mobilization nor massage");
+  }
+  p.technique = m.technique == telehand_msg_TECHNIQUE_MASSAGE ? Technique::kMassage
+                                                              : Technique::kMobilization;
+  const telehand_msg_TissueModel& w = m.tissue;
+  TissueParams& t = p.tissue;
+  t.origin_m = Vec3(w.origin_m[0], w.origin_m[1], w.origin_m[2]);
+  t.orientation =
+      Quat(w.orientation_q[0], w.orientation_q[1], w.orientation_q[2], w.orientation_q[3]);
+  t.thickness_m = w.thickness_m;
+  t.pad_radius_m = w.pad_radius_m;
+  t.half_extent_m = w.half_extent_m;
+  t.stiffness_n_per_m_pow = w.stiffness_n_per_m_pow;
+  t.exponent = w.exponent;
+  t.damping_s_per_m = w.damping_s_per_m;
+  t.lateral_stiffness_n_per_m = w.lateral_stiffness_n_per_m;
+  t.mu_static = w.mu_static;
+  t.mu_kinetic = w.mu_kinetic;
+  t.viscous_n_s_per_m = w.viscous_n_s_per_m;
+  t.patch_x_m = w.patch_x_m;
+  t.patch_y_m = w.patch_y_m;
+  t.patch_radius_m = w.patch_radius_m;
+  t.patch_stiffness_factor = w.patch_stiffness_factor;
+  t.patch_friction_factor = w.patch_friction_factor;
+  t.patch_rim_m = w.patch_rim_m;
+  if (const char* field = invalidTissueParam(t)) {
+    return bad(std::string("tissue ") + field + " is not finite or out of range");
+  }
+  t.orientation.normalize();
   std::memcpy(p.case_name.data(), m.case_name, std::min(sizeof(m.case_name), p.case_name.size()));
   p.case_name.back() = '\0';
   return p;
@@ -151,6 +207,8 @@ void copyFinger(const From& f, To& w) noexcept {
   w.tangential_n = f.tangential_n;
   w.normal_n = f.normal_n;
   for (int i = 0; i < 3; ++i) w.command_n[i] = f.command_n[i];
+  w.contact_depth_m = f.contact_depth_m;
+  for (int i = 0; i < 3; ++i) w.tissue_force_n[i] = f.tissue_force_n[i];
 }
 
 template <typename From, typename To>
@@ -283,6 +341,16 @@ void toWire(const HandStateFields& f, telehand_msg_HandState& out) noexcept {
     out.mcp_torque_nm[i] = f.mcp_torque_nm[i];
   }
   out.applied_force_ref_n = f.applied_force_ref_n;
+  out.technique = f.massage ? telehand_msg_TECHNIQUE_MASSAGE : telehand_msg_TECHNIQUE_MOBILIZATION;
+  for (int k = 0; k < 2; ++k) {
+    out.web_depth_m[k] = f.web_depth_m[static_cast<std::size_t>(k)];
+    for (int i = 0; i < 3; ++i)
+      out.web_force_n[k][i] = f.web_force_n[static_cast<std::size_t>(k)][i];
+  }
+  for (int r = 0; r < 8; ++r) {
+    for (int c = 0; c < 8; ++c)
+      out.web_grid_m[r][c] = f.web_grid_m[static_cast<std::size_t>(r)][static_cast<std::size_t>(c)];
+  }
 }
 
 void toWire(uint64_t session_id, uint64_t device_seq, int64_t source_time_ns,
@@ -314,6 +382,8 @@ std::string_view modeName(telehand_msg_SessionMode m) noexcept {
       return "lesson";
     case telehand_msg_MODE_REPLAY:
       return "replay";
+    case telehand_msg_MODE_MASSAGE:
+      return "massage";
   }
   return "unknown";
 }
@@ -324,7 +394,16 @@ std::optional<telehand_msg_SessionMode> parseMode(std::string_view name) noexcep
   if (name == "capture") return telehand_msg_MODE_CAPTURE;
   if (name == "lesson") return telehand_msg_MODE_LESSON;
   if (name == "replay") return telehand_msg_MODE_REPLAY;
+  if (name == "massage") return telehand_msg_MODE_MASSAGE;
+  // A massage's capture is kept as "capture-massage" (techniqueOfMode).
+  if (name == "capture-massage") return telehand_msg_MODE_CAPTURE;
   return std::nullopt;
+}
+
+Technique techniqueOfMode(std::string_view recorded_mode) noexcept {
+  return recorded_mode == "massage" || recorded_mode == "capture-massage"
+             ? Technique::kMassage
+             : Technique::kMobilization;
 }
 
 std::string_view stateName(telehand_msg_SessionState s) noexcept {

@@ -27,6 +27,18 @@ HandRunner::HandRunner(uint64_t session_id, const sim::HandModel* hand,
     sim_ = buildOnHandHeap<sim::HandSim>(
         [&] { return std::make_unique<sim::HandSim>(*hand, params, hand_config); });
   }
+  if (params.technique == Technique::kMassage)
+    web_ = std::make_unique<sim::WebSim>(params.tissue, params.force_scale);
+}
+
+void HandRunner::setModel(const JointModelParams& params) {
+  if (sim_) sim_->setMcpModel(params);
+  if (params.technique != Technique::kMassage) return;
+  if (web_) {
+    web_->setParams(params.tissue, params.force_scale);
+  } else {
+    web_ = std::make_unique<sim::WebSim>(params.tissue, params.force_scale);
+  }
 }
 
 HandRunner::~HandRunner() {
@@ -70,6 +82,26 @@ void HandRunner::step(const JointModel& model) {
 bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
                          const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
                          telehand_msg_SessionMode mode, Vec3* before) {
+  if (web_ && live.isNew(d)) {
+    // The web steps as the client's proxy did: once per sample at its time; samples lost on
+    // the way are stepped on a straight line between the two received (withheld ones of a
+    // deadband-coded stream on the last received), as the hand below.
+    const uint64_t gap = live.have() ? live.ticksTo(d) : 1;
+    const uint64_t steps = std::min<uint64_t>(
+        gap, coded ? SessionManager::kMaxHeldSteps : SessionManager::kMaxCatchUpSteps);
+    if (live.have() && steps > 1) {
+      const PerFinger<Vec3> from = thimblePositions(live.last());
+      const int64_t t0 = live.last().source_time_ns;
+      for (uint64_t i = 1; i < steps; ++i) {
+        const double w = coded ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
+        const int64_t t =
+            t0 + static_cast<int64_t>(static_cast<double>(d.source_time_ns - t0) *
+                                      static_cast<double>(i) / static_cast<double>(steps));
+        web_->step({from[0] + w * (grip[0] - from[0]), from[1] + w * (grip[1] - from[1])}, t);
+      }
+    }
+    web_->step(grip, d.source_time_ns);
+  }
   if (sim_ && live.isNew(d)) {
     // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
     // on the way, with the thimbles moving in a straight line across the gap (jumping the
@@ -124,8 +156,9 @@ bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Samp
 bool HandRunner::correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip,
                               const JointModel& model, telehand_msg_SessionMode mode, double dt_s,
                               int64_t now_ns, Vec3* before) {
-  // A capture renders nothing (the actuators are off): there is no proxy to correct.
-  if (!ctx.config.drift_correction || mode == telehand_msg_MODE_CAPTURE) return false;
+  // A capture renders nothing (the actuators are off): there is no proxy to correct; a
+  // massage renders the web, not the joint.
+  if (!ctx.config.drift_correction || mode == telehand_msg_MODE_CAPTURE || web_) return false;
   const auto pads = sim_->contactForcesDevice();
   const double min_grip = drift_.options().min_grip_n;
   const bool held = pads[0].norm() >= min_grip && pads[1].norm() >= min_grip;
@@ -217,6 +250,15 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
       const Quat q(f.orientation_q[0], f.orientation_q[1], f.orientation_q[2], f.orientation_q[3]);
       hf.fingertip_m[k] = p[k];
       hf.fingertip_force_n[k] = thimbleForceVector({f.tangential_n, f.normal_n}, q);
+    }
+    if (web_) {
+      hf.massage = true;
+      const TissueOutput& w = web_->last();
+      for (std::size_t k = 0; k < 2; ++k) {
+        hf.web_depth_m[k] = w.contact[k].depth_m;
+        hf.web_force_n[k] = w.contact[k].force();
+      }
+      hf.web_grid_m = web_->grid();
     }
     // The same figure the lessons score (technique::appliedForceRefN).
     hf.applied_force_ref_n = static_cast<float>(technique::appliedForceRefN(d, params.force_scale));

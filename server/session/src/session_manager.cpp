@@ -282,7 +282,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   }
   if (cmd.mode != telehand_msg_MODE_MOBILIZATION && cmd.mode != telehand_msg_MODE_EXPLORATION &&
       cmd.mode != telehand_msg_MODE_CAPTURE && cmd.mode != telehand_msg_MODE_LESSON &&
-      cmd.mode != telehand_msg_MODE_REPLAY) {
+      cmd.mode != telehand_msg_MODE_REPLAY && cmd.mode != telehand_msg_MODE_MASSAGE) {
     ++stats_.bad_commands;
     event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
           "OPEN with unknown mode " + std::to_string(static_cast<int>(cmd.mode)), now_ns);
@@ -357,6 +357,17 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       return;
     }
   }
+  // The massage renders the web of the case (docs/massage.md): a massage session, a capture of
+  // one, a lesson whose technique it is, or a resumed one.
+  const bool massage =
+      cmd.mode == telehand_msg_MODE_MASSAGE ||
+      (cmd.mode == telehand_msg_MODE_CAPTURE && cmd.technique == telehand_msg_TECHNIQUE_MASSAGE) ||
+      (lesson_info && lesson_info->technique == "massage") ||
+      (resumed && techniqueOfMode(resumed->mode) == Technique::kMassage);
+  if (massage) {
+    patient.model.technique = Technique::kMassage;
+    if (!patient.has_tissue) patient.model.tissue = tissueCase(case_name.c_str());
+  }
   SessionInfo info;
   uint64_t stored_below = 0;
   std::optional<store::SessionStore::Extent> extent;
@@ -371,6 +382,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       info.user = cmd.user;
       info.case_name = case_name;
       info.mode = std::string(modeName(cmd.mode));
+      if (massage && cmd.mode == telehand_msg_MODE_CAPTURE) info.mode = "capture-massage";
       info.state = "active";
       info.started_ns = wallNs();
       info.owner = from.guid;

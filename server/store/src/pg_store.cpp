@@ -93,6 +93,18 @@ CREATE TABLE checkpoints (
   data BYTEA NOT NULL);
 )sql";
 constexpr int kTakeoverSchemaVersion = 5;  // schema 5: the same without the pool's tables
+constexpr int kPoolSchemaVersion = 6;      // schema 6: the same without the web's columns
+
+/// Schema 6 -> 7: samples gain the massage's web per finger (0 for those recorded before).
+std::string addWebColumnsSql() {
+  std::string sql;
+  for (std::size_t i = 0; i < fieldNames().size(); ++i) {
+    if (detail::isWebField(i))
+      sql += "ALTER TABLE samples ADD COLUMN IF NOT EXISTS " + fieldNames()[i] +
+             " DOUBLE PRECISION DEFAULT 0;\n";
+  }
+  return sql;
+}
 constexpr const char* kPoolTableNames[] = {"checkpoints", "pool_opens", "pool_servers",
                                            "session_owners"};
 /// The record's clock, ns since the epoch.
@@ -152,9 +164,11 @@ std::string copySamplesSql() {
 }
 
 /// A page of a session's samples by key: $1 session, $2 <= seq <= $3, at most $4 rows.
-std::string selectSamplesSql() {
+/// A record from before schema 7 has no web columns: they read as 0.
+std::string selectSamplesSql(bool web_columns) {
   std::string cols;
-  for (const auto& n : fieldNames()) cols += n + ", ";
+  for (std::size_t i = 0; i < fieldNames().size(); ++i)
+    cols += (web_columns || !detail::isWebField(i) ? fieldNames()[i] : "0::float8") + ", ";
   return "SELECT " + cols +
          "valid FROM samples WHERE session_id = $1 AND seq >= $2 AND seq <= $3 ORDER BY seq "
          "LIMIT $4";
@@ -509,10 +523,13 @@ PgStore::PgStore(const std::string& uri, Mode mode)
                          "' is not a telehand record database (its schema is empty)");
       }
       createSchema();
-    } else if (layout == Layout::kTakeover && mode_ == Mode::kReadWrite) {
-      createSchema();  // schema 5 -> 6
+    } else if ((layout == Layout::kTakeover || layout == Layout::kPool) &&
+               mode_ == Mode::kReadWrite) {
+      createSchema();  // schema 5 -> 6 -> 7
     }
     pool_tables_ = layout != Layout::kTakeover || mode_ == Mode::kReadWrite;
+    web_columns_ =
+        layout == Layout::kCurrent || layout == Layout::kEmpty || mode_ == Mode::kReadWrite;
   } catch (...) {
     PQfinish(conn_);
     throw;
@@ -571,7 +588,7 @@ void PgStore::prepare() {
   Db db(conn_, location_);
   const auto insert = insertSamplesSql();
   db.check(PQprepare(conn_, kInsertStatement, insert.c_str(), 0, nullptr), insert.c_str());
-  const auto select = selectSamplesSql();
+  const auto select = selectSamplesSql(web_columns_);
   db.check(PQprepare(conn_, kSelectStatement, select.c_str(), 0, nullptr), select.c_str());
   prepared_ = true;
 }
@@ -618,11 +635,12 @@ PgStore::Layout PgStore::inspect() {
     if (!has(n)) missing += (missing.empty() ? "" : ", ") + std::string(n);
   }
   if (version == kTakeoverSchemaVersion && missing.empty()) return Layout::kTakeover;
-  if (version == kSchemaVersion) {
+  if (version == kPoolSchemaVersion || version == kSchemaVersion) {
     for (const char* n : kPoolTableNames) {
       if (!has(n)) missing += (missing.empty() ? "" : ", ") + std::string(n);
     }
   }
+  if (version == kPoolSchemaVersion && missing.empty()) return Layout::kPool;
   if (version != kSchemaVersion || !missing.empty()) {
     throw StoreError("'" + location_ + "' carries the telehand marker but schema " +
                      std::to_string(version) +
@@ -643,9 +661,14 @@ void PgStore::createSchema() {
     const Layout layout = inspect();
     if (layout == Layout::kTakeover) {
       db.script(kPoolTables);
-      db.run("UPDATE telehand_schema SET version = $1", {int4Param(kSchemaVersion)});
       spdlog::info("record database '{}': schema {} -> {} (a pool of servers on one record)",
-                   location_, kTakeoverSchemaVersion, kSchemaVersion);
+                   location_, kTakeoverSchemaVersion, kPoolSchemaVersion);
+    }
+    if (layout == Layout::kTakeover || layout == Layout::kPool) {
+      db.script(addWebColumnsSql().c_str());
+      db.run("UPDATE telehand_schema SET version = $1", {int4Param(kSchemaVersion)});
+      spdlog::info("record database '{}': schema {} -> {} (samples keep the massage's web)",
+                   location_, kPoolSchemaVersion, kSchemaVersion);
     } else if (layout == Layout::kEmpty) {
       db.script(kOtherTables);
       db.script(kPoolTables);

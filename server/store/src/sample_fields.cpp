@@ -26,6 +26,10 @@ const std::vector<std::string>& fieldNames() {
     }
     n.push_back("passivity_energy_j");
     n.push_back("passivity_damping_ns_per_m");
+    for (const std::string f : {"thumb", "index"}) {  // record schema 7: the massage's web
+      n.push_back(f + "_depth_m");
+      for (const char* c : xyz) n.push_back(f + "_tissue" + c + "_n");
+    }
     return n;
   }();
   return names;

@@ -18,4 +18,9 @@ void visitFields(S& s, F&& f) {
 /// The names visitFields() goes through, in its order (sampleColumns() without "valid").
 const std::vector<std::string>& fieldNames();
 
+/// The last fields, which record schema 7 added (the massage's web per finger: depth and
+/// force). A record from before them reads them as 0.
+constexpr std::size_t kWebFieldCount = 8;
+inline bool isWebField(std::size_t i) { return i + kWebFieldCount >= fieldNames().size(); }
+
 }  // namespace telehand::server::store::detail

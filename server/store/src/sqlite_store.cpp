@@ -30,9 +30,11 @@ using detail::visitFields;
 // field of the sample in a column of its own, named as in the CSV export (sampleColumns());
 // schema 3 adds the session's owner (the DDS participant that opened it, docs/security.md);
 // schema 4 adds lessons, lesson runs and their trials (docs/lessons.md); schema 5 whether a
-// lesson lets a supervisor take over its demonstration (lessons.takeover).
+// lesson lets a supervisor take over its demonstration (lessons.takeover); schema 6 the pool's
+// tables (docs/pool.md); schema 7 the massage's web per sample (depth and force per finger).
 constexpr int32_t kApplicationId = 0x54484E44;  // "THND"
-constexpr int kSchemaVersion = 6;
+constexpr int kSchemaVersion = 7;
+constexpr int kPoolSchemaVersion = 6;
 constexpr int kTakeoverSchemaVersion = 5;
 constexpr int kLessonSchemaVersion = 4;
 constexpr int kOwnerSchemaVersion = 3;
@@ -125,10 +127,12 @@ std::string insertSampleSql() {
   return "INSERT OR IGNORE INTO samples (" + cols + ", valid) VALUES (" + marks + ",?)";
 }
 
-/// SELECT of every field in visitFields() order, then valid.
-std::string selectSamplesSql(bool range = false) {
+/// SELECT of every field in visitFields() order, then valid. A record from before schema 7
+/// has no web columns: they read as 0.
+std::string selectSamplesSql(bool range, bool web_columns) {
   std::string cols;
-  for (const auto& n : fieldNames()) cols += n + ", ";
+  for (std::size_t i = 0; i < fieldNames().size(); ++i)
+    cols += (web_columns || !detail::isWebField(i) ? fieldNames()[i] : "0") + ", ";
   return "SELECT " + cols + "valid FROM samples WHERE session_id = ?" +
          (range ? " AND seq >= ? AND seq <= ?" : "") + " ORDER BY seq";
 }
@@ -299,6 +303,9 @@ SqliteStore::Layout SqliteStore::inspect() {
     if (version == kTakeoverSchemaVersion && has("samples") && has("lessons")) {
       return Layout::kTakeover;
     }
+    if (version == kPoolSchemaVersion && has("samples") && has("pool_servers")) {
+      return Layout::kPool;
+    }
     if (version != kSchemaVersion || !has("samples")) {
       throw StoreError("'" + path_ + "' carries the telehand marker but schema " +
                        std::to_string(version) +
@@ -361,6 +368,7 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
       if (layout == Layout::kEmpty) {
         throw StoreError("'" + path + "' is not a telehand record database (it is empty)");
       }
+      web_columns_ = hasWebColumns();
       return;  // a schema-1 file is read as it is (forEachSample decodes its blobs)
     }
     if (layout != Layout::kCurrent) {
@@ -380,20 +388,27 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
           addLessonTables();
           addTakeoverColumn();
           addPoolTables();
+          addWebColumns();
         } else if (layout == Layout::kColumns) {
           addOwnerColumn();
           addLessonTables();
           addTakeoverColumn();
           addPoolTables();
+          addWebColumns();
         } else if (layout == Layout::kOwner) {
           addLessonTables();
           addTakeoverColumn();
           addPoolTables();
+          addWebColumns();
         } else if (layout == Layout::kLessons) {
           addTakeoverColumn();
           addPoolTables();
+          addWebColumns();
         } else if (layout == Layout::kTakeover) {
           addPoolTables();
+          addWebColumns();
+        } else if (layout == Layout::kPool) {
+          addWebColumns();
         }
         exec("COMMIT");
       } catch (...) {
@@ -448,9 +463,31 @@ void SqliteStore::addTakeoverColumn() {
 /// recorded before have no owner in them; a pool takes them on as it takes orphans).
 void SqliteStore::addPoolTables() {
   exec(kPoolTables);
-  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  exec(("PRAGMA user_version = " + std::to_string(kPoolSchemaVersion) + ";").c_str());
   spdlog::info("record database '{}': schema {} -> {} (a pool of servers on one record)", path_,
-               kTakeoverSchemaVersion, kSchemaVersion);
+               kTakeoverSchemaVersion, kPoolSchemaVersion);
+}
+
+bool SqliteStore::hasWebColumns() {
+  Statement st(db_, "SELECT count(*) FROM pragma_table_info('samples') WHERE name = ?");
+  const std::string& last = fieldNames().back();
+  sqlite3_bind_text(st.get(), 1, last.c_str(), -1, SQLITE_STATIC);
+  return st.step() && sqlite3_column_int(st.get(), 0) > 0;
+}
+
+/// Schema 6 -> 7 inside the caller's transaction: samples gain the massage's web per finger
+/// (0 for the samples recorded before).
+void SqliteStore::addWebColumns() {
+  for (std::size_t i = 0; i < fieldNames().size(); ++i) {
+    if (!detail::isWebField(i)) continue;
+    Statement st(db_, "SELECT count(*) FROM pragma_table_info('samples') WHERE name = ?");
+    sqlite3_bind_text(st.get(), 1, fieldNames()[i].c_str(), -1, SQLITE_STATIC);
+    if (st.step() && sqlite3_column_int(st.get(), 0) > 0) continue;
+    exec(("ALTER TABLE samples ADD COLUMN " + fieldNames()[i] + " REAL DEFAULT 0;").c_str());
+  }
+  exec(("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";").c_str());
+  spdlog::info("record database '{}': schema {} -> {} (samples keep the massage's web)", path_,
+               kPoolSchemaVersion, kSchemaVersion);
 }
 
 bool SqliteStore::hasOwnerColumn() {
@@ -686,7 +723,7 @@ void SqliteStore::forEachSample(uint64_t session_id,
     }
     return;
   }
-  Statement st(db_, selectSamplesSql().c_str());
+  Statement st(db_, selectSamplesSql(false, web_columns_).c_str());
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   Sample s{};
   while (st.step()) {
@@ -705,7 +742,7 @@ void SqliteStore::forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint6
   }
   // Sequence numbers are stored as SQLite's signed integers; the window is clamped to them.
   constexpr uint64_t kMax = static_cast<uint64_t>(std::numeric_limits<sqlite3_int64>::max());
-  Statement st(db_, selectSamplesSql(true).c_str());
+  Statement st(db_, selectSamplesSql(true, web_columns_).c_str());
   sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
   sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(std::min(first_seq, kMax)));
   sqlite3_bind_int64(st.get(), 3, static_cast<sqlite3_int64>(std::min(last_seq, kMax)));

@@ -59,7 +59,7 @@ TEST_F(PgStoreTest, TheSchemaIsMarkedAndHasTheSqliteColumns) {
   EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "6");
   EXPECT_EQ(value("SELECT count(*) FROM " + table("telehand_schema")), "1");
   EXPECT_THAT(value("SELECT obj_description('" + table("telehand_schema") + "'::regclass)"),
-              HasSubstr("telehand session records, schema 6"));
+              HasSubstr("telehand session records, schema 7"));
   std::string want = "session_id";
   for (const auto& c : sampleColumns()) want += "," + c;
   EXPECT_EQ(value("SELECT string_agg(column_name, ',' ORDER BY ordinal_position) FROM "
@@ -149,9 +149,57 @@ TEST_F(PgStoreTest, ASchema5RecordGainsThePoolTables) {
         << "a reader changes nothing";
   }
   PgStore store(uri());
-  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "6");
+  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "7");
   EXPECT_TRUE(store.poolClaim(id, "a").won);
   EXPECT_EQ(store.poolOwner(id), "a");
+}
+
+// Schema 6 (before the massage's web columns): a reader reads the web as 0, a writer adds them.
+TEST_F(PgStoreTest, ASchema6RecordGainsTheWebColumns) {
+  uint64_t id = 0;
+  std::vector<Sample> v(3);
+  {
+    PgStore store(uri());
+    id = store.createSession({});
+    for (uint64_t i = 0; i < v.size(); ++i) {
+      v[i].session_id = id;
+      v[i].seq = i;
+    }
+    store.appendSamples(id, v, {});
+  }
+  std::string drop;
+  for (const std::string f : {"thumb", "index"}) {
+    drop += "ALTER TABLE " + table("samples") + " DROP COLUMN " + f + "_depth_m;";
+    for (const char* c : {"x", "y", "z"})
+      drop += "ALTER TABLE " + table("samples") + " DROP COLUMN " + f + "_tissue" + c + "_n;";
+  }
+  sql(drop);
+  sql("UPDATE " + table("telehand_schema") + " SET version = 6");
+  {
+    PgStore reader(uri(), SessionStore::Mode::kReadOnly);
+    int n = 0;
+    reader.forEachSample(id, [&](const Sample& s, bool) {
+      EXPECT_EQ(s.fingers[0].contact_depth_m, 0.0);
+      ++n;
+    });
+    EXPECT_EQ(n, 3);
+    EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "6");
+  }
+  PgStore store(uri());
+  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "7");
+  Sample s;
+  s.session_id = id;
+  s.seq = 3;
+  s.fingers[0].contact_depth_m = 0.004;
+  s.fingers[1].tissue_force_n[2] = -9.5;
+  store.appendSamples(id, std::vector<Sample>{s}, {});
+  double depth = 0.0, fz = 0.0;
+  store.forEachSample(id, [&](const Sample& x, bool) {
+    depth += x.fingers[0].contact_depth_m;
+    fz += x.fingers[1].tissue_force_n[2];
+  });
+  EXPECT_DOUBLE_EQ(depth, 0.004);
+  EXPECT_DOUBLE_EQ(fz, -9.5);
 }
 
 TEST_F(PgStoreTest, RefusesAMarkerThatIsNotTelehandsOrLacksTheTables) {

@@ -174,7 +174,7 @@ TEST_F(SqliteStoreTest, TableHasOneColumnPerCsvFieldAndTheHeaderMarksTheSchema) 
   EXPECT_EQ(raw.strings("SELECT type FROM pragma_table_info('samples') WHERE name = 'flags'"),
             std::vector<std::string>{"INTEGER"});
   EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 7);
 }
 
 // ---- Schema 1: one blob per sample, the C struct's bytes (x86-64, little-endian) ----------
@@ -360,7 +360,7 @@ TEST_F(SqliteStoreTest, MigratesASchema1BlobFileInPlace) {
   }
   {
     RawDb raw(dbPath());
-    EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 7);
     EXPECT_EQ(raw.integer("PRAGMA application_id"), 0x54484E44);
     EXPECT_EQ(raw.integer("SELECT count(*) FROM sqlite_master WHERE name LIKE 'samples_%'"), 0)
         << "old table dropped";
@@ -406,7 +406,7 @@ TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
   }
   {
     RawDb raw(dbPath());
-    raw.exec("PRAGMA user_version = 7;");
+    raw.exec("PRAGMA user_version = 8;");
   }
   const fs::path dir = fs::path(dbPath()).parent_path();
   const auto listing = dirListing(dir);
@@ -419,7 +419,7 @@ TEST_F(SqliteStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
       EXPECT_THAT(e.what(), HasSubstr(dbPath()));
       EXPECT_THAT(
           e.what(),
-          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 6)"));
+          HasSubstr("was written by a newer telehand (schema 8, this program knows up to 7)"));
     }
     EXPECT_EQ(fileBytes(dbPath()), before);
     if (mode == SqliteStore::Mode::kReadWrite) {
@@ -492,7 +492,7 @@ TEST_F(SqliteStoreTest, SessionsKeepTheirOwnerAndSchemaTwoFilesGainTheColumn) {
     EXPECT_EQ(writer.session(writer.createSession(c))->owner, "carol's participant");
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 7);
   EXPECT_EQ(raw.integer("SELECT count(*) FROM sessions WHERE owner = ''"), 2);
 }
 
@@ -569,7 +569,7 @@ TEST_F(SqliteStoreTest, SchemaThreeFilesGainLessonsAndKeepThem) {
             samples(run, 49, 50)[0].source_time_ns - samples(run, 0, 1)[0].source_time_ns);
   EXPECT_FALSE(store.extent(run + 100).has_value());
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 7);
 }
 
 TEST_F(SqliteStoreTest, SchemaFourFilesLearnWhichLessonsAllowATakeOver) {
@@ -605,7 +605,52 @@ TEST_F(SqliteStoreTest, SchemaFourFilesLearnWhichLessonsAllowATakeOver) {
   EXPECT_TRUE(store.lesson(id)->takeover);
   EXPECT_EQ(store.listLessons().back().name, "after");
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 7);
+}
+
+// Schema 6 (before the massage's web columns): a reader reads its samples with the web at 0,
+// a writer adds the columns and keeps what was there.
+TEST_F(SqliteStoreTest, ASchemaSixRecordGainsTheWebColumns) {
+  uint64_t id = 0;
+  {
+    SqliteStore store(dbPath());
+    id = store.createSession(info("alice"));
+    store.appendSamples(id, samples(id, 0, 5), {});
+  }
+  {
+    RawDb raw(dbPath());
+    std::string drop;
+    for (const std::string f : {"thumb", "index"}) {
+      drop += "ALTER TABLE samples DROP COLUMN " + f + "_depth_m;";
+      for (const char* c : {"x", "y", "z"})
+        drop += "ALTER TABLE samples DROP COLUMN " + f + "_tissue" + c + "_n;";
+    }
+    raw.exec(drop + "PRAGMA user_version = 6;");
+  }
+  const auto depths = [&](SqliteStore& s) {
+    std::vector<double> d;
+    s.forEachSample(id, [&](const Sample& x, bool) { d.push_back(x.fingers[1].contact_depth_m); });
+    return d;
+  };
+  {
+    SqliteStore reader(dbPath(), SqliteStore::Mode::kReadOnly);
+    EXPECT_EQ(depths(reader), std::vector<double>(5, 0.0)) << "a reader of schema 6 reads it";
+    RawDb raw(dbPath());
+    EXPECT_EQ(raw.integer("PRAGMA user_version"), 6) << "a reader changes nothing";
+  }
+  SqliteStore store(dbPath());  // migrates 6 -> 7
+  auto more = samples(id, 5, 7);
+  for (auto& x : more) {
+    x.fingers[1].contact_depth_m = 0.006;
+    x.fingers[0].tissue_force_n[2] = 10.5;
+  }
+  store.appendSamples(id, more, {});
+  EXPECT_EQ(depths(store), (std::vector<double>{0, 0, 0, 0, 0, 0.006, 0.006}));
+  double fz = 0.0;
+  store.forEachSample(id, [&](const Sample& x, bool) { fz += x.fingers[0].tissue_force_n[2]; });
+  EXPECT_DOUBLE_EQ(fz, 21.0);
+  RawDb raw(dbPath());
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 7);
 }
 
 TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
@@ -617,7 +662,7 @@ TEST_F(SqliteStoreTest, AnEmptySqliteFileGetsTheSchema) {
     EXPECT_EQ(store.appendSamples(id, samples(id, 0, 2), {}), 2u);
   }
   RawDb raw(dbPath());
-  EXPECT_EQ(raw.integer("PRAGMA user_version"), 6);
+  EXPECT_EQ(raw.integer("PRAGMA user_version"), 7);
 }
 
 // ---- CSV ----------------------------------------------------------------------------------
@@ -640,8 +685,8 @@ std::vector<std::string> split(const std::string& row) {
 TEST(SampleCsv, HeaderNamesEveryColumnOnce) {
   const auto& cols = sampleColumns();
   // 4 ids + 3 angles + 3 torques + 2 fingers x (3 pos + 4 quat + 4 fsr + 2 eq. 1-2 + 3 cmd)
-  // + 2 passivity + valid.
-  EXPECT_EQ(cols.size(), 4u + 3u + 3u + 2u * 16u + 2u + 1u);
+  // + 2 passivity + 2 fingers x (web depth + 3 web force) + valid.
+  EXPECT_EQ(cols.size(), 4u + 3u + 3u + 2u * 16u + 2u + 2u * 4u + 1u);
   EXPECT_EQ(cols.front(), "seq");
   EXPECT_EQ(cols.back(), "valid");
   std::vector<std::string> sorted = cols;

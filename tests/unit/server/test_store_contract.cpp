@@ -614,7 +614,7 @@ TEST_P(SessionStoreTest, RefusesANewerSchemaNamingTheRecord) {
     id = store->createSession(info("alice"));
     store->appendSamples(id, samples(id, 0, 10), {});
   }
-  this->backend_->setSchemaVersion(7);
+  this->backend_->setSchemaVersion(8);
   for (auto mode : {Mode::kReadWrite, Mode::kReadOnly}) {
     try {
       this->open(mode);
@@ -623,7 +623,7 @@ TEST_P(SessionStoreTest, RefusesANewerSchemaNamingTheRecord) {
       EXPECT_THAT(e.what(), HasSubstr(describeStore(this->spec())));
       EXPECT_THAT(
           e.what(),
-          HasSubstr("was written by a newer telehand (schema 7, this program knows up to 6)"));
+          HasSubstr("was written by a newer telehand (schema 8, this program knows up to 7)"));
     }
   }
   this->backend_->setSchemaVersion(5);

@@ -84,7 +84,9 @@ struct PatientCase {
   std::string description;
   std::string source;      ///< where the numbers come from
   JointModelParams model;  ///< at the start of a session
-  bool recovers = false;   ///< the range grows with treatment time
+  bool has_tissue =
+      false;  ///< the file gave the web ([tissue]); else a massage takes tissueCase(name)
+  bool recovers = false;  ///< the range grows with treatment time
   std::array<double, kAxes> final_min_deg{};
   std::array<double, kAxes> final_max_deg{};
   double recovery_treatment_s = 0.0;

@@ -19,6 +19,7 @@
 #include <string_view>
 
 #include "telehand/core/math.h"
+#include "telehand/core/tissue_model.h"
 
 namespace telehand {
 
@@ -124,6 +125,9 @@ struct JointModelParams {
   static constexpr double kMaxGripOffsetDeg = 30.0;
   /// A lesson's guidance while the student is led (authority 0: none).
   GuideParams guide{};
+  /// What the client's proxy renders: the joint (mobilization) or the web (massage, `tissue`).
+  Technique technique = Technique::kMobilization;
+  TissueParams tissue{};
 
   bool operator==(const JointModelParams&) const = default;
 };

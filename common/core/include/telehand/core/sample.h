@@ -20,6 +20,8 @@ struct SampleFinger {
   float tangential_n = 0.0f;               ///< paper eq. 1: F2 - F3
   float normal_n = 0.0f;                   ///< paper eq. 2: sqrt(F4^2 + F1^2)
   double command_n[3] = {0, 0, 0};         ///< force commanded after the safety gate
+  double contact_depth_m = 0.0;            ///< massage: pad depth in the web (0: no contact)
+  double tissue_force_n[3] = {0, 0, 0};    ///< massage: the web's force, reference scale
 };
 
 struct Sample {
@@ -76,6 +78,10 @@ void visitSampleFields(S& s, F&& f) {
   }
   f(s.passivity_energy_j);
   f(s.passivity_damping);
+  for (auto& finger : s.fingers) {  // record schema 7
+    f(finger.contact_depth_m);
+    for (auto& v : finger.tissue_force_n) f(v);
+  }
 }
 
 /// A digest of a set of samples that does not depend on the order they came in: the count,
@@ -99,7 +105,8 @@ std::optional<std::string> firstNonFinite(const Sample& s);
 /// but a fault or a forgery (docs/security.md "Bounds"). Thimbles within 1 m of the device
 /// origin, unit quaternions to 10 %, FSR readings within ±50 N (the sensors saturate near
 /// 22 N), thimble forces within ±100 N, commanded forces within ±20 N per axis (the device
-/// renders 4 N), MCP angles within ±2π, torques within ±10 N·m, sequence numbers below 2^63.
+/// renders 4 N), MCP angles within ±2π, torques within ±10 N·m, web depths within 0..10 cm and
+/// the web's forces within ±100 N, sequence numbers below 2^63.
 namespace sample_bounds {
 inline constexpr double kPositionM = 1.0;
 inline constexpr double kQuatNormTolerance = 0.1;
@@ -108,6 +115,7 @@ inline constexpr double kThimbleForceN = 100.0;
 inline constexpr double kCommandN = 20.0;
 inline constexpr double kAngleRad = 6.283185307179586;
 inline constexpr double kTorqueNm = 10.0;
+inline constexpr double kDepthM = 0.1;  ///< a pad 10 cm into the web is no reading
 inline constexpr uint64_t kMaxSeq = uint64_t{1} << 63;
 }  // namespace sample_bounds
 

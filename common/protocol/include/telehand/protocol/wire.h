@@ -1,6 +1,7 @@
 #pragma once
 /// Conversions between wire types (idl/telehand.idl) and the C++ model, and checks on
 /// samples that arrive from the network.
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
@@ -101,6 +102,11 @@ struct HandStateFields {
   std::vector<BonePose> bone_poses;
   PerFinger<Vec3> sphere_m{Vec3::Zero(), Vec3::Zero()};
   PerFinger<Vec3> contact_force_n{Vec3::Zero(), Vec3::Zero()};
+  // Massage: the web (server/sim web_sim.h).
+  bool massage = false;
+  PerFinger<double> web_depth_m{0.0, 0.0};
+  PerFinger<Vec3> web_force_n{Vec3::Zero(), Vec3::Zero()};  ///< reference scale, device frame
+  std::array<std::array<double, 8>, 8> web_grid_m{};        ///< compression on the 8×8 grid
 };
 /// A whole HandState from `f`, seq zero (the publisher numbers what it sends).
 void toWire(const HandStateFields& f, telehand_msg_HandState& out) noexcept;
@@ -112,6 +118,9 @@ PerFinger<Vec3> forcesFromWire(const telehand_msg_DirectForce& f) noexcept;
 
 std::string_view modeName(telehand_msg_SessionMode m) noexcept;
 std::optional<telehand_msg_SessionMode> parseMode(std::string_view name) noexcept;
+/// The technique of a session as its record keeps its mode: "massage" and "capture-massage"
+/// are the web's, everything else the joint's.
+Technique techniqueOfMode(std::string_view recorded_mode) noexcept;
 std::string_view stateName(telehand_msg_SessionState s) noexcept;
 std::string_view eventKindName(telehand_msg_EventKind k) noexcept;
 

@@ -62,6 +62,10 @@ struct LoopHealth {
   std::atomic<uint64_t> clamp_holds{0};
   std::atomic<int64_t> clamp_hold_max_ns{0};  ///< longest clamp held (ns)
   std::atomic<uint64_t> outages{0};           ///< device outages the loop resumed from
+  // Massage (the web's tissue model rendered instead of the joint).
+  std::atomic<bool> massage{false};           ///< the model rendered is the web
+  std::atomic<double> web_depth_m{0.0};       ///< deeper pad's depth in the web this tick
+  std::atomic<double> web_normal_ref_n{0.0};  ///< the web's normal force, reference, largest finger
 };
 
 /// Why the loop stopped rendering. The thresholds are FaultLimits'.
@@ -126,6 +130,10 @@ struct TeleopOptions {
 
 enum class StepStatus { kOk, kNoSample, kSafetyFault };
 
+/// A pad this deep in the web has gone through it: the massage's range runaway. The web is
+/// 12-18 mm thick and the paper's 10 N takes 3-9 mm of press (docs/massage.md).
+constexpr double kWebRunawayDepthM = 0.03;
+
 class HapticLoop {
  public:
   using SampleRing = SpscRing<Sample, 16384>;  // 16 s of samples at 1 kHz
@@ -177,8 +185,10 @@ class HapticLoop {
 
  private:
   void run();
-  /// Updates the fault detector with this tick; true when a fault has latched.
-  bool detectFault(int64_t now, bool clamped, const Vec3& angles) noexcept;
+  /// Updates the fault detector with this tick; true when a fault has latched. `excess_deg`:
+  /// how far the rendering is past its range (degrees past a joint's range end, or for the
+  /// web 1e9 once a pad is deeper than kWebRunawayDepthM; non-finite counts as past).
+  bool detectFault(int64_t now, bool clamped, double excess_deg) noexcept;
   /// Restart the detector's windows (after a device outage).
   void restartFaultWindows() noexcept;
 
@@ -186,6 +196,7 @@ class HapticLoop {
   const Clock& clock_;
   LoopConfig config_;
   JointProxy proxy_;
+  TissueProxy tissue_;
   SafetyGate gate_;
   std::unique_ptr<SampleRing> samples_;
   std::unique_ptr<ModelRing> models_;

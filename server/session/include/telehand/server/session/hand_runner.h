@@ -17,6 +17,7 @@
 #include "telehand/server/session/session_context.h"
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/sim/hand_sim.h"
+#include "telehand/server/sim/web_sim.h"
 
 namespace telehand::server::session {
 
@@ -39,9 +40,9 @@ class HandRunner {
 
   bool simulated() const noexcept { return sim_ != nullptr; }
   /// The session adopted a new model.
-  void setModel(const JointModelParams& params) {
-    if (sim_) sim_->setMcpModel(params);
-  }
+  void setModel(const JointModelParams& params);
+  /// A massage session's web (null otherwise).
+  const sim::WebSim* web() const noexcept { return web_.get(); }
 
   /// A finite live sample, before `live` takes it: step the hand to it and observe it.
   /// True when the drift corrector changed its offset (the session adopts it; `before` is
@@ -87,6 +88,7 @@ class HandRunner {
 
   uint64_t session_id_;
   std::unique_ptr<sim::HandSim> sim_;  // null: HandState from the shared joint model
+  std::unique_ptr<sim::WebSim> web_;   // a massage's web, beside the hand
   double treatment_s_ = 0.0;
   Exploration exploration_;
   std::vector<store::SessionStore::Reach> baseline_;

@@ -39,7 +39,7 @@ namespace telehand::server::store {
 class PgStore final : public SessionStore {
  public:
   /// The schema version this program writes and reads (SQLite's user_version, the same).
-  static constexpr int kSchemaVersion = 6;
+  static constexpr int kSchemaVersion = 7;
 
   /// `uri`: libpq's connection URI, postgresql://[user[:password]@][host][:port][/dbname]
   /// [?param=value&...] (postgres:// too). StoreError naming the URI, without its password,
@@ -90,7 +90,7 @@ class PgStore final : public SessionStore {
   std::string location() const override { return location_; }
 
  private:
-  enum class Layout { kEmpty, kTakeover, kCurrent };
+  enum class Layout { kEmpty, kTakeover, kPool, kCurrent };
   void connect();
   void prepare();
   Layout inspect();
@@ -112,6 +112,7 @@ class PgStore final : public SessionStore {
   std::chrono::steady_clock::time_point retry_at_{};
   std::string last_error_;
   bool prepared_ = false;
+  bool web_columns_ = true;  ///< false: a read-only record of schema 5 or 6 (web reads 0)
   bool pool_tables_ = true;  ///< false: a read-only record of schema 5 (no pool tables)  ///< the
                              ///< sample statements are prepared on this connection
 };

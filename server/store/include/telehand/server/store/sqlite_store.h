@@ -63,8 +63,11 @@ class SqliteStore final : public SessionStore {
   std::string location() const override { return path_; }
 
  private:
-  enum class Layout { kEmpty, kBlob, kColumns, kOwner, kLessons, kTakeover, kCurrent };
+  enum class Layout { kEmpty, kBlob, kColumns, kOwner, kLessons, kTakeover, kPool, kCurrent };
   void addPoolTables();
+  void addWebColumns();
+  bool hasWebColumns();
+  bool web_columns_ = true;  // the samples table has schema 7's web columns
   /// BEGIN IMMEDIATE ... COMMIT around fn (ROLLBACK when it throws).
   template <class F>
   auto transaction(F&& fn);
