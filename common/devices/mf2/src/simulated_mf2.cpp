@@ -8,61 +8,21 @@ namespace telehand::devices {
 namespace {
 constexpr int64_t kStepNs = 1'000'000;  // the device's internal 1 kHz
 constexpr int kMaxCatchUpSteps = 200;   // a stalled caller skips ahead instead of spinning
-// Physiological tremor of the hand: 8-12 Hz (docs/facts.md "Tremor and smoothness").
-constexpr double kTremorLowHz = 8.0;
-constexpr double kTremorHighHz = 12.0;
 }  // namespace
 
 SimulatedMf2::SimulatedMf2(const JointModelParams& geometry, const OperatorConfig& op,
                            const Clock& clock, const SimulatedMf2Dynamics& dyn,
                            const mf2::Mf2Description& device)
     : geometry_(geometry),
-      kin_(device),
-      fsr_{mf2::FsrMonitor(device.thimbles[kThumb]), mf2::FsrMonitor(device.thimbles[kIndex])},
+      hw_(device, dyn.pad_angle_deg),
       op_(op),
       clock_(clock),
       dyn_(dyn),
-      pad_sin_(std::sin(degToRad(dyn.pad_angle_deg))),
-      pad_cos_(std::cos(degToRad(dyn.pad_angle_deg))),
-      rng_(op.seed),
-      tremor_rng_(op.seed ^ 0x7265'6d6f'7254'0001ULL),
+      noise_(op.seed),
+      tremor_noise_(op.seed ^ 0x7265'6d6f'7254'0001ULL),
+      tremor_(static_cast<double>(kStepNs) * 1e-9),
       start_ns_(clock.nowNs()),
-      sim_ns_(start_ns_) {
-  // Band-pass: two identical constant 0 dB peak gain biquads in cascade (the skirts of one
-  // alone let through far more than the band), centred on the band's geometric mean, each
-  // sqrt(sqrt(2) - 1) times narrower than its 3 dB width so that the pair's 3 dB band is
-  // 8-12 Hz, at the device's 1 kHz step; the gain makes the response to unit white noise
-  // unit RMS (the sum of the squared impulse response).
-  const double dt = static_cast<double>(kStepNs) * 1e-9;
-  const double f0 = std::sqrt(kTremorLowHz * kTremorHighHz);
-  const double q = f0 * std::sqrt(std::sqrt(2.0) - 1.0) / (kTremorHighHz - kTremorLowHz);
-  const double w0 = 2.0 * kPi * f0 * dt;
-  const double alpha = std::sin(w0) / (2.0 * q);
-  const double a0 = 1.0 + alpha;
-  tb0_ = alpha / a0;
-  tb2_ = -alpha / a0;
-  ta1_ = -2.0 * std::cos(w0) / a0;
-  ta2_ = (1.0 - alpha) / a0;
-  double energy = 0;
-  for (int i = 0; i < 20000; ++i) {
-    const double y = tremorStep(i == 0 ? 1.0 : 0.0);
-    energy += y * y;
-  }
-  tremor_state_ = {};
-  tremor_gain_ = energy > 0.0 ? 1.0 / std::sqrt(energy) : 0.0;
-}
-
-double SimulatedMf2::tremorStep(double x) noexcept {
-  for (auto& st : tremor_state_) {
-    const double y = tb0_ * x + tb2_ * st[1] - ta1_ * st[2] - ta2_ * st[3];
-    st[1] = st[0];
-    st[0] = x;
-    st[3] = st[2];
-    st[2] = y;
-    x = y;
-  }
-  return x;
-}
+      sim_ns_(start_ns_) {}
 
 void SimulatedMf2::setPatient(const JointModelParams& truth) {
   patient_ = JointModel(truth);
@@ -88,8 +48,7 @@ void SimulatedMf2::integrate(double dt) noexcept {
   Vec3 tau_op;
   // The operator's tremor runs whoever scripts the push (a script may add tremorN()).
   if (op_.tremor_n > 0.0) {
-    const double y = tremorStep(tremor_noise_(tremor_rng_));
-    tremor_n_ = smoothRamp(t_s, op_.ramp_s) * op_.tremor_n * tremor_gain_ * y;
+    tremor_n_ = smoothRamp(t_s, op_.ramp_s) * op_.tremor_n * tremor_.step(tremor_noise_());
   }
   if (script_) {
     tau_op = script_->torqueNm(t_s, angles_, rates_);
@@ -104,13 +63,13 @@ void SimulatedMf2::integrate(double dt) noexcept {
   // the thimbles measure it.
   Vec3 tau_seen = tau_op;
   if (axis_noise_n_ > 0.0) {
-    for (int i = 0; i < kAxes; ++i) tau_seen[i] += axis_noise_n_ * lever * noise_(rng_);
+    for (int i = 0; i < kAxes; ++i) tau_seen[i] += axis_noise_n_ * lever * noise_();
   }
   // fingertipForces gives the forces the phalanx exerts on the fingers; the fingers press
   // the opposite of those for the opposite torque (so the finger whose pad pushes carries it).
   const PerFinger<Vec3> reaction = geometry_.fingertipForces(p, angles_, -tau_seen);
   operator_force_ = {-reaction[kThumb], -reaction[kIndex]};
-  const Vec3 tau_render = geometry_.axisTorque(p, angles_, rendered_);
+  const Vec3 tau_render = geometry_.axisTorque(p, angles_, hw_.rendered());
   const Vec3 tau_patient = custom_patient_ ? custom_patient_->passiveTorqueNm(angles_, rates_)
                            : has_patient_  ? patient_.passiveTorqueNm(angles_, rates_)
                                            : Vec3::Zero();
@@ -133,25 +92,6 @@ void SimulatedMf2::advanceTo(int64_t t_ns) noexcept {
   }
 }
 
-void SimulatedMf2::fsrFor(int finger, const Quat& thimble, const Vec3& force_device,
-                          FingerSample& out) noexcept {
-  const Vec3 local = thimble.conjugate() * force_device;
-  const double normal = std::max(local.z(), 0.0);  // FSRs only sense pressure
-  const std::array<double, 4> truth = {normal * pad_sin_, std::max(local.y(), 0.0),
-                                       std::max(-local.y(), 0.0), normal * pad_cos_};
-  // Raw 12-bit ADC counts through the thimble's calibration (noise in newtons first).
-  std::array<uint16_t, mf2::kFsrPerThimble> counts{};
-  const auto& cal = fsr_[finger].calibration();
-  for (std::size_t i = 0; i < 4; ++i) {
-    const double v = truth[i] + op_.sensor_noise_n * noise_(rng_);
-    const double c = std::clamp(std::round(cal.fsr[i].countsFor(std::max(v, 0.0))), 0.0, 4095.0);
-    counts[i] = static_cast<uint16_t>(c);
-  }
-  const mf2::ThimbleReading r = fsr_[finger].update(counts);
-  out.fsr_n = r.fsr_n;
-  out.fsr_fault_mask = r.faultMask();
-}
-
 PerFinger<Quat> SimulatedMf2::thimbleOrientations() const noexcept {
   return {geometry_.thimbleOrientation(kThumb, angles_),
           geometry_.thimbleOrientation(kIndex, angles_)};
@@ -159,21 +99,14 @@ PerFinger<Quat> SimulatedMf2::thimbleOrientations() const noexcept {
 
 bool SimulatedMf2::updatePose(const PerFinger<Quat>& thimbles,
                               PerFinger<mf2::ThimblePose>& measured) noexcept {
-  // The thimbles where the phalanx holds them -> joint angles -> encoder counts, and back
-  // through the forward kinematics as a driver would.
+  // The thimbles where the phalanx holds them, as the encoders read them.
   const PerFinger<Vec3> p = geometry_.gripFromAngles(angles_, dyn_.half_width_m);
   PerFinger<mf2::ThimblePose> truth;
   for (int k = 0; k < 2; ++k) {
     truth[k].position_m = p[k];
     truth[k].orientation = thimbles[k];
   }
-  mf2::JointAngles q;
-  if (!kin_.inverse(truth, 0.0, q)) return false;
-  const mf2::JointAngles read = kin_.anglesFromCounts(kin_.countsFromAngles(q));
-  if (!kin_.forward(read, measured)) return false;
-  q_act_ = read.actuators;
-  have_q_ = true;
-  return true;
+  return hw_.measurePoses(truth, measured);
 }
 
 bool SimulatedMf2::read(DeviceSample& out) noexcept {
@@ -195,37 +128,17 @@ bool SimulatedMf2::read(DeviceSample& out) noexcept {
   for (int k = 0; k < 2; ++k) {
     out.fingers[k].position_m = pose[k].position_m;
     out.fingers[k].orientation = pose[k].orientation;
-    fsrFor(k, thimbles[k], pressed[k], out.fingers[k]);
+    hw_.readFsr(k, thimbles[k], pressed[k], op_.sensor_noise_n, noise_, out.fingers[k]);
   }
   return true;
 }
 
 bool SimulatedMf2::write(const ForceCommand& cmd) noexcept {
-  // Through the actuators: torques J^T F, scaled down together if one exceeds its limit
-  // (the direction is kept), and the fingertip forces those torques actually make.
-  if (!have_q_) {
+  if (!hw_.hasPose()) {
     PerFinger<mf2::ThimblePose> pose;
     if (!updatePose(thimbleOrientations(), pose)) return false;
   }
-  mf2::ActuatorTorques tau;
-  if (!kin_.actuatorTorques(q_act_, cmd.force_n, tau)) {
-    rendered_ = {Vec3::Zero(), Vec3::Zero()};
-    tau_act_.setZero();
-    return false;
-  }
-  const auto& limit = kin_.description().max_torque_nm;
-  double scale = 1.0;
-  for (int i = 0; i < mf2::kActuators; ++i) {
-    if (std::abs(tau[i]) > limit[i]) scale = std::min(scale, limit[i] / std::abs(tau[i]));
-  }
-  tau_act_ = tau * scale;
-  PerFinger<Vec3> f;
-  if (!kin_.fingertipForces(q_act_, tau_act_, f)) {
-    rendered_ = {Vec3::Zero(), Vec3::Zero()};
-    return false;
-  }
-  rendered_ = f;
-  return true;
+  return hw_.render(cmd.force_n);
 }
 
 }  // namespace telehand::devices

@@ -12,14 +12,13 @@
 /// calibrated with the thimbles' calibration (quantization, saturation and dead-channel
 /// flags included), and force commands are rendered through the actuators: J^T F, the
 /// actuators' torque limits, and back to the fingertip forces those torques make.
-#include <array>
-#include <random>
 
 #include "telehand/config/config.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/joint_model.h"
 #include "telehand/devices/device.h"
 #include "telehand/devices/mf2_device.h"
+#include "telehand/devices/simulated_hardware.h"
 
 namespace telehand::devices {
 
@@ -82,9 +81,9 @@ class SimulatedMf2 final : public Device {
   const Vec3& angles() const noexcept { return angles_; }
   const Vec3& rates() const noexcept { return rates_; }
   /// Force rendered at each thimble after the actuators (device frame) and their torques.
-  const PerFinger<Vec3>& renderedForce() const noexcept { return rendered_; }
-  const mf2::ActuatorTorques& actuatorTorques() const noexcept { return tau_act_; }
-  const mf2::Mf2Kinematics& kinematics() const noexcept { return kin_; }
+  const PerFinger<Vec3>& renderedForce() const noexcept { return hw_.rendered(); }
+  const mf2::ActuatorTorques& actuatorTorques() const noexcept { return hw_.torques(); }
+  const mf2::Mf2Kinematics& kinematics() const noexcept { return hw_.kinematics(); }
   /// Force the operator means to apply now, reference scale (N): the band's oscillation
   /// (amplitude_scale, frequency_hz + frequency_error_hz) plus force_bias_n, built up over
   /// ramp_s. The tremor comes on top (tremorN).
@@ -94,37 +93,25 @@ class SimulatedMf2 final : public Device {
 
  private:
   void advanceTo(int64_t t_ns) noexcept;
-  double tremorStep(double white) noexcept;
   void integrate(double dt) noexcept;
-  void fsrFor(int finger, const Quat& thimble, const Vec3& force_device,
-              FingerSample& out) noexcept;
   PerFinger<Quat> thimbleOrientations() const noexcept;
   bool updatePose(const PerFinger<Quat>& thimbles, PerFinger<mf2::ThimblePose>& measured) noexcept;
 
   JointModel geometry_;  // joint frame and lever arm; the stiffness comes from what is rendered
-  mf2::Mf2Kinematics kin_;
-  PerFinger<mf2::FsrMonitor> fsr_;
+  SimulatedMf2Hardware hw_;
   JointModel patient_{JointModelParams{}};
   bool has_patient_ = false;
   const PatientJoint* custom_patient_ = nullptr;
   Operator* script_ = nullptr;
   double axis_noise_n_ = 0.0;
-  mf2::ActuatorAngles q_act_ = mf2::ActuatorAngles::Zero();
-  bool have_q_ = false;
-  PerFinger<Vec3> rendered_{Vec3::Zero(), Vec3::Zero()};
-  mf2::ActuatorTorques tau_act_ = mf2::ActuatorTorques::Zero();
   OperatorConfig op_;
   const Clock& clock_;
   SimulatedMf2Dynamics dyn_;
-  double pad_sin_, pad_cos_;  // of dyn_.pad_angle_deg: how the normal load splits
-  std::mt19937_64 rng_;
-  std::normal_distribution<double> noise_{0.0, 1.0};
+  GaussianNoise noise_;
   // Tremor: white noise from its own generator (the clinician's sensor noise is the same with
-  // or without it) through an 8-12 Hz band-pass, scaled to unit RMS.
-  std::mt19937_64 tremor_rng_;
-  std::normal_distribution<double> tremor_noise_{0.0, 1.0};
-  double tb0_ = 0, tb2_ = 0, ta1_ = 0, ta2_ = 0, tremor_gain_ = 0;
-  std::array<std::array<double, 4>, 2> tremor_state_{};  // per section: x1, x2, y1, y2
+  // or without it) through the 8-12 Hz band-pass.
+  GaussianNoise tremor_noise_;
+  TremorFilter tremor_;
   double tremor_n_ = 0;
 
   int64_t start_ns_;
