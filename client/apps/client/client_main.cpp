@@ -82,11 +82,20 @@ int main(int argc, char** argv) {
     }
 
     SteadyClock clock;
-    const JointModelParams initial = healthyIndexMcp();
+    const bool massage = o.technique_name == "massage";
+    if (massage && (o.mode_name == "exploration" || o.lesson != 0 || o.follow != 0)) {
+      throw ConfigError("--technique massage goes with --mode mobilization or capture only");
+    }
+    JointModelParams initial = healthyIndexMcp();
+    if (massage) {  // the web of the case until the server's model arrives
+      initial.technique = Technique::kMassage;
+      initial.tissue = tissueCase(o.case_name.c_str());
+    }
     const mf2::Mf2Description description =
         o.device_file.empty() ? mf2::defaultMf2() : mf2::loadMf2Description(o.device_file);
-    const telehand_msg_SessionMode mode =
+    telehand_msg_SessionMode mode =
         o.lesson != 0 ? telehand_msg_MODE_LESSON : *parseMode(o.mode_name);
+    if (massage && mode == telehand_msg_MODE_MOBILIZATION) mode = telehand_msg_MODE_MASSAGE;
     if (o.follow != 0 && mode == telehand_msg_MODE_CAPTURE) {
       throw ConfigError("--follow needs a mode other than capture");
     }
@@ -110,6 +119,7 @@ int main(int argc, char** argv) {
         o.stiffness == "knn" ? telehand_msg_STIFFNESS_KNN : telehand_msg_STIFFNESS_CUBIC;
     req.direct_force = teleop.render == client::loop::RenderMode::kDirect;
     req.lesson_id = o.lesson;
+    if (massage) req.technique = telehand_msg_TECHNIQUE_MASSAGE;
     const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(o.connect_timeout * 1000));
     const uint64_t session = link.open(req, timeout);
     if (!link.awaitModel(timeout)) {
@@ -125,9 +135,10 @@ int main(int argc, char** argv) {
                 << description.thimbles[kThumb].serial << " and "
                 << description.thimbles[kIndex].serial << std::endl;
     } else {
-      std::cout << "session " << session << " open: " << o.mode_name << " on case '" << o.case_name
-                << "', device " << device.name() << ", " << cfg.op.frequency_hz << " Hz in "
-                << cfg.op.band_min_n << "-" << cfg.op.band_max_n << " N"
+      std::cout << "session " << session << " open: " << (massage ? "massage" : o.mode_name)
+                << " on case '" << o.case_name << "', device " << device.name() << ", "
+                << cfg.op.frequency_hz << " Hz in " << cfg.op.band_min_n << "-" << cfg.op.band_max_n
+                << " N"
                 << (o.follow ? ", following capture session " + std::to_string(o.follow) + " (" +
                                    o.stiffness + ")"
                              : "")

@@ -27,6 +27,24 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
       throw DeviceError(fmt::format("the MF-2 is not streaming after {:.1f} s: {}",
                                     o.device_timeout, usb_->statusText()));
     }
+  } else if (initial.technique == Technique::kMassage) {
+    // The massage: the clinician (or the configured student) circles on the web. A capture
+    // has a real web between the fingers and the actuators off; the thimbles measure its
+    // forces at reference scale with the thimble error.
+    massage_ = std::make_unique<devices::SimulatedMassageMf2>(
+        initial.tissue, o.cfg.op, clock, initial.force_scale, devices::MassagePlan{},
+        devices::SimulatedMassageDynamics{}, description);
+    if (mode == telehand_msg_MODE_CAPTURE) {
+      TissueParams truth = tissueCase(o.patient_name.c_str());
+      try {
+        const PatientCase patient = loadPatientCaseByName(o.cases_dir, o.patient_name);
+        if (patient.has_tissue) truth = patient.model.tissue;
+      } catch (const ConfigError&) {
+      }
+      massage_->setPatient(truth);
+      massage_->setForceNoise(o.thimble_noise);
+    }
+    device_ = massage_.get();
   } else if (mode == telehand_msg_MODE_CAPTURE) {
     // Capture: a real (simulated) finger in the grip, moved by a clinician with the
     // actuators off; the thimbles measure real forces (no 1:4 rendering scale).

@@ -11,6 +11,7 @@
 #include "telehand/devices/capture_rig.h"
 #include "telehand/devices/exploration_operator.h"
 #include "telehand/devices/mf2_device.h"
+#include "telehand/devices/simulated_massage_mf2.h"
 #include "telehand/protocol/wire.h"
 
 namespace telehand::client::app {
@@ -36,6 +37,7 @@ class ClientDevice {
   std::unique_ptr<usb::UsbMf2> usb_;
   std::unique_ptr<devices::CaptureRig> rig_;
   std::unique_ptr<devices::SimulatedMf2> sim_;
+  std::unique_ptr<devices::SimulatedMassageMf2> massage_;   // --technique massage, simulated
   std::unique_ptr<devices::ExplorationOperator> explorer_;  // --mode exploration, simulated
   std::unique_ptr<LessonOperator> student_;                 // --lesson, simulated
   devices::Device* device_ = nullptr;

@@ -33,6 +33,11 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   app.add_option("--mode", o.mode_name, "session mode")
       ->check(CLI::IsMember({"mobilization", "exploration", "capture"}))
       ->capture_default_str();
+  app.add_option("--technique", o.technique_name,
+                 "what is treated: the index MCP (mobilization) or the thumb-index web (massage: "
+                 "a circular massage at 10 ± 2 N; with --mode capture, a capture of the web)")
+      ->check(CLI::IsMember({"mobilization", "massage"}))
+      ->capture_default_str();
   app.add_option("--case", o.case_name, "patient case on the server")->capture_default_str();
   app.add_option("--user", o.user, "who is at the device")->capture_default_str();
   auto* freq = app.add_option("--frequency", o.cfg.op.frequency_hz,

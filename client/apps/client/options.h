@@ -12,6 +12,7 @@ namespace telehand::client::app {
 
 struct ClientOptions {
   std::string config_path, device_kind = "sim", mode_name = "mobilization", case_name = "healthy";
+  std::string technique_name = "mobilization";
   std::string user = "student", log_level = "warn";
   std::string usb_vid = "1209", usb_pid = "4d32", usb_serial, device_file;
   double seconds = 20.0, connect_timeout = 10.0, device_timeout = 5.0;

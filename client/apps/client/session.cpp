@@ -110,6 +110,14 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
       static_cast<unsigned long long>(h.clamped.load()),
       static_cast<unsigned long long>(h.rate_limited.load()),
       static_cast<unsigned long long>(h.samples_dropped.load()));
+  if (h.massage.load() && h.massage_ticks.load() > 0) {
+    std::printf(
+        "  massage: both thimbles within 10 ± 2 N (reference) on %.1f %% of %llu ticks, largest "
+        "device force %.2f N\n",
+        100.0 * static_cast<double>(h.massage_in_band.load()) /
+            static_cast<double>(h.massage_ticks.load()),
+        static_cast<unsigned long long>(h.massage_ticks.load()), h.force_max_n.load());
+  }
   if (h.clamp_holds.load() > 0) {
     std::printf(
         "  warning: %llu pushes held beyond the device's limit (force clamped >= 250 ms, "

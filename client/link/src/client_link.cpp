@@ -76,6 +76,7 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
   cmd.follow_session = req.follow_session;
   cmd.stiffness = req.stiffness;
   cmd.lesson_id = req.lesson_id;
+  cmd.technique = req.technique;
   dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
   // Asked again, the same request, every second until answered: a server discovered after
   // the first write (a pool whose assigned server had not matched yet) hears it then; the

@@ -202,6 +202,16 @@ StepStatus HapticLoop::step() noexcept {
       normal = std::max(normal, web.contact[k].normal_n.norm());
     }
     health_.web_depth_m.store(depth, std::memory_order_relaxed);
+    if (fresh && actuators) {
+      const double scale = proxy_.model().params().force_scale;
+      bool in_band = true;
+      for (int k = 0; k < 2; ++k) {
+        const double n = s.fingers[k].normal_n / scale;
+        in_band = in_band && n >= 8.0 && n <= 12.0;
+      }
+      bump(health_.massage_ticks);
+      if (in_band) bump(health_.massage_in_band);
+    }
     health_.web_normal_ref_n.store(normal, std::memory_order_relaxed);
   }
   health_.massage.store(massage, std::memory_order_relaxed);

@@ -56,6 +56,8 @@ struct OpenRequest {
   telehand_msg_StiffnessKind stiffness = telehand_msg_STIFFNESS_CUBIC;
   bool direct_force = false;  ///< baseline: the server computes the force
   uint64_t lesson_id = 0;     ///< MODE_LESSON: the lesson to run
+  /// MODE_CAPTURE: what is captured (a massage session is MODE_MASSAGE).
+  telehand_msg_Technique technique = telehand_msg_TECHNIQUE_MOBILIZATION;
 };
 
 struct CloseResult {

@@ -66,6 +66,10 @@ struct LoopHealth {
   std::atomic<bool> massage{false};           ///< the model rendered is the web
   std::atomic<double> web_depth_m{0.0};       ///< deeper pad's depth in the web this tick
   std::atomic<double> web_normal_ref_n{0.0};  ///< the web's normal force, reference, largest finger
+  /// Rendered massage ticks with a fresh sample, and those on which both thimbles measured
+  /// a normal force (reference scale) within the paper's 10 ± 2 N.
+  std::atomic<uint64_t> massage_ticks{0};
+  std::atomic<uint64_t> massage_in_band{0};
 };
 
 /// Why the loop stopped rendering. The thresholds are FaultLimits'.
