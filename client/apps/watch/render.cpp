@@ -145,6 +145,18 @@ std::string plainLine(const Options& o, uint64_t id, const SessionView& v, const
         " band=-",
         v.hand_gaps);
   }
+  if (v.hand && v.hand->technique == telehand_msg_TECHNIQUE_MASSAGE) {
+    // The massage: each pad's depth in the web and the web's force on it (reference scale).
+    const auto& hs = *v.hand;
+    double most = 0.0;
+    for (const auto& row : hs.web_grid_m)
+      for (double x : row) most = std::max(most, x);
+    s += fmt::format(
+        " web_thumb_depth_mm={:.2f} web_index_depth_mm={:.2f} web_thumb_f_n={} web_index_f_n={}"
+        " web_surface_mm={:.2f}",
+        hs.web_depth_m[0] * 1e3, hs.web_depth_m[1] * 1e3, triple(hs.web_force_n[0], 2),
+        triple(hs.web_force_n[1], 2), most * 1e3);
+  }
   s += fmt::format(" model_v={} hand_model_v={}", v.model ? std::to_string(v.model->version) : "-",
                    v.hand ? std::to_string(v.hand->model_version) : "-");
   s += fmt::format(" hand_age_ms={} delay_ms={} device_delay_ms={} link={}", num(h.age_ms, 0),
@@ -195,6 +207,20 @@ std::vector<std::string> screenLines(const Options& o, uint64_t id, const Sessio
       const auto& f = hs.fingertip_force_n[k];
       out.push_back(fmt::format("{:<11} ({:+6.2f} {:+6.2f} {:+6.2f}) N   |F| {:5.2f} N",
                                 k == 0 ? "thumb" : "index", f[0], f[1], f[2], norm3(f)));
+    }
+    if (hs.technique == telehand_msg_TECHNIQUE_MASSAGE) {
+      for (int k = 0; k < 2; ++k) {
+        const auto& f = hs.web_force_n[k];
+        out.push_back(fmt::format("web {:<7} {:5.2f} mm deep   web force {:5.2f} N ref",
+                                  k == 0 ? "thumb" : "index", hs.web_depth_m[k] * 1e3, norm3(f)));
+      }
+      // The web's surface, pressed in (darker: deeper), thumb side.
+      static constexpr const char* kShade[] = {" ", ".", ":", "o", "O", "@"};
+      for (const auto& row : hs.web_grid_m) {
+        std::string line = "web surface ";
+        for (double x : row) line += kShade[std::clamp(static_cast<int>(x * 1e3 / 1.5), 0, 5)];
+        out.push_back(line);
+      }
     }
     const double applied = hs.applied_force_ref_n;
     const Band band = bandOf(applied, o);

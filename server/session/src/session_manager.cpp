@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <filesystem>
 #include <string_view>
 
 #include "telehand/core/clock.h"
@@ -317,6 +318,14 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
           now_ns);
     return;
   }
+  // The massage renders the web of the case (docs/massage.md): a massage session, a capture of
+  // one, a lesson whose technique it is, or a resumed one.
+  const bool massage =
+      cmd.mode == telehand_msg_MODE_MASSAGE ||
+      (cmd.mode == telehand_msg_MODE_CAPTURE && cmd.technique == telehand_msg_TECHNIQUE_MASSAGE) ||
+      (lesson_info && lesson_info->technique == "massage") ||
+      (resumed && techniqueOfMode(resumed->mode) == Technique::kMassage);
+  const bool web_case = case_name == "oedema" || case_name == "scar" || case_name == "hypertonic";
   PatientCase patient;
   Session* capture = nullptr;
   if (cmd.follow_session != 0 && cmd.mode != telehand_msg_MODE_REPLAY) {
@@ -339,14 +348,20 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     case_name = "capture-" + std::to_string(cmd.follow_session);
     patient.name = case_name;
     patient.model = capture->params;
-  } else if (config_.cases_dir.empty()) {
-    if (case_name != "healthy") {
+  } else if (config_.cases_dir.empty() ||
+             (massage && web_case &&
+              !std::filesystem::exists(std::filesystem::path(config_.cases_dir) /
+                                       (case_name + ".toml")))) {
+    // Without a case file: the healthy joint, and for a massage the built-in webs.
+    if (case_name != "healthy" && !(massage && web_case)) {
       ++stats_.bad_commands;
       event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-            "unknown patient case '" + case_name + "' (known: healthy)", now_ns);
+            "unknown patient case '" + case_name + "' (known: healthy" +
+                (massage ? std::string(", and for a massage oedema, scar, hypertonic") : "") + ")",
+            now_ns);
       return;
     }
-    patient.name = "healthy";
+    patient.name = case_name;
     patient.model = healthyIndexMcp();
   } else {
     try {
@@ -357,13 +372,6 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       return;
     }
   }
-  // The massage renders the web of the case (docs/massage.md): a massage session, a capture of
-  // one, a lesson whose technique it is, or a resumed one.
-  const bool massage =
-      cmd.mode == telehand_msg_MODE_MASSAGE ||
-      (cmd.mode == telehand_msg_MODE_CAPTURE && cmd.technique == telehand_msg_TECHNIQUE_MASSAGE) ||
-      (lesson_info && lesson_info->technique == "massage") ||
-      (resumed && techniqueOfMode(resumed->mode) == Technique::kMassage);
   if (massage) {
     patient.model.technique = Technique::kMassage;
     if (!patient.has_tissue) patient.model.tissue = tissueCase(case_name.c_str());
