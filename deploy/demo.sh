@@ -5,7 +5,9 @@
 # DDS Security with a throw-away PKI (each program as its role: server, device, supervisor).
 # Options: --seconds N (default 20), --frequency HZ (default 3), --insecure (no DDS Security),
 # --lesson (a whole lesson instead: a clinician's demonstration, the lesson made from it, a
-# simulated student's run with a watcher, and its report; about 2 minutes).
+# simulated student's run with a watcher, and its report; about 2 minutes),
+# --massage-seconds N (default 10; 0 skips it): after the mobilization, the circular massage
+# of the thumb-index web on the same server.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
@@ -13,13 +15,15 @@ seconds=20
 frequency=3
 security=on
 lesson=off
+massage_seconds=10
 while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) seconds=$2; shift 2 ;;
     --frequency) frequency=$2; shift 2 ;;
     --insecure) security=off; shift ;;
     --lesson) lesson=on; shift ;;
-    -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
+    --massage-seconds) massage_seconds=$2; shift 2 ;;
+    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
     *) echo "demo: unknown option '$1' (try --help)" >&2; exit 2 ;;
   esac
 done
@@ -121,7 +125,22 @@ if [ "$status" -ne 0 ] || [ -z "$session" ]; then
   echo "demo: the client failed (exit $status); logs in $logs" >&2
   exit 1
 fi
+massage=""
+if [ "$massage_seconds" != 0 ]; then
+  echo "-- massage: the simulated clinician circles on the thumb-index web (${massage_seconds} s, 10 ± 2 N)"
+  if ! "$bin/client/telehand-client" "${dds[@]}" --technique massage --seconds "$massage_seconds" \
+    --user demo-student >"$logs/massage.log" 2>&1; then
+    echo "demo: the massage client failed; logs in $logs" >&2
+    cat "$logs/massage.log" >&2
+    exit 1
+  fi
+  grep -E '^session|massage:|record:' "$logs/massage.log" || true
+  massage=$(sed -n 's/^session \([0-9]*\) open.*/\1/p' "$logs/massage.log" | head -n 1)
+fi
 echo
 echo "Record: session $session in $db (server log: $logs/server.log)"
 echo "List sessions:  $bin/server/telehand-records --db $db list"
 echo "Export to CSV:  $bin/server/telehand-records --db $db export $session -o session-$session.csv"
+if [ -n "$massage" ]; then
+  echo "The massage: session $massage (each pad's depth and the web's force in its CSV columns *_depth_m, *_tissue?_n)"
+fi

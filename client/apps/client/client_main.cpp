@@ -4,6 +4,8 @@
 //
 // options: the command line and config file; device: the MF-2 (USB, simulated, or the
 // capture rig); session: running it and its summary.
+#include <spdlog/fmt/fmt.h>
+
 #include <chrono>
 #include <cstdio>
 #include <iostream>
@@ -137,8 +139,9 @@ int main(int argc, char** argv) {
     } else {
       std::cout << "session " << session << " open: " << (massage ? "massage" : o.mode_name)
                 << " on case '" << o.case_name << "', device " << device.name() << ", "
-                << cfg.op.frequency_hz << " Hz in " << cfg.op.band_min_n << "-" << cfg.op.band_max_n
-                << " N"
+                << (massage ? std::string("circles on the web at 10 ± 2 N")
+                            : fmt::format("{} Hz in {}-{} N", cfg.op.frequency_hz,
+                                          cfg.op.band_min_n, cfg.op.band_max_n))
                 << (o.follow ? ", following capture session " + std::to_string(o.follow) + " (" +
                                    o.stiffness + ")"
                              : "")
