@@ -586,8 +586,10 @@ void PgStore::connect() {
 void PgStore::prepare() {
   if (prepared_) return;
   Db db(conn_, location_);
-  const auto insert = insertSamplesSql();
-  db.check(PQprepare(conn_, kInsertStatement, insert.c_str(), 0, nullptr), insert.c_str());
+  if (mode_ == Mode::kReadWrite) {  // a reader of an older record has no web columns to insert
+    const auto insert = insertSamplesSql();
+    db.check(PQprepare(conn_, kInsertStatement, insert.c_str(), 0, nullptr), insert.c_str());
+  }
   const auto select = selectSamplesSql(web_columns_);
   db.check(PQprepare(conn_, kSelectStatement, select.c_str(), 0, nullptr), select.c_str());
   prepared_ = true;

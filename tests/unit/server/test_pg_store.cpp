@@ -56,7 +56,7 @@ TEST_F(PgStoreTest, TheSchemaIsMarkedAndHasTheSqliteColumns) {
   { PgStore store(uri()); }
   EXPECT_EQ(value("SELECT application_id FROM " + table("telehand_schema")),
             std::to_string(0x54484E44));
-  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "6");
+  EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "7");
   EXPECT_EQ(value("SELECT count(*) FROM " + table("telehand_schema")), "1");
   EXPECT_THAT(value("SELECT obj_description('" + table("telehand_schema") + "'::regclass)"),
               HasSubstr("telehand session records, schema 7"));
@@ -105,7 +105,7 @@ TEST_F(PgStoreTest, RefusesANewerSchemaAndLeavesItUntouched) {
     } catch (const StoreError& e) {
       EXPECT_THAT(e.what(), HasSubstr(uri()));
       EXPECT_THAT(e.what(), HasSubstr("was written by a newer telehand (schema 9, this program "
-                                      "knows up to 6); it was left untouched"));
+                                      "knows up to 7); it was left untouched"));
     }
   }
   EXPECT_EQ(value("SELECT version FROM " + table("telehand_schema")), "9");
