@@ -3,7 +3,10 @@
 // the server's SessionManager (Bullet hand, recovering joint publishing model updates)
 // across an emulated link, and prints per cell: stable or not, passive or not, RMS force
 // error against the zero-delay model-mediated run, the largest force step from a model
-// update, packets per second each way, and loop overruns.
+// update, packets per second each way, and loop overruns. With --massage, the same for the
+// circular massage of the web (simulated clinician circling with 10 ± 2 N, the web's tissue
+// model in the JointModel the server sends): stable, passive, normal force in band and the
+// server's web against the client's proxy, per link profile.
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <iostream>
@@ -59,6 +62,27 @@ void printRow(const CellSpec& spec, const CellResult& r, double err, bool markdo
   std::cout << line << std::endl;
 }
 
+void printMassageRow(const LinkProfile& link, const CellResult& r, bool markdown) {
+  char line[512];
+  std::snprintf(
+      line, sizeof line,
+      markdown ? "| %s | %.0f ±%.0f | %.3g | %s (%s, %llu clamps) | %s (%.2f mJ, %llu) | %.1f %% | "
+                 "%.2f N | %.3g %% / %.3g %% (%llu) | %llu | %llu (%.0f µs) |"
+               : "%-18s %5.0f ±%-4.0f %5.3g%%  %-8s (%s, %llu clamps)  %-3s %7.2f mJ %6llu  "
+                 "in band %5.1f%%  max %.2f N  web error max %.3g%% RMS %.3g%% (%llu)  models "
+                 "%llu  overruns %llu (%.0f us)",
+      link.name.c_str(), link.rtt_ms, link.jitter_ms, link.loss_pct,
+      massageStable(r) ? "stable" : "UNSTABLE",
+      client::loop::faultName(static_cast<client::loop::LoopFault>(r.fault)),
+      static_cast<unsigned long long>(r.clamped), passive(r) ? "yes" : "NO", r.po_min_j * 1e3,
+      static_cast<unsigned long long>(r.pc_ticks), 100.0 * r.massage_in_band, r.web_force_max_n,
+      100.0 * r.web_error_max, 100.0 * r.web_error_rms,
+      static_cast<unsigned long long>(r.web_compared),
+      static_cast<unsigned long long>(r.models_applied),
+      static_cast<unsigned long long>(r.overruns), r.step_max_us);
+  std::cout << line << std::endl;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -72,7 +96,9 @@ int main(int argc, char** argv) {
   std::vector<double> deadbands;
   double seconds = 20.0, steady = 4.0, treatment = 20.0;
   uint64_t seed = 1;
-  bool markdown = false, no_hand = false, no_pc = false, drift = false;
+  bool markdown = false, no_hand = false, no_pc = false, drift = false, massage = false,
+       no_joint = false;
+  std::string massage_case = "healthy";
   std::string case_name = "regain";
   std::string clinician = "force";
   app.add_option("--rtt", rtts, "round trips, ms")->capture_default_str();
@@ -108,6 +134,13 @@ int main(int argc, char** argv) {
   app.add_flag("--no-passivity-control", no_pc, "observe passivity but never add damping");
   app.add_flag("--drift", drift,
                "also compare drift (hand against proxy) with the server's correction off and on");
+  app.add_flag("--massage", massage,
+               "also run the massage of the web (model-mediated) over no delay and each --profile");
+  app.add_option("--massage-case", massage_case,
+                 "patient case of the massage (its web: tissueCase of the name unless the file "
+                 "gives one)")
+      ->capture_default_str();
+  app.add_flag("--no-joint", no_joint, "skip the mobilization matrix (with --massage)");
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {
@@ -128,6 +161,36 @@ int main(int argc, char** argv) {
       s.clinician = clinician == "servo" ? Clinician::kServo : Clinician::kForceBand;
       return s;
     };
+    int failures = 0;
+    if (massage) {
+      std::cout << "massage (model-mediated, case " << massage_case
+                << "): the simulated clinician circling on the web with 10 ± 2 N; stable: no "
+                   "loop fault; passive: lowest observer energy; in band: ticks both pads "
+                   "measured 10 ± 2 N; web error: the server's web force (HandState) against "
+                   "the client's proxy for the same sample, per finger, over max(|F|, 1 N)\n";
+      if (markdown) {
+        std::cout << "| link | RTT ms | loss % | stable (fault, clamps) | passive (lowest PO "
+                     "energy, PC ticks) | both pads in 10 ± 2 N | largest web force | "
+                     "proxy/server force error max / RMS (HandStates) | models applied | "
+                     "overruns (worst step CPU) |\n"
+                     "|---|---|---|---|---|---|---|---|---|---|\n";
+      }
+      std::vector<LinkProfile> links = {matrixLink(0, 0)};
+      for (const auto& path : profiles) links.push_back(loadLinkProfile(path));
+      for (const auto& link : links) {
+        CellSpec s = spec(link, RenderMode::kModel);
+        s.technique = Technique::kMassage;
+        s.case_name = massage_case;
+        const CellResult r = runCell(s, hand ? &*hand : nullptr);
+        printMassageRow(link, r, markdown);
+        if (r.samples_recorded != r.ticks) {
+          std::cout << "  record incomplete: " << r.samples_recorded << " of " << r.ticks << "\n";
+          ++failures;
+        }
+      }
+      if (no_joint) return failures ? 1 : 0;
+      std::cout << "\n";
+    }
     const CellSpec ref_spec = spec(matrixLink(0, 0), RenderMode::kModel);
     const CellResult ref = runCell(ref_spec, hand ? &*hand : nullptr);
     std::cout << "reference: model-mediated, no delay, no loss: " << ref.models_applied
@@ -145,7 +208,6 @@ int main(int argc, char** argv) {
                    "PO min  PC ticks  "
                    "error   update step      drift mean/RMS (corr)  DS/s   up/s down/s  overruns\n";
     }
-    int failures = 0;
     auto run = [&](const CellSpec& s) {
       const CellResult r = runCell(s, hand ? &*hand : nullptr);
       const double err = forceError(r, ref, s);

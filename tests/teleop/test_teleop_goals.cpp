@@ -140,5 +140,47 @@ TEST(TeleopGoals, TheServerKeepsTheProxyWhereItsHandIs) {
   EXPECT_EQ(on.fade_unpaid_j, 0.0) << "and are paid for by dissipated energy";
 }
 
+/// The massage of the web (the clinician circling with 10 ± 2 N) through the model-mediated
+/// loop over a shipped link profile: the loop renders to the end without a fault, the
+/// passivity observer stays above its bound, the clinician's press stays in the band, and
+/// every sample reaches the record.
+class TeleopMassageGoals : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(TeleopMassageGoals, StableAndPassiveOverTheProfile) {
+  const LinkProfile l =
+      loadLinkProfile(std::string(TELEHAND_DEPLOY_DIR) + "/links/" + GetParam() + ".toml");
+  CellSpec s = cell(l, RenderMode::kModel);
+  s.technique = Technique::kMassage;
+  s.case_name = "healthy";
+  const CellResult r = runCell(s, &hand());
+  EXPECT_TRUE(massageStable(r)) << "fault "
+                                << client::loop::faultName(
+                                       static_cast<client::loop::LoopFault>(r.fault));
+  EXPECT_TRUE(passive(r)) << "lowest observer energy " << r.po_min_j << " J";
+  EXPECT_GT(r.massage_in_band, 0.8) << "both pads within 10 ± 2 N";
+  EXPECT_GT(r.web_compared, 500u) << "the server published its web";
+  EXPECT_EQ(r.samples_recorded, r.ticks) << "the record travels reliably";
+}
+
+INSTANTIATE_TEST_SUITE_P(Profiles, TeleopMassageGoals,
+                         ::testing::Values("loopback", "lan", "spain-australia", "extreme"),
+                         [](const ::testing::TestParamInfo<const char*>& p) {
+                           std::string n = p.param;
+                           std::erase(n, '-');
+                           return n;
+                         });
+
+TEST(TeleopGoals, MassageServerWebMatchesTheProxyWithoutDelay) {
+  // At zero delay and loss the server steps its web on every sample the client rendered: the
+  // same forces (the loss-free half of MassageProxyServer in the unit tests, here through the
+  // wire, the session and HandState).
+  CellSpec s = cell(link(0, 0, 0, 1), RenderMode::kModel);
+  s.technique = Technique::kMassage;
+  s.case_name = "healthy";
+  const CellResult r = runCell(s, &hand());
+  EXPECT_GT(r.web_compared, 500u);
+  EXPECT_LE(r.web_error_max, 0.02) << "RMS " << r.web_error_rms;
+}
+
 }  // namespace
 }  // namespace telehand::teleop

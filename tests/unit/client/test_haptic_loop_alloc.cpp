@@ -14,6 +14,8 @@
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/knn_model.h"
+#include "telehand/core/tissue_model.h"
+#include "telehand/devices/simulated_massage_mf2.h"
 #include "telehand/devices/simulated_mf2.h"
 
 namespace telehand::client {
@@ -435,6 +437,61 @@ TEST(HapticLoopAlloc, ATakenOverGuideRefreshedAsTheSupervisorMovesStaysStable) {
 // transfer takes 2.5 ms: each tick that ends after its deadline is counted, and the sample
 // after it says so (sample_flags::kLoopOverrun), which is how the server and the web console
 // learn of them (HandState.device_overruns).
+TEST(HapticLoopAlloc, MassageStepAndTissueUpdatesMidRunAllocateNothing) {
+  // The massage: the loop renders the web (the joint proxy and the tissue proxy both step
+  // every tick) while the clinician circles on it; mid-run the server's model changes the
+  // tissue (a stiffer web, then, mid-fade, a scar's patch), and a later one goes back to the
+  // healthy web. No step allocates.
+  ManualClock clock(kNsPerS);
+  JointModelParams model = healthyIndexMcp();
+  model.technique = Technique::kMassage;
+  model.tissue = tissueCase("healthy");
+  devices::SimulatedMassageMf2 sim(model.tissue, OperatorConfig{}, clock, model.force_scale);
+  TestDevice dev(sim);
+  HapticLoop hl(dev, clock, model, SafetyLimits{});
+  JointModelParams stiffer = model, scar = model, back = model;
+  stiffer.version = 2;
+  stiffer.tissue = tissueCase("hypertonic");
+  scar.version = 3;
+  scar.tissue = tissueCase("scar");
+  back.version = 4;
+  std::size_t allocations = 0;
+  Sample s;
+  double max_web_n = 0.0;
+  for (int i = 0; i < 6000; ++i) {
+    clock.advance(kNsPerMs);
+    if (i == 1500) {
+      ASSERT_TRUE(hl.models().tryPush(stiffer));
+    }
+    if (i == 1600) {
+      ASSERT_TRUE(hl.models().tryPush(scar));  // while the stiffer web still fades in
+    }
+    if (i == 4000) {
+      ASSERT_TRUE(hl.models().tryPush(back));
+    }
+    {
+      AllocationGuard guard;
+      hl.step();
+      allocations += guard.allocations() + guard.deallocations();
+    }
+    while (hl.samples().tryPop(s)) {
+      for (int k = 0; k < 2; ++k) {
+        const Vec3 f(s.fingers[k].tissue_force_n[0], s.fingers[k].tissue_force_n[1],
+                     s.fingers[k].tissue_force_n[2]);
+        max_web_n = std::max(max_web_n, f.norm());
+      }
+    }
+  }
+  EXPECT_EQ(allocations, 0u);
+  const loop::LoopHealth& h = hl.health();
+  EXPECT_EQ(h.models_applied.load(), 3u);
+  EXPECT_EQ(h.model_version.load(), 4u);
+  EXPECT_TRUE(h.massage.load()) << "the loop renders the web";
+  EXPECT_GT(h.massage_ticks.load(), 5000u);
+  EXPECT_GT(max_web_n, 5.0) << "the web was pressed";
+  EXPECT_EQ(h.fault.load(), 0u);
+}
+
 TEST(HapticLoopOverrun, EveryOverrunFlagsTheNextSample) {
   SteadyClock clock;
   const JointModelParams model = healthyIndexMcp();

@@ -14,6 +14,7 @@
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
+#include "telehand/devices/simulated_massage_mf2.h"
 #include "telehand/devices/simulated_mf2.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/session/session_manager.h"
@@ -34,6 +35,12 @@ class BenchOutbox final : public server::session::Outbox {
     ++hand_states;
     Vec3 a(h.mcp_angles_rad[0], h.mcp_angles_rad[1], h.mcp_angles_rad[2]);
     hand_angles.emplace_back(h.device_seq, a);
+    if (h.technique == telehand_msg_TECHNIQUE_MASSAGE) {
+      PerFinger<Vec3> f;
+      for (int k = 0; k < 2; ++k)
+        f[k] = Vec3(h.web_force_n[k][0], h.web_force_n[k][1], h.web_force_n[k][2]);
+      web_forces.emplace_back(h.device_seq, f);
+    }
   }
   void publish(const telehand_msg_SessionEvent&) override {}
   void publish(const telehand_msg_DirectForce& f) override { forces.push_back(f); }
@@ -44,6 +51,7 @@ class BenchOutbox final : public server::session::Outbox {
   uint64_t hand_states = 0;
   std::vector<std::pair<uint64_t, Vec3>>
       hand_angles;  ///< the authoritative MCP angles per device seq
+  std::vector<std::pair<uint64_t, PerFinger<Vec3>>> web_forces;  ///< the server's web, per seq
 };
 
 /// A directory holding the one patient case the cell uses, its recovery time shortened.
@@ -164,7 +172,8 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   open.client_id = 1;
   open.request_seq = 1;
   open.kind = telehand_msg_CMD_OPEN;
-  open.mode = telehand_msg_MODE_MOBILIZATION;
+  const bool massage = spec.technique == Technique::kMassage;
+  open.mode = massage ? telehand_msg_MODE_MASSAGE : telehand_msg_MODE_MOBILIZATION;
   open.direct_force = spec.render == client::loop::RenderMode::kDirect;
   copyString(open.case_name, spec.case_name);
   copyString(open.user, "bench");
@@ -179,16 +188,24 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
 
   OperatorConfig op = spec.op;
   op.seed = spec.seed;
-  devices::SimulatedMf2 device(*initial, op, clock);
+  std::optional<devices::SimulatedMf2> mobilization;
+  std::optional<devices::SimulatedMassageMf2> massage_device;
   std::optional<ServoClinician> servo;
-  if (spec.clinician == Clinician::kServo) {
-    servo.emplace(JointModel(*initial), op);
-    device.setOperator(&*servo);
+  devices::Device* device = nullptr;
+  if (massage) {
+    if (initial->technique != Technique::kMassage) throw Error("the server opened no massage");
+    device = &massage_device.emplace(initial->tissue, op, clock, initial->force_scale);
+  } else {
+    device = &mobilization.emplace(*initial, op, clock);
+    if (spec.clinician == Clinician::kServo) {
+      servo.emplace(JointModel(*initial), op);
+      mobilization->setOperator(&*servo);
+    }
   }
   client::loop::TeleopOptions teleop;
   teleop.render = spec.render;
   teleop.passivity.control = spec.passivity_control;
-  HapticLoop loop(device, clock, *initial, SafetyLimits{}, LoopConfig{}, teleop);
+  HapticLoop loop(*device, clock, *initial, SafetyLimits{}, LoopConfig{}, teleop);
   loop.setSession(session);
 
   DelayLine<Up> up(spec.link, spec.seed * 2 + 1);
@@ -217,6 +234,8 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
   r.force.reserve(ticks);
   std::vector<Vec3> proxy_angles;  // what the client rendered, per seq
   proxy_angles.reserve(ticks);
+  std::vector<PerFinger<Vec3>> proxy_web;  // the web force the client's proxy rendered, per seq
+  if (massage) proxy_web.reserve(ticks);
 
   auto sendChunk = [&](Chunk c, int64_t now) {
     ++up_packets;
@@ -266,6 +285,15 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
       r.force.push_back(f);
       proxy_angles.emplace_back(s.mcp_angles_rad[0], s.mcp_angles_rad[1], s.mcp_angles_rad[2]);
       const bool steady = s.seq >= steady_tick;
+      if (massage) {
+        PerFinger<Vec3> w;
+        for (int k = 0; k < 2; ++k) {
+          w[k] = Vec3(s.fingers[k].tissue_force_n[0], s.fingers[k].tissue_force_n[1],
+                      s.fingers[k].tissue_force_n[2]);
+          if (steady) r.web_force_max_n = std::max(r.web_force_max_n, w[k].norm());
+        }
+        proxy_web.push_back(w);
+      }
       for (std::size_t i = 0; i < 6; ++i) {
         const double h = hp[i](f[i]);
         if (steady) {
@@ -410,6 +438,24 @@ CellResult runCell(const CellSpec& spec, const server::sim::HandModel* hand) {
     r.drift_rms_deg = (sum2 / n).cwiseSqrt().maxCoeff();
   }
   r.drift_corrections = manager.stats().drift_corrections;
+  r.fault = h.fault.load();
+  if (massage) {
+    const double all = static_cast<double>(h.massage_ticks.load());
+    r.massage_in_band = all > 0.0 ? static_cast<double>(h.massage_in_band.load()) / all : 0.0;
+    double e2 = 0.0;
+    for (const auto& [seq, f] : out.web_forces) {
+      if (seq < steady_tick || seq >= proxy_web.size()) continue;
+      for (int k = 0; k < 2; ++k) {
+        const Vec3& c = proxy_web[seq][k];
+        const double e = (f[k] - c).norm() / std::max(c.norm(), 1.0);
+        r.web_error_max = std::max(r.web_error_max, std::isfinite(e) ? e : 1e9);
+        e2 += e * e;
+      }
+      ++r.web_compared;
+    }
+    if (r.web_compared > 0)
+      r.web_error_rms = std::sqrt(e2 / (2.0 * static_cast<double>(r.web_compared)));
+  }
   return r;
 }
 
@@ -429,5 +475,6 @@ double forceError(const CellResult& cell, const CellResult& ref, const CellSpec&
 
 bool stable(const CellResult& r) noexcept { return r.oscillation < kMaxOscillation; }
 bool passive(const CellResult& r) noexcept { return r.po_min_j >= -kPassivityToleranceJ; }
+bool massageStable(const CellResult& r) noexcept { return r.fault == 0; }
 
 }  // namespace telehand::teleop

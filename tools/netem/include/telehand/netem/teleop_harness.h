@@ -12,6 +12,7 @@
 
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/config/config.h"
+#include "telehand/core/tissue_model.h"
 #include "telehand/netem/link_emulation.h"
 #include "telehand/protocol/deadband.h"
 #include "telehand/server/sim/hand_model.h"
@@ -40,6 +41,10 @@ struct CellSpec {
   uint64_t seed = 1;
   bool drift_correction = true;  ///< the server folds drift into the model
   Clinician clinician = Clinician::kForceBand;
+  /// kMassage: a MODE_MASSAGE session, the simulated MF-2's clinician circling on the case's
+  /// web with 10 ± 2 N (SimulatedMassageMf2), the client's loop rendering the web from the
+  /// model the server sends (clinician and servo do not apply).
+  Technique technique = Technique::kMobilization;
 };
 
 struct CellResult {
@@ -68,6 +73,16 @@ struct CellResult {
   double drift_rms_deg = 0.0;
   uint64_t drift_corrections = 0;  ///< models the server published to correct drift
   uint64_t ticks = 0;
+  uint32_t fault = 0;  ///< the client loop's latched LoopFault (0: none)
+  // Massage (CellSpec::technique kMassage), over the steady window.
+  double massage_in_band = 0.0;  ///< share of massage ticks with both pads in 10 ± 2 N
+  double web_force_max_n = 0.0;  ///< largest web force the client recorded, reference N
+  /// The server's web (HandState.web_force_n) against the client's proxy (the sample's
+  /// tissue_force_n) for the same device sample, per finger: |F_server − F_client| /
+  /// max(|F_client|, 1 N), its largest and its RMS over the HandStates compared.
+  double web_error_max = 0.0;
+  double web_error_rms = 0.0;
+  uint64_t web_compared = 0;  ///< HandStates compared
 };
 
 /// Runs one cell. `hand` may be null (no Bullet hand: no treatment, no recovery updates).
@@ -80,6 +95,9 @@ double forceError(const CellResult& cell, const CellResult& reference, const Cel
 /// Stable: no oscillation above the operator's band and the observer never far below zero.
 bool stable(const CellResult& r) noexcept;
 bool passive(const CellResult& r) noexcept;
+/// The massage's stability: the loop rendered to the end without a fault (no clamp storm,
+/// no sustained clamp, no pad through the web).
+bool massageStable(const CellResult& r) noexcept;
 
 /// Thresholds of stable() and passive().
 constexpr double kMaxOscillation = 0.05;
