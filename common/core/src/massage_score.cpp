@@ -237,10 +237,7 @@ MassageScore scoreMassage(const MassageSeries& attempt, const MassageTargets& t,
   r.tangential_ratio_error = f.tangential_ratio - t.tangential_ratio;
   r.centre_offset_m = (f.centre_w - t.centre_w).norm();
 
-  struct Term {
-    double error, tolerance, weight;
-  };
-  const Term terms[] = {
+  r.overall = overallScore({
       {std::abs(r.normal_error_n), 1.0, 0.25},
       {std::max(0.0, r.spread_delta_n), 0.5, 0.10},
       {std::abs(r.frequency_error_hz), std::max(0.05, 0.1 * std::abs(t.frequency_hz)), 0.20},
@@ -248,10 +245,7 @@ MassageScore scoreMassage(const MassageSeries& attempt, const MassageTargets& t,
       {std::max(0.0, -r.circularity_delta), 0.1, 0.10},
       {std::abs(r.tangential_ratio_error), 0.05, 0.10},
       {r.centre_offset_m, std::max(0.0005, 0.25 * t.radius_m), 0.05},
-  };
-  double overall = 0.0;
-  for (const Term& x : terms) overall += x.weight * std::exp(-x.error / x.tolerance);
-  r.overall = std::clamp(100.0 * overall, 0.0, 100.0);
+  });
   return r;
 }
 

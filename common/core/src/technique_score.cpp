@@ -583,12 +583,9 @@ TrialScore score(const Series& attempt, const Targets& t, double settle_s) {
   r.path_error_deg = meanPathError(attempt, relativeTimes(attempt), f.oscillations, t.path_rad);
   r.jerk_delta = f.jerk - t.jerk;
 
-  struct Term {
-    double error, tolerance, weight;
-  };
   const double amp_tol = std::max(0.5, 0.2 * t.amplitude_deg);
   const double path_tol = std::max(0.5, 0.25 * t.amplitude_deg);
-  const Term terms[] = {
+  r.overall = overallScore({
       {std::abs(r.peak_error_n), 1.0, 0.15},
       {std::abs(r.trough_error_n), 1.0, 0.10},
       {std::abs(r.mean_error_n), 1.0, 0.15},
@@ -597,11 +594,14 @@ TrialScore score(const Series& attempt, const Targets& t, double settle_s) {
       {std::max(0.0, t.time_in_band - r.time_in_band), 0.2, 0.15},
       {std::max(0.0, r.path_error_deg - t.path_error_deg), path_tol, 0.10},
       {std::max(0.0, r.jerk_delta), 0.5, 0.10},
-  };
-  double overall = 0.0;
-  for (const Term& x : terms) overall += x.weight * std::exp(-x.error / x.tolerance);
-  r.overall = std::clamp(100.0 * overall, 0.0, 100.0);
+  });
   return r;
+}
+
+double overallScore(std::initializer_list<ScoreTerm> terms) noexcept {
+  double overall = 0.0;
+  for (const ScoreTerm& x : terms) overall += x.weight * std::exp(-x.error / x.tolerance);
+  return std::clamp(100.0 * overall, 0.0, 100.0);
 }
 
 std::string summaryLine(const TrialScore& s) {

@@ -19,6 +19,7 @@
 
 #include "telehand/core/math.h"
 #include "telehand/core/sample.h"
+#include "telehand/core/technique_score.h"
 #include "telehand/core/tissue_model.h"
 
 namespace telehand::technique {

@@ -10,6 +10,7 @@
 /// degrees in every figure. "After settle" means samples at t >= settle_s: the build-up of
 /// the push is not judged.
 #include <cstddef>
+#include <initializer_list>
 #include <span>
 #include <string>
 #include <vector>
@@ -191,6 +192,14 @@ struct TrialScore {
 };
 
 TrialScore score(const Series& attempt, const Targets& t, double settle_s = 1.0);
+
+/// One part of an overall score: its error, the error at which it has lost 63 % of its share,
+/// and its share of 100.
+struct ScoreTerm {
+  double error, tolerance, weight;
+};
+/// 100 · Σ weight · exp(−error / tolerance), within 0..100: every technique's overall score.
+double overallScore(std::initializer_list<ScoreTerm> terms) noexcept;
 
 /// One line for an event, e.g. "trial: peak 15.1 N (+0.3), 3.02 Hz (+0.02), amplitude 8.1
 /// deg (-0.2), in band 82 %, path 0.6 deg, jerk +0.1, score 91".
