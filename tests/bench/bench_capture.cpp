@@ -19,19 +19,27 @@
 //     (a fit worse than the truth: a search problem; better: the model misses something),
 //     PROBE_NOSPASM=1 fits without the spasm term, PROBE_RHW=H fits (and rates the truth)
 //     with rates by central differences over ±H samples, PROBE_DUMP=FILE writes the points.
+//  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
+//     captures (server/estimate/synthetic_massage.h: 60 s, 10 ± 2 N, the paper's 1.43 N
+//     thimble noise), the shipped webs' [tissue] (healthy, oedema, scar, hypertonic) or
+//     --random randomTissue seeds: per web the largest error per parameter over the seeds
+//     (%), the largest error of the rendered static normal force over the forces pressed
+//     (N), and the fit's time.
 // Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]
 //          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]
-//          | --probe CASE HZ SEED]
+//          [--technique massage [--seconds S] [--noise N]] | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "telehand/config/config.h"
@@ -39,6 +47,8 @@
 #include "telehand/core/knn_model.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/estimate/synthetic_capture.h"
+#include "telehand/server/estimate/synthetic_massage.h"
+#include "telehand/server/estimate/tissue_fit.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/store/sqlite_store.h"
 
@@ -125,7 +135,101 @@ struct TableOptions {
   std::vector<double> hz = {0.5, 3.0, 6.0};
   uint64_t first_seed = 1, seeds = 3;
   std::vector<uint64_t> random;  ///< randomPatientCase seeds instead of the case files
+  bool massage = false;          ///< the web's tissue model instead of the joint
+  double seconds = 60.0;         ///< massage capture length
+  double noise_n = 1.43;
+  bool cases_given = false;
 };
+
+/// The web's largest static normal force error at the same thimble positions (fitted
+/// against true) up to the most force the capture pressed with, both fingers, at the centre
+/// and 8 mm off it on both diagonals, N.
+double normalForceError(const TissueParams& truth, const TissueParams& fitted, double force_max) {
+  const TissueModel t(truth), f(fitted);
+  const double surface = 0.5 * truth.thickness_m + truth.pad_radius_m;
+  double worst = 0.0;
+  for (int k = 0; k < 2; ++k) {
+    for (const auto& [x, y] : {std::pair{0.0, 0.0}, {0.008, -0.008}, {-0.008, 0.008}}) {
+      for (double d = 0.0; d <= 0.03; d += 1e-5) {
+        const Vec3 p = t.fromWeb(Vec3(x, y, k == kThumb ? surface - d : -surface + d));
+        const double ft = t.normalForceN(t.depthOf(k, p), 0.0, x, y);
+        if (ft > force_max) break;
+        worst = std::max(worst, std::abs(ft - f.normalForceN(f.depthOf(k, p), 0.0, x, y)));
+      }
+    }
+  }
+  return worst;
+}
+
+int massageTable(const TableOptions& t) {
+  std::printf(
+      "web          |  k     n     lambda  kt    mu_s  mu_k  b      patch k/mu | normal force | "
+      "fit s   worst |error| of %llu seeds, %%, %.0f s captures, %.2f N noise\n",
+      static_cast<unsigned long long>(t.seeds), t.seconds, t.noise_n);
+  std::vector<std::pair<std::string, TissueParams>> webs;
+  for (const auto& name : t.cases) {
+    const std::string file = t.cases_dir + "/" + name + ".toml";
+    webs.emplace_back(name, std::filesystem::exists(file) ? loadPatientCase(file).tissue
+                                                          : tissueCase(name.c_str()));
+  }
+  for (const uint64_t r : t.random)
+    webs.emplace_back("random-" + std::to_string(r), server::estimate::randomTissue(r));
+  for (const auto& [name, web] : webs) {
+    std::array<double, 9> worst{};
+    double force = 0.0, seconds = 0.0;
+    bool all_ok = true;
+    for (uint64_t seed = t.first_seed; seed < t.first_seed + t.seeds; ++seed) {
+      server::estimate::SyntheticMassageOptions o;
+      o.truth = web;
+      o.seconds = t.seconds;
+      o.noise_n = t.noise_n;
+      o.seed = seed;
+      const auto cap = server::estimate::synthesizeMassage(o);
+      TissueParams nominal;
+      nominal.origin_m = web.origin_m;
+      nominal.orientation = web.orientation;
+      nominal.thickness_m = web.thickness_m;
+      nominal.pad_radius_m = web.pad_radius_m;
+      nominal.half_extent_m = web.half_extent_m;
+      nominal.patch_x_m = web.patch_x_m;
+      nominal.patch_y_m = web.patch_y_m;
+      nominal.patch_radius_m = web.patch_radius_m;
+      nominal.patch_rim_m = web.patch_rim_m;
+      server::estimate::TissueFitOptions fo;
+      fo.noise_n = t.noise_n;
+      server::estimate::TissueFitter fitter(nominal, fo);
+      for (const auto& smp : cap.samples) fitter.add(smp, true);
+      const int64_t t0 = now();
+      const auto fit = fitter.fit();
+      seconds += static_cast<double>(now() - t0) * 1e-9;
+      all_ok = all_ok && fit.ok;
+      if (!fit.ok) continue;
+      const TissueParams& p = fit.params;
+      const std::array<std::pair<double, double>, 9> pairs = {
+          std::pair{p.stiffness_n_per_m_pow, web.stiffness_n_per_m_pow},
+          {p.exponent, web.exponent},
+          {p.damping_s_per_m, web.damping_s_per_m},
+          {p.lateral_stiffness_n_per_m, web.lateral_stiffness_n_per_m},
+          {p.mu_static, web.mu_static},
+          {p.mu_kinetic, web.mu_kinetic},
+          {p.viscous_n_s_per_m, web.viscous_n_s_per_m},
+          {p.patch_stiffness_factor, web.patch_stiffness_factor},
+          {p.patch_friction_factor, web.patch_friction_factor}};
+      for (std::size_t i = 0; i < pairs.size(); ++i)
+        worst[i] = std::max(worst[i], 100.0 * std::abs(pairs[i].first / pairs[i].second - 1.0));
+      force = std::max(force, normalForceError(web, p, fit.force_max_n));
+    }
+    char patch[32] = "  -";
+    if (web.patch_radius_m > 0.0)
+      std::snprintf(patch, sizeof patch, "%4.1f/%-4.1f", worst[7], worst[8]);
+    std::printf(
+        "%-12s | %5.1f %5.1f %6.1f %5.1f %5.1f %5.1f %6.1f  %-10s | %5.3f        | %5.2f %s\n",
+        name.c_str(), worst[0], worst[1], worst[2], worst[3], worst[4], worst[5], worst[6], patch,
+        force, seconds / static_cast<double>(t.seeds), all_ok ? "" : "(a fit failed)");
+    std::fflush(stdout);
+  }
+  return 0;
+}
 
 std::vector<std::string> splitList(const std::string& s) {
   std::vector<std::string> out;
@@ -324,6 +428,7 @@ int main(int argc, char** argv) {
       const std::string key = argv[a], val = argv[a + 1];
       if (key == "--cases") {
         t.cases = splitList(val);
+        t.cases_given = true;
       } else if (key == "--hz") {
         t.hz.clear();
         for (const auto& h : splitList(val)) t.hz.push_back(std::stod(h));
@@ -331,15 +436,23 @@ int main(int argc, char** argv) {
         const auto v = splitList(val);
         t.first_seed = std::stoull(v.at(0));
         t.seeds = v.size() > 1 ? std::stoull(v[1]) : 1;
-      } else if (key == "--random") {  // randomPatientCase seeds
-        if (t.cases.size() == 5) t.cases.clear();
+      } else if (key == "--random") {  // randomPatientCase (randomTissue) seeds
+        if (!t.cases_given) t.cases.clear();
         for (const auto& r : splitList(val)) t.random.push_back(std::stoull(r));
+      } else if (key == "--technique") {
+        t.massage = val == "massage";
+        if (t.massage && !t.cases_given && t.random.empty())
+          t.cases = {"healthy", "oedema", "scar", "hypertonic"};
+      } else if (key == "--seconds") {
+        t.seconds = std::stod(val);
+      } else if (key == "--noise") {
+        t.noise_n = std::stod(val);
       } else {
         std::fprintf(stderr, "unknown option %s\n", key.c_str());
         return 2;
       }
     }
-    return fitTable(t);
+    return t.massage ? massageTable(t) : fitTable(t);
   }
   const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
   spdlog::set_level(spdlog::level::warn);

@@ -38,7 +38,7 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
       TissueParams truth = tissueCase(o.patient_name.c_str());
       try {
         const PatientCase patient = loadPatientCaseByName(o.cases_dir, o.patient_name);
-        if (patient.has_tissue) truth = patient.model.tissue;
+        truth = patient.tissue;
       } catch (const ConfigError&) {
       }
       massage_->setPatient(truth);

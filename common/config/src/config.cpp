@@ -135,9 +135,72 @@ ServerConfig loadServerConfig(const std::string& path) {
   return parseServerConfig(readFile(path), path);
 }
 
+namespace {
+
+/// The [tissue] keys over `p`, each checked against the bounds a web on the wire must keep
+/// (TissueParams, docs/security.md "Bounds").
+void readTissue(TableReader& t, TissueParams& p, const std::string& origin) {
+  using P = TissueParams;
+  std::array<double, 3> origin_m = {p.origin_m.x(), p.origin_m.y(), p.origin_m.z()};
+  t.readArray("origin_m", origin_m);
+  for (std::size_t i = 0; i < 3; ++i) {
+    requireRange(origin, ("tissue.origin_m[" + std::to_string(i) + "]").c_str(), origin_m[i], -1.0,
+                 1.0);
+  }
+  p.origin_m = Vec3(origin_m[0], origin_m[1], origin_m[2]);
+  std::array<double, 4> q = {p.orientation.w(), p.orientation.x(), p.orientation.y(),
+                             p.orientation.z()};
+  t.readArray("orientation", q);
+  const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  if (!(std::abs(norm - 1.0) <= 1e-3)) {
+    fail(origin, "'tissue.orientation' = [w, x, y, z] must be a unit quaternion (its norm is " +
+                     std::to_string(norm) + ")");
+  }
+  p.orientation = Quat(q[0], q[1], q[2], q[3]);
+  if (std::abs(norm - 1.0) > 1e-12) p.orientation.normalize();
+  struct Key {
+    const char* name;
+    double* value;
+    double lo, hi;
+  };
+  const Key keys[] = {
+      {"thickness_m", &p.thickness_m, 0.0, P::kMaxLengthM},
+      {"pad_radius_m", &p.pad_radius_m, 0.0, P::kMaxLengthM},
+      {"half_extent_m", &p.half_extent_m, 0.001, P::kMaxLengthM},
+      {"stiffness_n_per_m_pow", &p.stiffness_n_per_m_pow, 0.0, P::kMaxStiffness},
+      {"exponent", &p.exponent, P::kMinExponent, P::kMaxExponent},
+      {"damping_s_per_m", &p.damping_s_per_m, 0.0, P::kMaxDamping},
+      {"lateral_stiffness_n_per_m", &p.lateral_stiffness_n_per_m, 0.0, P::kMaxLateral},
+      {"mu_static", &p.mu_static, 0.0, P::kMaxMu},
+      {"mu_kinetic", &p.mu_kinetic, 0.0, P::kMaxMu},
+      {"viscous_n_s_per_m", &p.viscous_n_s_per_m, 0.0, P::kMaxViscous},
+      {"patch_x_m", &p.patch_x_m, -P::kMaxLengthM, P::kMaxLengthM},
+      {"patch_y_m", &p.patch_y_m, -P::kMaxLengthM, P::kMaxLengthM},
+      {"patch_radius_m", &p.patch_radius_m, 0.0, P::kMaxLengthM},
+      {"patch_stiffness_factor", &p.patch_stiffness_factor, 0.1, P::kMaxPatchFactor},
+      {"patch_friction_factor", &p.patch_friction_factor, 0.1, P::kMaxPatchFactor},
+      {"patch_rim_m", &p.patch_rim_m, 0.0, P::kMaxLengthM},
+  };
+  for (const Key& k : keys) {
+    t.read(k.name, *k.value);
+    requireRange(origin, (std::string("tissue.") + k.name).c_str(), *k.value, k.lo, k.hi);
+  }
+  t.rejectUnknown();
+  if (p.mu_kinetic > p.mu_static) {
+    fail(origin, "'tissue.mu_kinetic' = " + std::to_string(p.mu_kinetic) +
+                     " is above 'tissue.mu_static' = " + std::to_string(p.mu_static) +
+                     ": the skin cannot slip harder than it sticks");
+  }
+  if (const char* bad = invalidTissueParam(p))
+    fail(origin, std::string("'tissue.") + bad + "' is not usable");
+}
+
+}  // namespace
+
 PatientCase parsePatientCase(const std::string& text, const std::string& origin) {
   const toml::table root = parse(text, origin);
-  rejectUnknownTables(root, {"case", "flexion", "abduction", "axial", "recovery"}, origin);
+  rejectUnknownTables(root, {"case", "flexion", "abduction", "axial", "recovery", "tissue"},
+                      origin);
   PatientCase pc;
   JointModelParams& m = pc.model;
   m = healthyIndexMcp();  // lever arm, scale, frame; everything a case sets is overwritten
@@ -196,6 +259,12 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
                          std::string(kAxisNames[i]) + ")");
       }
     }
+  }
+  pc.tissue = tissueCase(pc.name.c_str());
+  TableReader ts(root, "tissue", origin);
+  if (ts.present()) {
+    pc.tissue_given = true;
+    readTissue(ts, pc.tissue, origin);
   }
   std::memset(m.case_name.data(), 0, m.case_name.size());
   std::memcpy(m.case_name.data(), pc.name.data(), std::min(pc.name.size(), m.case_name.size() - 1));

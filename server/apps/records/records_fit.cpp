@@ -8,6 +8,7 @@
 #include <fstream>
 #include <iostream>
 
+#include "records_tissue.h"
 #include "telehand/config/config.h"
 #include "telehand/core/error.h"
 #include "telehand/server/estimate/capture_fit.h"
@@ -19,6 +20,29 @@ namespace telehand::records {
 namespace fs = std::filesystem;
 using server::estimate::CaptureFit;
 using server::estimate::CaptureFitter;
+
+bool runGnuplot(const fs::path& out, const std::string& format, std::string& error,
+                const std::function<void(FILE*)>& script) {
+  FILE* gp = popen("gnuplot 2>&1", "w");
+  if (!gp) {
+    error = "cannot run gnuplot (deploy/setup.sh installs gnuplot-nox)";
+    return false;
+  }
+  const std::string terminal =
+      format == "png" ? "pngcairo size 900,800 font ',10'" : "svg size 900,800 font 'sans,11'";
+  std::fprintf(gp, "set terminal %s\nset output '%s'\n", terminal.c_str(), out.string().c_str());
+  script(gp);
+  const int status = pclose(gp);
+  if (status != 0) {
+    error = "gnuplot failed (exit status " + std::to_string(WEXITSTATUS(status)) + ") writing '" +
+            out.string() + "'" +
+            (WEXITSTATUS(status) == 127
+                 ? ": gnuplot is not installed (deploy/setup.sh installs gnuplot-nox)"
+                 : "");
+    return false;
+  }
+  return true;
+}
 
 namespace {
 
@@ -34,7 +58,7 @@ JointModelParams sessionGeometry(const std::string& cases_dir, const std::string
 }
 
 /// One plot per axis like the paper's Fig. 3b: the captured force against the angle with
-/// the fitted cubic, and the residual below. Drawn by gnuplot (Debian gnuplot-nox).
+/// the fitted cubic, and the residual below.
 bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates,
               const std::vector<Vec3>& accs, const CaptureFit& fit, double lever_m, int axis,
               const fs::path& out, const std::string& format, const std::string& title,
@@ -42,60 +66,44 @@ bool plotAxis(const CaptureFitter& fitter, const std::vector<Vec3>& rates,
   const auto ax = static_cast<std::size_t>(axis);
   const auto& a = fit.axes[ax];
   const auto& pts = fitter.points();
-  FILE* gp = popen("gnuplot 2>&1", "w");
-  if (!gp) {
-    error = "cannot run gnuplot (deploy/setup.sh installs gnuplot-nox)";
-    return false;
-  }
-  const std::string terminal =
-      format == "png" ? "pngcairo size 900,800 font ',10'" : "svg size 900,800 font 'sans,11'";
-  std::fprintf(gp, "set terminal %s\nset output '%s'\n", terminal.c_str(), out.string().c_str());
-  // Decimate to at most ~8000 points: the plot shows the cloud, the fit used them all.
-  const std::size_t stride = std::max<std::size_t>(1, pts.size() / 8000);
-  std::fprintf(gp, "$data << EOD\n");
-  for (std::size_t i = 0; i < pts.size(); i += stride) {
-    const double deg = radToDeg(pts[i].angles_rad[axis]);
-    const double f = pts[i].axis_force_n[axis];
-    const double dynamic =
-        (a.damping_nms_per_rad * rates[i][axis] + a.inertia_kgm2 * accs[i][axis]) / lever_m;
-    std::fprintf(gp, "%.5f %.5f %.5f\n", deg, f, f - a.holdingForceN(deg) - dynamic);
-  }
-  std::fprintf(gp, "EOD\n");
-  // The fitted holding force as the joint model renders it (neutral zone, walls).
-  std::fprintf(gp, "$model << EOD\n");
-  for (double d = a.reached_min_deg; d <= a.reached_max_deg; d += 0.25)
-    std::fprintf(gp, "%.3f %.5f\n", d, a.holdingForceN(d));
-  std::fprintf(gp, "EOD\n");
-  const auto& c = a.curve.coeffs;
-  std::fprintf(gp, "f(x) = ((%.12g*x + %.12g)*x + %.12g)*x + %.12g\n", c[0], c[1], c[2], c[3]);
-  char curve_title[160], rms_title[64];
-  std::snprintf(curve_title, sizeof curve_title, "cubic: %.4g a^3 %+.4g a^2 %+.4g a %+.4g", c[0],
-                c[1], c[2], c[3]);
-  std::snprintf(rms_title, sizeof rms_title, "residual, RMS %.3f N", a.rms_n);
-  std::fprintf(gp,
-               "set multiplot layout 2,1 title \"%s\"\n"
-               "set grid\nset xrange [%.3f:%.3f]\n"
-               "set size 1,0.65\nset origin 0,0.35\n"
-               "set ylabel 'force at the lever arm (N)'\nunset xlabel\n"
-               "plot $data using 1:2 with points pt 7 ps 0.2 lc rgb '#7799bb' title 'captured', "
-               "$model using 1:2 with lines lw 2.5 lc rgb '#cc2222' title '%s'\n"
-               "set size 1,0.35\nset origin 0,0\n"
-               "set xlabel '%s angle (deg)'\nset ylabel 'residual (N)'\n"
-               "plot $data using 1:3 with points pt 7 ps 0.2 lc rgb '#555555' title '%s', 0 with "
-               "lines lc rgb '#cc2222' notitle\n"
-               "unset multiplot\n",
-               title.c_str(), a.reached_min_deg, a.reached_max_deg, curve_title,
-               std::string(kAxisNames[ax]).c_str(), rms_title);
-  const int status = pclose(gp);
-  if (status != 0) {
-    error = "gnuplot failed (exit status " + std::to_string(WEXITSTATUS(status)) + ") writing '" +
-            out.string() + "'" +
-            (WEXITSTATUS(status) == 127
-                 ? ": gnuplot is not installed (deploy/setup.sh installs gnuplot-nox)"
-                 : "");
-    return false;
-  }
-  return true;
+  return runGnuplot(out, format, error, [&](FILE* gp) {
+    // Decimate to at most ~8000 points: the plot shows the cloud, the fit used them all.
+    const std::size_t stride = std::max<std::size_t>(1, pts.size() / 8000);
+    std::fprintf(gp, "$data << EOD\n");
+    for (std::size_t i = 0; i < pts.size(); i += stride) {
+      const double deg = radToDeg(pts[i].angles_rad[axis]);
+      const double f = pts[i].axis_force_n[axis];
+      const double dynamic =
+          (a.damping_nms_per_rad * rates[i][axis] + a.inertia_kgm2 * accs[i][axis]) / lever_m;
+      std::fprintf(gp, "%.5f %.5f %.5f\n", deg, f, f - a.holdingForceN(deg) - dynamic);
+    }
+    std::fprintf(gp, "EOD\n");
+    // The fitted holding force as the joint model renders it (neutral zone, walls).
+    std::fprintf(gp, "$model << EOD\n");
+    for (double d = a.reached_min_deg; d <= a.reached_max_deg; d += 0.25)
+      std::fprintf(gp, "%.3f %.5f\n", d, a.holdingForceN(d));
+    std::fprintf(gp, "EOD\n");
+    const auto& c = a.curve.coeffs;
+    std::fprintf(gp, "f(x) = ((%.12g*x + %.12g)*x + %.12g)*x + %.12g\n", c[0], c[1], c[2], c[3]);
+    char curve_title[160], rms_title[64];
+    std::snprintf(curve_title, sizeof curve_title, "cubic: %.4g a^3 %+.4g a^2 %+.4g a %+.4g", c[0],
+                  c[1], c[2], c[3]);
+    std::snprintf(rms_title, sizeof rms_title, "residual, RMS %.3f N", a.rms_n);
+    std::fprintf(gp,
+                 "set multiplot layout 2,1 title \"%s\"\n"
+                 "set grid\nset xrange [%.3f:%.3f]\n"
+                 "set size 1,0.65\nset origin 0,0.35\n"
+                 "set ylabel 'force at the lever arm (N)'\nunset xlabel\n"
+                 "plot $data using 1:2 with points pt 7 ps 0.2 lc rgb '#7799bb' title 'captured', "
+                 "$model using 1:2 with lines lw 2.5 lc rgb '#cc2222' title '%s'\n"
+                 "set size 1,0.35\nset origin 0,0\n"
+                 "set xlabel '%s angle (deg)'\nset ylabel 'residual (N)'\n"
+                 "plot $data using 1:3 with points pt 7 ps 0.2 lc rgb '#555555' title '%s', 0 with "
+                 "lines lc rgb '#cc2222' notitle\n"
+                 "unset multiplot\n",
+                 title.c_str(), a.reached_min_deg, a.reached_max_deg, curve_title,
+                 std::string(kAxisNames[ax]).c_str(), rms_title);
+  });
 }
 
 }  // namespace
@@ -108,6 +116,7 @@ int runFit(const FitRequest& r) {
     std::cerr << "telehand-records: no session " << r.session << " in " << store.location() << "\n";
     return 2;
   }
+  if (r.technique == "massage") return runFitMassage(r, store, *info);
   if (info->mode != "capture") {
     std::cerr << "telehand-records: session " << r.session << " is a " << info->mode
               << " session; only capture sessions (actuators off) measure a real joint\n";
@@ -233,6 +242,7 @@ int runFit(const FitRequest& r) {
 }
 
 int runSynth(const SynthRequest& r) {
+  if (r.technique == "massage") return runSynthMassage(r);
   server::estimate::SyntheticCaptureOptions o;
   if (!r.cases_dir.empty()) {
     o.truth = loadPatientCaseByName(r.cases_dir, r.case_name).model;

@@ -37,7 +37,9 @@ int main(int argc, char** argv) {
   telehand::records::FitRequest fit_req;
   fit_req.cases_dir = TELEHAND_DEPLOY_DIR "/cases";
   auto* fit = app.add_subcommand(
-      "fit", "fit a capture session: a patient-case file (a cubic per axis) and a plot per axis");
+      "fit",
+      "fit a capture session: a patient-case file (a cubic per axis; for a massage the web's "
+      "[tissue]) and a plot per axis (per tissue parameter)");
   fit->add_option("session", fit_req.session, "capture session id (see 'list')")->required();
   fit->add_option("-o,--output", fit_req.output, "case file to write (default: NAME.toml)");
   fit->add_option("--name", fit_req.name, "case name (default: capture-SESSION)");
@@ -48,6 +50,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   fit->add_option("--cases", fit_req.cases_dir,
                   "patient cases (the session's case gives the joint frame)")
+      ->capture_default_str();
+  fit->add_option("--technique", fit_req.technique,
+                  "what the capture is of: mobilization (the MCP joint) or massage (the web "
+                  "between thumb and index; its case's [tissue] gives the web's place)")
+      ->check(CLI::IsMember({"mobilization", "massage"}))
       ->capture_default_str();
   fit->add_flag("-q,--quiet", fit_req.quiet, "no progress lines");
   telehand::records::SynthRequest synth_req;
@@ -74,6 +81,15 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1.0, 20.0))
       ->capture_default_str();
   synth->add_option("--seed", synth_req.seed, "noise seed")->capture_default_str();
+  synth
+      ->add_option("--technique", synth_req.technique,
+                   "mobilization (a sweep of the case's joint) or massage (circles on the "
+                   "case's web, 10 +- 2 N)")
+      ->check(CLI::IsMember({"mobilization", "massage"}))
+      ->capture_default_str();
+  synth->add_option("--seconds", synth_req.massage_seconds, "length of a massage capture")
+      ->check(CLI::Range(5.0, 600.0))
+      ->capture_default_str();
   synth->add_flag("-q,--quiet", synth_req.quiet, "no progress lines");
   // Lessons (docs/lessons.md).
   telehand::records::LessonRequest lesson_req;

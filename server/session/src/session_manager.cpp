@@ -374,7 +374,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   }
   if (massage) {
     patient.model.technique = Technique::kMassage;
-    if (!patient.has_tissue) patient.model.tissue = tissueCase(case_name.c_str());
+    patient.model.tissue = patient.tissue_given ? patient.tissue : tissueCase(case_name.c_str());
   }
   SessionInfo info;
   uint64_t stored_below = 0;

@@ -16,6 +16,7 @@
 #include "telehand/config/config.h"
 #include "telehand/core/error.h"
 #include "telehand/core/joint_model.h"
+#include "telehand/core/tissue_model.h"
 #include "telehand/protocol/wire.h"
 
 namespace telehand {
@@ -54,7 +55,8 @@ double restDeg(const JointModel& m, int axis) { return radToDeg(m.restAngleRad(a
 
 TEST(PatientCases, EveryFileInTheDeployDirectoryLoadsUnderItsOwnName) {
   const auto names = listPatientCases(kCasesDir);
-  EXPECT_THAT(names, ElementsAre("healthy", "lax", "recovery", "spasm", "stiff"));
+  EXPECT_THAT(names, ElementsAre("healthy", "hypertonic", "lax", "oedema", "recovery", "scar",
+                                 "spasm", "stiff"));
   for (const auto& name : names) {
     SCOPED_TRACE(name);
     PatientCase pc;
@@ -449,6 +451,65 @@ TEST(PatientCaseFile, ForceThatFallsWithTheAngleIsRejected) {
               AllOf(HasSubstr("bad.toml"), HasSubstr("abduction.coeffs")));
 }
 
+// --- The web ([tissue]) ---------------------------------------------------------------------
+
+TEST(PatientCases, MassageCasesCarryTheirWebOnTheHealthyJoint) {
+  for (const char* name : {"healthy", "oedema", "scar", "hypertonic"}) {
+    SCOPED_TRACE(name);
+    const PatientCase pc = load(name);
+    EXPECT_TRUE(pc.tissue_given);
+    EXPECT_EQ(pc.tissue, tissueCase(name));
+    EXPECT_EQ(invalidTissueParam(pc.tissue), nullptr);
+    EXPECT_EQ(pc.model.axes, healthyIndexMcp().axes);
+  }
+  // The joint cases have no web of their own: the healthy one.
+  for (const char* name : {"stiff", "lax", "spasm", "recovery"}) {
+    const PatientCase pc = load(name);
+    EXPECT_FALSE(pc.tissue_given) << name;
+    EXPECT_EQ(pc.tissue, tissueCase("healthy")) << name;
+  }
+}
+
+TEST(PatientCaseFile, TissueSectionIsOptionalAndItsKeysOverrideTheNamedCase) {
+  EXPECT_EQ(parsePatientCase(validCase("scar"), "good.toml").tissue, tissueCase("scar"));
+  const PatientCase some = parsePatientCase(validCase("scar") +
+                                                "[tissue]\nmu_static = 0.7\n"
+                                                "origin_m = [0.01, -0.02, 0.03]\n"
+                                                "orientation = [0.0, 1.0, 0.0, 0.0]\n",
+                                            "good.toml");
+  TissueParams want = tissueCase("scar");
+  want.mu_static = 0.7;
+  want.origin_m = Vec3(0.01, -0.02, 0.03);
+  want.orientation = Quat(0.0, 1.0, 0.0, 0.0);
+  EXPECT_TRUE(some.tissue_given);
+  EXPECT_EQ(some.tissue, want);
+}
+
+TEST(PatientCaseFile, BadTissueValuesAreNamed) {
+  auto with = [](const std::string& lines) { return validCase() + "[tissue]\n" + lines; };
+  EXPECT_THAT(caseError(with("exponent = 3.5\n")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("tissue.exponent"), HasSubstr("outside")));
+  EXPECT_THAT(caseError(with("stiffness_n_per_m_pow = -1.0\n")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("tissue.stiffness_n_per_m_pow")));
+  EXPECT_THAT(caseError(with("lateral_stiffness_n_per_m = 9000.0\n")),
+              HasSubstr("tissue.lateral_stiffness_n_per_m"));
+  EXPECT_THAT(caseError(with("patch_stiffness_factor = 0.0\n")),
+              HasSubstr("tissue.patch_stiffness_factor"));
+  EXPECT_THAT(caseError(with("damping_s_per_m = \"high\"\n")),
+              AllOf(HasSubstr("tissue.damping_s_per_m"), HasSubstr("number")));
+  EXPECT_THAT(
+      caseError(with("mu_static = 0.3\nmu_kinetic = 0.4\n")),
+      AllOf(HasSubstr("bad.toml"), HasSubstr("tissue.mu_kinetic"), HasSubstr("tissue.mu_static")));
+  EXPECT_THAT(caseError(with("orientation = [1.0, 0.5, 0.0, 0.0]\n")),
+              AllOf(HasSubstr("tissue.orientation"), HasSubstr("unit quaternion")));
+  EXPECT_THAT(caseError(with("origin_m = [0.0, 0.0]\n")),
+              AllOf(HasSubstr("tissue.origin_m"), HasSubstr("3 numbers")));
+  EXPECT_THAT(caseError(with("origin_m = [0.0, 2.0, 0.0]\n")), HasSubstr("tissue.origin_m[1]"));
+  EXPECT_THAT(caseError(with("stiffness = 2.0\n")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("tissue.stiffness")));
+  EXPECT_THAT(caseError(with("thickness_m = 0.5\n")), HasSubstr("tissue.thickness_m"));
+}
+
 const char* kRecovery =
     "[recovery]\n"
     "final_min_deg = [-45.0, -20.0, -10.0]\n"
@@ -514,13 +575,14 @@ TEST_F(CaseDirectory, UnknownNameListsTheKnownCases) {
   write("beta.toml", validCase("beta"));
   EXPECT_THAT(error("gamma"), AllOf(HasSubstr("'gamma'"), HasSubstr("alpha, beta")));
   EXPECT_EQ(loadPatientCaseByName(dir_.string(), "beta").name, "beta");
-  // The shipped directory names its five.
+  // The shipped directory names its cases.
   try {
     loadPatientCaseByName(kCasesDir, "floppy");
     ADD_FAILURE() << "no error";
   } catch (const ConfigError& e) {
     EXPECT_THAT(e.what(),
-                AllOf(HasSubstr("'floppy'"), HasSubstr("healthy, lax, recovery, spasm, stiff")));
+                AllOf(HasSubstr("'floppy'"),
+                      HasSubstr("healthy, hypertonic, lax, oedema, recovery, scar, spasm, stiff")));
   }
   EXPECT_THAT(error("nothing"), AllOf(HasSubstr("'nothing'"), HasSubstr("alpha")));
   fs::remove_all(dir_ / "alpha.toml");

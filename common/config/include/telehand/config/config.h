@@ -9,6 +9,7 @@
 
 #include "telehand/core/joint_model.h"
 #include "telehand/core/safety.h"
+#include "telehand/core/tissue_model.h"
 
 namespace telehand {
 
@@ -77,15 +78,19 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
 ClientConfig loadClientConfig(const std::string& path);
 ServerConfig loadServerConfig(const std::string& path);
 
-/// A patient: the joint model a session starts with, and how it changes with treatment.
-/// Files under deploy/cases/ (README "Patient cases").
+/// A patient: the joint model a session starts with, and how it changes with treatment;
+/// the web between thumb and index for the massage. Files under deploy/cases/ (README
+/// "Patient cases").
 struct PatientCase {
   std::string name;
   std::string description;
   std::string source;      ///< where the numbers come from
   JointModelParams model;  ///< at the start of a session
-  bool has_tissue =
-      false;  ///< the file gave the web ([tissue]); else a massage takes tissueCase(name)
+  /// The web ([tissue], keys named after TissueParams' fields): the keys given over
+  /// tissueCase(name), which is the healthy web for a name it does not know; all of it
+  /// when the file has no [tissue] (tissue_given false).
+  TissueParams tissue;
+  bool tissue_given = false;
   bool recovers = false;  ///< the range grows with treatment time
   std::array<double, kAxes> final_min_deg{};
   std::array<double, kAxes> final_max_deg{};
