@@ -116,7 +116,10 @@ int runFit(const FitRequest& r) {
     std::cerr << "telehand-records: no session " << r.session << " in " << store.location() << "\n";
     return 2;
   }
-  if (r.technique == "massage") return runFitMassage(r, store, *info);
+  // A capture of a web says so in its record ("capture-massage"); --technique massage fits a
+  // plain capture's samples as a web.
+  if (r.technique == "massage" || info->mode == "capture-massage")
+    return runFitMassage(r, store, *info);
   if (info->mode != "capture") {
     std::cerr << "telehand-records: session " << r.session << " is a " << info->mode
               << " session; only capture sessions (actuators off) measure a real joint\n";

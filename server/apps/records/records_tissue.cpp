@@ -227,7 +227,7 @@ bool plotTissue(const TissueFit& fit, const TissuePlotData& d, const fs::path& d
 
 int runFitMassage(const FitRequest& r, server::store::SessionStore& store,
                   const server::store::SessionInfo& info) {
-  if (info.mode != "capture") {
+  if (info.mode != "capture" && info.mode != "capture-massage") {
     std::cerr << "telehand-records: session " << r.session << " is a " << info.mode
               << " session; only capture sessions (actuators off) measure a real web\n";
     return 2;
