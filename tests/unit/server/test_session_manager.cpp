@@ -273,7 +273,8 @@ TEST_F(SessionManagerTest, UnknownCaseIsAnErrorNamingTheKnownOnesAndOpensNothing
   const auto errors = out_.eventsOf(telehand_msg_EVENT_ERROR);
   ASSERT_EQ(errors.size(), 2u);
   EXPECT_THAT(errors[0]->text,
-              AllOf(HasSubstr("'floppy'"), HasSubstr("healthy, lax, recovery, spasm, stiff")));
+              AllOf(HasSubstr("'floppy'"),
+                    HasSubstr("healthy, hypertonic, lax, oedema, recovery, scar, spasm, stiff")));
   EXPECT_EQ(errors[0]->client_id, 7u);
   EXPECT_EQ(errors[0]->session_id, 0u);
   EXPECT_THAT(errors[1]->text, HasSubstr("'../cases/healthy'"));
