@@ -158,6 +158,14 @@ void SimulatedMassageMf2::advanceTo(int64_t t_ns) noexcept {
 }
 
 bool SimulatedMassageMf2::read(DeviceSample& out) noexcept {
+  if (!reading_) {
+    // The clinician puts the fingers on the web when the loop starts reading: before that
+    // nothing is rendered (the session is being opened), and pressing into a web that does
+    // not push back would sink the fingers deep before the first force (40 clamped ticks).
+    // The first read is the clinician's first step.
+    reading_ = true;
+    start_ns_ = sim_ns_ = clock_.nowNs() - kStepNs;
+  }
   advanceTo(clock_.nowNs());
   PerFinger<mf2::ThimblePose> truth, pose;
   for (int k = 0; k < 2; ++k) {

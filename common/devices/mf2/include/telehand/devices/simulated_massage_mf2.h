@@ -146,6 +146,7 @@ class SimulatedMassageMf2 final : public Device {
   PerFinger<std::array<TremorFilter, 3>> tremor_;
   double force_noise_n_ = 0.0;
 
+  bool reading_ = false;  // the first read() starts the clinician's time
   int64_t start_ns_;
   int64_t sim_ns_;
   uint64_t seq_ = 0;
