@@ -143,9 +143,10 @@ TEST_F(LessonRunTest, ClinicianDemonstratesStudentRunsItAndTheRecordHoldsTheLess
   const std::string listed = list.output();
   EXPECT_NE(listed.find("schedule"), std::string::npos) << listed;
   std::smatch row;
-  ASSERT_TRUE(std::regex_search(listed, row,
-                                std::regex(R"((?:^|\n)(\d+) +(\d+) +(\S+) +terminal +1\+2 +1 +)"
-                                           R"(mobilization by clinician on (\S+)\n)")))
+  ASSERT_TRUE(
+      std::regex_search(listed, row,
+                        std::regex(R"((?:^|\n)(\d+) +(\d+) +(\S+) +terminal +1\+2 +1 +)"
+                                   R"(mobilization +mobilization by clinician on (\S+)\n)")))
       << listed;
   EXPECT_EQ(std::stoull(row[1]), lesson);
   EXPECT_EQ(std::stoull(row[2]), demo);

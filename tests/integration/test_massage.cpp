@@ -122,5 +122,130 @@ TEST_P(MassageTest, ATwentySecondMassageStaysInBandUnderTheDeviceLimitAndIsRecor
 
 INSTANTIATE_TEST_SUITE_P(Webs, MassageTest, ::testing::Values("healthy", "hypertonic", "oedema"));
 
+// A massage lesson (docs/lessons.md "Massage lessons"): a clinician's massage on the scar
+// becomes a lesson, which refuses guided trials, a take-over and a mobilization's client; the
+// clinician's own hand scores above a student who presses 1.5 N too hard and circles 0.3 Hz too
+// fast, every trial is in the record with the massage's figures, and the report draws it.
+TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
+  char tmpl[] = "/tmp/telehand-massage-lesson-XXXXXX";
+  const fs::path dir = mkdtemp(tmpl);
+  const std::string partition = "it-" + std::to_string(getpid()) + "-massage-lesson";
+  std::vector<std::string> dds{"--dds-config", TELEHAND_LOOPBACK_XML, "--insecure", "--partition",
+                               partition};
+  auto cmd = [&](std::string bin, std::vector<std::string> args) {
+    std::vector<std::string> v{std::move(bin)};
+    v.insert(v.end(), args.begin(), args.end());
+    v.insert(v.end(), dds.begin(), dds.end());
+    return v;
+  };
+  const std::string db = (dir / "records.db").string();
+  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "170"}),
+                 (dir / "server.log").string());
+  auto run = [&](const std::string& name, std::vector<std::string> args) {
+    Process p(std::move(args), (dir / (name + ".log")).string());
+    const auto rc = p.wait(90s);
+    return std::make_pair(rc ? *rc : -1, p.output());
+  };
+  const auto [demo_rc, demo_out] =
+      run("clinician",
+          cmd(TELEHAND_CLIENT_BIN, {"--technique", "massage", "--case", "scar", "--seconds", "8",
+                                    "-q", "--seed", "5", "--user", "clinician"}));
+  ASSERT_EQ(demo_rc, 0) << demo_out << server.output();
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(demo_out, m, std::regex(R"(session (\d+) open: massage)")));
+  const std::string demo = m[1];
+
+  auto records = [&](const std::string& name, std::vector<std::string> args) {
+    std::vector<std::string> v{TELEHAND_RECORDS_BIN, "--db", db};
+    v.insert(v.end(), args.begin(), args.end());
+    return run(name, v);
+  };
+  // What a massage lesson cannot have is refused, naming it.
+  const auto [guided_rc, guided_out] =
+      records("guided", {"lesson", "create", "--demo", demo, "--guided", "2"});
+  EXPECT_EQ(guided_rc, 2);
+  EXPECT_NE(guided_out.find("no guided trials"), std::string::npos) << guided_out;
+  const auto [take_rc, take_out] =
+      records("takeover", {"lesson", "create", "--demo", demo, "--takeover"});
+  EXPECT_EQ(take_rc, 2);
+  EXPECT_NE(take_out.find("--takeover"), std::string::npos) << take_out;
+  const auto [create_rc, create_out] =
+      records("create", {"lesson", "create", "--demo", demo, "--attempts", "2", "--trial-seconds",
+                         "5", "--schedule", "terminal"});
+  ASSERT_EQ(create_rc, 0) << create_out;
+  ASSERT_TRUE(std::regex_search(
+      create_out, m,
+      std::regex(
+          R"(lesson (\d+) .*massage\): press ([0-9.]+) N .*circles of ([0-9.]+) mm at ([-0-9.]+) Hz)")))
+      << create_out;
+  const std::string lesson = m[1];
+  EXPECT_NEAR(std::stod(m[2]), 10.0, 1.0);  // the clinician's 10 N
+  EXPECT_NEAR(std::stod(m[3]), 6.0, 0.5);   // 6 mm circles
+  EXPECT_NEAR(std::stod(m[4]), 1.5, 0.05);  // at 1.5 Hz
+
+  // A client that would mobilize is told how to run it.
+  const auto [mob_rc, mob_out] =
+      run("mobilizer", cmd(TELEHAND_CLIENT_BIN, {"--lesson", lesson, "--user", "x"}));
+  EXPECT_EQ(mob_rc, 2);
+  EXPECT_NE(mob_out.find("--technique massage --lesson " + lesson), std::string::npos) << mob_out;
+
+  auto student = [&](const std::string& name, std::vector<std::string> skill) {
+    std::vector<std::string> args{"--technique", "massage", "--lesson", lesson,          "--user",
+                                  name,          "--seed",  "9",        "--watch-speed", "2"};
+    args.insert(args.end(), skill.begin(), skill.end());
+    return run(name, cmd(TELEHAND_CLIENT_BIN, args));
+  };
+  const auto [good_rc, good_out] = student("clinician-again", {});
+  ASSERT_EQ(good_rc, 0) << good_out << server.output();
+  const auto [weak_rc, weak_out] =
+      student("student", {"--force-bias", "1.5", "--frequency-error", "0.3"});
+  ASSERT_EQ(weak_rc, 0) << weak_out << server.output();
+  for (const std::string* out : {&good_out, &weak_out}) {
+    EXPECT_NE(out->find("0 guided trial(s) and 2 attempt(s)"), std::string::npos) << *out;
+    EXPECT_NE(out->find("feedback: trial 2 (attempt): massage: press"), std::string::npos) << *out;
+    EXPECT_NE(out->find("lesson: 2 of 2 trials run"), std::string::npos) << *out;
+  }
+  EXPECT_EQ(server.stop(), 0) << server.output();
+
+  // The record: both runs' trials with the massage's figures; the better hand scores higher,
+  // and the student's errors are the ones put in.
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
+  auto runs = [&](const std::string& user) {
+    for (const auto& s : store.listSessions()) {
+      if (s.user == user && s.mode == "lesson") return store.trials(s.id);
+    }
+    return std::vector<server::store::TrialRecord>{};
+  };
+  const auto good = runs("clinician-again"), weak = runs("student");
+  ASSERT_EQ(good.size(), 2u);
+  ASSERT_EQ(weak.size(), 2u);
+  for (std::size_t i = 0; i < 2; ++i) {
+    EXPECT_EQ(good[i].phase, "attempt");
+    EXPECT_NE(good[i].figures.find("radius_m="), std::string::npos) << good[i].figures;
+    EXPECT_NE(good[i].figures.find("missing=0;"), std::string::npos) << good[i].figures;
+    EXPECT_GT(good[i].overall, 85.0) << good[i].figures;
+    EXPECT_LT(weak[i].overall, good[i].overall - 15.0) << weak[i].figures;
+    const std::regex err(R"(normal_error_n=([-0-9.e]+);.*frequency_error_hz=([-0-9.e]+);)");
+    std::smatch e;
+    ASSERT_TRUE(std::regex_search(weak[i].figures, e, err)) << weak[i].figures;
+    EXPECT_NEAR(std::stod(e[1]), 1.5, 0.5);
+    EXPECT_NEAR(std::stod(e[2]), 0.3, 0.05);
+  }
+
+  // The report of the student's run.
+  const auto [report_rc, report_out] =
+      records("report", {"report", "--lesson", lesson, "-o", dir.string()});
+  ASSERT_EQ(report_rc, 0) << report_out;
+  ASSERT_TRUE(
+      std::regex_search(report_out, m, std::regex(R"(report: (\S+\.html) \(massage, 2 trials)")))
+      << report_out;
+  std::ifstream page(m[1].str());
+  std::stringstream html;
+  html << page.rdbuf();
+  for (const char* id : {"id=\"press-0\"", "id=\"path-1\"", "id=\"radius\"", "id=\"learning\""})
+    EXPECT_NE(html.str().find(id), std::string::npos) << id;
+  if (!HasFailure()) fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace telehand::test

@@ -31,19 +31,26 @@ int runLessonSession(const ClientOptions& o, ClientDevice& mf2, loop::HapticLoop
   const auto plan = decodePlan(link.lessonPlan(), &why);
   if (!plan)
     throw Error("session " + std::to_string(session) + ": the server's lesson plan: " + why);
+  const bool massage = plan->technique == "massage";
+  if (massage != (o.technique_name == "massage")) {
+    throw Error("session " + std::to_string(session) + ": lesson " +
+                std::to_string(plan->lesson_id) + " teaches the " + plan->technique +
+                (massage ? ": run it with --technique massage" : ", not the massage"));
+  }
   JointModelParams joint = healthyIndexMcp();
   try {
     joint = loadPatientCaseByName(o.cases_dir, link.openedCase()).model;
   } catch (const ConfigError&) {
   }
-  LessonOperator* student = mf2.prepareLesson(joint, o);
+  LessonActor* student = mf2.prepareLesson(joint, o);
   const std::vector<LessonStep> steps = lessonSteps(*plan, o);
   double total = 0.0;
   for (const auto& st : steps) total += st.seconds;
-  std::cout << "session " << session << " open: lesson " << plan->lesson_id << " on case '"
-            << link.openedCase() << "', " << plan->guided << " guided trial(s) and "
-            << plan->attempts << " attempt(s) of " << plan->trial_s << " s, " << plan->schedule
-            << " feedback, about " << static_cast<int>(total) << " s" << std::endl;
+  std::cout << "session " << session << " open: " << (massage ? "massage " : "") << "lesson "
+            << plan->lesson_id << " on case '" << link.openedCase() << "', " << plan->guided
+            << " guided trial(s) and " << plan->attempts << " attempt(s) of " << plan->trial_s
+            << " s, " << plan->schedule << " feedback, about " << static_cast<int>(total) << " s"
+            << std::endl;
   LessonDriver driver(*plan, steps, loop, link, student,
                       std::set<int>(o.request_feedback.begin(), o.request_feedback.end()), o.quiet);
   const RunTotals totals =
@@ -85,8 +92,9 @@ int main(int argc, char** argv) {
 
     SteadyClock clock;
     const bool massage = o.technique_name == "massage";
-    if (massage && (o.mode_name == "exploration" || o.lesson != 0 || o.follow != 0)) {
-      throw ConfigError("--technique massage goes with --mode mobilization or capture only");
+    if (massage && (o.mode_name == "exploration" || o.follow != 0)) {
+      throw ConfigError(
+          "--technique massage goes with --mode mobilization or capture, or with --lesson");
     }
     JointModelParams initial = healthyIndexMcp();
     if (massage) {  // the web of the case until the server's model arrives

@@ -84,7 +84,12 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
   }
 }
 
-LessonOperator* ClientDevice::prepareLesson(const JointModelParams& joint, const ClientOptions& o) {
+LessonActor* ClientDevice::prepareLesson(const JointModelParams& joint, const ClientOptions& o) {
+  if (massage_) {
+    massage_student_ = std::make_unique<MassageLessonActor>(*massage_);
+    massage_->setPerforming(false);  // the trials start the massage
+    return massage_student_.get();
+  }
   if (!sim_) return nullptr;
   const JointModel rest(joint);
   sim_->setPose(

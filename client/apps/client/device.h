@@ -30,7 +30,8 @@ class ClientDevice {
   usb::UsbMf2* usb() noexcept { return usb_.get(); }
   /// A lesson run on the simulated MF-2: the simulated student on case `joint` (before the
   /// loop starts). Null with a real MF-2: the student at it acts the phases out.
-  LessonOperator* prepareLesson(const JointModelParams& joint, const ClientOptions& o);
+  /// A massage lesson's student massages in the trials and rests otherwise.
+  LessonActor* prepareLesson(const JointModelParams& joint, const ClientOptions& o);
 
  private:
   devices::Mf2ModelCalibration usb_calibration_;
@@ -40,6 +41,7 @@ class ClientDevice {
   std::unique_ptr<devices::SimulatedMassageMf2> massage_;   // --technique massage, simulated
   std::unique_ptr<devices::ExplorationOperator> explorer_;  // --mode exploration, simulated
   std::unique_ptr<LessonOperator> student_;                 // --lesson, simulated
+  std::unique_ptr<MassageLessonActor> massage_student_;     // --technique massage --lesson
   devices::Device* device_ = nullptr;
 };
 

@@ -81,7 +81,7 @@ std::vector<LessonStep> lessonSteps(const LessonPlan& plan, const ClientOptions&
 }
 
 LessonDriver::LessonDriver(const LessonPlan& plan, std::vector<LessonStep> steps,
-                           loop::HapticLoop& loop, link::ClientLink& link, LessonOperator* op,
+                           loop::HapticLoop& loop, link::ClientLink& link, LessonActor* op,
                            std::set<int> requested, bool quiet)
     : plan_(plan),
       steps_(std::move(steps)),
@@ -102,11 +102,19 @@ void LessonDriver::begin(std::size_t i, double t_s) {
     ++trials_run_;
     tracker_.reset();
     have_osc_ = false;
+    press_count_ = 0;
+    press_sum_n_ = 0.0;
+    if (plan_.technique == "massage") next_bar_s_ = t_s + 1.0;  // a whole second per bar
   }
   std::printf("\nphase %zu/%zu: %s\n", i + 1, steps_.size(), st.label.c_str());
   if (st.trial > 0 && plan_.schedule == "concurrent") {
-    std::printf("  aim: %.1f-%.1f N at %.2f Hz (the demonstration's)\n", plan_.band_min_n,
-                plan_.band_max_n, plan_.frequency_hz);
+    if (plan_.technique == "massage") {
+      std::printf("  aim: press %.1f-%.1f N, circles at %.2f Hz (the demonstration's)\n",
+                  plan_.band_min_n, plan_.band_max_n, plan_.frequency_hz);
+    } else {
+      std::printf("  aim: %.1f-%.1f N at %.2f Hz (the demonstration's)\n", plan_.band_min_n,
+                  plan_.band_max_n, plan_.frequency_hz);
+    }
   }
   std::fflush(stdout);
 }
@@ -126,6 +134,37 @@ void LessonDriver::showScores() {
 
 void LessonDriver::concurrentBars(double t_s) {
   const auto& h = loop_.health();
+  constexpr int kWidth = 30;
+  if (plan_.technique == "massage") {
+    // The pads' press (the firmer pad's, as the loop renders it) over the last second against
+    // the band: '[' the band ']', '.' the least, '|' the most, '*' the mean.
+    const double n = h.web_normal_ref_n.load();
+    if (press_count_ == 0) press_min_n_ = press_max_n_ = n;
+    press_min_n_ = std::min(press_min_n_, n);
+    press_max_n_ = std::max(press_max_n_, n);
+    press_sum_n_ += n;
+    ++press_count_;
+    if (t_s < next_bar_s_) return;
+    next_bar_s_ = t_s + 1.0;
+    const double full = 1.5 * plan_.band_max_n;
+    auto col = [&](double f) {
+      return static_cast<std::size_t>(
+          std::clamp(static_cast<int>(f / full * kWidth), 0, kWidth - 1));
+    };
+    const double mean = press_sum_n_ / press_count_;
+    std::string bar(kWidth, '-');
+    bar[col(plan_.band_min_n)] = '[';
+    bar[col(plan_.band_max_n)] = ']';
+    bar[col(press_min_n_)] = '.';
+    bar[col(press_max_n_)] = '|';
+    bar[col(mean)] = '*';
+    std::printf("  press %s %4.1f N (%4.1f-%4.1f)\n", bar.c_str(), mean, press_min_n_,
+                press_max_n_);
+    std::fflush(stdout);
+    press_count_ = 0;
+    press_sum_n_ = 0.0;
+    return;
+  }
   technique::Oscillation o;
   if (tracker_.add(t_s, h.applied_ref_n.load(), Vec3::Zero(), o)) {
     last_osc_ = o;
@@ -134,7 +173,6 @@ void LessonDriver::concurrentBars(double t_s) {
   if (t_s < next_bar_s_ || !have_osc_) return;
   next_bar_s_ = t_s + 1.0;
   // A bar from 0 to 1.5x the band's top: '[' the band ']', '|' the last peak, '.' its trough.
-  constexpr int kWidth = 30;
   const double full = 1.5 * plan_.band_max_n;
   auto col = [&](double n) {
     return std::clamp(static_cast<int>(n / full * kWidth), 0, kWidth - 1);

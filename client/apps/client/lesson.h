@@ -16,21 +16,35 @@
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/technique_score.h"
 #include "telehand/devices/exploration_operator.h"
+#include "telehand/devices/simulated_massage_mf2.h"
 #include "telehand/devices/simulated_mf2.h"
 #include "telehand/protocol/lesson_plan.h"
 
 namespace telehand::client::app {
 
+/// What the simulated student does in a phase: rest, explore the joint's range, or perform
+/// the lesson's technique (mobilize the joint, or massage the web).
+enum class LessonAct : int { kRest = 0, kExplore = 1, kMobilize = 2 };
+
+/// Who acts the phases out on a simulated MF-2 (set from the session's thread).
+class LessonActor {
+ public:
+  virtual void set(LessonAct a) noexcept = 0;
+
+ protected:
+  ~LessonActor() = default;
+};
+
 /// The simulated student during a lesson: rests (lets the joint be), explores the six
 /// directions, or mobilizes (the simulated MF-2's own push, skill included, restarted at
 /// each trial). Called from the device's 1 kHz step: no allocation, no lock.
-class LessonOperator final : public devices::Operator {
+class LessonOperator final : public devices::Operator, public LessonActor {
  public:
-  enum class Act : int { kRest = 0, kExplore = 1, kMobilize = 2 };
+  using Act = LessonAct;
   LessonOperator(const devices::SimulatedMf2& device, const devices::ExplorationPlan& plan,
                  const JointModelParams& geometry, double hold_n_per_m);
   /// From the session's thread: the act from the device's next step on.
-  void set(Act a) noexcept { want_.store(static_cast<int>(a), std::memory_order_release); }
+  void set(Act a) noexcept override { want_.store(static_cast<int>(a), std::memory_order_release); }
   Vec3 torqueNm(double t_s, const Vec3& angles_rad, const Vec3& rates_rad_s) noexcept override;
 
  private:
@@ -41,6 +55,17 @@ class LessonOperator final : public devices::Operator {
   int act_ = -1;
   int explorations_ = 0;
   double t0_ = 0.0;
+};
+
+/// The simulated student of a massage lesson: massages during the trials (each starts
+/// afresh, skill included), rests otherwise. There is no exploration on the web.
+class MassageLessonActor final : public LessonActor {
+ public:
+  explicit MassageLessonActor(devices::SimulatedMassageMf2& device) : device_(device) {}
+  void set(LessonAct a) noexcept override { device_.setPerforming(a == LessonAct::kMobilize); }
+
+ private:
+  devices::SimulatedMassageMf2& device_;
 };
 
 /// One step of the run.
@@ -60,7 +85,7 @@ std::vector<LessonStep> lessonSteps(const LessonPlan& plan, const ClientOptions&
 class LessonDriver {
  public:
   LessonDriver(const LessonPlan& plan, std::vector<LessonStep> steps, loop::HapticLoop& loop,
-               link::ClientLink& link, LessonOperator* op, std::set<int> requested, bool quiet);
+               link::ClientLink& link, LessonActor* op, std::set<int> requested, bool quiet);
   bool step(double t_s);
   /// Score lines that arrived after the run (the last trials'), printed per the schedule.
   void finish();
@@ -75,7 +100,7 @@ class LessonDriver {
   std::vector<LessonStep> steps_;
   loop::HapticLoop& loop_;
   link::ClientLink& link_;
-  LessonOperator* op_;
+  LessonActor* op_;
   std::set<int> requested_;
   bool quiet_;
   std::size_t current_ = 0;
@@ -89,6 +114,9 @@ class LessonDriver {
   technique::Oscillation last_osc_{};
   bool have_osc_ = false;
   double next_bar_s_ = 0.0;
+  // A massage's concurrent feedback: the pads' press over the last second.
+  double press_min_n_ = 0.0, press_max_n_ = 0.0, press_sum_n_ = 0.0;
+  int press_count_ = 0;
 };
 
 }  // namespace telehand::client::app

@@ -131,6 +131,11 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
     std::printf("  force: commanded %.2f N (actuators off); the thimbles measured %.1f..%.1f N\n",
                 h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min * scale,
                 applied_max * scale);
+  } else if (h.massage.load()) {  // the band is the massage's, on the line above
+    std::printf(
+        "  force: commanded up to %.2f N per finger; applied %.1f..%.1f N at reference "
+        "scale\n",
+        h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max);
   } else {
     std::printf(
         "  force: commanded up to %.2f N per finger; applied %.1f..%.1f N at reference scale "

@@ -15,10 +15,12 @@ std::string encodePlan(const LessonPlan& p) {
   char buf[256];
   std::snprintf(buf, sizeof buf,
                 "lesson=%llu;schedule=%s;guided=%d;attempts=%d;trial_s=%.3f;assessment=%d;"
-                "demo_s=%.3f;band_min_n=%.3f;band_max_n=%.3f;frequency_hz=%.4f;takeover=%d",
+                "demo_s=%.3f;band_min_n=%.3f;band_max_n=%.3f;frequency_hz=%.4f;takeover=%d;"
+                "technique=%s",
                 static_cast<unsigned long long>(p.lesson_id), p.schedule.c_str(), p.guided,
                 p.attempts, p.trial_s, p.assessment ? 1 : 0, p.demo_s, p.band_min_n, p.band_max_n,
-                p.frequency_hz, p.takeover ? 1 : 0);
+                p.frequency_hz, p.takeover ? 1 : 0,
+                p.technique == "massage" ? "massage" : "mobilization");
   return buf;
 }
 
@@ -76,6 +78,12 @@ std::optional<LessonPlan> decodePlan(const std::string& text, std::string* why) 
   if (kv.count("takeover")) {  // optional: a plan without it allows none
     if (!num("takeover", 0, 1, v)) return bad("lesson plan: 'takeover' not 0/1");
     p.takeover = v != 0.0;
+  }
+  if (const auto t = kv.find("technique"); t != kv.end()) {  // optional: a mobilization
+    if (t->second != "mobilization" && t->second != "massage") {
+      return bad("lesson plan: 'technique' not mobilization or massage");
+    }
+    p.technique = t->second;
   }
   return p;
 }

@@ -32,6 +32,58 @@ double forceScaleOf(const std::string& cases_dir, const std::string& case_name) 
   }
 }
 
+/// The web of a case: its file's [tissue] when the cases directory has one, else the built-in
+/// web of that name (as the server renders it, docs/massage.md "Cases").
+TissueParams webOf(const std::string& cases_dir, const std::string& case_name) {
+  try {
+    const PatientCase c = loadPatientCaseByName(cases_dir, case_name);
+    if (c.tissue_given) return c.tissue;
+  } catch (const ConfigError&) {
+  }
+  return tissueCase(case_name.c_str());
+}
+
+int createMassageLesson(SessionStore& store, const LessonRequest& r, const SessionInfo& demo) {
+  if (r.guided_given && r.guided > 0) {
+    throw Error("--guided " + std::to_string(r.guided) + ": session " + std::to_string(r.demo) +
+                " is a massage, and a massage lesson has no guided trials (the guide leads the "
+                "joint's path)");
+  }
+  if (r.takeover) {
+    throw Error("--takeover: session " + std::to_string(r.demo) +
+                " is a massage, and a take-over leads guided trials, which a massage lesson has "
+                "none of");
+  }
+  const double scale = forceScaleOf(r.cases_dir, demo.case_name);
+  const TissueParams web = webOf(r.cases_dir, demo.case_name);
+  const technique::MassageTargets t =
+      server::lesson::massageTargetsFromRecord(store, r.demo, scale, web);
+  LessonInfo l;
+  l.name = r.name.empty() ? "massage by " + demo.user + " on " + demo.case_name : r.name;
+  l.demo_session = r.demo;
+  l.case_name = demo.case_name;
+  l.technique = "massage";
+  l.schedule = r.schedule;
+  l.guided = 0;
+  l.attempts = r.attempts;
+  l.trial_s = r.trial_s;
+  l.assessment = false;
+  l.takeover = false;
+  l.targets = server::lesson::encodeMassageTargets(t);
+  l.created_ns = wallNs();
+  const uint64_t id = store.createLesson(l);
+  std::cout << std::fixed << std::setprecision(2) << "lesson " << id << " '" << l.name
+            << "' from session " << r.demo << " (" << demo.case_name << ", massage): press "
+            << t.normal_mean_n << " N (band " << t.band_min_n << "-" << t.band_max_n
+            << " N), circles of " << 1000.0 * t.radius_m << " mm at " << t.frequency_hz
+            << " Hz, circularity " << t.circularity << ", tangential/normal " << t.tangential_ratio
+            << ", " << std::setprecision(0) << t.laps << " laps; " << std::setprecision(2)
+            << l.attempts << " attempts of " << l.trial_s << " s, " << l.schedule
+            << " feedback (no guided trial, no exploration: they are the joint's)\n"
+            << "run it: telehand-client --technique massage --lesson " << id << "\n";
+  return 0;
+}
+
 std::vector<Sample> samplesIn(SessionStore& store, uint64_t session, uint64_t first,
                               uint64_t last) {
   std::vector<Sample> out;
@@ -39,6 +91,16 @@ std::vector<Sample> samplesIn(SessionStore& store, uint64_t session, uint64_t fi
     if (valid) out.push_back(s);
   });
   return out;
+}
+
+/// Written to PATH.partial first and renamed: a reader never sees half a file.
+void writeAtomically(const std::string& path, const std::string& text) {
+  const std::string tmp = path + ".partial";
+  {
+    std::ofstream f(tmp, std::ios::binary);
+    if (!(f << text)) throw Error("cannot write '" + tmp + "'");
+  }
+  std::filesystem::rename(tmp, path);
 }
 
 std::vector<Sample> allSamples(SessionStore& store, uint64_t session) {
@@ -55,9 +117,10 @@ int runLessonCreate(const LessonRequest& r) {
   SessionStore& store = *opened;
   const auto demo = store.session(r.demo);
   if (!demo) throw Error("no session " + std::to_string(r.demo) + " in " + store.location());
+  if (demo->mode == "massage") return createMassageLesson(store, r, *demo);
   if (demo->mode != "mobilization") {
     throw Error("session " + std::to_string(r.demo) + " is a " + demo->mode +
-                " session: a demonstration is a mobilization");
+                " session: a demonstration is a mobilization or a massage");
   }
   const double scale = forceScaleOf(r.cases_dir, demo->case_name);
   const technique::Targets t = server::lesson::targetsFromRecord(store, r.demo, scale);
@@ -94,13 +157,13 @@ int runLessonList(SessionStore& store) {
   }
   std::cout << std::left << std::setw(6) << "id" << std::setw(8) << "demo" << std::setw(10)
             << "case" << std::setw(12) << "schedule" << std::setw(8) << "trials" << std::setw(6)
-            << "runs"
+            << "runs" << std::setw(14) << "technique"
             << "name\n";
   for (const auto& l : lessons) {
     std::cout << std::left << std::setw(6) << l.id << std::setw(8) << l.demo_session
               << std::setw(10) << l.case_name << std::setw(12) << l.schedule << std::setw(8)
               << (std::to_string(l.guided) + "+" + std::to_string(l.attempts)) << std::setw(6)
-              << runsOf(store, l.id).size() << l.name << "\n";
+              << runsOf(store, l.id).size() << std::setw(14) << l.technique << l.name << "\n";
   }
   return 0;
 }
@@ -108,17 +171,29 @@ int runLessonList(SessionStore& store) {
 int runLessonShow(SessionStore& store, uint64_t lesson_id) {
   const auto l = store.lesson(lesson_id);
   if (!l) throw Error("no lesson " + std::to_string(lesson_id) + " in the record");
-  const technique::Targets t = server::lesson::decodeTargets(l->targets);
-  std::cout << std::fixed << std::setprecision(2) << "lesson " << l->id << ": " << l->name
-            << "\n  demonstration: session " << l->demo_session << " on case " << l->case_name
-            << " (" << l->technique << ")\n  targets: force " << t.band_min_n << "-" << t.band_max_n
-            << " N (peak " << t.force_peak_n << ", mean " << t.force_mean_n << "), "
-            << t.frequency_hz << " Hz, amplitude " << t.amplitude_deg << " deg, flexion "
-            << t.rom_min_deg[0] << ".." << t.rom_max_deg[0] << " deg, path period "
-            << t.path_period_s << " s\n  plan: " << l->guided << " guided trial(s), " << l->attempts
-            << " attempt(s) of " << l->trial_s << " s, " << l->schedule << " feedback"
-            << (l->assessment ? ", exploration before and after" : "")
-            << (l->takeover ? ", a supervisor may take over the demonstration" : "") << "\n";
+  if (l->technique == "massage") {
+    const technique::MassageTargets m = server::lesson::decodeMassageTargets(l->targets);
+    std::cout << std::fixed << std::setprecision(2) << "lesson " << l->id << ": " << l->name
+              << "\n  demonstration: session " << l->demo_session << " on case " << l->case_name
+              << " (massage)\n  targets: press " << m.normal_mean_n << " N (sd " << m.normal_sd_n
+              << ", band " << m.band_min_n << "-" << m.band_max_n << " N), circles of "
+              << 1000.0 * m.radius_m << " mm at " << m.frequency_hz << " Hz, circularity "
+              << m.circularity << ", tangential/normal " << m.tangential_ratio
+              << "\n  plan: " << l->attempts << " attempt(s) of " << l->trial_s << " s, "
+              << l->schedule << " feedback\n";
+  } else {
+    const technique::Targets t = server::lesson::decodeTargets(l->targets);
+    std::cout << std::fixed << std::setprecision(2) << "lesson " << l->id << ": " << l->name
+              << "\n  demonstration: session " << l->demo_session << " on case " << l->case_name
+              << " (" << l->technique << ")\n  targets: force " << t.band_min_n << "-"
+              << t.band_max_n << " N (peak " << t.force_peak_n << ", mean " << t.force_mean_n
+              << "), " << t.frequency_hz << " Hz, amplitude " << t.amplitude_deg << " deg, flexion "
+              << t.rom_min_deg[0] << ".." << t.rom_max_deg[0] << " deg, path period "
+              << t.path_period_s << " s\n  plan: " << l->guided << " guided trial(s), "
+              << l->attempts << " attempt(s) of " << l->trial_s << " s, " << l->schedule
+              << " feedback" << (l->assessment ? ", exploration before and after" : "")
+              << (l->takeover ? ", a supervisor may take over the demonstration" : "") << "\n";
+  }
   const auto runs = runsOf(store, l->id);
   if (runs.empty()) std::cout << "  runs: none yet\n";
   for (const auto& s : runs) {
@@ -150,6 +225,39 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   if (!lesson) lesson = store.lesson(lesson_id);
   if (!lesson) throw Error("the lesson of session " + std::to_string(session) + " is missing");
   const double scale = forceScaleOf(r.cases_dir, lesson->case_name);
+  std::filesystem::create_directories(r.out_dir);
+  const std::string base =
+      (std::filesystem::path(r.out_dir) /
+       ("lesson-" + std::to_string(lesson->id) + "-session-" + std::to_string(session)))
+          .string();
+  if (lesson->technique == "massage") {
+    MassageReportInput in;
+    in.targets = server::lesson::decodeMassageTargets(lesson->targets);
+    in.web = webOf(r.cases_dir, lesson->case_name);
+    in.demonstration =
+        technique::massageSeriesFromSamples(allSamples(store, lesson->demo_session), scale);
+    in.title = "Lesson " + std::to_string(lesson->id) + ": " + lesson->name;
+    in.subtitle = "massage run: session " + std::to_string(session) + " by " + info->user +
+                  " on case " + info->case_name + " (" + info->state + "), " + lesson->schedule +
+                  " feedback";
+    for (const auto& t : store.trials(session)) {
+      MassageReportTrial rt;
+      rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
+      const auto samples = samplesIn(store, session, t.first_seq, t.last_seq);
+      if (samples.size() < 2) continue;
+      rt.series = technique::massageSeriesFromSamples(samples, scale);
+      rt.score =
+          technique::scoreMassage(rt.series, in.targets, in.web, server::lesson::kMassageSettleS);
+      in.trials.push_back(std::move(rt));
+    }
+    in.history = learningHistory(store, info->user, session);
+    writeAtomically(base + ".html", renderMassageReportHtml(in));
+    writeAtomically(base + "-scores.csv", renderMassageScoresCsv(in));
+    std::cout << "report: " << base << ".html (massage, " << in.trials.size() << " trials, "
+              << in.history.size() << " runs in the learning curve)\nscores: " << base
+              << "-scores.csv\n";
+    return 0;
+  }
   ReportInput in;
   in.targets = server::lesson::decodeTargets(lesson->targets);
   {
@@ -180,22 +288,9 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   // The learning curve: this user's earlier runs of lessons, oldest first (this one is added
   // by the page as "this lesson").
   in.history = learningHistory(store, info->user, session);
-  std::filesystem::create_directories(r.out_dir);
-  const std::string base =
-      (std::filesystem::path(r.out_dir) /
-       ("lesson-" + std::to_string(lesson->id) + "-session-" + std::to_string(session)))
-          .string();
-  auto write = [](const std::string& path, const std::string& text) {
-    const std::string tmp = path + ".partial";
-    {
-      std::ofstream f(tmp, std::ios::binary);
-      if (!(f << text)) throw Error("cannot write '" + tmp + "'");
-    }
-    std::filesystem::rename(tmp, path);
-  };
-  write(base + ".html", renderReportHtml(in));
-  write(base + "-scores.csv", renderScoresCsv(in));
-  write(base + "-oscillations.csv", renderOscillationsCsv(in));
+  writeAtomically(base + ".html", renderReportHtml(in));
+  writeAtomically(base + "-scores.csv", renderScoresCsv(in));
+  writeAtomically(base + "-oscillations.csv", renderOscillationsCsv(in));
   std::cout << "report: " << base << ".html (" << in.trials.size() << " trials, "
             << in.ranges.size() << " ranges, " << in.history.size() << " runs in the learning "
             << "curve)\nscores: " << base << "-scores.csv, " << base << "-oscillations.csv\n";

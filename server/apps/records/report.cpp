@@ -316,6 +316,36 @@ std::string signedNum(double v, int decimals) {
   return buf;
 }
 
+std::string pageHead(const std::string& title, const std::string& subtitle) {
+  std::ostringstream o;
+  o << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\n<title>"
+    << escapeHtml(title) << "</title>\n<style>\n"
+    << "body{font-family:sans-serif;margin:24px;color:#222;max-width:800px}\n"
+    << "table{border-collapse:collapse;margin:8px 0 16px}td,th{border:1px solid #ccc;"
+       "padding:3px 8px;text-align:right;font-size:13px}th{background:#f0f0f0}\n"
+    << "td:first-child,th:first-child{text-align:left}figure{margin:8px 0}\n"
+    << ".t{font-size:14px;font-weight:bold}.l,.xt,.yt{font-size:11px}.xt{text-anchor:middle}"
+       ".yt{text-anchor:end}.g{stroke:#e4e4e4}.f{fill:none;stroke:#999}\n"
+    << "</style></head><body>\n";
+  o << "<h1>" << escapeHtml(title) << "</h1>\n";
+  if (!subtitle.empty()) o << "<p>" << escapeHtml(subtitle) << "</p>\n";
+  return o.str();
+}
+
+Points learningCurve(const std::vector<std::pair<std::string, double>>& history, double mean,
+                     bool any, std::vector<std::string>& categories) {
+  Points curve;
+  for (const auto& [label, value] : history) {
+    curve.emplace_back(static_cast<double>(categories.size()), value);
+    categories.push_back(label);
+  }
+  if (any) {
+    curve.emplace_back(static_cast<double>(categories.size()), mean);
+    categories.push_back("this lesson");
+  }
+  return curve;
+}
+
 }  // namespace
 
 std::vector<std::pair<double, double>> decimate(const std::vector<double>& x,
@@ -348,17 +378,7 @@ std::vector<std::pair<double, double>> decimate(const std::vector<double>& x,
 std::string renderReportHtml(const ReportInput& in) {
   const technique::Targets& tg = in.targets;
   std::ostringstream o;
-  o << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\n<title>"
-    << escapeHtml(in.title) << "</title>\n<style>\n"
-    << "body{font-family:sans-serif;margin:24px;color:#222;max-width:800px}\n"
-    << "table{border-collapse:collapse;margin:8px 0 16px}td,th{border:1px solid #ccc;"
-       "padding:3px 8px;text-align:right;font-size:13px}th{background:#f0f0f0}\n"
-    << "td:first-child,th:first-child{text-align:left}figure{margin:8px 0}\n"
-    << ".t{font-size:14px;font-weight:bold}.l,.xt,.yt{font-size:11px}.xt{text-anchor:middle}"
-       ".yt{text-anchor:end}.g{stroke:#e4e4e4}.f{fill:none;stroke:#999}\n"
-    << "</style></head><body>\n";
-  o << "<h1>" << escapeHtml(in.title) << "</h1>\n";
-  if (!in.subtitle.empty()) o << "<p>" << escapeHtml(in.subtitle) << "</p>\n";
+  o << pageHead(in.title, in.subtitle);
 
   o << "<h2>Targets (the demonstration)</h2>\n<table><tr><th>band</th><th>peak</th><th>trough"
     << "</th><th>mean</th><th>frequency</th><th>amplitude</th><th>jerk</th><th>oscillations</th>"
@@ -465,18 +485,180 @@ std::string renderReportHtml(const ReportInput& in) {
   lc.xlabel = "lesson";
   lc.y_min = 0.0;
   lc.y_max = 100.0;
-  Points curve;
-  for (const auto& [label, value] : in.history) {
-    curve.emplace_back(static_cast<double>(lc.categories.size()), value);
-    lc.categories.push_back(label);
-  }
-  if (!in.trials.empty()) {
-    curve.emplace_back(static_cast<double>(lc.categories.size()), meanOverall(in.trials));
-    lc.categories.push_back("this lesson");
-  }
+  const Points curve =
+      learningCurve(in.history, meanOverall(in.trials), !in.trials.empty(), lc.categories);
   lc.lines.push_back({curve, kTrialColor, "mean score", 1.5, false, true});
   o << "<h2>Learning curve</h2>\n" << svgChart(lc);
   o << "</body></html>\n";
+  return o.str();
+}
+
+namespace {
+
+/// The pads' normal force over a trial: both fingers' mean, reference scale.
+Points pressPoints(const technique::MassageSeries& s) {
+  std::vector<double> t(s.t_s.size()), f(s.t_s.size());
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    t[i] = s.t_s[i] - s.t_s.front();
+    f[i] = 0.5 * (s.normal_ref_n[kThumb][i] + s.normal_ref_n[kIndex][i]);
+  }
+  return decimate(t, f);
+}
+
+/// The contact point (the thimbles' midpoint) on the web, millimetres, after `settle_s`:
+/// every n-th point so at most kMaxPlotPoints remain (a path, not a signal: no min/max).
+Points pathPoints(const technique::MassageSeries& s, const TissueModel& web, double settle_s) {
+  Points out;
+  const std::size_t n = s.t_s.size();
+  const std::size_t stride = std::max<std::size_t>(1, n / kMaxPlotPoints + 1);
+  for (std::size_t i = 0; i < n; i += stride) {
+    if (s.t_s[i] - s.t_s.front() < settle_s) continue;
+    const Vec3 w = web.toWeb(0.5 * (s.position_m[kThumb][i] + s.position_m[kIndex][i]));
+    out.emplace_back(1000.0 * w.x(), 1000.0 * w.y());
+  }
+  return out;
+}
+
+double meanMassageOverall(const std::vector<MassageReportTrial>& trials) {
+  if (trials.empty()) return 0.0;
+  double sum = 0.0;
+  for (const MassageReportTrial& t : trials) sum += t.score.overall;
+  return sum / static_cast<double>(trials.size());
+}
+
+}  // namespace
+
+std::string renderMassageReportHtml(const MassageReportInput& in) {
+  const technique::MassageTargets& tg = in.targets;
+  const TissueModel web(in.web);
+  std::ostringstream o;
+  o << pageHead(in.title, in.subtitle);
+  o << "<h2>Targets (the demonstration)</h2>\n<table><tr><th>press</th><th>band</th>"
+    << "<th>spread</th><th>frequency</th><th>radius</th><th>circularity</th>"
+    << "<th>tangential/normal</th><th>laps</th></tr><tr>" << cell(num(tg.normal_mean_n, 2) + " N")
+    << cell(num(tg.band_min_n, 1) + "–" + num(tg.band_max_n, 1) + " N")
+    << cell(num(tg.normal_sd_n, 2) + " N") << cell(num(tg.frequency_hz, 2) + " Hz")
+    << cell(num(1000.0 * tg.radius_m, 1) + " mm") << cell(num(tg.circularity, 2))
+    << cell(num(tg.tangential_ratio, 2)) << cell(num(tg.laps, 0)) << "</tr></table>\n";
+
+  o << "<h2>Trials</h2>\n<table><tr><th>trial</th><th>press N</th><th>spread N</th>"
+    << "<th>in band</th><th>frequency Hz</th><th>radius mm</th><th>circularity</th>"
+    << "<th>tangential/normal</th><th>laps</th><th>score</th></tr>\n";
+  for (const MassageReportTrial& t : in.trials) {
+    const technique::MassageScore& s = t.score;
+    const technique::MassageFigures& f = s.figures;
+    o << "<tr>" << cell(t.label)
+      << cell(num(f.normal_mean_n, 2) + " (" + signedNum(s.normal_error_n, 2) + ")")
+      << cell(num(f.normal_sd_n, 2) + " (" + signedNum(s.spread_delta_n, 2) + ")")
+      << cell(num(100.0 * f.time_in_band, 0) + " %")
+      << cell(num(f.frequency_hz, 2) + " (" + signedNum(s.frequency_error_hz, 2) + ")")
+      << cell(num(1000.0 * f.radius_m, 1) + " (x" + num(s.radius_ratio, 2) + ")")
+      << cell(num(f.circularity, 2) + " (" + signedNum(s.circularity_delta, 2) + ")")
+      << cell(num(f.tangential_ratio, 2) + " (" + signedNum(s.tangential_ratio_error, 2) + ")")
+      << cell(num(f.laps, 0)) << cell(num(s.overall, 0)) << "</tr>\n";
+  }
+  o << "</table>\n";
+
+  const Points demo_press = pressPoints(in.demonstration);
+  const Points demo_path = pathPoints(in.demonstration, web, 1.0);
+  o << "<h2>Press and circle per trial</h2>\n";
+  for (std::size_t i = 0; i < in.trials.size(); ++i) {
+    const MassageReportTrial& t = in.trials[i];
+    Chart press;
+    press.id = "press-" + std::to_string(i);
+    press.title = t.label + ": the pads' normal force";
+    press.xlabel = "time (s)";
+    press.ylabel = "force (N, reference scale)";
+    press.y_from_zero = true;
+    press.shades.push_back({tg.band_min_n, tg.band_max_n, kBandColor, "band"});
+    press.lines.push_back({demo_press, kDemoColor, "demonstration", 1.2, false, false});
+    press.lines.push_back({pressPoints(t.series), kTrialColor, "trial", 1.5, false, false});
+    o << svgChart(press);
+    Chart path;
+    path.id = "path-" + std::to_string(i);
+    path.title = t.label + ": the contact point on the web";
+    path.xlabel = "x on the web (mm)";
+    path.ylabel = "y on the web (mm)";
+    path.lines.push_back({demo_path, kDemoColor, "demonstration", 1.0, false, false});
+    path.lines.push_back({pathPoints(t.series, web, 1.0), kTrialColor, "trial", 1.2, false, false});
+    o << svgChart(path);
+  }
+  if (in.trials.empty()) o << "<p>No trials.</p>\n";
+
+  std::vector<std::string> labels;
+  Points freq, radius, scores;
+  for (std::size_t i = 0; i < in.trials.size(); ++i) {
+    const auto x = static_cast<double>(i);
+    labels.push_back(in.trials[i].label);
+    freq.emplace_back(x, in.trials[i].score.figures.frequency_hz);
+    radius.emplace_back(x, 1000.0 * in.trials[i].score.figures.radius_m);
+    scores.emplace_back(x, in.trials[i].score.overall);
+  }
+  const double xe = static_cast<double>(labels.size()) - 0.5;
+  Chart fc;
+  fc.id = "frequency";
+  fc.title = "Laps per second per trial";
+  fc.ylabel = "frequency (Hz)";
+  fc.xlabel = "trial";
+  fc.categories = labels;
+  fc.y_from_zero = true;
+  fc.lines.push_back({flat(tg.frequency_hz, -0.5, xe), kTargetColor, "target", 1.2, true, false});
+  fc.lines.push_back({freq, kTrialColor, "trial", 1.5, false, true});
+  o << "<h2>Over the lesson</h2>\n" << svgChart(fc);
+  Chart rc;
+  rc.id = "radius";
+  rc.title = "Circle radius per trial";
+  rc.ylabel = "radius (mm)";
+  rc.xlabel = "trial";
+  rc.categories = labels;
+  rc.y_from_zero = true;
+  rc.lines.push_back(
+      {flat(1000.0 * tg.radius_m, -0.5, xe), kTargetColor, "target", 1.2, true, false});
+  rc.lines.push_back({radius, kTrialColor, "trial", 1.5, false, true});
+  o << svgChart(rc);
+  Chart sc;
+  sc.id = "scores";
+  sc.title = "Score per trial";
+  sc.ylabel = "score (0-100)";
+  sc.xlabel = "trial";
+  sc.categories = labels;
+  sc.y_min = 0.0;
+  sc.y_max = 100.0;
+  sc.lines.push_back({scores, kTrialColor, "score", 1.5, false, true});
+  o << svgChart(sc);
+
+  Chart lc;
+  lc.id = "learning";
+  lc.title = "Learning curve: mean score per lesson";
+  lc.ylabel = "score (0-100)";
+  lc.xlabel = "lesson";
+  lc.y_min = 0.0;
+  lc.y_max = 100.0;
+  const Points curve =
+      learningCurve(in.history, meanMassageOverall(in.trials), !in.trials.empty(), lc.categories);
+  lc.lines.push_back({curve, kTrialColor, "mean score", 1.5, false, true});
+  o << "<h2>Learning curve</h2>\n" << svgChart(lc);
+  o << "</body></html>\n";
+  return o.str();
+}
+
+std::string renderMassageScoresCsv(const MassageReportInput& in) {
+  std::ostringstream o;
+  o << "trial,label,normal_mean_n,normal_sd_n,time_in_band,frequency_hz,radius_m,circularity,"
+       "tangential_ratio,laps,duration_s,normal_error_n,spread_delta_n,frequency_error_hz,"
+       "radius_ratio,circularity_delta,tangential_ratio_error,centre_offset_m,overall\n";
+  for (std::size_t i = 0; i < in.trials.size(); ++i) {
+    const technique::MassageScore& s = in.trials[i].score;
+    const technique::MassageFigures& f = s.figures;
+    o << i << ',' << csvField(in.trials[i].label) << ',' << num(f.normal_mean_n, 4) << ','
+      << num(f.normal_sd_n, 4) << ',' << num(f.time_in_band, 4) << ',' << num(f.frequency_hz, 5)
+      << ',' << num(f.radius_m, 6) << ',' << num(f.circularity, 4) << ','
+      << num(f.tangential_ratio, 4) << ',' << num(f.laps, 2) << ',' << num(f.duration_s, 3) << ','
+      << num(s.normal_error_n, 4) << ',' << num(s.spread_delta_n, 4) << ','
+      << num(s.frequency_error_hz, 5) << ',' << num(s.radius_ratio, 4) << ','
+      << num(s.circularity_delta, 4) << ',' << num(s.tangential_ratio_error, 4) << ','
+      << num(s.centre_offset_m, 6) << ',' << num(s.overall, 2) << '\n';
+  }
   return o.str();
 }
 

@@ -5,7 +5,9 @@
 #include <utility>
 #include <vector>
 
+#include "telehand/core/massage_score.h"
 #include "telehand/core/technique_score.h"
+#include "telehand/core/tissue_model.h"
 
 namespace telehand::records {
 
@@ -53,5 +55,29 @@ std::string renderOscillationsCsv(const ReportInput& in);
 std::vector<std::pair<double, double>> decimate(const std::vector<double>& x,
                                                 const std::vector<double>& y,
                                                 std::size_t max_points = kMaxPlotPoints);
+
+/// A massage lesson's run (docs/lessons.md "Massage lessons").
+struct MassageReportTrial {
+  std::string label;
+  technique::MassageSeries series;
+  technique::MassageScore score;
+};
+
+struct MassageReportInput {
+  std::string title, subtitle;
+  technique::MassageSeries demonstration;
+  technique::MassageTargets targets;
+  TissueParams web;
+  std::vector<MassageReportTrial> trials;
+  std::vector<std::pair<std::string, double>> history;  ///< as ReportInput's
+};
+
+/// The page of a massage run: the targets and a table of the trials; per trial the pads'
+/// normal force against time over the demonstration's with the band (id press-N) and the
+/// contact point's path on the web over the demonstration's (id path-N, millimetres); the
+/// frequency and the radius per trial against the targets; the scores; the learning curve.
+std::string renderMassageReportHtml(const MassageReportInput& in);
+/// One row per trial after a header row: its figures, errors and score.
+std::string renderMassageScoresCsv(const MassageReportInput& in);
 
 }  // namespace telehand::records

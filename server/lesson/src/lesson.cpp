@@ -1,5 +1,6 @@
 #include "telehand/server/lesson/lesson.h"
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
@@ -116,6 +117,85 @@ technique::Targets decodeTargets(const std::string& text) {
   return t;
 }
 
+std::string encodeMassageTargets(const technique::MassageTargets& t) {
+  std::string out = "technique=massage;";
+  put(out, "normal_mean_n", t.normal_mean_n);
+  put(out, "normal_sd_n", t.normal_sd_n);
+  put(out, "band_min_n", t.band_min_n);
+  put(out, "band_max_n", t.band_max_n);
+  put(out, "time_in_band", t.time_in_band);
+  put(out, "tangential_ratio", t.tangential_ratio);
+  put(out, "centre_x_m", t.centre_w.x());
+  put(out, "centre_y_m", t.centre_w.y());
+  put(out, "radius_m", t.radius_m);
+  put(out, "frequency_hz", t.frequency_hz);
+  put(out, "circularity", t.circularity);
+  put(out, "radial_rms_m", t.radial_rms_m);
+  put(out, "laps", t.laps);
+  return out;
+}
+
+technique::MassageTargets decodeMassageTargets(const std::string& text) {
+  const auto kv = splitPairs(text);
+  const auto tech = kv.find("technique");
+  if (tech == kv.end() || tech->second != "massage") {
+    throw Error("lesson targets: not a massage's ('technique=massage' is missing)");
+  }
+  auto num = [&](const std::string& key, double lo, double hi) {
+    const auto it = kv.find(key);
+    double d = 0.0;
+    if (it == kv.end()) throw Error("lesson targets: '" + key + "' is missing");
+    if (!parseDouble(it->second, d) || d < lo || d > hi) {
+      throw Error("lesson targets: '" + key + "' = '" + it->second + "' is not a number in [" +
+                  std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    }
+    return d;
+  };
+  technique::MassageTargets t;
+  t.normal_mean_n = num("normal_mean_n", 0, 200);
+  t.normal_sd_n = num("normal_sd_n", 0, 200);
+  t.band_min_n = num("band_min_n", 0, 200);
+  t.band_max_n = num("band_max_n", t.band_min_n, 200);
+  t.time_in_band = num("time_in_band", 0, 1);
+  t.tangential_ratio = num("tangential_ratio", 0, 10);
+  t.centre_w = Vec3(num("centre_x_m", -0.1, 0.1), num("centre_y_m", -0.1, 0.1), 0.0);
+  // A demonstration draws a circle (deriving refuses one that does not).
+  t.radius_m = num("radius_m", technique::kMinCircleRadiusM, 0.1);
+  const double f = num("frequency_hz", -10, 10);
+  if (std::abs(f) < 0.1) {
+    throw Error("lesson targets: 'frequency_hz' = " + std::to_string(f) +
+                " is not a circling of 0.1 to 10 laps per second");
+  }
+  t.frequency_hz = f;
+  t.circularity = num("circularity", 0, 1);
+  t.radial_rms_m = num("radial_rms_m", 0, 0.1);
+  t.laps = num("laps", 1, 1e6);
+  return t;
+}
+
+std::string encodeMassageScore(const technique::MassageScore& s) {
+  std::string out;
+  const technique::MassageFigures& f = s.figures;
+  put(out, "overall", s.overall);
+  put(out, "normal_error_n", s.normal_error_n);
+  put(out, "spread_delta_n", s.spread_delta_n);
+  put(out, "frequency_error_hz", s.frequency_error_hz);
+  put(out, "radius_ratio", s.radius_ratio);
+  put(out, "circularity_delta", s.circularity_delta);
+  put(out, "tangential_ratio_error", s.tangential_ratio_error);
+  put(out, "centre_offset_m", s.centre_offset_m);
+  put(out, "normal_mean_n", f.normal_mean_n);
+  put(out, "normal_sd_n", f.normal_sd_n);
+  put(out, "time_in_band", f.time_in_band);
+  put(out, "tangential_ratio", f.tangential_ratio);
+  put(out, "radius_m", f.radius_m);
+  put(out, "frequency_hz", f.frequency_hz);
+  put(out, "circularity", f.circularity);
+  put(out, "laps", f.laps);
+  put(out, "duration_s", f.duration_s);
+  return out;
+}
+
 std::string encodeScore(const technique::TrialScore& s) {
   std::string out;
   const technique::TrialFigures& f = s.figures;
@@ -182,6 +262,32 @@ technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_s
   return t;
 }
 
+technique::MassageTargets massageTargetsFromRecord(store::SessionStore& store,
+                                                   uint64_t demo_session, double force_scale,
+                                                   const TissueParams& web, double settle_s) {
+  const auto info = store.session(demo_session);
+  if (!info) throw Error("session " + std::to_string(demo_session) + " is not in the record");
+  std::vector<Sample> samples;
+  samples.reserve(static_cast<std::size_t>(std::min<uint64_t>(info->samples, 600'000)));
+  store.forEachSampleIn(demo_session, 0, UINT64_MAX, [&](const Sample& s, bool valid) {
+    if (valid) samples.push_back(s);
+  });
+  if (samples.size() < 3000) {
+    throw Error("session " + std::to_string(demo_session) + " has " +
+                std::to_string(samples.size()) +
+                " valid samples: a demonstration needs at least 3 s of record");
+  }
+  const technique::MassageSeries series = technique::massageSeriesFromSamples(samples, force_scale);
+  const technique::MassageTargets t = technique::deriveMassageTargets(series, web, settle_s);
+  if (!(t.laps >= 1.0) || !(t.radius_m >= technique::kMinCircleRadiusM) ||
+      !(std::abs(t.frequency_hz) >= 0.1 && std::abs(t.frequency_hz) <= 10.0)) {
+    throw Error("session " + std::to_string(demo_session) +
+                " draws no whole circle of 0.1 to 10 laps per second on the web: not a "
+                "demonstration of a massage");
+  }
+  return t;
+}
+
 std::string trialLabel(int index, const std::string& phase, double authority) {
   std::string label = "trial " + std::to_string(index) + " (" + phase;
   if (phase == "guided") label += " " + std::to_string(std::lround(100 * authority)) + " %";
@@ -210,6 +316,23 @@ LessonPlan planOf(const store::LessonInfo& l, const technique::Targets& t, doubl
   p.band_min_n = t.band_min_n;
   p.band_max_n = t.band_max_n;
   p.frequency_hz = t.frequency_hz;
+  return p;
+}
+
+LessonPlan planOf(const store::LessonInfo& l, const technique::MassageTargets& t, double demo_s) {
+  LessonPlan p;
+  p.lesson_id = l.id;
+  p.technique = "massage";
+  p.schedule = l.schedule;
+  p.guided = 0;
+  p.attempts = l.attempts;
+  p.trial_s = l.trial_s;
+  p.assessment = false;
+  p.takeover = false;
+  p.demo_s = demo_s;
+  p.band_min_n = t.band_min_n;
+  p.band_max_n = t.band_max_n;
+  p.frequency_hz = std::abs(t.frequency_hz);
   return p;
 }
 

@@ -86,8 +86,6 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
               now_ns);
     return;
   }
-  const technique::Series series = technique::seriesFromSamples(samples, force_scale);
-  const technique::TrialScore sc = technique::score(series, targets, lesson::kSettleS);
   store::TrialRecord rec;
   rec.session_id = session_id;
   rec.index = t.index;
@@ -95,8 +93,30 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   rec.authority = t.authority;
   rec.first_seq = t.first_seq;
   rec.last_seq = t.last_seq;
-  rec.overall = sc.overall;
-  rec.figures = lesson::encodeScore(sc) + "missing=" + std::to_string(missing) + ";";
+  std::vector<std::string> lines;  // score events: the oscillations first, then the trial
+  std::string summary;
+  if (massage) {
+    const technique::MassageSeries series =
+        technique::massageSeriesFromSamples(samples, force_scale);
+    const technique::MassageScore sc =
+        technique::scoreMassage(series, *massage, web, lesson::kMassageSettleS);
+    rec.overall = sc.overall;
+    rec.figures = lesson::encodeMassageScore(sc);
+    summary = technique::massageSummaryLine(sc);
+  } else {
+    const technique::Series series = technique::seriesFromSamples(samples, force_scale);
+    const technique::TrialScore sc = technique::score(series, targets, lesson::kSettleS);
+    rec.overall = sc.overall;
+    rec.figures = lesson::encodeScore(sc);
+    summary = technique::summaryLine(sc);
+    int n = 0;
+    for (const auto& o : sc.figures.oscillations) {
+      if (++n > kMaxOscillationEvents) break;
+      lines.push_back(label + " oscillation " + std::to_string(n) + ": " +
+                      technique::oscillationLine(o, targets));
+    }
+  }
+  rec.figures += "missing=" + std::to_string(missing) + ";";
   try {
     ctx.store.appendTrial(rec);
   } catch (const StoreError& e) {
@@ -104,20 +124,15 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
     spdlog::error("session {}: {}", session_id, e.what());
   }
   // Every oscillation, then the trial: scores in the record and on the event topic.
-  int n = 0;
-  for (const auto& o : sc.figures.oscillations) {
-    if (++n > kMaxOscillationEvents) break;
-    ctx.event(
-        session_id, client_id, telehand_msg_EVENT_SCORE,
-        label + " oscillation " + std::to_string(n) + ": " + technique::oscillationLine(o, targets),
-        now_ns);
+  for (const auto& line : lines) {
+    ctx.event(session_id, client_id, telehand_msg_EVENT_SCORE, line, now_ns);
   }
   ctx.event(session_id, client_id, telehand_msg_EVENT_SCORE,
-            label + ": " + technique::summaryLine(sc) +
+            label + ": " + summary +
                 (missing ? " (" + std::to_string(missing) + " samples missing)" : std::string()) +
                 (t.cut ? " (its first " + std::to_string(expected / 1000) + " s)" : std::string()),
             now_ns);
-  overall_.push_back(sc.overall);
+  overall_.push_back(rec.overall);
 }
 
 std::string LessonRun::summary() const {

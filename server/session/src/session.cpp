@@ -356,6 +356,9 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   if (!known) {
     return refuse("a lesson knows baseline, watch, guided, attempt, rest and reassessment");
   }
+  if (lesson->massage && (phase == "guided" || phase == "baseline" || phase == "reassessment")) {
+    return refuse("a massage lesson has no guided trial and no exploration (both are the joint's)");
+  }
   if (phase == "guided" && !(cmd.value > 0.0 && cmd.value <= 1.0)) {
     return refuse("a guided trial's authority must be in (0, 1]");
   }

@@ -293,13 +293,29 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   // A lesson run renders the lesson's case; a replay shows a recorded session on its own.
   std::optional<store::LessonInfo> lesson_info;
   technique::Targets targets;
+  std::optional<technique::MassageTargets> massage_targets;
   std::optional<store::SessionInfo> replayed;
   try {
     if (cmd.mode == telehand_msg_MODE_LESSON) {
       lesson_info = store_.lesson(cmd.lesson_id);
       if (!lesson_info)
         throw Error("no lesson " + std::to_string(cmd.lesson_id) + " in the record");
-      targets = lesson::decodeTargets(lesson_info->targets);
+      const bool massage_lesson = lesson_info->technique == "massage";
+      const bool massage_asked = cmd.technique == telehand_msg_TECHNIQUE_MASSAGE;
+      if (massage_lesson != massage_asked) {
+        throw Error("lesson " + std::to_string(cmd.lesson_id) + " teaches the " +
+                    lesson_info->technique +
+                    (massage_lesson ? " (open it with technique "
+                                      "massage: telehand-client "
+                                      "--technique massage --lesson " +
+                                          std::to_string(cmd.lesson_id) + ")"
+                                    : ", not the massage"));
+      }
+      if (massage_lesson) {
+        massage_targets = lesson::decodeMassageTargets(lesson_info->targets);
+      } else {
+        targets = lesson::decodeTargets(lesson_info->targets);
+      }
       case_name = lesson_info->case_name;
     } else if (cmd.mode == telehand_msg_MODE_REPLAY) {
       replayed = store_.session(cmd.follow_session);
@@ -451,8 +467,14 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   if (lesson_info) {
     const auto demo = store_.session(lesson_info->demo_session);
     const double demo_s = demo ? static_cast<double>(demo->samples) * 1e-3 : 0.0;
-    const LessonPlan plan = lesson::planOf(*lesson_info, targets, std::min(demo_s, 600.0));
-    s.lesson = std::make_unique<LessonRun>(*lesson_info, targets, plan);
+    if (massage_targets) {
+      const LessonPlan plan =
+          lesson::planOf(*lesson_info, *massage_targets, std::min(demo_s, 600.0));
+      s.lesson = std::make_unique<LessonRun>(*lesson_info, *massage_targets, s.params.tissue, plan);
+    } else {
+      const LessonPlan plan = lesson::planOf(*lesson_info, targets, std::min(demo_s, 600.0));
+      s.lesson = std::make_unique<LessonRun>(*lesson_info, targets, plan);
+    }
     try {
       store_.setSessionLesson(info.id, lesson_info->id);
     } catch (const StoreError& e) {

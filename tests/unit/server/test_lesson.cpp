@@ -17,6 +17,7 @@
 
 #include "../../support/grip_sample.h"
 #include "telehand/core/clock.h"
+#include "telehand/core/error.h"
 #include "telehand/protocol/lesson_plan.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/lesson/lesson.h"
@@ -702,6 +703,71 @@ TEST(LessonPlan, RoundTripsAndRefusesWhatIsOutOfRange) {
   EXPECT_TRUE(feedbackAfter("faded", 0, 9, false));
   EXPECT_FALSE(feedbackAfter("faded", 7, 9, false));
   EXPECT_FALSE(feedbackAfter("concurrent", 0, 9, false));
+  // The technique: a mobilization unless the plan says massage; nothing else is taken.
+  EXPECT_EQ(decodePlan(encodePlan(p))->technique, "mobilization");
+  p.technique = "massage";
+  EXPECT_EQ(decodePlan(encodePlan(p))->technique, "massage");
+  EXPECT_EQ(decodePlan(old)->technique, "mobilization");  // an older server's plan
+  text = encodePlan(p);
+  text.replace(text.find("technique=massage"), 17, "technique=tapping");
+  EXPECT_FALSE(decodePlan(text, &why));
+  EXPECT_THAT(why, HasSubstr("technique"));
+}
+
+TEST(MassageLesson, TargetsRoundTripAndDamagedOnesAreRefusedNamingTheKey) {
+  technique::MassageTargets t;
+  t.normal_mean_n = 10.2;
+  t.normal_sd_n = 0.7;
+  t.band_min_n = 8.8;
+  t.band_max_n = 11.6;
+  t.time_in_band = 0.97;
+  t.tangential_ratio = 0.29;
+  t.centre_w = Vec3(0.0004, -0.0002, 0.0);
+  t.radius_m = 0.006;
+  t.frequency_hz = -1.5;  // clockwise
+  t.circularity = 0.98;
+  t.radial_rms_m = 0.0003;
+  t.laps = 13;
+  const std::string text = lesson::encodeMassageTargets(t);
+  const technique::MassageTargets u = lesson::decodeMassageTargets(text);
+  EXPECT_DOUBLE_EQ(u.normal_mean_n, 10.2);
+  EXPECT_DOUBLE_EQ(u.band_max_n, 11.6);
+  EXPECT_DOUBLE_EQ(u.frequency_hz, -1.5);
+  EXPECT_DOUBLE_EQ(u.radius_m, 0.006);
+  EXPECT_DOUBLE_EQ(u.centre_w.y(), -0.0002);
+  EXPECT_DOUBLE_EQ(u.laps, 13);
+  // A mobilization's targets are not a massage's, nor the other way round.
+  EXPECT_THROW(lesson::decodeTargets(text), telehand::Error);
+  auto refused = [&](const std::string& from, const std::string& to) {
+    std::string bad = text;
+    bad.replace(bad.find(from), from.size(), to);
+    try {
+      lesson::decodeMassageTargets(bad);
+    } catch (const telehand::Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_THAT(refused("technique=massage;", ""), HasSubstr("technique=massage"));
+  EXPECT_THAT(refused("radius_m=0.006", "radius_m=0"), HasSubstr("'radius_m'"));
+  EXPECT_THAT(refused("frequency_hz=-1.5", "frequency_hz=0.01"), HasSubstr("frequency_hz"));
+  EXPECT_THAT(refused("frequency_hz=-1.5", "frequency_hz=nan"), HasSubstr("frequency_hz"));
+  EXPECT_THAT(refused("band_max_n=11.6", "band_max_n=3"), HasSubstr("band_max_n"));
+  EXPECT_THAT(refused("laps=13;", ""), HasSubstr("'laps' is missing"));
+  // The plan of a massage lesson: its band and laps per second, no guide, no exploration.
+  store::LessonInfo l;
+  l.id = 4;
+  l.technique = "massage";
+  l.guided = 2;
+  l.assessment = true;
+  l.takeover = true;
+  const LessonPlan p = lesson::planOf(l, u, 12.0);
+  EXPECT_EQ(p.technique, "massage");
+  EXPECT_EQ(p.guided, 0);
+  EXPECT_FALSE(p.assessment);
+  EXPECT_FALSE(p.takeover);
+  EXPECT_DOUBLE_EQ(p.frequency_hz, 1.5);
+  EXPECT_DOUBLE_EQ(p.band_min_n, 8.8);
 }
 
 }  // namespace

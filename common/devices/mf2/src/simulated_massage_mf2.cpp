@@ -87,7 +87,14 @@ Vec3 SimulatedMassageMf2::targetPointW(double t_s) const noexcept {
 }
 
 void SimulatedMassageMf2::integrate(double dt) noexcept {
-  const double t_s = static_cast<double>(sim_ns_ - start_ns_) * 1e-9;
+  const bool perform = performing_.load(std::memory_order_acquire);
+  if (perform != was_performing_) {
+    was_performing_ = perform;
+    start_ns_ = sim_ns_;
+    learned_ = {};
+  }
+  // At rest the operator's time stays at 0: no press, the target still at the start point.
+  const double t_s = perform ? static_cast<double>(sim_ns_ - start_ns_) * 1e-9 : 0.0;
   const double s = operatorScale();
   const Quat& q = web_.params().orientation;
   const Phase ph = phaseAt(t_s);

@@ -26,6 +26,10 @@ struct LessonPlan {
   double frequency_hz = 0.0;                  ///< its oscillation
   /// A supervisor may take over the demonstration (their live session leads the guide).
   bool takeover = false;
+  /// What the lesson teaches: "mobilization" (the joint) or "massage" (the web; then the band
+  /// is the pads' normal force and the frequency the circle's laps per second). A plan
+  /// without it is a mobilization.
+  std::string technique = "mobilization";
 };
 std::string encodePlan(const LessonPlan& p);
 /// nullopt (and `why` names the key) for a plan that is malformed or out of range.

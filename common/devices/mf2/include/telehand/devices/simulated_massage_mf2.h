@@ -27,6 +27,7 @@
 /// device model (encoder quantization, FSR calibration, actuator rendering) is
 /// SimulatedMf2Hardware. read() and write() allocate nothing.
 #include <array>
+#include <atomic>
 
 #include "telehand/config/config.h"
 #include "telehand/core/clock.h"
@@ -85,6 +86,12 @@ class SimulatedMassageMf2 final : public Device {
   /// added to each finger's normal and to its side (tangential) force before they are split
   /// over the FSRs, independently per sample; the fingers move under the true force.
   void setForceNoise(double sigma_n) noexcept { force_noise_n_ = sigma_n; }
+
+  /// Whether the operator massages (the default) or rests: the hands hold the fingers on the
+  /// circle's start point and press nothing. Each start of the massage starts it afresh (the
+  /// press and the circling build up again, the learned drag is forgotten): a lesson's
+  /// trials. Any thread; takes effect at the next step.
+  void setPerforming(bool on) noexcept { performing_.store(on, std::memory_order_release); }
 
   bool read(DeviceSample& out) noexcept override;
   bool write(const ForceCommand& cmd) noexcept override;
@@ -147,6 +154,8 @@ class SimulatedMassageMf2 final : public Device {
   double force_noise_n_ = 0.0;
 
   bool reading_ = false;  // the first read() starts the clinician's time
+  std::atomic<bool> performing_{true};
+  bool was_performing_ = true;
   int64_t start_ns_;
   int64_t sim_ns_;
   uint64_t seq_ = 0;

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "telehand/core/joint_model.h"
+#include "telehand/core/massage_score.h"
 #include "telehand/core/technique_score.h"
 #include "telehand/protocol/lesson_plan.h"
 #include "telehand/server/store/store.h"
@@ -19,10 +20,21 @@ namespace telehand::server::lesson {
 /// the way up are no part of the technique. Used for the demonstration and every trial.
 inline constexpr double kSettleS = 2.0;
 
+/// A massage trial's build-up: the press and the circling come up over 0.5 s (the simulated
+/// clinician's ramp); the first second is not judged.
+inline constexpr double kMassageSettleS = 1.0;
+
 /// The targets as the record keeps them; decode throws Error naming the key that is missing,
 /// malformed or out of range (a record may be damaged or hostile).
 std::string encodeTargets(const technique::Targets& t);
 technique::Targets decodeTargets(const std::string& text);
+
+/// A massage lesson's targets as the record keeps them (`technique=massage;` first); decode
+/// throws Error naming the key that is missing, malformed or out of range.
+std::string encodeMassageTargets(const technique::MassageTargets& t);
+technique::MassageTargets decodeMassageTargets(const std::string& text);
+/// A massage trial's scores as the record keeps them.
+std::string encodeMassageScore(const technique::MassageScore& s);
 
 /// A trial's scores as the record keeps them (key=value; oscillations are not listed).
 std::string encodeScore(const technique::TrialScore& s);
@@ -39,6 +51,13 @@ technique::Targets targetsFromRecord(store::SessionStore& store, uint64_t demo_s
                                      uint64_t first_seq, uint64_t last_seq, double force_scale,
                                      double settle_s);
 
+/// A massage demonstration's targets: its valid samples at `force_scale` on the web `web`.
+/// Throws Error when the record is missing, shorter than 3 s or draws no whole circle.
+technique::MassageTargets massageTargetsFromRecord(store::SessionStore& store,
+                                                   uint64_t demo_session, double force_scale,
+                                                   const TissueParams& web,
+                                                   double settle_s = kMassageSettleS);
+
 /// How a trial is named in events and reports: "trial 2 (guided 50 %)", "trial 3 (attempt)".
 std::string trialLabel(int index, const std::string& phase, double authority);
 
@@ -47,5 +66,8 @@ GuideParams guideFor(const technique::Targets& t, double authority);
 
 /// The plan a student's client receives for `l` (common/protocol/lesson_plan.h).
 LessonPlan planOf(const store::LessonInfo& l, const technique::Targets& t, double demo_s);
+/// The plan of a massage lesson: its band is the pads' normal force, its frequency the
+/// circle's laps per second; no guided trial and no exploration (they are the joint's).
+LessonPlan planOf(const store::LessonInfo& l, const technique::MassageTargets& t, double demo_s);
 
 }  // namespace telehand::server::lesson

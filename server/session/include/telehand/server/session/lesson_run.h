@@ -4,9 +4,11 @@
 /// from the store once every sample up to its last has arrived, or once its wait is over) and
 /// its scores go into the record (a trial row and score events) and out as events.
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "telehand/core/massage_score.h"
 #include "telehand/core/technique_score.h"
 #include "telehand/protocol/lesson_plan.h"
 #include "telehand/server/session/session_context.h"
@@ -28,6 +30,10 @@ class LessonRun {
 
   LessonRun(store::LessonInfo lesson, technique::Targets goals, LessonPlan run_plan)
       : info(std::move(lesson)), targets(std::move(goals)), plan(std::move(run_plan)) {}
+  /// A massage lesson: its trials are scored as circles on `web` (technique::scoreMassage).
+  LessonRun(store::LessonInfo lesson, technique::MassageTargets goals, const TissueParams& on,
+            LessonPlan run_plan)
+      : info(std::move(lesson)), plan(std::move(run_plan)), massage(std::move(goals)), web(on) {}
 
   /// A trial begins with sample `first_seq` (phase guided or attempt).
   void begin(const std::string& phase, double authority, uint64_t first_seq);
@@ -43,8 +49,10 @@ class LessonRun {
   const std::vector<double>& overall() const noexcept { return overall_; }
 
   const store::LessonInfo info;
-  const technique::Targets targets;
+  const technique::Targets targets;  ///< a mobilization's (empty for a massage)
   const LessonPlan plan;
+  const std::optional<technique::MassageTargets> massage;  ///< a massage's targets
+  const TissueParams web;                                  ///< and the web it is done on
 
  private:
   struct Trial {
