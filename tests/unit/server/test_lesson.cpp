@@ -349,6 +349,58 @@ TEST_F(LessonTest, BadLessonsAndPhasesAreRefusedWithAReason) {
   EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, 0).back(), HasSubstr("no session 12345"));
 }
 
+TEST_F(LessonTest, AMassageLessonRunsWithTheMassageOnlyAndRefusesTheJointsPhases) {
+  technique::MassageTargets t;
+  t.normal_mean_n = 10.0;
+  t.normal_sd_n = 0.7;
+  t.band_min_n = 8.6;
+  t.band_max_n = 11.4;
+  t.radius_m = 0.006;
+  t.frequency_hz = 1.5;
+  t.circularity = 1.0;
+  t.laps = 12;
+  store::LessonInfo l;
+  l.demo_session = 1;
+  l.case_name = "scar";
+  l.technique = "massage";
+  l.guided = 0;
+  l.attempts = 2;
+  l.assessment = false;
+  l.targets = lesson::encodeMassageTargets(t);
+  const uint64_t id = store_->createLesson(l);
+  // A client that would mobilize is told how to open it.
+  EXPECT_EQ(open(telehand_msg_MODE_LESSON, id), 0u);
+  EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, 0).back(),
+              HasSubstr("--technique massage --lesson " + std::to_string(id)));
+  auto c = command(telehand_msg_CMD_OPEN);
+  c.mode = telehand_msg_MODE_LESSON;
+  c.lesson_id = id;
+  c.technique = telehand_msg_TECHNIQUE_MASSAGE;
+  manager_->onCommand(c, now_ns_);
+  const auto& st = out_.statuses.back();
+  ASSERT_EQ(st.state, telehand_msg_SESSION_ACTIVE);
+  const uint64_t run = st.session_id;
+  std::string why;
+  const auto plan = decodePlan(st.lesson, &why);
+  ASSERT_TRUE(plan) << why;
+  EXPECT_EQ(plan->technique, "massage");
+  EXPECT_EQ(plan->guided, 0);
+  EXPECT_FALSE(plan->assessment);
+  EXPECT_NEAR(plan->band_max_n, 11.4, 1e-3);
+  // The web of the case is what the client renders.
+  ASSERT_FALSE(out_.models.empty());
+  EXPECT_EQ(out_.models.back().technique, telehand_msg_TECHNIQUE_MASSAGE);
+  for (const char* joint_phase : {"guided", "baseline", "reassessment"}) {
+    phase(run, joint_phase, 1.0, 0);
+    EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(),
+                HasSubstr("a massage lesson has no guided trial and no exploration"))
+        << joint_phase;
+  }
+  const std::size_t errors = out_.textsOf(telehand_msg_EVENT_ERROR, run).size();
+  phase(run, "attempt", 0.0, 0);
+  EXPECT_EQ(out_.textsOf(telehand_msg_EVENT_ERROR, run).size(), errors);
+}
+
 TEST_F(LessonTest, AReplayReproducesTheLiveHandStates) {
   // A live session: every HandState published, by the sample it reflects.
   const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
