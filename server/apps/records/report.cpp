@@ -332,18 +332,58 @@ std::string pageHead(const std::string& title, const std::string& subtitle) {
   return o.str();
 }
 
-Points learningCurve(const std::vector<std::pair<std::string, double>>& history, double mean,
-                     bool any, std::vector<std::string>& categories) {
+/// A figure per trial (from 0) against its target (dashed).
+std::string perTrialChart(const std::string& id, const std::string& title,
+                          const std::string& ylabel, const std::vector<std::string>& labels,
+                          double target, const Points& values) {
+  Chart c;
+  c.id = id;
+  c.title = title;
+  c.ylabel = ylabel;
+  c.xlabel = "trial";
+  c.categories = labels;
+  c.y_from_zero = true;
+  const double xe = static_cast<double>(labels.size()) - 0.5;
+  c.lines.push_back({flat(target, -0.5, xe), kTargetColor, "target", 1.2, true, false});
+  c.lines.push_back({values, kTrialColor, "trial", 1.5, false, true});
+  return svgChart(c);
+}
+
+/// The scores per trial, 0-100.
+std::string scoresChart(const std::vector<std::string>& labels, const Points& scores) {
+  Chart sc;
+  sc.id = "scores";
+  sc.title = "Score per trial";
+  sc.ylabel = "score (0-100)";
+  sc.xlabel = "trial";
+  sc.categories = labels;
+  sc.y_min = 0.0;
+  sc.y_max = 100.0;
+  sc.lines.push_back({scores, kTrialColor, "score", 1.5, false, true});
+  return svgChart(sc);
+}
+
+/// The learning curve: the earlier lessons' mean scores, then this one's (when it has any).
+std::string learningChart(const std::vector<std::pair<std::string, double>>& history, double mean,
+                          bool any) {
+  Chart lc;
+  lc.id = "learning";
+  lc.title = "Learning curve: mean score per lesson";
+  lc.ylabel = "score (0-100)";
+  lc.xlabel = "lesson";
+  lc.y_min = 0.0;
+  lc.y_max = 100.0;
   Points curve;
   for (const auto& [label, value] : history) {
-    curve.emplace_back(static_cast<double>(categories.size()), value);
-    categories.push_back(label);
+    curve.emplace_back(static_cast<double>(lc.categories.size()), value);
+    lc.categories.push_back(label);
   }
   if (any) {
-    curve.emplace_back(static_cast<double>(categories.size()), mean);
-    categories.push_back("this lesson");
+    curve.emplace_back(static_cast<double>(lc.categories.size()), mean);
+    lc.categories.push_back("this lesson");
   }
-  return curve;
+  lc.lines.push_back({curve, kTrialColor, "mean score", 1.5, false, true});
+  return svgChart(lc);
 }
 
 }  // namespace
@@ -436,28 +476,11 @@ std::string renderReportHtml(const ReportInput& in) {
     freq.emplace_back(static_cast<double>(i), in.trials[i].score.figures.frequency_spectrum_hz);
     scores.emplace_back(static_cast<double>(i), in.trials[i].score.overall);
   }
-  const double xe = static_cast<double>(labels.size()) - 0.5;
-  Chart fc;
-  fc.id = "frequency";
-  fc.title = "Frequency per trial";
-  fc.ylabel = "frequency (Hz)";
-  fc.xlabel = "trial";
-  fc.categories = labels;
-  fc.y_from_zero = true;
-  fc.lines.push_back({flat(tg.frequency_hz, -0.5, xe), kTargetColor, "target", 1.2, true, false});
-  fc.lines.push_back({freq, kTrialColor, "trial", 1.5, false, true});
-  o << "<h2>Over the lesson</h2>\n" << svgChart(fc);
+  o << "<h2>Over the lesson</h2>\n"
+    << perTrialChart("frequency", "Frequency per trial", "frequency (Hz)", labels, tg.frequency_hz,
+                     freq);
 
-  Chart sc;
-  sc.id = "scores";
-  sc.title = "Score per trial";
-  sc.ylabel = "score (0-100)";
-  sc.xlabel = "trial";
-  sc.categories = labels;
-  sc.y_min = 0.0;
-  sc.y_max = 100.0;
-  sc.lines.push_back({scores, kTrialColor, "score", 1.5, false, true});
-  o << svgChart(sc);
+  o << scoresChart(labels, scores);
 
   std::vector<std::string> dirs;
   std::vector<double> before, after;
@@ -478,17 +501,8 @@ std::string renderReportHtml(const ReportInput& in) {
     o << "</table>\n";
   }
 
-  Chart lc;
-  lc.id = "learning";
-  lc.title = "Learning curve: mean score per lesson";
-  lc.ylabel = "score (0-100)";
-  lc.xlabel = "lesson";
-  lc.y_min = 0.0;
-  lc.y_max = 100.0;
-  const Points curve =
-      learningCurve(in.history, meanOverall(in.trials), !in.trials.empty(), lc.categories);
-  lc.lines.push_back({curve, kTrialColor, "mean score", 1.5, false, true});
-  o << "<h2>Learning curve</h2>\n" << svgChart(lc);
+  o << "<h2>Learning curve</h2>\n"
+    << learningChart(in.history, meanOverall(in.trials), !in.trials.empty());
   o << "</body></html>\n";
   return o.str();
 }
@@ -594,50 +608,15 @@ std::string renderMassageReportHtml(const MassageReportInput& in) {
     radius.emplace_back(x, 1000.0 * in.trials[i].score.figures.radius_m);
     scores.emplace_back(x, in.trials[i].score.overall);
   }
-  const double xe = static_cast<double>(labels.size()) - 0.5;
-  Chart fc;
-  fc.id = "frequency";
-  fc.title = "Laps per second per trial";
-  fc.ylabel = "frequency (Hz)";
-  fc.xlabel = "trial";
-  fc.categories = labels;
-  fc.y_from_zero = true;
-  fc.lines.push_back({flat(tg.frequency_hz, -0.5, xe), kTargetColor, "target", 1.2, true, false});
-  fc.lines.push_back({freq, kTrialColor, "trial", 1.5, false, true});
-  o << "<h2>Over the lesson</h2>\n" << svgChart(fc);
-  Chart rc;
-  rc.id = "radius";
-  rc.title = "Circle radius per trial";
-  rc.ylabel = "radius (mm)";
-  rc.xlabel = "trial";
-  rc.categories = labels;
-  rc.y_from_zero = true;
-  rc.lines.push_back(
-      {flat(1000.0 * tg.radius_m, -0.5, xe), kTargetColor, "target", 1.2, true, false});
-  rc.lines.push_back({radius, kTrialColor, "trial", 1.5, false, true});
-  o << svgChart(rc);
-  Chart sc;
-  sc.id = "scores";
-  sc.title = "Score per trial";
-  sc.ylabel = "score (0-100)";
-  sc.xlabel = "trial";
-  sc.categories = labels;
-  sc.y_min = 0.0;
-  sc.y_max = 100.0;
-  sc.lines.push_back({scores, kTrialColor, "score", 1.5, false, true});
-  o << svgChart(sc);
+  o << "<h2>Over the lesson</h2>\n"
+    << perTrialChart("frequency", "Laps per second per trial", "frequency (Hz)", labels,
+                     tg.frequency_hz, freq)
+    << perTrialChart("radius", "Circle radius per trial", "radius (mm)", labels,
+                     1000.0 * tg.radius_m, radius);
+  o << scoresChart(labels, scores);
 
-  Chart lc;
-  lc.id = "learning";
-  lc.title = "Learning curve: mean score per lesson";
-  lc.ylabel = "score (0-100)";
-  lc.xlabel = "lesson";
-  lc.y_min = 0.0;
-  lc.y_max = 100.0;
-  const Points curve =
-      learningCurve(in.history, meanMassageOverall(in.trials), !in.trials.empty(), lc.categories);
-  lc.lines.push_back({curve, kTrialColor, "mean score", 1.5, false, true});
-  o << "<h2>Learning curve</h2>\n" << svgChart(lc);
+  o << "<h2>Learning curve</h2>\n"
+    << learningChart(in.history, meanMassageOverall(in.trials), !in.trials.empty());
   o << "</body></html>\n";
   return o.str();
 }

@@ -36,6 +36,19 @@ std::map<std::string, std::string> splitPairs(const std::string& text) {
   return kv;
 }
 
+/// A targets text's value of `key` as a number in [lo, hi]; throws Error naming the key.
+double targetNumber(const std::map<std::string, std::string>& kv, const std::string& key, double lo,
+                    double hi) {
+  const auto it = kv.find(key);
+  double d = 0.0;
+  if (it == kv.end()) throw Error("lesson targets: '" + key + "' is missing");
+  if (!parseDouble(it->second, d) || d < lo || d > hi) {
+    throw Error("lesson targets: '" + key + "' = '" + it->second + "' is not a number in [" +
+                std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  }
+  return d;
+}
+
 }  // namespace
 
 std::string encodeTargets(const technique::Targets& t) {
@@ -67,14 +80,7 @@ std::string encodeTargets(const technique::Targets& t) {
 technique::Targets decodeTargets(const std::string& text) {
   const auto kv = splitPairs(text);
   auto num = [&](const std::string& key, double lo, double hi) {
-    const auto it = kv.find(key);
-    double d = 0.0;
-    if (it == kv.end()) throw Error("lesson targets: '" + key + "' is missing");
-    if (!parseDouble(it->second, d) || d < lo || d > hi) {
-      throw Error("lesson targets: '" + key + "' = '" + it->second + "' is not a number in [" +
-                  std::to_string(lo) + ", " + std::to_string(hi) + "]");
-    }
-    return d;
+    return targetNumber(kv, key, lo, hi);
   };
   technique::Targets t{};
   t.band_min_n = num("band_min_n", 0, 200);
@@ -142,14 +148,7 @@ technique::MassageTargets decodeMassageTargets(const std::string& text) {
     throw Error("lesson targets: not a massage's ('technique=massage' is missing)");
   }
   auto num = [&](const std::string& key, double lo, double hi) {
-    const auto it = kv.find(key);
-    double d = 0.0;
-    if (it == kv.end()) throw Error("lesson targets: '" + key + "' is missing");
-    if (!parseDouble(it->second, d) || d < lo || d > hi) {
-      throw Error("lesson targets: '" + key + "' = '" + it->second + "' is not a number in [" +
-                  std::to_string(lo) + ", " + std::to_string(hi) + "]");
-    }
-    return d;
+    return targetNumber(kv, key, lo, hi);
   };
   technique::MassageTargets t;
   t.normal_mean_n = num("normal_mean_n", 0, 200);
