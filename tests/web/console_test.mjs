@@ -213,6 +213,29 @@ try {
   const shown = execFileSync(records, ['--db', db, 'show', String(session)], { encoding: 'utf8' });
   check(shown.includes(markText), 'telehand-records show lists the mark', shown);
 
+  // A massage: the page shows the web, each pad's depth and the web's force on it and the
+  // surface, and judges the force against the massage's 10 ± 2 N.
+  const massage = start('massage', path.join(build, 'client/telehand-client'),
+    ['--technique', 'massage', '--seconds', '8', '-q', '--no-fault-stop', ...dds]);
+  const mHandle = await waitFor(page, (prev) => (window.telehand.sessions || [])
+    .find((s) => s.state === 'active' && s.id > prev)?.id, session, 20000, 'the massage in the list');
+  const mSession = await mHandle.jsonValue();
+  await page.click(`#sessions tr[data-session="${mSession}"] button.watch`);
+  await waitFor(page, () => window.telehand.web && window.telehand.web.depth.every((d) => d > 0.001),
+    null, 15000, 'both pads in the web');
+  await sleep(1000);  // the press settles (the clinician ramps up over 0.5 s)
+  const w = await page.evaluate(() => ({ web: window.telehand.web, hidden: document.getElementById('web').hidden,
+    label: document.getElementById('force-label').textContent, force: document.getElementById('force').textContent,
+    cls: document.getElementById('force').className, thumb: document.getElementById('web-thumb').textContent }));
+  check(!w.hidden && w.label.startsWith('web force'), `the web panel shows for a massage (${w.label}: ${w.force}, thumb ${w.thumb})`);
+  check(w.web.depth.every((d) => d > 0.001 && d < 0.02) && w.web.force.every((f) => f > 5 && f < 15)
+    && w.web.deepest > 0.001,
+    `both pads pressed in: ${w.web.depth.map((d) => (d * 1000).toFixed(1)).join(' and ')} mm, `
+    + `${w.web.force.map((f) => f.toFixed(1)).join(' and ')} N, the surface ${(w.web.deepest * 1000).toFixed(1)} mm deep`);
+  await page.screenshot({ path: path.join(artifacts, 'console-massage.png') });
+  const mrc = await Promise.race([massage.exited, sleep(30000).then(() => null)]);
+  check(mrc !== null, `massage client finished (exit ${mrc})`);
+
   // Replay: scrub to a time, the angle shown is that sample's.
   await page.click('#refresh-records');
   await page.waitForSelector(`#records tr[data-session="${session}"] button.replay`, { timeout: 10000 });

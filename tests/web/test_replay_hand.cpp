@@ -10,8 +10,10 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <memory>
+#include <nlohmann/json.hpp>
 
 #include "../support/grip_sample.h"
 #include "frames.h"
@@ -255,6 +257,32 @@ TEST_F(ReplayHandTest, TheReplayedHandIsTheLiveHandOnEveryDof) {
     diff =
         std::max(diff, std::abs(replays[0][i].mcp_angles_rad[0] - replays[1][i].mcp_angles_rad[0]));
   EXPECT_GT(diff, degToRad(1.0));
+}
+
+// A massage's HandState carries the web to the page: each pad's depth and force and the 8x8
+// surface, in order; a mobilization's frame has no web.
+TEST(HandFrame, AMassageFrameCarriesTheWebAndAMobilizationsDoesNot) {
+  telehand_msg_HandState h{};
+  h.session_id = 7;
+  h.source = telehand_msg_HAND_SOURCE_SHARED_JOINT_MODEL;
+  const auto plain = nlohmann::json::parse(handFrame(h, 0));
+  EXPECT_FALSE(plain.contains("web"));
+  h.technique = telehand_msg_TECHNIQUE_MASSAGE;
+  h.web_depth_m[0] = 0.0061;
+  h.web_depth_m[1] = 0.0058;
+  h.web_force_n[1][2] = -10.4;
+  for (int r = 0; r < 8; ++r)
+    for (int c = 0; c < 8; ++c) h.web_grid_m[r][c] = 0.001 * r + 0.0001 * c;
+  h.web_grid_m[2][3] = std::numeric_limits<double>::quiet_NaN();  // sent as null, not NaN
+  const auto j = nlohmann::json::parse(handFrame(h, 0));
+  ASSERT_TRUE(j.contains("web"));
+  EXPECT_DOUBLE_EQ(j["web"]["depth"][0].get<double>(), 0.0061);
+  EXPECT_DOUBLE_EQ(j["web"]["depth"][1].get<double>(), 0.0058);
+  EXPECT_DOUBLE_EQ(j["web"]["force"][1][2].get<double>(), -10.4);
+  ASSERT_EQ(j["web"]["grid"].size(), 8u);
+  ASSERT_EQ(j["web"]["grid"][7].size(), 8u);
+  EXPECT_NEAR(j["web"]["grid"][7][5].get<double>(), 0.0075, 1e-9);
+  EXPECT_TRUE(j["web"]["grid"][2][3].is_null());
 }
 
 TEST_F(ReplayHandTest, ALongRecordIsCutAtTheBoundsAndSaysSo) {

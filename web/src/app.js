@@ -108,6 +108,43 @@ function showFigures(mcp, force, extra = {}) {
   probe.handMcpDeg = deg(hand.mcpFlexion() ?? NaN);
 }
 
+// --- the web of a massage: each pad's depth and force, and the surface ---
+const MASSAGE_BAND = [8, 12];  // the paper's 10 ± 2 N, reference scale
+let mobilizationBand = null;
+function norm3(v) { return Math.hypot(v[0] || 0, v[1] || 0, v[2] || 0); }
+function showWeb(w) {
+  if (!mobilizationBand) { mobilizationBand = band; band = MASSAGE_BAND; }
+  $('web').hidden = false;
+  $('force-label').textContent = 'web force (mean of the pads)';
+  const f = [norm3(w.force[0]), norm3(w.force[1])];
+  $('web-thumb').textContent = `${fmt(w.depth[0] * 1000, 1)} mm, ${fmt(f[0], 1)} N`;
+  $('web-index').textContent = `${fmt(w.depth[1] * 1000, 1)} mm, ${fmt(f[1], 1)} N`;
+  const c = $('web-grid');
+  const g = c.getContext('2d');
+  const n = w.grid.length;
+  const cell = c.width / n;
+  let deepest = 0;
+  for (const row of w.grid) for (const v of row) deepest = Math.max(deepest, Math.abs(v));
+  const scale = Math.max(deepest, 0.005);  // 5 mm at least: a light touch stays light
+  for (let i = 0; i < n; i++) {
+    for (let j = 0; j < n; j++) {
+      const u = Math.min(1, Math.abs(w.grid[i][j]) / scale);
+      const shade = Math.round(235 - 175 * u);
+      g.fillStyle = `rgb(${shade},${Math.round(shade * 0.85)},${Math.round(shade * 0.8)})`;
+      // rows along the web's x drawn left to right, its y upwards
+      g.fillRect(i * cell, c.height - (j + 1) * cell, cell - 1, cell - 1);
+    }
+  }
+  probe.web = { depth: w.depth, force: f, deepest };
+  return (f[0] + f[1]) / 2;
+}
+function hideWeb() {
+  if (mobilizationBand) { band = mobilizationBand; mobilizationBand = null; }
+  $('web').hidden = true;
+  $('force-label').textContent = 'applied force';
+  probe.web = null;
+}
+
 // --- the connection ---
 function send(msg) {
   if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(msg));
@@ -140,7 +177,10 @@ function connect() {
 setInterval(() => send({ op: 'ping', t: performance.now() }), 2000);
 
 const handlers = {
-  hello(m) { band = m.band; hand.setDofs(m.dofs); },
+  hello(m) {
+    if (mobilizationBand) mobilizationBand = m.band; else band = m.band;
+    hand.setDofs(m.dofs);
+  },
   pong(m) {
     rtt = performance.now() - m.t;
     $('rtt').textContent = `rtt ${fmt(rtt, 0)} ms`;
@@ -209,16 +249,18 @@ const handlers = {
       seq: m.seq, mcp: m.mcp, joints: m.joints, t_ms: m.t_ms, force: m.force, overruns: m.overruns,
     };
     hand.pose(m);
+    // A massage: the plot and the figure are the web's force on the pads, against 10 ± 2 N.
+    const press = m.web ? showWeb(m.web) : m.force;
     if (live.t0 === null) live.t0 = m.t_ms;
     live.t.push((m.t_ms - live.t0) / 1000);
-    live.f.push(m.force);
+    live.f.push(press);
     probe.plotSamples = (probe.plotSamples || 0) + 1;
     live.a.push(deg(m.mcp[0]));
     live.b.push(deg(m.mcp[1]));
     live.g.push(deg(m.mcp[2]));
     if (live.t.length > PLOT_MAX) for (const k of ['t', 'f', 'a', 'b', 'g']) live[k].shift();
     drawLive(false);
-    showFigures(m.mcp, m.force, {
+    showFigures(m.mcp, press, {
       model: `v${m.model}`, devhz: `${fmt(m.dev_hz, 0)} /s`, lost: `${m.dev_lost}`,
       overruns: `${m.overruns}`,
       seq: `${m.seq} (device ${m.dev_seq})`,
@@ -303,6 +345,7 @@ function watch(id) {
   $('replay-bar').hidden = true;
   $('events').replaceChildren();
   resetLive();
+  hideWeb();
   showTakeover();
   drawLive(true);
   $('title').textContent = `Live: session ${id}`;
@@ -314,6 +357,7 @@ function startReplay(id) {
   probe.mode = 'replay';
   probe.session = id;
   send({ op: 'watch', session: 0 });  // the live stream stops
+  hideWeb();
   $('title').textContent = `Replay: loading session ${id}…`;
   send({ op: 'replay', session: id });
 }

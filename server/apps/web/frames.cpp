@@ -76,6 +76,20 @@ std::string handFrame(const telehand_msg_HandState& h, int64_t rx_wall_ns) {
   appendPair(out, h.fingertip_force_n);
   out += R"(,"force":)";
   appendNumber(out, h.applied_force_ref_n);
+  if (h.technique == telehand_msg_TECHNIQUE_MASSAGE) {
+    // The web: each pad's depth and the web's force on it (reference scale), and the
+    // surface's 8x8 deflection, rows along the web's x.
+    out += R"(,"web":{"depth":)";
+    appendArray(out, h.web_depth_m);
+    out += R"(,"force":)";
+    appendPair(out, h.web_force_n);
+    out += R"(,"grid":[)";
+    for (std::size_t r = 0; r < std::size(h.web_grid_m); ++r) {
+      if (r) out += ',';
+      appendArray(out, h.web_grid_m[r]);
+    }
+    out += "]}";
+  }
   if (h.source == telehand_msg_HAND_SOURCE_BULLET) {
     out += R"(,"joints":)";
     appendArray(out, h.joint_angles_rad, h.dof_count);
