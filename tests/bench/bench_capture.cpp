@@ -139,6 +139,7 @@ struct TableOptions {
   double seconds = 60.0;         ///< massage capture length
   double noise_n = 1.43;
   bool cases_given = false;
+  bool each = false;  ///< massage (--each 1): the web's values and a line per fit, signed %
 };
 
 /// The web's largest static normal force error at the same thimble positions (fitted
@@ -178,6 +179,11 @@ int massageTable(const TableOptions& t) {
     std::array<double, 9> worst{};
     double force = 0.0, seconds = 0.0;
     bool all_ok = true;
+    if (t.each)
+      std::printf("%s: k %.4g n %.3f lambda %.3f kt %.0f mu %.3f/%.3f b %.3f patch %.2f/%.2f\n",
+                  name.c_str(), web.stiffness_n_per_m_pow, web.exponent, web.damping_s_per_m,
+                  web.lateral_stiffness_n_per_m, web.mu_static, web.mu_kinetic,
+                  web.viscous_n_s_per_m, web.patch_stiffness_factor, web.patch_friction_factor);
     for (uint64_t seed = t.first_seed; seed < t.first_seed + t.seeds; ++seed) {
       server::estimate::SyntheticMassageOptions o;
       o.truth = web;
@@ -218,6 +224,16 @@ int massageTable(const TableOptions& t) {
       for (std::size_t i = 0; i < pairs.size(); ++i)
         worst[i] = std::max(worst[i], 100.0 * std::abs(pairs[i].first / pairs[i].second - 1.0));
       force = std::max(force, normalForceError(web, p, fit.force_max_n));
+      if (t.each) {
+        std::printf("  seed %-4llu |", static_cast<unsigned long long>(seed));
+        for (std::size_t i = 0; i < (web.patch_radius_m > 0.0 ? 9u : 7u); ++i)
+          std::printf(" %+6.1f", 100.0 * (pairs[i].first / pairs[i].second - 1.0));
+        std::printf(" | se k %.1f lambda %.1f b %.1f %% | %.3f N\n",
+                    100.0 * fit.stiffness.se / fit.stiffness.value,
+                    100.0 * fit.damping.se / web.damping_s_per_m,
+                    100.0 * fit.viscous.se / web.viscous_n_s_per_m,
+                    normalForceError(web, p, fit.force_max_n));
+      }
     }
     char patch[32] = "  -";
     if (web.patch_radius_m > 0.0)
@@ -447,6 +463,8 @@ int main(int argc, char** argv) {
         t.seconds = std::stod(val);
       } else if (key == "--noise") {
         t.noise_n = std::stod(val);
+      } else if (key == "--each") {
+        t.each = val != "0";
       } else {
         std::fprintf(stderr, "unknown option %s\n", key.c_str());
         return 2;

@@ -43,6 +43,10 @@ ClientDevice::ClientDevice(const ClientOptions& o, const mf2::Mf2Description& de
       }
       massage_->setPatient(truth);
       massage_->setForceNoise(o.thimble_noise);
+      // Characterise the web first (indentations, strokes), then the circles.
+      devices::MassageCaptureProtocol protocol;
+      protocol.seed = o.cfg.op.seed;
+      massage_->setCaptureProtocol(protocol);
     }
     device_ = massage_.get();
   } else if (mode == telehand_msg_MODE_CAPTURE) {

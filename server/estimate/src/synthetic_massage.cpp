@@ -10,16 +10,36 @@ namespace telehand::server::estimate {
 
 namespace {
 
-/// One contact of one finger: pressed in at (cx + r, cy) turned by phi0, circled, lifted.
+/// One contact of one finger: pressed in at its start point, circled, stroked or held (an
+/// indentation), lifted.
 struct Contact {
+  enum Kind { kCircle, kIndent, kStroke } kind = kCircle;
   double start_s = 0.0;
   double press_s = 0.0, hold_s = 0.0, release_s = 0.0, air_s = 0.0;
+  /// Circle: centre (cx, cy), radius r, start angle phi0. Stroke: through (cx, cy) along
+  /// the direction phi0, half length r (the angle is the stroke's phase, from 0). Indent:
+  /// at (cx, cy).
   double cx = 0.0, cy = 0.0, r = 0.0, phi0 = 0.0;
   double omega = 0.0;  ///< rad/s, signed (the circling direction)
   double reverse_at_s = -1.0;
   double mod_amp = 0.0, mod_hz = 0.0, mod_phase = 0.0;  ///< speed modulation
-  double force_n = 10.0, swing_phase = 0.0;
+  double force_n = 10.0, swing_n = 0.0, swing_phase = 0.0;
+  double depth_max_m = 1.0;  ///< no deeper than this
   double end() const { return start_s + press_s + hold_s + release_s + air_s; }
+  double startAngle() const { return kind == kStroke ? 0.0 : phi0; }
+  /// The surface point at an angle.
+  void point(double a, double& x, double& y) const {
+    if (kind == kCircle) {
+      x = cx + r * std::cos(a);
+      y = cy + r * std::sin(a);
+    } else if (kind == kStroke) {
+      x = cx + r * std::sin(a) * std::cos(phi0);
+      y = cy + r * std::sin(a) * std::sin(phi0);
+    } else {
+      x = cx;
+      y = cy;
+    }
+  }
 };
 
 double uniform(std::mt19937_64& rng, const double (&range)[2]) {
@@ -31,37 +51,67 @@ double logUniform(std::mt19937_64& rng, const double (&range)[2]) {
       std::uniform_real_distribution<double>(std::log(range[0]), std::log(range[1]))(rng));
 }
 
-/// The contacts of one finger over the capture.
+/// The contacts of one finger over the capture: the characterisation's indentations and
+/// strokes, then the massage's circles.
 std::vector<Contact> planContacts(const SyntheticMassageOptions& o, const TissueModel& m,
                                   std::mt19937_64& rng) {
   std::vector<Contact> out;
   const TissueParams& p = m.params();
   std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const double indent_end = o.indent_s, stroke_end = o.indent_s + o.stroke_s;
   double t = uniform(rng, o.air_s);
   while (t < o.seconds) {
     Contact c;
     c.start_s = t;
-    c.r = uniform(rng, o.radius_m);
-    const double room = std::max(p.half_extent_m - c.r - 0.003, 0.0);
-    c.cx = (2.0 * unit(rng) - 1.0) * room;
-    c.cy = (2.0 * unit(rng) - 1.0) * room;
+    c.kind = t < indent_end   ? Contact::kIndent
+             : t < stroke_end ? Contact::kStroke
+                              : Contact::kCircle;
     c.phi0 = 2.0 * kPi * unit(rng);
-    c.omega = uniform(rng, o.speed_m_s) / c.r * (unit(rng) < 0.5 ? 1.0 : -1.0);
-    c.force_n = o.force_n + (2.0 * unit(rng) - 1.0) * o.force_spread_n;
     c.swing_phase = 2.0 * kPi * unit(rng);
     c.mod_amp = 0.3 * unit(rng);
     c.mod_hz = 0.3 + 0.7 * unit(rng);
     c.mod_phase = 2.0 * kPi * unit(rng);
-    c.hold_s = uniform(rng, o.contact_s);
-    if (unit(rng) < o.reverse_probability) c.reverse_at_s = c.hold_s * (0.3 + 0.4 * unit(rng));
+    if (c.kind == Contact::kIndent) {
+      const double room = std::max(p.half_extent_m - 0.004, 0.0);
+      c.cx = (2.0 * unit(rng) - 1.0) * room;
+      c.cy = (2.0 * unit(rng) - 1.0) * room;
+      c.force_n = logUniform(rng, o.indent_force_n);
+      c.depth_max_m = o.indent_depth_max_m;
+      c.hold_s = uniform(rng, o.indent_hold_s);
+    } else if (c.kind == Contact::kStroke) {
+      c.r = uniform(rng, o.stroke_half_m);
+      const double room = std::max(p.half_extent_m - c.r - 0.003, 0.0);
+      c.cx = (2.0 * unit(rng) - 1.0) * room;
+      c.cy = (2.0 * unit(rng) - 1.0) * room;
+      c.omega = uniform(rng, o.stroke_speed_m_s) / c.r;
+      c.force_n = uniform(rng, o.stroke_force_n);
+      c.swing_n = 0.1 * c.force_n;
+      c.hold_s = uniform(rng, o.stroke_contact_s);
+    } else {
+      c.r = uniform(rng, o.radius_m);
+      const double room = std::max(p.half_extent_m - c.r - 0.003, 0.0);
+      c.cx = (2.0 * unit(rng) - 1.0) * room;
+      c.cy = (2.0 * unit(rng) - 1.0) * room;
+      c.omega = uniform(rng, o.speed_m_s) / c.r * (unit(rng) < 0.5 ? 1.0 : -1.0);
+      c.force_n = o.force_n + (2.0 * unit(rng) - 1.0) * o.force_spread_n;
+      c.swing_n = o.force_swing_n;
+      c.hold_s = uniform(rng, o.contact_s);
+      if (unit(rng) < o.reverse_probability) c.reverse_at_s = c.hold_s * (0.3 + 0.4 * unit(rng));
+    }
     // Press in (and later lift off) from the air gap to the depth of the first force, at
     // the drawn peak speed (a smoothstep's peak slope is 1.5 times its mean).
-    const double x0 = c.cx + c.r * std::cos(c.phi0), y0 = c.cy + c.r * std::sin(c.phi0);
-    const double f0 = c.force_n + o.force_swing_n * std::sin(c.phi0 + c.swing_phase);
-    const double depth0 = m.depthForForce(f0, x0, y0);
-    c.press_s = 1.5 * (depth0 + o.air_gap_m) / uniform(rng, o.press_speed_m_s);
-    c.release_s = 1.5 * (depth0 + o.air_gap_m) / uniform(rng, o.press_speed_m_s);
-    c.air_s = uniform(rng, o.air_s);
+    double x0 = 0.0, y0 = 0.0;
+    c.point(c.startAngle(), x0, y0);
+    const double f0 = c.force_n + c.swing_n * std::sin(c.startAngle() + c.swing_phase);
+    const double depth0 = std::min(m.depthForForce(f0, x0, y0), c.depth_max_m);
+    if (c.kind == Contact::kIndent) {
+      c.press_s = 1.5 * (depth0 + o.air_gap_m) / logUniform(rng, o.indent_speed_m_s);
+      c.release_s = 1.5 * (depth0 + o.air_gap_m) / logUniform(rng, o.indent_speed_m_s);
+    } else {
+      c.press_s = 1.5 * (depth0 + o.air_gap_m) / uniform(rng, o.press_speed_m_s);
+      c.release_s = 1.5 * (depth0 + o.air_gap_m) / uniform(rng, o.press_speed_m_s);
+    }
+    c.air_s = uniform(rng, c.kind == Contact::kIndent ? o.indent_air_s : o.air_s);
     out.push_back(c);
     t = c.end();
   }
@@ -90,18 +140,15 @@ Path fingerPath(const SyntheticMassageOptions& o, const TissueModel& m,
   path.depth.resize(ticks);
   const double dt = 1.0 / o.rate_hz;
   std::size_t k = 0;  // current contact
-  double phi = contacts.empty() ? 0.0 : contacts[0].phi0;
+  double phi = contacts.empty() ? 0.0 : contacts[0].startAngle();
   double x = 0.0, y = 0.0, depth = -o.air_gap_m;
-  if (!contacts.empty()) {
-    x = contacts[0].cx + contacts[0].r * std::cos(phi);
-    y = contacts[0].cy + contacts[0].r * std::sin(phi);
-  }
+  if (!contacts.empty()) contacts[0].point(phi, x, y);
   double hold_end_depth = 0.0, last_u = 0.0;
   for (std::size_t i = 0; i < ticks; ++i) {
     const double t = static_cast<double>(i) * dt;
     while (k + 1 < contacts.size() && t >= contacts[k].end()) {
       ++k;
-      phi = contacts[k].phi0;
+      phi = contacts[k].startAngle();
       last_u = 0.0;
     }
     if (k >= contacts.size() || t < contacts[k].start_s) {
@@ -116,13 +163,12 @@ Path fingerPath(const SyntheticMassageOptions& o, const TissueModel& m,
     const double hold0 = c.press_s, release0 = c.press_s + c.hold_s,
                  air0 = c.press_s + c.hold_s + c.release_s;
     auto target = [&](double phase, double px, double py) {
-      const double f = c.force_n + o.force_swing_n * std::sin(phase + c.swing_phase);
-      return m.depthForForce(f, px, py);
+      const double f = c.force_n + c.swing_n * std::sin(phase + c.swing_phase);
+      return std::min(m.depthForForce(f, px, py), c.depth_max_m);
     };
     if (u < hold0) {
-      phi = c.phi0;
-      x = c.cx + c.r * std::cos(phi);
-      y = c.cy + c.r * std::sin(phi);
+      phi = c.startAngle();
+      c.point(phi, x, y);
       depth = -o.air_gap_m + (target(phi, x, y) + o.air_gap_m) * smoothRamp(u, c.press_s);
     } else if (u < release0) {
       // Integrate the angle at the midpoint of each tick.
@@ -131,8 +177,7 @@ Path fingerPath(const SyntheticMassageOptions& o, const TissueModel& m,
       const double step = u - last_u;
       phi += angularSpeed(c, uh - 0.5 * step) * step;
       last_u = u;
-      x = c.cx + c.r * std::cos(phi);
-      y = c.cy + c.r * std::sin(phi);
+      c.point(phi, x, y);
       depth = target(phi, x, y);
       hold_end_depth = depth;
     } else if (u < air0) {
@@ -143,8 +188,9 @@ Path fingerPath(const SyntheticMassageOptions& o, const TissueModel& m,
       depth = -o.air_gap_m;
       if (k + 1 < contacts.size()) {
         const Contact& n = contacts[k + 1];
-        const double nx = n.cx + n.r * std::cos(n.phi0), ny = n.cy + n.r * std::sin(n.phi0);
-        const double lx = c.cx + c.r * std::cos(phi), ly = c.cy + c.r * std::sin(phi);
+        double nx = 0.0, ny = 0.0, lx = 0.0, ly = 0.0;
+        n.point(n.startAngle(), nx, ny);
+        c.point(phi, lx, ly);
         const double w = smoothRamp(u - air0, c.air_s);
         x = lx + w * (nx - lx);
         y = ly + w * (ny - ly);

@@ -50,7 +50,8 @@ struct Prepared {
   std::vector<double> a_n, a_t;  ///< the pressed normal force's share in eq. 2 and eq. 1
   std::vector<double> pad_x, pad_y, side_x, side_y;
   std::vector<double> meas_n, meas_t;
-  std::vector<double> dt;  ///< to the next point, s (0 at the last or across a gap)
+  std::vector<double> acc_n, acc_t;  ///< the acceleration along the pad normal and side axis
+  std::vector<double> dt;            ///< to the next point, s (0 at the last or across a gap)
   std::vector<uint8_t> over;
 };
 
@@ -59,8 +60,9 @@ Prepared prepare(const TissueParams& nominal, int finger, const std::vector<Tiss
   Prepared d;
   d.finger = finger;
   const std::size_t n = pts.size();
-  for (auto* v : {&d.x, &d.y, &d.vx, &d.vy, &d.d_nom, &d.rate, &d.w, &d.gx, &d.gy, &d.a_n, &d.a_t,
-                  &d.pad_x, &d.pad_y, &d.side_x, &d.side_y, &d.meas_n, &d.meas_t, &d.dt})
+  for (auto* v : {&d.x,      &d.y,      &d.vx,     &d.vy,    &d.d_nom, &d.rate,  &d.w,
+                  &d.gx,     &d.gy,     &d.a_n,    &d.a_t,   &d.pad_x, &d.pad_y, &d.side_x,
+                  &d.side_y, &d.meas_n, &d.meas_t, &d.acc_n, &d.acc_t, &d.dt})
     v->resize(n);
   d.over.resize(n);
   const double side = sideOf(finger);
@@ -85,6 +87,8 @@ Prepared prepare(const TissueParams& nominal, int finger, const std::vector<Tiss
     d.side_y[i] = p.side_web.y();
     d.meas_n[i] = p.normal_n;
     d.meas_t[i] = p.tangential_n;
+    d.acc_n[i] = p.a_web.dot(p.pad_web);
+    d.acc_t[i] = p.a_web.dot(p.side_web);
     if (i + 1 < n && pts[i + 1].seq == p.seq + 1)
       d.dt[i] = static_cast<double>(pts[i + 1].t_ns - p.t_ns) * 1e-9;
     d.over[i] =
@@ -98,6 +102,7 @@ struct NormalParams {
   double ln_k = std::log(2.2e4), n = 1.5, lambda = 0.0;
   PerFinger<double> offset{0.0, 0.0};
   double ln_fk = 0.0;  ///< ln patch stiffness factor
+  double mass = 0.0;   ///< kg between the sensors and the skin
 };
 
 /// The friction block's parameters.
@@ -113,6 +118,7 @@ struct FrictionParams {
 struct NormalState {
   std::vector<uint8_t> contact;
   std::vector<double> force, depth, rim_x, rim_y;
+  std::vector<double> inertia_t;  ///< the mass's share in eq. 1 (every point)
 };
 
 NormalState normalState(const Prepared& d, const NormalParams& q) {
@@ -123,8 +129,10 @@ NormalState normalState(const Prepared& d, const NormalParams& q) {
   s.depth.assign(n, 0.0);
   s.rim_x.assign(n, 0.0);
   s.rim_y.assign(n, 0.0);
+  s.inertia_t.resize(n);
   const double k = std::exp(q.ln_k), fk = std::exp(q.ln_fk);
   for (std::size_t i = 0; i < n; ++i) {
+    s.inertia_t[i] = q.mass * d.acc_t[i];
     const double depth = d.d_nom[i] + q.offset[d.finger];
     if (!(depth > 0.0) || !d.over[i]) continue;
     s.contact[i] = 1;
@@ -259,15 +267,20 @@ Eigen::VectorXd levenbergMarquardt(Eigen::VectorXd theta, Eval&& eval, Clamp&& c
 }
 
 /// Which parameters a block estimates (the others held).
+/// The stiffness is estimated as the force at a reference depth inside the captured range,
+/// ln f_ref = ln k + n·ln δ_ref (δ_ref: the contact depths' geometric mean), which the data
+/// pin down apart from n; k (the force at a depth of 1 m, what the model takes) moves with n
+/// by ln δ_ref·Δn and is computed from the two.
 struct NormalLayout {
-  bool offsets = true, patch = false;
-  Eigen::Index size() const { return 3 + (offsets ? 2 : 0) + (patch ? 1 : 0); }
+  bool offsets = true, patch = false, mass = false;
+  double ln_ref = std::log(0.005);  ///< ln δ_ref
+  Eigen::Index size() const { return 3 + (offsets ? 2 : 0) + (patch ? 1 : 0) + (mass ? 1 : 0); }
 };
 
 Eigen::VectorXd packNormal(const NormalParams& q, const NormalLayout& l) {
   Eigen::VectorXd t(l.size());
   Eigen::Index j = 0;
-  t(j++) = q.ln_k;
+  t(j++) = q.ln_k + q.n * l.ln_ref;
   t(j++) = q.n;
   t(j++) = q.lambda;
   if (l.offsets) {
@@ -275,19 +288,22 @@ Eigen::VectorXd packNormal(const NormalParams& q, const NormalLayout& l) {
     t(j++) = q.offset[1];
   }
   if (l.patch) t(j++) = q.ln_fk;
+  if (l.mass) t(j++) = q.mass;
   return t;
 }
 
 NormalParams unpackNormal(const Eigen::VectorXd& t, const NormalLayout& l, NormalParams q) {
   Eigen::Index j = 0;
-  q.ln_k = t(j++);
-  q.n = t(j++);
+  q.n = t(1);
+  q.ln_k = t(j++) - q.n * l.ln_ref;
+  j++;
   q.lambda = t(j++);
   if (l.offsets) {
     q.offset[0] = t(j++);
     q.offset[1] = t(j++);
   }
   if (l.patch) q.ln_fk = t(j++);
+  if (l.mass) q.mass = t(j++);
   return q;
 }
 
@@ -417,15 +433,18 @@ class NormalBlock {
         el = kk * std::pow(depth, q.n);
         force = std::max(el * (1.0 + q.lambda * d.rate[i]), 0.0);
       }
-      const double mu = force * d.a_n[i] + tau_[f][i];
+      const double mu = force * d.a_n[i] + tau_[f][i] + q.mass * d.acc_n[i];
       const double raw = std::max(mu, 0.0);
       r(row) = d.meas_n[i] - (o_.normal_cut_at_zero ? cutMean(raw, sigma) : raw);
-      if (!J || !(force > 0.0) || !(mu > 0.0)) continue;
-      const double c = (o_.normal_cut_at_zero ? cutSlope(raw, sigma) : 1.0) * d.a_n[i];
+      if (!J || !(mu > 0.0)) continue;
+      const double cs = o_.normal_cut_at_zero ? cutSlope(raw, sigma) : 1.0;
+      const double c = cs * d.a_n[i];
+      if (l.mass) (*J)(row, l.size() - 1) = -cs * d.acc_n[i];
+      if (!(force > 0.0)) continue;
       Eigen::Index j = 0;
-      (*J)(row, j++) = -c * force;                    // ln k
-      (*J)(row, j++) = -c * force * std::log(depth);  // n
-      (*J)(row, j++) = -c * el * d.rate[i];           // λ
+      (*J)(row, j++) = -c * force;                                 // ln f_ref
+      (*J)(row, j++) = -c * force * (std::log(depth) - l.ln_ref);  // n
+      (*J)(row, j++) = -c * el * d.rate[i];                        // λ
       if (l.offsets) {
         const double ds = force * q.n / depth;
         (*J)(row, j + f) = -c * ds;
@@ -450,16 +469,21 @@ class FrictionBlock {
  public:
   FrictionBlock(const PerFinger<Prepared>& d, const PerFinger<NormalState>& ns, int groups)
       : d_(d), ns_(ns) {
-    // Contacts (runs of points in contact) go to the groups in turn.
+    // Contacts (runs of points in contact, cut every 2 s: a capture may stay on the skin
+    // from its strokes through its circles) go to the groups in turn.
     int run = -1;
     for (int k = 0; k < 2; ++k) {
       bool in = false;
+      std::size_t length = 0;
       for (std::size_t i = 0; i < d[k].x.size(); ++i) {
         if (!ns[k].contact[i]) {
           in = false;
           continue;
         }
-        if (!in) ++run;
+        if (!in || ++length >= 2000) {
+          ++run;
+          length = 0;
+        }
         in = true;
         group_.push_back(groups > 0 ? run % groups : 0);
       }
@@ -492,8 +516,8 @@ class FrictionBlock {
       simulateFriction(d, ns_[k], q, st[k], exact);
       for (std::size_t i = 0; i < d.x.size(); ++i) {
         if (!ns_[k].contact[i]) continue;
-        const double pred =
-            ns_[k].force[i] * d.a_t[i] - (st[k].tx[i] * d.side_x[i] + st[k].ty[i] * d.side_y[i]);
+        const double pred = ns_[k].force[i] * d.a_t[i] + ns_[k].inertia_t[i] -
+                            (st[k].tx[i] * d.side_x[i] + st[k].ty[i] * d.side_y[i]);
         r(row) = group_[static_cast<std::size_t>(row)] == left_out_ ? 0.0 : d.meas_t[i] - pred;
         ++row;
       }
@@ -524,8 +548,8 @@ class FrictionBlock {
             group_[this_row] == left_out_)
           continue;
         auto residual = [&](std::size_t j) {
-          return p.meas_t[j] -
-                 (ns_[k].force[j] * p.a_t[j] - (st.tx[j] * p.side_x[j] + st.ty[j] * p.side_y[j]));
+          return p.meas_t[j] - (ns_[k].force[j] * p.a_t[j] + ns_[k].inertia_t[j] -
+                                (st.tx[j] * p.side_x[j] + st.ty[j] * p.side_y[j]));
         };
         const double proj = st.ux[i] * p.side_x[i] + st.uy[i] * p.side_y[i];
         const double gf = (1.0 + p.w[i] * (fg - 1.0)) * ns_[k].force[i];
@@ -568,6 +592,64 @@ class FrictionBlock {
     const double rc = r_.dot(c), cc = c.squaredNorm();
     q.b = cc > 0.0 ? std::clamp(rc / cc, 0.0, TissueParams::kMaxViscous) : 0.0;
     return r_.squaredNorm() - 2.0 * q.b * rc + q.b * q.b * cc;
+  }
+
+  /// b from the exact sawtooth at `q`, jointly with a small change of the friction level
+  /// (ln mu_mid and ln mu_static together, the averaged model's slope in it as the column):
+  /// b·v and mu·F both oppose the motion, so b projected alone takes up whatever per cent
+  /// the friction level is off (each per cent of it is 0.3-0.4 N·s/m of b on the healthy
+  /// web); strokes at different speeds and presses tell the two apart. Sets q.b.
+  static constexpr double kWeightShare = 0.5;  ///< of the static friction force, per N
+  void projectViscousWithLevel(FrictionParams& q) const {
+    FrictionParams z = q;
+    z.b = 0.0;
+    eval(z, r_, true);
+    const Eigen::VectorXd r0 = r_;
+    constexpr double kH = 0.01;
+    // Columns: b's (the velocity along the side axis), then the averaged model's slope in
+    // the friction level, the lateral stiffness and the teeth's height.
+    const Eigen::VectorXd& c = left_out_ < 0 ? column_ : masked_;
+    Eigen::MatrixXd X(rows(), 4);
+    X.col(0) = c;
+    for (int j = 1; j < 4; ++j) {
+      FrictionParams lo = z, hi = z;
+      if (j == 1) {
+        lo.ln_mum -= kH;
+        lo.ln_mus -= kH;
+        hi.ln_mum += kH;
+        hi.ln_mus += kH;
+      } else if (j == 2) {
+        lo.ln_kt -= kH;
+        hi.ln_kt += kH;
+      } else {
+        lo.ln_mus -= kH;
+        hi.ln_mus += kH;
+      }
+      Eigen::VectorXd rl, rh;
+      eval(lo, rl);
+      eval(hi, rh);
+      X.col(j) = (rl - rh) / (2.0 * kH);  // the residual falls by the prediction's rise
+    }
+    // Rows weighted by how well the stick–slip model can follow them: its teeth out of step
+    // with the data leave an error that grows with the friction force, which a light press
+    // keeps small; b shows best there.
+    Eigen::VectorXd wt(rows());
+    {
+      const double mus = std::exp(q.ln_mus), fg = std::exp(q.ln_fg);
+      Eigen::Index row = 0;
+      for (int k = 0; k < 2; ++k) {
+        const Prepared& p = d_[k];
+        for (std::size_t i = 0; i < p.x.size(); ++i) {
+          if (!ns_[k].contact[i]) continue;
+          const double f = mus * (1.0 + p.w[i] * (fg - 1.0)) * ns_[k].force[i];
+          wt(row++) = 1.0 / std::sqrt(1.0 + kWeightShare * kWeightShare * f * f);
+        }
+      }
+    }
+    X = wt.asDiagonal() * X;
+    const Eigen::MatrixXd A = X.transpose() * X;
+    const Eigen::VectorXd x = A.ldlt().solve(X.transpose() * (wt.asDiagonal() * r0));
+    q.b = x.allFinite() ? std::clamp(x(0), 0.0, TissueParams::kMaxViscous) : 0.0;
   }
 
  private:
@@ -772,6 +854,19 @@ PerFinger<std::vector<TissuePoint>> TissueFitter::points() const {
       pts[i].v_device = (pts[hi].p_device - pts[lo].p_device) / dt;
       pts[i].v_web = to_web * pts[i].v_device;
     }
+    // Accelerations: second differences over twice the window, where it is complete.
+    const std::size_t ha = 2 * h;
+    for (std::size_t i = ha; i + ha < n; ++i) {
+      const double dt1 = static_cast<double>(pts[i].t_ns - pts[i - ha].t_ns) * 1e-9;
+      const double dt2 = static_cast<double>(pts[i + ha].t_ns - pts[i].t_ns) * 1e-9;
+      if (pts[i + ha].seq - pts[i - ha].seq != 2 * ha || !(dt1 > 0.0) || !(dt2 > 0.0) ||
+          dt1 + dt2 > 3e-3 * static_cast<double>(2 * ha))
+        continue;
+      pts[i].a_device = ((pts[i + ha].p_device - pts[i].p_device) / dt2 -
+                         (pts[i].p_device - pts[i - ha].p_device) / dt1) /
+                        (0.5 * (dt1 + dt2));
+      pts[i].a_web = to_web * pts[i].a_device;
+    }
   }
   return out;
 }
@@ -813,6 +908,7 @@ TissueFit TissueFitter::fit() const {
   const bool patch_geometry = nominal_.patch_radius_m > 0.0;
   NormalLayout nl;
   nl.offsets = options_.fit_surface;
+  nl.mass = options_.fit_mass;
   FrictionLayout fl;
 
   // Normal block start.
@@ -821,11 +917,12 @@ TissueFit TissueFitter::fit() const {
   NormalBlock nb(d, options_);
   PerFinger<NormalState> ns{normalState(d[0], nq), normalState(d[1], nq)};
   std::size_t contact = 0, in_patch = 0;
-  double depth_lo = 1e300, depth_hi = -1e300;
+  double depth_lo = 1e300, depth_hi = -1e300, sum_ln_depth = 0.0;
   for (int k = 0; k < 2; ++k) {
     for (std::size_t i = 0; i < d[k].x.size(); ++i) {
       if (!ns[k].contact[i]) continue;
       ++contact;
+      sum_ln_depth += std::log(ns[k].depth[i]);
       if (d[k].w[i] > 0.5) ++in_patch;
       depth_lo = std::min(depth_lo, ns[k].depth[i]);
       depth_hi = std::max(depth_hi, ns[k].depth[i]);
@@ -842,6 +939,7 @@ TissueFit TissueFitter::fit() const {
   }
   const bool patch = patch_geometry && options_.fit_patch && in_patch >= options_.min_patch_samples;
   nl.patch = patch;
+  nl.ln_ref = sum_ln_depth / static_cast<double>(contact);
   fl.patch = patch;
   out.patch_fitted = patch;
 
@@ -852,15 +950,20 @@ TissueFit TissueFitter::fit() const {
   Eigen::MatrixXd ncov;
   double nrss = 0.0;
   auto clampNormal = [&](Eigen::VectorXd& t) {
-    t(0) = std::clamp(t(0), std::log(1.0), std::log(TissueParams::kMaxStiffness));
     t(1) = std::clamp(t(1), TissueParams::kMinExponent, TissueParams::kMaxExponent);
+    t(0) = std::clamp(t(0), std::log(1.0) + t(1) * nl.ln_ref,
+                      std::log(TissueParams::kMaxStiffness) + t(1) * nl.ln_ref);
     t(2) = std::clamp(t(2), 0.0, TissueParams::kMaxDamping);
     Eigen::Index j = 3;
     if (nl.offsets) {
       for (int f = 0; f < 2; ++f, ++j)
         t(j) = std::clamp(t(j), -options_.max_surface_offset_m, options_.max_surface_offset_m);
     }
-    if (nl.patch) t(j) = std::clamp(t(j), std::log(0.1), std::log(TissueParams::kMaxPatchFactor));
+    if (nl.patch) {
+      t(j) = std::clamp(t(j), std::log(0.1), std::log(TissueParams::kMaxPatchFactor));
+      ++j;
+    }
+    if (nl.mass) t(j) = std::clamp(t(j), 0.0, 0.5);
   };
 
   for (int pass = 0; pass < std::max(options_.passes, 1); ++pass) {
@@ -933,7 +1036,7 @@ TissueFit TissueFitter::fit() const {
   FrictionParams fit_q = fq;
   {
     FrictionBlock fb(d, ns, 0);
-    fb.costProjected(fit_q, true);
+    fb.projectViscousWithLevel(fit_q);
     const double rss = fb.costProjected(fq);
     out.tangential_rms_n = fb.rows() > 0 ? std::sqrt(rss / static_cast<double>(fb.rows())) : 0.0;
   }
@@ -948,7 +1051,7 @@ TissueFit TissueFitter::fit() const {
       fb.leaveOut(g);
       FrictionParams q =
           refineFriction(fb, fq, fl, 0.03, options_.jackknife_evals, noise_lag1, &out.iterations);
-      fb.costProjected(q, true);
+      fb.projectViscousWithLevel(q);
       const double mus = std::exp(q.ln_mus), mum = std::exp(q.ln_mum);
       jack[0].push_back(std::exp(q.ln_kt));
       jack[1].push_back(mus);
@@ -973,7 +1076,16 @@ TissueFit TissueFitter::fit() const {
   };
   TissueParams& p = out.params;
   const double k = std::exp(nq.ln_k);
-  out.stiffness = {k, k * se(ncov, 0)};
+  // ln k = ln f_ref − n·ln δ_ref: its variance from the two's covariance.
+  const double ln_k_var = ncov.rows() > 1 ? ncov(0, 0) + nl.ln_ref * nl.ln_ref * ncov(1, 1) -
+                                                2.0 * nl.ln_ref * ncov(0, 1)
+                                          : kNaN;
+  out.stiffness = {k, k * std::sqrt(std::max(ln_k_var, 0.0))};
+  out.ref_depth_m = std::exp(nl.ln_ref);
+  const double f_ref = std::exp(nq.ln_k + nq.n * nl.ln_ref);
+  out.force_at_ref = {f_ref, f_ref * se(ncov, 0)};
+  out.thimble_mass_kg =
+      nl.mass ? FittedValue{nq.mass, se(ncov, nl.size() - 1)} : FittedValue{0.0, kNaN};
   out.exponent = {nq.n, se(ncov, 1)};
   out.damping = {nq.lambda, se(ncov, 2)};
   if (nl.offsets) {
@@ -990,7 +1102,7 @@ TissueFit TissueFitter::fit() const {
   out.viscous = {fit_q.b, jackSe(3)};
   if (patch) {
     const double fk = std::exp(nq.ln_fk), fg = std::exp(fq.ln_fg);
-    out.patch_stiffness_factor = {fk, fk * se(ncov, nl.size() - 1)};
+    out.patch_stiffness_factor = {fk, fk * se(ncov, nl.size() - 1 - (nl.mass ? 1 : 0))};
     out.patch_friction_factor = {fg, jackSe(4)};
   } else {
     out.patch_stiffness_factor = {nominal_.patch_stiffness_factor, kNaN};
@@ -1024,8 +1136,9 @@ TissueFit TissueFitter::fit() const {
     simulateFriction(d[f], ns[f], fq, sliding);
     for (std::size_t i = 0; i < pts[f].size(); ++i) {
       if (!d[f].over[i] || d[f].d_nom[i] < -options_.max_surface_offset_m - 0.001) continue;
+      const double with_mass = std::max(pr.normal_n[i] + nq.mass * d[f].acc_n[i], 0.0);
       const double pred_n =
-          options_.normal_cut_at_zero ? cutMean(pr.normal_n[i], options_.noise_n) : pr.normal_n[i];
+          options_.normal_cut_at_zero ? cutMean(with_mass, options_.noise_n) : with_mass;
       sn += (pts[f][i].normal_n - pred_n) * (pts[f][i].normal_n - pred_n);
       ++nn;
       if (!pr.contact[i]) continue;
@@ -1165,6 +1278,12 @@ std::string tissueSectionToml(const TissueParams& p, const TissueFit* fit) {
                   "depths %.1f..%.1f mm",
                   fit->normal_rms_n, fit->tangential_rms_n, fit->contact_samples,
                   fit->depth_min_m * 1e3, fit->depth_max_m * 1e3);
+    o << buf;
+    std::snprintf(buf, sizeof buf,
+                  "\n# force at the reference depth %.2f mm: %.3g ± %.2g N (1 SE); moving mass "
+                  "at the thimble %.3g kg",
+                  fit->ref_depth_m * 1e3, fit->force_at_ref.value, fit->force_at_ref.se,
+                  fit->thimble_mass_kg.value);
     o << buf;
   }
   o << "\n";

@@ -22,6 +22,9 @@ struct MassageTrialOptions {
   double force_scale = 0.25;
   bool capture = false;        ///< the web is real: setPatient(web), actuators off
   double force_noise_n = 0.0;  ///< setForceNoise
+  /// In a capture, characterise the web first (setCaptureProtocol) with this seed.
+  bool protocol = false;
+  uint64_t protocol_seed = 1;
 };
 
 struct MassageTrial {
@@ -38,6 +41,11 @@ inline MassageTrial runMassageTrial(const MassageTrialOptions& o) {
   ManualClock clock(kNsPerS);
   devices::SimulatedMassageMf2 dev(o.web, o.op, clock, o.force_scale);
   if (o.capture) dev.setPatient(o.web);
+  if (o.capture && o.protocol) {
+    devices::MassageCaptureProtocol protocol;
+    protocol.seed = o.protocol_seed;
+    dev.setCaptureProtocol(protocol);
+  }
   dev.setForceNoise(o.force_noise_n);
   TissueProxy proxy(o.web, o.force_scale);
   MassageTrial trial;

@@ -94,25 +94,25 @@ void expectRecovered(const std::string& what, const TissueParams& truth, const T
   // the capture pressed, wherever k and n trade against each other.
   EXPECT_LT(worstNormalForceN(truth, p, f.force_max_n), 0.3);
   EXPECT_GT(f.depth_max_m, 0.7 * TissueModel(truth).depthForForce(10.0));
-  // The residual is the thimbles' noise (a little under it: eq. 2 is cut at zero in the air).
-  EXPECT_NEAR(f.normal_rms_n, kPaperNoiseN, 0.1);
+  // The residual is the thimbles' noise (under it: eq. 2 is cut at zero in the air, where
+  // the indentations spend a third of their time).
+  EXPECT_GT(f.normal_rms_n, 0.8 * kPaperNoiseN);
+  EXPECT_LT(f.normal_rms_n, 1.05 * kPaperNoiseN);
   EXPECT_LT(f.tangential_rms_n, 1.15 * kPaperNoiseN);
-  // Within 10 %: the exponent, the skin's lateral stiffness and both friction coefficients.
+  // Every parameter within 10 % (docs/capture.md "How close the massage fits come").
+  EXPECT_NEAR(relErr(p.stiffness_n_per_m_pow, truth.stiffness_n_per_m_pow), 0.0, 0.1);
   EXPECT_NEAR(relErr(p.exponent, truth.exponent), 0.0, 0.1);
+  EXPECT_NEAR(relErr(p.damping_s_per_m, truth.damping_s_per_m), 0.0, 0.1);
   EXPECT_NEAR(relErr(p.lateral_stiffness_n_per_m, truth.lateral_stiffness_n_per_m), 0.0, 0.1);
   EXPECT_NEAR(relErr(p.mu_static, truth.mu_static), 0.0, 0.1);
   EXPECT_NEAR(relErr(p.mu_kinetic, truth.mu_kinetic), 0.0, 0.1);
-  // k (N/m^n at 1 m) moves with n by ln(depth)·Δn (about 5·Δn), its standard error about
-  // 10 % at 1.43 N; λ shows only in the depth rate's few cm/s (its SE 5-20 %): each within
-  // 10 % or three of its standard errors. docs/capture.md gives the figures.
-  EXPECT_LT(std::abs(std::log(p.stiffness_n_per_m_pow / truth.stiffness_n_per_m_pow)),
-            std::max(std::log(1.1), 3.0 * f.stiffness.se / f.stiffness.value));
-  EXPECT_LT(std::abs(p.damping_s_per_m - truth.damping_s_per_m),
-            std::max(0.1 * truth.damping_s_per_m, 3.0 * f.damping.se));
-  // b is not identifiable within 10 %: b·v is a tenth of a newton at massage speeds, what
-  // a per cent or two of the friction level makes (docs/capture.md "Massage"). What the
-  // student would feel of its error: within 0.15 N at the capture's fast speeds.
-  EXPECT_LT(std::abs(p.viscous_n_s_per_m - truth.viscous_n_s_per_m) * f.speed_p95_m_s, 0.15);
+  EXPECT_NEAR(relErr(p.viscous_n_s_per_m, truth.viscous_n_s_per_m), 0.0, 0.1);
+  // The force at the reference depth off the patch (what the capture pins down of k apart
+  // from n).
+  const double f_ref = truth.stiffness_n_per_m_pow * std::pow(f.ref_depth_m, truth.exponent);
+  EXPECT_NEAR(relErr(f.force_at_ref.value, f_ref), 0.0, 0.05);
+  // The synthetic thimbles have no moving mass.
+  EXPECT_LT(f.thimble_mass_kg.value, 0.01);
   if (truth.patch_radius_m > 0.0) {
     EXPECT_TRUE(f.patch_fitted);
     EXPECT_NEAR(relErr(p.patch_stiffness_factor, truth.patch_stiffness_factor), 0.0, 0.1);
@@ -125,6 +125,7 @@ TEST(SyntheticMassage, ClinicianPressesTenNewtonsAndTheThimblesMeasureIt) {
   SyntheticMassageOptions o;
   o.truth = posed(tissueCase("healthy"));
   o.seconds = 20.0;
+  o.indent_s = o.stroke_s = 0.0;  // the massage alone (the characterisation: below)
   const SyntheticMassage cap = synthesizeMassage(o);
   ASSERT_EQ(cap.samples.size(), 20'000u);
   // The same seed gives the same capture.
@@ -156,11 +157,42 @@ TEST(SyntheticMassage, ClinicianPressesTenNewtonsAndTheThimblesMeasureIt) {
   EXPECT_GT(static_cast<double>(in_band) / static_cast<double>(in_contact), 0.8);
 }
 
+TEST(SyntheticMassage, TheCharacterisationIndentsDeepAndFastAndStrokesLightAndFast) {
+  SyntheticMassageOptions o;
+  o.truth = posed(tissueCase("healthy"));
+  o.seconds = o.indent_s + o.stroke_s;
+  TissueFitter fitter(nominalOf(o.truth));
+  for (const Sample& s : synthesizeMassage(o).samples) fitter.add(s, true);
+  const auto pts = fitter.points();
+  double deepest = 0.0, fastest_in = 0.0, fastest_light = 0.0, hardest = 0.0;
+  for (int k = 0; k < 2; ++k) {
+    const TissuePrediction pr = predictTissue(o.truth, k, pts[k]);
+    for (std::size_t i = 0; i < pts[k].size(); ++i) {
+      if (!pr.contact[i]) continue;
+      const double t = static_cast<double>(pts[k][i].t_ns - pts[k][0].t_ns) * 1e-9;
+      if (t < o.indent_s) {
+        deepest = std::max(deepest, pr.depth_m[i]);
+        fastest_in = std::max(fastest_in, pr.depth_rate_m_s[i]);
+        hardest = std::max(hardest, pr.normal_force_n[i]);
+      } else if (pr.normal_force_n[i] < 3.0) {
+        fastest_light =
+            std::max(fastest_light, std::hypot(pts[k][i].v_web.x(), pts[k][i].v_web.y()));
+      }
+    }
+  }
+  // Indentations to 10 mm (the healthy web holds 30 N deeper), in at up to 0.5 m/s.
+  EXPECT_NEAR(deepest, 0.010, 2e-4);
+  EXPECT_GT(fastest_in, 0.3);
+  EXPECT_LT(hardest, 40.0);
+  // Strokes under 3 N at up to 0.5 m/s.
+  EXPECT_GT(fastest_light, 0.35);
+}
+
 TEST(TissueFit, RecoversTheShippedWebs) {
   for (const char* name : {"healthy", "oedema", "scar", "hypertonic"}) {
     SyntheticMassageOptions o;
     o.truth = posed(tissueCase(name));
-    o.seed = 7;
+    o.seed = 21;
     expectRecovered(name, o.truth, fitCapture(synthesizeMassage(o), nominalOf(o.truth)));
   }
 }
@@ -170,7 +202,7 @@ TEST(TissueFit, FindsTheSkinWhereTheNominalGeometryMissesIt) {
   // fit moves the surfaces to where the force sets in.
   SyntheticMassageOptions o;
   o.truth = posed(tissueCase("healthy"));
-  o.seed = 8;
+  o.seed = 22;
   TissueParams nominal = nominalOf(o.truth);
   nominal.thickness_m += 0.001;
   nominal.origin_m += o.truth.orientation * Vec3(0.0, 0.0, 0.0005);
@@ -183,7 +215,8 @@ TEST(TissueFit, FindsTheSkinWhereTheNominalGeometryMissesIt) {
   EXPECT_NEAR(f.params.thickness_m, o.truth.thickness_m, 3e-4);
 }
 
-/// Random webs on seeds the fit was not developed on (it was on randomTissue 1-4).
+/// Random webs on seeds the fit and the capture protocol were not developed on (they were on
+/// randomTissue 1-4, 101-110 and 201-205, the shipped webs on seeds 1-12).
 void recoverRandom(uint64_t first, uint64_t count) {
   for (uint64_t seed = first; seed < first + count; ++seed) {
     SyntheticMassageOptions o;
@@ -194,8 +227,8 @@ void recoverRandom(uint64_t first, uint64_t count) {
   }
 }
 
-TEST(TissueFit, RecoversRandomWebsA) { recoverRandom(101, 5); }
-TEST(TissueFit, RecoversRandomWebsB) { recoverRandom(106, 5); }
+TEST(TissueFit, RecoversRandomWebsA) { recoverRandom(401, 5); }
+TEST(TissueFit, RecoversRandomWebsB) { recoverRandom(406, 5); }
 
 TEST(TissueFit, NeedsContactAndCaptureSamples) {
   SyntheticMassageOptions o;

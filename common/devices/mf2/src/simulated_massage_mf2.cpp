@@ -12,6 +12,40 @@ constexpr int kMaxCatchUpSteps = 200;   // a stalled caller skips ahead instead 
 constexpr uint64_t kTremorSeed = 0x7265'6d6f'7254'0002ULL;
 constexpr uint64_t kWanderSeed = 0x7265'6477'6e61'0003ULL;
 constexpr std::array<double, 2> kWanderRatio = {0.7, 1.3};
+constexpr uint64_t kProtocolSeed = 0x7072'6f74'6f63'0004ULL;
+
+/// smoothRamp's value, slope and curvature at u of a ramp over `width`.
+struct Ramp {
+  double v, dv, ddv;
+};
+Ramp ramp(double u, double width) noexcept {
+  if (!(width > 0.0) || u >= width) return {1.0, 0.0, 0.0};
+  if (u <= 0.0) return {0.0, 0.0, 0.0};
+  const double x = u / width;
+  return {x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x) / width,
+          6.0 * (1.0 - 2.0 * x) / (width * width)};
+}
+
+/// A stroke's phase: the angular speed omega built up and let down over `r` at both ends of
+/// a stroke of `T` seconds (T ≥ 2r): angle, rate, acceleration at u.
+struct StrokePhase {
+  double angle, rate, accel;
+};
+StrokePhase strokePhase(double u, double T, double omega, double r) noexcept {
+  auto rampUp = [&](double x) {  // the angle over the first ramp, and its rate and slope
+    const double v = x / r;
+    return StrokePhase{omega * r * (v * v * v - 0.5 * v * v * v * v),
+                       omega * v * v * (3.0 - 2.0 * v), omega * 6.0 * v * (1.0 - v) / r};
+  };
+  if (u <= 0.0) return {0.0, 0.0, 0.0};
+  if (u >= T) return {omega * (T - r), 0.0, 0.0};
+  if (u < r) return rampUp(u);
+  if (u > T - r) {
+    const StrokePhase e = rampUp(T - u);
+    return {omega * (T - r) - e.angle, e.rate, -e.accel};
+  }
+  return {omega * (u - 0.5 * r), omega, 0.0};
+}
 
 /// Which way a finger presses into the web, in the web frame: the thumb from the dorsal side
 /// (−z), the index from the palmar side (+z).
@@ -86,6 +120,123 @@ Vec3 SimulatedMassageMf2::targetPointW(double t_s) const noexcept {
           0.0};
 }
 
+void SimulatedMassageMf2::setCaptureProtocol(const MassageCaptureProtocol& protocol) {
+  protocol_ = protocol;
+  indents_.clear();
+  strokes_.clear();
+  std::mt19937_64 rng(protocol.seed ^ op_.seed ^ kProtocolSeed);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  auto uniform = [&](const double(&r)[2]) { return r[0] + (r[1] - r[0]) * unit(rng); };
+  auto logUniform = [&](const double(&r)[2]) {
+    return std::exp(std::log(r[0]) + (std::log(r[1]) - std::log(r[0])) * unit(rng));
+  };
+  const Vec3 start = targetPointW(0.0);
+  const double gap = protocol.air_gap_m;
+  // Indentations, after a first lift into the air (0.2 s).
+  double t = 0.2;
+  while (t < protocol.indent_s) {
+    Step st;
+    st.start_s = t;
+    st.x = plan_.centre_x_m + (2.0 * unit(rng) - 1.0) * protocol.spot_m;
+    st.y = plan_.centre_y_m + (2.0 * unit(rng) - 1.0) * protocol.spot_m;
+    st.depth_m = uniform(protocol.indent_depth_m);
+    st.in_s = 1.5 * (st.depth_m + gap) / logUniform(protocol.indent_speed_m_s);
+    st.hold_s = uniform(protocol.indent_hold_s);
+    st.out_s = 1.5 * (st.depth_m + gap) / logUniform(protocol.indent_speed_m_s);
+    st.end_s = t + st.in_s + st.hold_s + st.out_s + uniform(protocol.indent_air_s);
+    indents_.push_back(st);
+    t = st.end_s;
+  }
+  // Strokes through the circle's start point, from the last indentation's end.
+  const double stroke_end = t + protocol.stroke_s;
+  constexpr double kStrokeRamp = 0.3;
+  while (protocol.stroke_s > 0.0 && t < stroke_end) {
+    Step st;
+    st.start_s = t;
+    st.x = start.x();
+    st.y = start.y();
+    st.force_n = uniform(protocol.stroke_force_n);
+    st.dir = kPi * unit(rng);
+    st.half_m = protocol.stroke_half_m;
+    const double T = std::max(uniform(protocol.stroke_contact_s), 2.0 * kStrokeRamp + 0.1);
+    // Whole strokes (back where it started): the peak speed as drawn, rounded to them.
+    const double laps = std::max(1.0, std::round(uniform(protocol.stroke_speed_m_s) *
+                                                 (T - kStrokeRamp) / (2.0 * kPi * st.half_m)));
+    st.omega = 2.0 * kPi * laps / (T - kStrokeRamp);
+    st.end_s = t + T;
+    strokes_.push_back(st);
+    t = st.end_s;
+  }
+  massage_start_s_ = t;
+}
+
+SimulatedMassageMf2::Aim SimulatedMassageMf2::protocolAim(double t_s) const noexcept {
+  Aim a;
+  const Vec3 start = targetPointW(0.0);
+  const double gap = protocol_.air_gap_m;
+  if (!indents_.empty() && t_s < indents_.back().end_s) {
+    a.depth_control = true;
+    if (t_s < indents_.front().start_s) {
+      // Lift into the air and glide to the first spot.
+      const Ramp r = ramp(t_s, indents_.front().start_s);
+      a.depth = -gap * r.v;
+      a.depth_rate = -gap * r.dv;
+      a.depth_accel = -gap * r.ddv;
+      const Vec3 to(indents_.front().x, indents_.front().y, 0.0);
+      a.point = start + (to - start) * r.v;
+      a.velocity = (to - start) * r.dv;
+      a.accel = (to - start) * r.ddv;
+      return a;
+    }
+    std::size_t i = 0;
+    while (i + 1 < indents_.size() && t_s >= indents_[i].end_s) ++i;
+    const Step& st = indents_[i];
+    const double u = t_s - st.start_s, span = st.depth_m + gap;
+    a.point = Vec3(st.x, st.y, 0.0);
+    if (u < st.in_s) {
+      const Ramp r = ramp(u, st.in_s);
+      a.depth = -gap + span * r.v;
+      a.depth_rate = span * r.dv;
+      a.depth_accel = span * r.ddv;
+    } else if (u < st.in_s + st.hold_s) {
+      a.depth = st.depth_m;
+    } else if (u < st.in_s + st.hold_s + st.out_s) {
+      const Ramp r = ramp(u - st.in_s - st.hold_s, st.out_s);
+      a.depth = st.depth_m - span * r.v;
+      a.depth_rate = -span * r.dv;
+      a.depth_accel = -span * r.ddv;
+    } else {
+      a.depth = -gap;
+      // In the air: glide to the next spot (or to the strokes' centre).
+      const double air0 = st.start_s + st.in_s + st.hold_s + st.out_s;
+      const Vec3 to =
+          i + 1 < indents_.size() ? Vec3(indents_[i + 1].x, indents_[i + 1].y, 0.0) : start;
+      const Vec3 from(st.x, st.y, 0.0);
+      const Ramp r = ramp(t_s - air0, st.end_s - air0);
+      a.point = from + (to - from) * r.v;
+      a.velocity = (to - from) * r.dv;
+      a.accel = (to - from) * r.ddv;
+    }
+    return a;
+  }
+  a.point = start;
+  if (strokes_.empty()) return a;
+  std::size_t j = 0;
+  while (j + 1 < strokes_.size() && t_s >= strokes_[j].end_s) ++j;
+  const Step& st = strokes_[j];
+  const double u = t_s - st.start_s;
+  // The press moves from the previous stroke's to this one's over 0.2 s.
+  const double before = j > 0 ? strokes_[j - 1].force_n : st.force_n;
+  a.press = before + (st.force_n - before) * smoothRamp(u, 0.2);
+  const StrokePhase ph = strokePhase(u, st.end_s - st.start_s, st.omega, 0.3);
+  const Vec3 e(std::cos(st.dir), std::sin(st.dir), 0.0);
+  const double sn = std::sin(ph.angle), cs = std::cos(ph.angle);
+  a.point = Vec3(st.x, st.y, 0.0) + st.half_m * sn * e;
+  a.velocity = st.half_m * cs * ph.rate * e;
+  a.accel = st.half_m * (cs * ph.accel - sn * ph.rate * ph.rate) * e;
+  return a;
+}
+
 void SimulatedMassageMf2::integrate(double dt) noexcept {
   const bool perform = performing_.load(std::memory_order_acquire);
   if (perform != was_performing_) {
@@ -93,22 +244,34 @@ void SimulatedMassageMf2::integrate(double dt) noexcept {
     start_ns_ = sim_ns_;
     learned_ = {};
   }
-  // At rest the operator's time stays at 0: no press, the target still at the start point.
-  const double t_s = perform ? static_cast<double>(sim_ns_ - start_ns_) * 1e-9 : 0.0;
+  // At rest the operator's time stays at the massage's start: no press, the target still at
+  // the start point.
+  const double t_all = perform ? static_cast<double>(sim_ns_ - start_ns_) * 1e-9 : massage_start_s_;
+  const bool characterising = t_all < massage_start_s_;
+  const double t_s = t_all - massage_start_s_;  // the massage's own time
   const double s = operatorScale();
   const Quat& q = web_.params().orientation;
   const Phase ph = phaseAt(t_s);
-  const double c = std::cos(ph.angle), sn = std::sin(ph.angle);
-  const Vec3 target(plan_.centre_x_m + radius_m_ * c, plan_.centre_y_m + radius_m_ * sn, 0.0);
-  const Vec3 target_v = radius_m_ * ph.rate * Vec3(-sn, c, 0.0);
-  const Vec3 target_a =
-      radius_m_ * (ph.accel * Vec3(-sn, c, 0.0) - ph.rate * ph.rate * Vec3(c, sn, 0.0));
-  const double press = targetPressN(t_s);
+  double c = std::cos(ph.angle), sn = std::sin(ph.angle);
+  Vec3 target(plan_.centre_x_m + radius_m_ * c, plan_.centre_y_m + radius_m_ * sn, 0.0);
+  Vec3 target_v = radius_m_ * ph.rate * Vec3(-sn, c, 0.0);
+  Vec3 target_a = radius_m_ * (ph.accel * Vec3(-sn, c, 0.0) - ph.rate * ph.rate * Vec3(c, sn, 0.0));
+  double press = targetPressN(t_s);
+  Aim aim;
+  if (characterising) {
+    aim = protocolAim(t_all);
+    target = aim.point;
+    target_v = aim.velocity;
+    target_a = aim.accel;
+    press = aim.press;
+    c = 1.0;
+    sn = 0.0;
+  }
 
   // The tremor of each finger and web axis (reference N), ramped in with the press.
   PerFinger<Vec3> tremor{Vec3::Zero(), Vec3::Zero()};
   if (op_.tremor_n > 0.0) {
-    const double gain = smoothRamp(t_s, plan_.ramp_s) * op_.tremor_n;
+    const double gain = smoothRamp(t_all, plan_.ramp_s) * op_.tremor_n;
     for (int k = 0; k < 2; ++k) {
       for (int a = 0; a < 3; ++a) tremor[k][a] = gain * tremor_[k][a].step(tremor_noise_());
     }
@@ -122,7 +285,7 @@ void SimulatedMassageMf2::integrate(double dt) noexcept {
     // damper to the circle's target across it plus the drag it has learned, and the
     // feed-forward of its own inertia.
     const double ex = target.x() - pw.x(), ey = target.y() - pw.y();
-    if (dyn_.adapt_s > 0.0) {
+    if (dyn_.adapt_s > 0.0 && !characterising) {
       const double gain = dyn_.hand_stiffness_n_per_m / dyn_.adapt_s * dt;
       learned_[k][0] += gain * (ex * c + ey * sn);
       learned_[k][1] += gain * (-ex * sn + ey * c);
@@ -136,7 +299,20 @@ void SimulatedMassageMf2::integrate(double dt) noexcept {
     fw.y() = s * (dyn_.hand_stiffness_n_per_m * ey +
                   dyn_.hand_damping_n_s_per_m * (target_v.y() - vw.y()) + ly + tremor[k].y()) +
              dyn_.mass_kg * target_a.y();
-    fw.z() = d * s * (press + tremor[k].z() - dyn_.press_damping_n_s_per_m * d * vw.z());
+    if (characterising && aim.depth_control) {
+      // Indenting: the hand drives the depth (a stiff spring and damper to the planned depth
+      // and the feed-forward of its inertia), pressing no harder than the protocol allows.
+      const double depth = web_.depthOf(k, p_[k]), rate = d * vw.z();
+      const double kp = protocol_.press_stiffness_n_per_m;
+      // Damped at 0.7 of critical: more, and the 1 kHz step rings (the damper's share of a
+      // step, kd·dt/m, near 1).
+      const double kd = 1.4 * std::sqrt(kp * dyn_.mass_kg);
+      const double push = kp * (aim.depth - depth) + kd * (aim.depth_rate - rate) +
+                          dyn_.mass_kg * aim.depth_accel + tremor[k].z();
+      fw.z() = d * std::clamp(push, -protocol_.indent_max_force_n, protocol_.indent_max_force_n);
+    } else {
+      fw.z() = d * s * (press + tremor[k].z() - dyn_.press_damping_n_s_per_m * d * vw.z());
+    }
     operator_force_[k] = q * fw;
 
     Vec3 external;
@@ -146,6 +322,10 @@ void SimulatedMassageMf2::integrate(double dt) noexcept {
     } else {
       external = hw_.rendered()[k];
     }
+    // The forces of this step are those of the state it starts from: a capture's sample
+    // reports that state, so that the thimble's force and its position are of one instant
+    // (one step apart, the damping λ·δ̇ would read off by n·dt/δ, as much as λ itself).
+    sampled_p_[k] = p_[k];
     v_[k] += (operator_force_[k] + external) / dyn_.mass_kg * dt;  // semi-implicit Euler
     p_[k] += v_[k] * dt;
   }
@@ -176,7 +356,7 @@ bool SimulatedMassageMf2::read(DeviceSample& out) noexcept {
   advanceTo(clock_.nowNs());
   PerFinger<mf2::ThimblePose> truth, pose;
   for (int k = 0; k < 2; ++k) {
-    truth[k].position_m = p_[k];
+    truth[k].position_m = capturing_ && seq_ > 0 ? sampled_p_[k] : p_[k];
     truth[k].orientation = thimble_[k];
   }
   if (!hw_.measurePoses(truth, pose)) return false;  // out of the linkage's reach

@@ -28,6 +28,8 @@
 /// SimulatedMf2Hardware. read() and write() allocate nothing.
 #include <array>
 #include <atomic>
+#include <cstdint>
+#include <vector>
 
 #include "telehand/config/config.h"
 #include "telehand/core/clock.h"
@@ -53,6 +55,36 @@ struct MassagePlan {
   /// The press and the circling speed build up over this (smoothRamp), from rest on the
   /// circle's start point (angle 0: +x of the centre) at the surface.
   double ramp_s = 0.5;
+};
+
+/// A capture's characterisation of the web before the massage (docs/capture.md "The
+/// capture protocol"), as a clinician examining tissue does, the thumb and index together:
+///  - indentations: from just above the skin to a depth (or to indent_max_force_n, whichever
+///    comes first) and back out, each at its own spot, depth and speed, the hand driving the
+///    depth (the stiffness, its exponent and the damping λ: the force at many depths and
+///    depth rates);
+///  - strokes: back and forth along a line at a light press and a fast pace, each with its
+///    own press, speed and direction (the skin's viscous drag apart from its friction: b·v
+///    does not grow with the press, mu·F does not grow with the speed);
+/// then the plan's circles.
+struct MassageCaptureProtocol {
+  double indent_s = 16.0;
+  double stroke_s = 12.0;
+  double indent_depth_m[2] = {0.004, 0.012};  ///< aimed at, drawn per indentation
+  /// The hand presses no harder: the MF-2's pad FSR saturates at about 22.5 N (4000 counts
+  /// at the default calibration), 24 N along the pad normal.
+  double indent_max_force_n = 20.0;
+  double indent_speed_m_s[2] = {0.08, 0.3};  ///< peak depth rate in and out (log-uniform)
+  double indent_hold_s[2] = {0.02, 0.1};
+  double indent_air_s[2] = {0.04, 0.1};
+  double air_gap_m = 0.002;                  ///< how far above the skin between indentations
+  double spot_m = 0.008;                     ///< indentation spots within ± this of the centre
+  double press_stiffness_n_per_m = 10000.0;  ///< the hand along the normal while indenting
+  double stroke_force_n[2] = {0.5, 2.5};     ///< press per stroke contact
+  double stroke_speed_m_s[2] = {0.15, 0.5};  ///< peak speed per stroke contact
+  double stroke_half_m = 0.011;              ///< half length of the stroke
+  double stroke_contact_s[2] = {1.5, 2.5};
+  uint64_t seed = 1;
 };
 
 /// The hand and the moving mass, per thimble; impedances at reference scale.
@@ -82,6 +114,11 @@ class SimulatedMassageMf2 final : public Device {
   /// tissueContact at reference scale, the operator presses at reference scale and the
   /// actuators are off (write() renders nothing). Call before the first read.
   void setPatient(const TissueParams& truth) noexcept;
+  /// In a capture, characterise the web first (MassageCaptureProtocol), then massage it as
+  /// the plan says. Call before the first read (it plans, and allocates).
+  void setCaptureProtocol(const MassageCaptureProtocol& protocol);
+  /// When the plan's circles start, s from the first read (0 without a protocol).
+  double massageStartS() const noexcept { return massage_start_s_; }
   /// Thimble measurement error (the paper's 1.43 N): N(0, sigma^2) newtons at the sensor
   /// added to each finger's normal and to its side (tangential) force before they are split
   /// over the FSRs, independently per sample; the fingers move under the true force.
@@ -129,6 +166,21 @@ class SimulatedMassageMf2 final : public Device {
     double angle, rate, accel;  // rad, rad/s, rad/s^2 of the target on its circle
   };
   Phase phaseAt(double t_s) const noexcept;
+  /// One indentation or stroke contact of the protocol.
+  struct Step {
+    double start_s = 0.0, in_s = 0.0, hold_s = 0.0, out_s = 0.0, end_s = 0.0;
+    double x = 0.0, y = 0.0;  ///< spot (indentation) or the stroke's centre, web frame
+    double depth_m = 0.0;     ///< indentation
+    double force_n = 0.0, omega = 0.0, dir = 0.0, half_m = 0.0;  ///< stroke
+  };
+  /// What the hand aims at during the protocol (t_s < massage_start_s_): along the normal a
+  /// depth (indenting) or a press; across it a point on the web.
+  struct Aim {
+    bool depth_control = false;
+    double depth = 0.0, depth_rate = 0.0, depth_accel = 0.0, press = 0.0;
+    Vec3 point = Vec3::Zero(), velocity = Vec3::Zero(), accel = Vec3::Zero();
+  };
+  Aim protocolAim(double t_s) const noexcept;
   void advanceTo(int64_t t_ns) noexcept;
   void integrate(double dt) noexcept;
 
@@ -161,8 +213,12 @@ class SimulatedMassageMf2 final : public Device {
   uint64_t seq_ = 0;
   PerFinger<Vec3> p_{Vec3::Zero(), Vec3::Zero()};
   PerFinger<Vec3> v_{Vec3::Zero(), Vec3::Zero()};
+  PerFinger<Vec3> sampled_p_{Vec3::Zero(), Vec3::Zero()};  // where the last step's forces were
   PerFinger<Vec3> operator_force_{Vec3::Zero(), Vec3::Zero()};
   PerFinger<std::array<double, 2>> learned_{};  // radial, along travel (reference N)
+  MassageCaptureProtocol protocol_;
+  std::vector<Step> indents_, strokes_;
+  double massage_start_s_ = 0.0;
 };
 
 }  // namespace telehand::devices

@@ -6,8 +6,13 @@
 /// Self-contained: the fingers' path is given directly in the device frame (no linkage, no
 /// loop), the forces come from tissueContact, so the fit can be checked against a known web.
 ///
-/// The clinician (docs/capture.md "Massage"): contacts of a few seconds, each pressed in from
-/// the air at its own speed, a few circles at 10 ± 2 N (harder on one side of each circle),
+/// The clinician (docs/capture.md "Massage"): first characterises the web as a clinician
+/// examining tissue does, then massages it. The characterisation: indentations from the air
+/// to depths of up to 10 mm at speeds from 2 to 30 cm/s (how the force grows with the depth
+/// and with the depth rate: k, n, λ), then light, fast strokes back and forth (the skin's
+/// viscous drag apart from its friction: b·v does not grow with the press, μ·F does not
+/// grow with the speed). The massage: contacts of a few seconds, each pressed in from the
+/// air at its own speed, a few circles at 10 ± 2 N (harder on one side of each circle),
 /// speeding up and slowing down, now and then turning back the other way, then lifted off.
 /// The thimbles sit a few degrees off the surface normal and turn about it as a hand does.
 #include <cstdint>
@@ -38,6 +43,25 @@ struct SyntheticMassageOptions {
   /// How fast the pad goes in at the touch and out at the release (peak), drawn per contact.
   double press_speed_m_s[2] = {0.02, 0.15};
   double contact_s[2] = {2.0, 6.0};  ///< time on the skin per contact
+  /// The characterisation before the massage (0 s: none), per finger.
+  double indent_s = 20.0;  ///< indentations
+  double stroke_s = 20.0;  ///< strokes
+  /// An indentation presses in from the air gap to the depth of a force drawn from this
+  /// range (log-uniform; no deeper than indent_depth_max_m), holds it for indent_hold_s and
+  /// comes back out, in and out each at a peak depth rate drawn from indent_speed_m_s
+  /// (log-uniform).
+  double indent_force_n[2] = {4.0, 30.0};
+  double indent_depth_max_m = 0.010;
+  double indent_speed_m_s[2] = {0.1, 0.5};
+  double indent_hold_s[2] = {0.02, 0.1};
+  double indent_air_s[2] = {0.03, 0.1};  ///< in the air between indentations
+  /// A stroke contact: back and forth along a line through the contact area (half length
+  /// drawn from stroke_half_m) at a peak speed drawn from stroke_speed_m_s, pressing with a
+  /// force drawn from stroke_force_n, for stroke_contact_s.
+  double stroke_force_n[2] = {0.5, 2.5};
+  double stroke_speed_m_s[2] = {0.15, 0.5};
+  double stroke_half_m[2] = {0.008, 0.014};
+  double stroke_contact_s[2] = {1.5, 3.0};
   double air_s[2] = {0.15, 0.5};     ///< time in the air between contacts
   double air_gap_m = 0.002;          ///< how far above the skin the pad lifts
   double reverse_probability = 0.5;  ///< a contact turns its circling back once

@@ -31,8 +31,9 @@
 ///    the exact sawtooth at the fitted values.
 /// Standard errors: the normal block's from its Jacobian (σ²·(JᵀJ)⁻¹), the friction's from a
 /// delete-a-group jackknife over the contacts (the model's averaging, not the noise, sets
-/// their spread). What is and is not identifiable from a massage at 10 ± 2 N with 1.43 N of
-/// noise is in docs/capture.md "Massage".
+/// their spread). A massage at 10 ± 2 N alone does not hold k, λ and b within 10 % at
+/// 1.43 N of noise; the capture protocol (indentations, light fast strokes, then the
+/// circles) does: docs/capture.md "Massage".
 #include <array>
 #include <cstdint>
 #include <string>
@@ -49,11 +50,14 @@ namespace telehand::server::estimate {
 struct TissuePoint {
   uint64_t seq = 0;
   int64_t t_ns = 0;
-  Vec3 p_device = Vec3::Zero();                     ///< thimble centre
-  Vec3 v_device = Vec3::Zero();                     ///< its velocity (central differences), m/s
-  Vec3 side_device = Vec3::UnitY();                 ///< the thimble's side axis (eq. 1's direction)
-  Vec3 pad_device = Vec3::UnitZ();                  ///< its pad normal (eq. 2's direction)
+  Vec3 p_device = Vec3::Zero();      ///< thimble centre
+  Vec3 v_device = Vec3::Zero();      ///< its velocity (central differences), m/s
+  Vec3 side_device = Vec3::UnitY();  ///< the thimble's side axis (eq. 1's direction)
+  Vec3 pad_device = Vec3::UnitZ();   ///< its pad normal (eq. 2's direction)
+  /// Its acceleration (second differences over twice the velocity's window), m/s².
+  Vec3 a_device = Vec3::Zero();
   Vec3 p_web = Vec3::Zero(), v_web = Vec3::Zero();  ///< the same in the nominal web frame
+  Vec3 a_web = Vec3::Zero();
   Vec3 side_web = Vec3::UnitY(), pad_web = Vec3::UnitZ();
   double tangential_n = 0.0;  ///< eq. 1 as measured
   double normal_n = 0.0;      ///< eq. 2 as measured
@@ -67,6 +71,10 @@ struct TissueFitOptions {
   bool normal_cut_at_zero = true;
   /// Central difference half window for velocities, samples.
   int rate_half_window = 2;
+  /// Estimate the mass between the sensors and the skin (thimble and link, kg): the
+  /// thimbles then measure the web's force plus that mass times its acceleration, which
+  /// fast indentations make a newton or more.
+  bool fit_mass = true;
   /// Estimate each side's surface offset from the nominal geometry (within ± this, m).
   bool fit_surface = true;
   double max_surface_offset_m = 0.004;
@@ -100,6 +108,11 @@ struct TissueFit {
   TissueParams params;
   FittedValue stiffness, exponent, damping, lateral_stiffness, mu_static, mu_kinetic, viscous;
   FittedValue patch_stiffness_factor, patch_friction_factor;  ///< se NaN when not fitted
+  /// The normal force at the reference depth (the contact depths' geometric mean): what the
+  /// capture pins down of the stiffness apart from n (k = force_at_ref / ref_depth^n).
+  FittedValue force_at_ref;
+  double ref_depth_m = 0.0;
+  FittedValue thimble_mass_kg;  ///< se NaN when not fitted
   bool patch_fitted = false;
   PerFinger<FittedValue> surface_offset_m{};  ///< + deeper than nominal (the skin sits higher)
   double normal_rms_n = 0.0;                  ///< RMS residual of eq. 2
