@@ -123,9 +123,10 @@ TEST_P(MassageTest, ATwentySecondMassageStaysInBandUnderTheDeviceLimitAndIsRecor
 INSTANTIATE_TEST_SUITE_P(Webs, MassageTest, ::testing::Values("healthy", "hypertonic", "oedema"));
 
 // A massage lesson (docs/lessons.md "Massage lessons"): a clinician's massage on the scar
-// becomes a lesson, which refuses guided trials, a take-over and a mobilization's client; the
+// becomes a lesson of a guided trial and two attempts, which refuses a take-over and a
+// mobilization's client; the guided trial is scored like the others; in the attempts the
 // clinician's own hand scores above a student who presses 1.5 N too hard and circles 0.3 Hz too
-// fast, every trial is in the record with the massage's figures, and the report draws it.
+// fast; every trial is in the record with the massage's figures, and the report draws it.
 TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
   char tmpl[] = "/tmp/telehand-massage-lesson-XXXXXX";
   const fs::path dir = mkdtemp(tmpl);
@@ -161,17 +162,13 @@ TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
     return run(name, v);
   };
   // What a massage lesson cannot have is refused, naming it.
-  const auto [guided_rc, guided_out] =
-      records("guided", {"lesson", "create", "--demo", demo, "--guided", "2"});
-  EXPECT_EQ(guided_rc, 2);
-  EXPECT_NE(guided_out.find("no guided trials"), std::string::npos) << guided_out;
   const auto [take_rc, take_out] =
       records("takeover", {"lesson", "create", "--demo", demo, "--takeover"});
   EXPECT_EQ(take_rc, 2);
   EXPECT_NE(take_out.find("--takeover"), std::string::npos) << take_out;
   const auto [create_rc, create_out] =
-      records("create", {"lesson", "create", "--demo", demo, "--attempts", "2", "--trial-seconds",
-                         "5", "--schedule", "terminal"});
+      records("create", {"lesson", "create", "--demo", demo, "--guided", "1", "--attempts", "2",
+                         "--trial-seconds", "5", "--schedule", "terminal"});
   ASSERT_EQ(create_rc, 0) << create_out;
   ASSERT_TRUE(std::regex_search(
       create_out, m,
@@ -201,9 +198,13 @@ TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
       student("student", {"--force-bias", "1.5", "--frequency-error", "0.3"});
   ASSERT_EQ(weak_rc, 0) << weak_out << server.output();
   for (const std::string* out : {&good_out, &weak_out}) {
-    EXPECT_NE(out->find("0 guided trial(s) and 2 attempt(s)"), std::string::npos) << *out;
-    EXPECT_NE(out->find("feedback: trial 2 (attempt): massage: press"), std::string::npos) << *out;
-    EXPECT_NE(out->find("lesson: 2 of 2 trials run"), std::string::npos) << *out;
+    EXPECT_NE(out->find("1 guided trial(s) and 2 attempt(s)"), std::string::npos) << *out;
+    EXPECT_NE(out->find("trial 1: guided, the device leads (100 % authority)"), std::string::npos)
+        << *out;
+    EXPECT_NE(out->find("feedback: trial 1 (guided 100 %): massage: press"), std::string::npos)
+        << *out;
+    EXPECT_NE(out->find("feedback: trial 3 (attempt): massage: press"), std::string::npos) << *out;
+    EXPECT_NE(out->find("lesson: 3 of 3 trials run"), std::string::npos) << *out;
   }
   EXPECT_EQ(server.stop(), 0) << server.output();
 
@@ -217,12 +218,15 @@ TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
     return std::vector<server::store::TrialRecord>{};
   };
   const auto good = runs("clinician-again"), weak = runs("student");
-  ASSERT_EQ(good.size(), 2u);
-  ASSERT_EQ(weak.size(), 2u);
-  for (std::size_t i = 0; i < 2; ++i) {
-    EXPECT_EQ(good[i].phase, "attempt");
+  ASSERT_EQ(good.size(), 3u);
+  ASSERT_EQ(weak.size(), 3u);
+  EXPECT_EQ(good[0].phase, "guided");
+  EXPECT_DOUBLE_EQ(good[0].authority, 1.0);
+  for (std::size_t i = 0; i < 3; ++i) {
     EXPECT_NE(good[i].figures.find("radius_m="), std::string::npos) << good[i].figures;
     EXPECT_NE(good[i].figures.find("missing=0;"), std::string::npos) << good[i].figures;
+    if (i == 0) continue;  // the attempts: the student's own hand
+    EXPECT_EQ(good[i].phase, "attempt");
     EXPECT_GT(good[i].overall, 85.0) << good[i].figures;
     EXPECT_LT(weak[i].overall, good[i].overall - 15.0) << weak[i].figures;
     const std::regex err(R"(normal_error_n=([-0-9.e]+);.*frequency_error_hz=([-0-9.e]+);)");
@@ -237,7 +241,7 @@ TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
       records("report", {"report", "--lesson", lesson, "-o", dir.string()});
   ASSERT_EQ(report_rc, 0) << report_out;
   ASSERT_TRUE(
-      std::regex_search(report_out, m, std::regex(R"(report: (\S+\.html) \(massage, 2 trials)")))
+      std::regex_search(report_out, m, std::regex(R"(report: (\S+\.html) \(massage, 3 trials)")))
       << report_out;
   std::ifstream page(m[1].str());
   std::stringstream html;

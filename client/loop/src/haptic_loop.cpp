@@ -61,6 +61,10 @@ StepStatus HapticLoop::step() noexcept {
   if (health_.ticks.load(std::memory_order_relaxed) == 0) first_tick_ns_ = now;
   JointModelParams next;
   while (models_->tryPop(next)) {
+    // A massage's guide leads the contact point on the web (its path is not the joint's).
+    GuideParams web_guide{};
+    if (next.technique == Technique::kMassage) std::swap(web_guide, next.guide);
+    web_guide_.set(web_guide, last_sample_time_ns_);
     proxy_.setModel(next);
     tissue_.setParams(next.tissue, next.force_scale);
     bump(health_.models_applied);
@@ -110,15 +114,25 @@ StepStatus HapticLoop::step() noexcept {
   const bool massage = proxy_.model().params().technique == Technique::kMassage;
   stored_energy_j_ = massage ? web.potential_j : rendered.potential_j;
   health_.guide_nm.store(rendered.guide_ref_nm.cwiseAbs().maxCoeff(), std::memory_order_relaxed);
-  health_.guide_authority.store(proxy_.model().params().guide.authority, std::memory_order_relaxed);
+  health_.guide_authority.store(
+      massage ? web_guide_.current().authority : proxy_.model().params().guide.authority,
+      std::memory_order_relaxed);
   const bool direct = direct_.load(std::memory_order_relaxed);
   DirectForceSample df;
   while (forces_->tryPop(df)) {
     if (df.device_seq >= direct_force_.device_seq) direct_force_ = df;  // reordered: keep newest
     bump(health_.direct_forces);
   }
+  PerFinger<Vec3> massage_force = web.force_device_n;
+  if (massage) {
+    const PerFinger<Vec3> guide =
+        web_guide_.force(tissue_.model(), p, tissue_.velocities(), sample_.time_ns,
+                         proxy_.model().params().force_scale);
+    for (int k = 0; k < 2; ++k) massage_force[k] += guide[k];
+    health_.guide_web_n.store(web_guide_.lastReferenceN(), std::memory_order_relaxed);
+  }
   const PerFinger<Vec3>& request = direct    ? direct_force_.force_n
-                                   : massage ? web.force_device_n
+                                   : massage ? massage_force
                                              : rendered.force_device_n;
   PassivityOutput guarded = passivity_.control(request);
   // After a fault nothing is rendered: zero, still through the gate (its rate limit).

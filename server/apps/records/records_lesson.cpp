@@ -44,15 +44,10 @@ TissueParams webOf(const std::string& cases_dir, const std::string& case_name) {
 }
 
 int createMassageLesson(SessionStore& store, const LessonRequest& r, const SessionInfo& demo) {
-  if (r.guided_given && r.guided > 0) {
-    throw Error("--guided " + std::to_string(r.guided) + ": session " + std::to_string(r.demo) +
-                " is a massage, and a massage lesson has no guided trials (the guide leads the "
-                "joint's path)");
-  }
   if (r.takeover) {
     throw Error("--takeover: session " + std::to_string(r.demo) +
-                " is a massage, and a take-over leads guided trials, which a massage lesson has "
-                "none of");
+                " is a massage, and a take-over follows a supervisor's mobilization; a massage "
+                "lesson's guided trials follow its demonstration");
   }
   const double scale = forceScaleOf(r.cases_dir, demo.case_name);
   const TissueParams web = webOf(r.cases_dir, demo.case_name);
@@ -64,7 +59,7 @@ int createMassageLesson(SessionStore& store, const LessonRequest& r, const Sessi
   l.case_name = demo.case_name;
   l.technique = "massage";
   l.schedule = r.schedule;
-  l.guided = 0;
+  l.guided = r.guided;
   l.attempts = r.attempts;
   l.trial_s = r.trial_s;
   l.assessment = false;
@@ -78,8 +73,8 @@ int createMassageLesson(SessionStore& store, const LessonRequest& r, const Sessi
             << " N), circles of " << 1000.0 * t.radius_m << " mm at " << t.frequency_hz
             << " Hz, circularity " << t.circularity << ", tangential/normal " << t.tangential_ratio
             << ", " << std::setprecision(0) << t.laps << " laps; " << std::setprecision(2)
-            << l.attempts << " attempts of " << l.trial_s << " s, " << l.schedule
-            << " feedback (no guided trial, no exploration: they are the joint's)\n"
+            << l.guided << " guided + " << l.attempts << " attempts of " << l.trial_s << " s, "
+            << l.schedule << " feedback (no exploration: it measures the joint's range)\n"
             << "run it: telehand-client --technique massage --lesson " << id << "\n";
   return 0;
 }
@@ -179,8 +174,8 @@ int runLessonShow(SessionStore& store, uint64_t lesson_id) {
               << ", band " << m.band_min_n << "-" << m.band_max_n << " N), circles of "
               << 1000.0 * m.radius_m << " mm at " << m.frequency_hz << " Hz, circularity "
               << m.circularity << ", tangential/normal " << m.tangential_ratio
-              << "\n  plan: " << l->attempts << " attempt(s) of " << l->trial_s << " s, "
-              << l->schedule << " feedback\n";
+              << "\n  plan: " << l->guided << " guided trial(s), " << l->attempts
+              << " attempt(s) of " << l->trial_s << " s, " << l->schedule << " feedback\n";
   } else {
     const technique::Targets t = server::lesson::decodeTargets(l->targets);
     std::cout << std::fixed << std::setprecision(2) << "lesson " << l->id << ": " << l->name

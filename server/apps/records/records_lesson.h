@@ -15,7 +15,6 @@ struct LessonRequest {
   std::string name;
   std::string schedule = "terminal";
   int guided = 2, attempts = 3;
-  bool guided_given = false;  ///< --guided was on the command line
   double trial_s = 8.0;
   bool assessment = true;
   bool takeover = false;  ///< a supervisor may take over the demonstration

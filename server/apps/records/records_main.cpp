@@ -106,7 +106,7 @@ int main(int argc, char** argv) {
   lcreate
       ->add_option("--demo", lesson_req.demo,
                    "the demonstration: a mobilization session, or a massage session (a "
-                   "massage lesson has attempts only: no guided trial, no exploration)")
+                   "massage lesson has no exploration and no take-over)")
       ->required();
   lcreate->add_option("--name", lesson_req.name, "what the lesson is called");
   lcreate
@@ -115,9 +115,9 @@ int main(int argc, char** argv) {
                    "(ever fewer), self (when the student asks)")
       ->check(CLI::IsMember({"concurrent", "terminal", "faded", "self"}))
       ->capture_default_str();
-  auto* guided_opt = lcreate->add_option("--guided", lesson_req.guided,
-                                         "guided trials (authority full down to low)");
-  guided_opt->check(CLI::Range(0, 10))->capture_default_str();
+  lcreate->add_option("--guided", lesson_req.guided, "guided trials (authority full down to low)")
+      ->check(CLI::Range(0, 10))
+      ->capture_default_str();
   lcreate->add_option("--attempts", lesson_req.attempts, "free attempts after them")
       ->check(CLI::Range(1, 20))
       ->capture_default_str();
@@ -153,7 +153,6 @@ int main(int argc, char** argv) {
     if (*lesson && *lcreate) {
       lesson_req.db = db;
       lesson_req.assessment = !no_assessment;
-      lesson_req.guided_given = guided_opt->count() > 0;
       return telehand::records::runLessonCreate(lesson_req);
     }
     if (*synth) {

@@ -318,12 +318,25 @@ LessonPlan planOf(const store::LessonInfo& l, const technique::Targets& t, doubl
   return p;
 }
 
+GuideParams guideFor(const technique::MassageTargets& t, double authority) {
+  GuideParams g;
+  g.authority = std::clamp(authority, 0.0, 1.0);
+  g.period_s = 1.0 / std::max(std::abs(t.frequency_hz), 0.1);
+  const double turn = t.frequency_hz < 0.0 ? -1.0 : 1.0;
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    const double a = turn * 2.0 * M_PI * k / GuideParams::kPoints;
+    g.path_rad[static_cast<std::size_t>(k)] = Vec3(t.centre_w.x() + t.radius_m * std::cos(a),
+                                                   t.centre_w.y() + t.radius_m * std::sin(a), 0.0);
+  }
+  return g;
+}
+
 LessonPlan planOf(const store::LessonInfo& l, const technique::MassageTargets& t, double demo_s) {
   LessonPlan p;
   p.lesson_id = l.id;
   p.technique = "massage";
   p.schedule = l.schedule;
-  p.guided = 0;
+  p.guided = l.guided;
   p.attempts = l.attempts;
   p.trial_s = l.trial_s;
   p.assessment = false;

@@ -217,7 +217,8 @@ void Session::setGuide(double authority, int64_t now_ns) {
   std::optional<technique::Targets> taken;
   if (guide_authority_ > 0.0) {
     if (takeover_source_ != 0) taken = takeoverTargets(now_ns);
-    next.guide = lesson::guideFor(taken ? *taken : lesson->targets, authority);
+    next.guide = lesson->massage ? lesson::guideFor(*lesson->massage, authority)
+                                 : lesson::guideFor(taken ? *taken : lesson->targets, authority);
     next_takeover_ns_ = now_ns + kTakeoverRefreshNs;
   }
   if (next.guide == params.guide) return;
@@ -356,8 +357,8 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   if (!known) {
     return refuse("a lesson knows baseline, watch, guided, attempt, rest and reassessment");
   }
-  if (lesson->massage && (phase == "guided" || phase == "baseline" || phase == "reassessment")) {
-    return refuse("a massage lesson has no guided trial and no exploration (both are the joint's)");
+  if (lesson->massage && (phase == "baseline" || phase == "reassessment")) {
+    return refuse("a massage lesson has no exploration (it measures the joint's range)");
   }
   if (phase == "guided" && !(cmd.value > 0.0 && cmd.value <= 1.0)) {
     return refuse("a guided trial's authority must be in (0, 1]");

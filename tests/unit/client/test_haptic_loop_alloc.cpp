@@ -492,6 +492,79 @@ TEST(HapticLoopAlloc, MassageStepAndTissueUpdatesMidRunAllocateNothing) {
   EXPECT_EQ(h.fault.load(), 0u);
 }
 
+TEST(HapticLoopAlloc, AMassageGuideLeadsThroughTheGateFadesAndAllocatesNothing) {
+  // A massage lesson's guided trials: the clinician circles while a guide at full, then half
+  // authority leads round a circle 2 mm wider than the clinician's, then none. The guide's
+  // force stays within authority times its bound, nothing passes the gate, no step allocates,
+  // and the guide is gone after the last update.
+  ManualClock clock(kNsPerS);
+  JointModelParams model = healthyIndexMcp();
+  model.technique = Technique::kMassage;
+  model.tissue = tissueCase("healthy");
+  devices::SimulatedMassageMf2 sim(model.tissue, OperatorConfig{}, clock, model.force_scale);
+  TestDevice dev(sim);
+  SafetyLimits limits;
+  HapticLoop hl(dev, clock, model, limits);
+  auto guided = [&](uint32_t version, double authority) {
+    JointModelParams m = model;
+    m.version = version;
+    m.guide.authority = authority;
+    m.guide.period_s = 1.0 / 1.5;
+    for (int k = 0; k < GuideParams::kPoints; ++k) {
+      const double a = 2.0 * kPi * k / GuideParams::kPoints;
+      m.guide.path_rad[static_cast<std::size_t>(k)] =
+          Vec3(0.008 * std::cos(a), 0.008 * std::sin(a), 0.0);
+    }
+    return m;
+  };
+  const JointModelParams full = guided(2, 1.0), half = guided(3, 0.5);
+  JointModelParams none = model;
+  none.version = 4;
+  std::size_t allocations = 0;
+  double guide_max[3] = {0, 0, 0};
+  double command_max = 0.0;
+  Sample s;
+  for (int i = 0; i < 7000; ++i) {
+    clock.advance(kNsPerMs);
+    if (i == 1000) {
+      ASSERT_TRUE(hl.models().tryPush(full));
+    }
+    if (i == 3500) {
+      ASSERT_TRUE(hl.models().tryPush(half));
+    }
+    if (i == 5500) {
+      ASSERT_TRUE(hl.models().tryPush(none));
+    }
+    {
+      AllocationGuard guard;
+      hl.step();
+      allocations += guard.allocations() + guard.deallocations();
+    }
+    const double g = hl.health().guide_web_n.load();
+    if (i >= 1300 && i < 3500) guide_max[0] = std::max(guide_max[0], g);
+    if (i >= 3800 && i < 5500) guide_max[1] = std::max(guide_max[1], g);
+    if (i >= 5800) guide_max[2] = std::max(guide_max[2], g);
+    while (hl.samples().tryPop(s)) {
+      for (int k = 0; k < 2; ++k) {
+        command_max = std::max(
+            command_max,
+            Vec3(s.fingers[k].command_n[0], s.fingers[k].command_n[1], s.fingers[k].command_n[2])
+                .norm());
+      }
+    }
+  }
+  EXPECT_EQ(allocations, 0u);
+  const double bound = std::sqrt(2.0) * full.guide.max_force_n;  // both web axes at the bound
+  EXPECT_GT(guide_max[0], 1.0) << "the guide pulls toward its wider circle";
+  EXPECT_LE(guide_max[0], bound + 1e-9);
+  EXPECT_GT(guide_max[1], 0.3);
+  EXPECT_LE(guide_max[1], 0.5 * bound + 1e-9);
+  EXPECT_EQ(guide_max[2], 0.0) << "no guide after the last update";
+  EXPECT_LE(command_max, limits.max_force_n + 1e-9);
+  EXPECT_EQ(hl.health().fault.load(), 0u);
+  EXPECT_EQ(hl.health().guide_nm.load(), 0.0) << "the joint's proxy never saw the web's path";
+}
+
 TEST(HapticLoopOverrun, EveryOverrunFlagsTheNextSample) {
   SteadyClock clock;
   const JointModelParams model = healthyIndexMcp();

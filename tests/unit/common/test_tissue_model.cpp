@@ -6,6 +6,7 @@
 #include <random>
 
 #include "telehand/core/tissue_model.h"
+#include "telehand/core/web_guide.h"
 
 namespace telehand {
 namespace {
@@ -204,6 +205,99 @@ TEST(TissueProxy, ANewParameterSetFadesInWithoutAStep) {
   EXPECT_LT(largest_step, std::abs(gap) / 150.0);  // spread over the 200 ms fade
   EXPECT_FALSE(out.blending);
   EXPECT_NEAR(last, 0.25 * TissueModel(b).normalForceN(0.005, 0), 1e-6);
+}
+
+}  // namespace
+}  // namespace telehand
+
+namespace telehand {
+namespace {
+
+// A pair of free thimbles (nothing but their mass and a little damping, off the web) led by a
+// massage guide alone goes round the guide's circle at its laps per second; a guide replaced
+// mid-lap fades over 200 ms without a step; no guide, no force.
+TEST(WebGuide, LeadsFreeThimblesRoundTheCircleAndFadesWithoutAStep) {
+  TissueParams web = tissueCase("healthy");
+  web.orientation = Quat(Eigen::AngleAxisd(0.4, Vec3(1.0, 2.0, 0.5).normalized()));
+  web.origin_m = Vec3(0.01, -0.02, 0.03);
+  const TissueModel model(web);
+  for (const double freq : {1.2, -2.0}) {
+    GuideParams g;
+    g.authority = 1.0;
+    g.stiffness_n_per_deg = 1.0;  // N/mm for a massage guide
+    g.period_s = 1.0 / std::abs(freq);
+    const double r = 0.005;
+    for (int k = 0; k < GuideParams::kPoints; ++k) {
+      const double a = (freq < 0 ? -1.0 : 1.0) * 2.0 * kPi * k / GuideParams::kPoints;
+      g.path_rad[static_cast<std::size_t>(k)] = Vec3(0.001 + r * std::cos(a), r * std::sin(a), 0);
+    }
+    WebGuide guide;
+    EXPECT_EQ(
+        guide.force(model, {Vec3::Zero(), Vec3::Zero()}, {Vec3::Zero(), Vec3::Zero()}, 0, 0.25)[0]
+            .norm(),
+        0.0);
+    guide.set(g, 0);
+    // Off the web: 12 mm above the dorsal side and below the palmar one.
+    PerFinger<Vec3> p{model.fromWeb(Vec3(0.001 + r, 0, -0.02)),
+                      model.fromWeb(Vec3(0.001 + r, 0, 0.02))};
+    PerFinger<Vec3> v{Vec3::Zero(), Vec3::Zero()};
+    const double mass = 0.05, damping = 2.0, scale = 0.25;
+    double worst = 0.0, angle = 0.0, last_angle = 0.0;
+    bool first = true;
+    const int64_t dt = 1'000'000;
+    for (int64_t t = 0; t <= 6'000'000'000; t += dt) {
+      const PerFinger<Vec3> f = guide.force(model, p, v, t, scale);
+      for (int k = 0; k < 2; ++k) {
+        v[k] += (f[k] - damping * scale * v[k]) / mass * 1e-3;
+        p[k] += v[k] * 1e-3;
+      }
+      const Vec3 mid = model.toWeb(0.5 * (p[0] + p[1]));
+      Vec3 target, tv;
+      WebGuide::target(g, static_cast<double>(t) * 1e-9, target, tv);
+      if (t >= 2'000'000'000) {
+        worst = std::max(worst, std::hypot(mid.x() - target.x(), mid.y() - target.y()));
+        const double a = std::atan2(mid.y(), mid.x() - 0.001);
+        if (!first) {
+          double d = a - last_angle;
+          if (d > kPi) d -= 2 * kPi;
+          if (d < -kPi) d += 2 * kPi;
+          angle += d;
+        }
+        first = false;
+        last_angle = a;
+      }
+    }
+    const double laps_per_s = angle / (2 * kPi) / 4.0;
+    EXPECT_NEAR(laps_per_s, freq, 0.02) << "led round at the guide's rate";
+    EXPECT_LT(worst, 0.0015) << "within 1.5 mm of the guide's point";
+  }
+  // A replaced guide fades: from one circle to a circle 3 mm wider, the force moves in steps
+  // no larger than 200 ms of fade allow.
+  GuideParams a, b;
+  a.authority = b.authority = 1.0;
+  a.period_s = b.period_s = 1.0;
+  for (int k = 0; k < GuideParams::kPoints; ++k) {
+    const double ang = 2.0 * kPi * k / GuideParams::kPoints;
+    a.path_rad[static_cast<std::size_t>(k)] = Vec3(0.004 * std::cos(ang), 0.004 * std::sin(ang), 0);
+    b.path_rad[static_cast<std::size_t>(k)] = Vec3(0.007 * std::cos(ang), 0.007 * std::sin(ang), 0);
+  }
+  WebGuide guide;
+  guide.set(a, 0);
+  const PerFinger<Vec3> still{model.fromWeb(Vec3(0, 0, -0.02)), model.fromWeb(Vec3(0, 0, 0.02))};
+  const PerFinger<Vec3> zero{Vec3::Zero(), Vec3::Zero()};
+  Vec3 last = guide.force(model, still, zero, 500'000'000, 0.25)[0];
+  guide.set(b, 500'000'000);
+  double step = 0.0;
+  for (int64_t t = 500'000'000; t <= 800'000'000; t += 1'000'000) {
+    const Vec3 f = guide.force(model, still, zero, t, 0.25)[0];
+    step = std::max(step, (f - last).norm());
+    last = f;
+  }
+  EXPECT_LT(step, 0.05) << "a new guide fades in, the old one out";
+  // Taken away: it fades out too, then nothing.
+  guide.set(GuideParams{}, 800'000'000);
+  EXPECT_GT(guide.force(model, still, zero, 850'000'000, 0.25)[0].norm(), 0.0);
+  EXPECT_EQ(guide.force(model, still, zero, 1'100'000'000, 0.25)[0].norm(), 0.0);
 }
 
 }  // namespace

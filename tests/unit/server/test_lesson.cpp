@@ -390,15 +390,28 @@ TEST_F(LessonTest, AMassageLessonRunsWithTheMassageOnlyAndRefusesTheJointsPhases
   // The web of the case is what the client renders.
   ASSERT_FALSE(out_.models.empty());
   EXPECT_EQ(out_.models.back().technique, telehand_msg_TECHNIQUE_MASSAGE);
-  for (const char* joint_phase : {"guided", "baseline", "reassessment"}) {
+  for (const char* joint_phase : {"baseline", "reassessment"}) {
     phase(run, joint_phase, 1.0, 0);
     EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, run).back(),
-                HasSubstr("a massage lesson has no guided trial and no exploration"))
+                HasSubstr("a massage lesson has no exploration"))
         << joint_phase;
   }
+  // A guided trial leads round the demonstration's circle: the model the client gets carries a
+  // guide whose path is the circle on the web, one lap per 1/1.5 s; an attempt takes it away.
   const std::size_t errors = out_.textsOf(telehand_msg_EVENT_ERROR, run).size();
+  phase(run, "guided", 1.0, 0);
+  EXPECT_EQ(out_.textsOf(telehand_msg_EVENT_ERROR, run).size(), errors);
+  const auto& guided = out_.models.back();
+  EXPECT_DOUBLE_EQ(guided.guide_authority, 1.0);
+  EXPECT_NEAR(guided.guide_period_s, 1.0 / 1.5, 1e-12);
+  for (int k = 0; k < GuideParams::kPoints; k += 16) {
+    const double x = guided.guide_path_rad[k][0], y = guided.guide_path_rad[k][1];
+    EXPECT_NEAR(std::hypot(x, y), 0.006, 1e-9) << k;
+  }
+  EXPECT_NEAR(guided.guide_path_rad[16][1], 0.006, 1e-9) << "counter-clockwise, as demonstrated";
   phase(run, "attempt", 0.0, 0);
   EXPECT_EQ(out_.textsOf(telehand_msg_EVENT_ERROR, run).size(), errors);
+  EXPECT_DOUBLE_EQ(out_.models.back().guide_authority, 0.0);
 }
 
 TEST_F(LessonTest, AReplayReproducesTheLiveHandStates) {
@@ -806,7 +819,7 @@ TEST(MassageLesson, TargetsRoundTripAndDamagedOnesAreRefusedNamingTheKey) {
   EXPECT_THAT(refused("frequency_hz=-1.5", "frequency_hz=nan"), HasSubstr("frequency_hz"));
   EXPECT_THAT(refused("band_max_n=11.6", "band_max_n=3"), HasSubstr("band_max_n"));
   EXPECT_THAT(refused("laps=13;", ""), HasSubstr("'laps' is missing"));
-  // The plan of a massage lesson: its band and laps per second, no guide, no exploration.
+  // The plan of a massage lesson: its band and laps per second, no exploration, no take-over.
   store::LessonInfo l;
   l.id = 4;
   l.technique = "massage";
@@ -815,7 +828,7 @@ TEST(MassageLesson, TargetsRoundTripAndDamagedOnesAreRefusedNamingTheKey) {
   l.takeover = true;
   const LessonPlan p = lesson::planOf(l, u, 12.0);
   EXPECT_EQ(p.technique, "massage");
-  EXPECT_EQ(p.guided, 0);
+  EXPECT_EQ(p.guided, 2);
   EXPECT_FALSE(p.assessment);
   EXPECT_FALSE(p.takeover);
   EXPECT_DOUBLE_EQ(p.frequency_hz, 1.5);

@@ -160,6 +160,8 @@ class TissueProxy {
   /// Adopt new parameters: faded in from the next render (no change if equal).
   void setParams(const TissueParams& next, double force_scale) noexcept;
   const TissueModel& model() const noexcept { return current_; }
+  /// The thimbles' velocities as the last render estimated them (device frame).
+  const PerFinger<Vec3>& velocities() const noexcept { return v_; }
   /// Forget the anchors and the velocity history (a session starts, a device resumes).
   void reset() noexcept;
   /// One tick at the sample's time.

@@ -14,6 +14,7 @@
 #include "telehand/core/rt/spsc_ring.h"
 #include "telehand/core/safety.h"
 #include "telehand/core/sample.h"
+#include "telehand/core/web_guide.h"
 #include "telehand/devices/device.h"
 
 namespace telehand::client::loop {
@@ -70,6 +71,7 @@ struct LoopHealth {
   /// a normal force (reference scale) within the paper's 10 ± 2 N.
   std::atomic<uint64_t> massage_ticks{0};
   std::atomic<uint64_t> massage_in_band{0};
+  std::atomic<double> guide_web_n{0.0};  ///< a massage guide's force, reference N (both pads)
 };
 
 /// Why the loop stopped rendering. The thresholds are FaultLimits'.
@@ -201,6 +203,7 @@ class HapticLoop {
   LoopConfig config_;
   JointProxy proxy_;
   TissueProxy tissue_;
+  WebGuide web_guide_;  // a massage lesson's guided trial
   SafetyGate gate_;
   std::unique_ptr<SampleRing> samples_;
   std::unique_ptr<ModelRing> models_;

@@ -64,10 +64,15 @@ std::string trialLabel(int index, const std::string& phase, double authority);
 /// The guide of a guided trial: the targets' path and period at `authority` (0..1).
 GuideParams guideFor(const technique::Targets& t, double authority);
 
+/// The guide of a massage's guided trial (common/core/web_guide.h): the contact point round
+/// the demonstration's circle (its centre and radius, one lap per 1/|frequency|, the way it
+/// turned), starting at the circle's +x point, at `authority` (0..1).
+GuideParams guideFor(const technique::MassageTargets& t, double authority);
+
 /// The plan a student's client receives for `l` (common/protocol/lesson_plan.h).
 LessonPlan planOf(const store::LessonInfo& l, const technique::Targets& t, double demo_s);
 /// The plan of a massage lesson: its band is the pads' normal force, its frequency the
-/// circle's laps per second; no guided trial and no exploration (they are the joint's).
+/// circle's laps per second; no exploration (it is the joint's) and no take-over.
 LessonPlan planOf(const store::LessonInfo& l, const technique::MassageTargets& t, double demo_s);
 
 }  // namespace telehand::server::lesson
