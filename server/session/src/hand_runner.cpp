@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <span>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
@@ -300,6 +301,11 @@ std::string HandRunner::checkpoint() const {
   std::vector<double> v = {static_cast<double>(hand_seq_), treatment_s_};
   const std::vector<double> state = sim_->saveState();
   v.insert(v.end(), state.begin(), state.end());
+  if (web_) {
+    // A massage's web after the hand (WebSim::saveState, its own magic number first).
+    const std::vector<double> web = web_->saveState();
+    v.insert(v.end(), web.begin(), web.end());
+  }
   return {reinterpret_cast<const char*>(v.data()), v.size() * sizeof(double)};
 }
 
@@ -307,8 +313,24 @@ bool HandRunner::restore(const std::string& data) {
   if (!sim_ || data.size() % sizeof(double) != 0 || data.size() < 3 * sizeof(double)) return false;
   std::vector<double> v(data.size() / sizeof(double));
   std::memcpy(v.data(), data.data(), data.size());
-  if (!std::isfinite(v[0]) || v[0] < 0.0 || !std::isfinite(v[1])) return false;
-  if (!sim_->restoreState(std::vector<double>(v.begin() + 2, v.end()))) return false;
+  if (!std::isfinite(v[0]) || v[0] < 0.0 || v[0] > 9007199254740992.0 || !std::isfinite(v[1]))
+    return false;
+  // The hand's part is as long as this hand's own state; what follows it is the web's. A
+  // checkpoint with nothing after the hand (from before the web was kept) restores the hand
+  // and leaves the web to start afresh.
+  const std::size_t hand_size = sim_->saveState().size();
+  if (v.size() < 2 + hand_size) return false;
+  const std::span<const double> web_part = std::span<const double>(v).subspan(2 + hand_size);
+  std::optional<sim::WebSim> web;
+  if (!web_part.empty()) {
+    if (!web_) return false;  // a web for a session without one
+    web.emplace(*web_);
+    if (!web->restoreState(web_part)) return false;
+  }
+  if (!sim_->restoreState(std::vector<double>(
+          v.begin() + 2, v.begin() + 2 + static_cast<std::ptrdiff_t>(hand_size))))
+    return false;
+  if (web) *web_ = *web;
   hand_seq_ = std::max(hand_seq_, static_cast<uint64_t>(v[0]));
   treatment_s_ = v[1];
   return true;

@@ -1,9 +1,11 @@
 // The web's tissue model: Hunt–Crossley normal force, stick–slip friction, the patch, the
-// proxy's fade and its passivity on closed paths.
+// proxy's fade and its passivity on closed paths, and its state saved and restored.
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
+#include <vector>
 
 #include "telehand/core/tissue_model.h"
 
@@ -204,6 +206,118 @@ TEST(TissueProxy, ANewParameterSetFadesInWithoutAStep) {
   EXPECT_LT(largest_step, std::abs(gap) / 150.0);  // spread over the 200 ms fade
   EXPECT_FALSE(out.blending);
   EXPECT_NEAR(last, 0.25 * TissueModel(b).normalForceN(0.005, 0), 1e-6);
+}
+
+/// Both pads `depth` deep, circling `radius` at `hz` on the web, with a slow press wander and
+/// a little jitter (as a hand does): sample `i` of it (1 ms apart). On a circle of 8 mm the
+/// healthy skin's static limit (6.9 mm of stretch at 10 N) is passed all the way round: it
+/// sticks and slips.
+PerFinger<Vec3> circling(const TissueModel& m, int i, double radius = 0.008, double hz = 1.5,
+                         double depth = 0.006) {
+  const double t = i * 1e-3;
+  const double ph = 2 * kPi * hz * t;
+  const double jitter = 2e-5 * std::sin(i * 1.7) * std::cos(i * 0.31);
+  const double d = depth + 0.0005 * std::sin(2 * kPi * 0.4 * t);
+  const double x = radius * std::cos(ph) + jitter, y = radius * std::sin(ph) - jitter;
+  return {thumbAt(m, x, y, d), indexAt(m, x, y, d)};
+}
+
+TEST(TissueProxy, ARestoredStateGoesOnAsTheProxyItWasSavedFrom) {
+  for (const char* name : {"healthy", "scar"}) {
+    const TissueParams p = tissueCase(name);
+    TissueProxy a(p, 0.25);
+    const TissueModel m(p);
+    int slips = 0;
+    for (int i = 0; i < 1500; ++i) {
+      const TissueOutput o = a.render(circling(m, i), int64_t{i} * 1'000'000);
+      slips += o.contact[0].depth_m > 0.0 && !o.contact[0].sticking;
+    }
+    ASSERT_GT(slips, 10) << "the skin slips on the circle: the anchors are state to keep";
+    std::vector<double> saved;
+    a.saveState(saved);
+    ASSERT_EQ(saved.size(), TissueProxy::kStateSize);
+    TissueProxy b(p, 0.25);
+    ASSERT_TRUE(b.restoreState(saved));
+    TissueProxy fresh(p, 0.25);
+    double largest = 0.0, fresh_largest = 0.0;
+    for (int i = 1500; i < 3000; ++i) {
+      const auto pos = circling(m, i);
+      const TissueOutput oa = a.render(pos, int64_t{i} * 1'000'000);
+      const TissueOutput ob = b.render(pos, int64_t{i} * 1'000'000);
+      const TissueOutput of = fresh.render(pos, int64_t{i} * 1'000'000);
+      for (int k = 0; k < 2; ++k) {
+        largest = std::max(largest, (oa.contact[k].force() - ob.contact[k].force()).norm());
+        fresh_largest =
+            std::max(fresh_largest, (oa.contact[k].force() - of.contact[k].force()).norm());
+      }
+    }
+    EXPECT_EQ(largest, 0.0) << name;
+    EXPECT_GT(fresh_largest, 1.0) << name << ": a proxy started afresh there differs";
+  }
+}
+
+TEST(TissueProxy, ABadStateIsRefusedWithNothingChanged) {
+  const TissueParams p = tissueCase("healthy");
+  const TissueModel m(p);
+  TissueProxy a(p, 0.25);
+  for (int i = 0; i < 500; ++i) a.render(circling(m, i), int64_t{i} * 1'000'000);
+  std::vector<double> saved;
+  a.saveState(saved);
+  TissueProxy b(p, 0.25);
+  for (int i = 0; i < 300; ++i) b.render(circling(m, i, 0.005), int64_t{i} * 1'000'000);
+  std::vector<double> before;
+  b.saveState(before);
+  const auto refused = [&](std::vector<double> s, const char* what) {
+    EXPECT_FALSE(b.restoreState(s)) << what;
+    std::vector<double> now;
+    b.saveState(now);
+    EXPECT_EQ(now, before) << what;
+  };
+  refused({}, "empty");
+  refused(std::vector<double>(saved.begin(), saved.end() - 1), "truncated");
+  auto s = saved;
+  s.push_back(0.0);
+  refused(s, "too long");
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  for (std::size_t i = 0; i < saved.size(); ++i) {
+    s = saved;
+    s[i] = nan;
+    refused(s, "a NaN");
+    s[i] = std::numeric_limits<double>::infinity();
+    refused(s, "an infinity");
+  }
+  s = saved;
+  s[0] = 1.0;
+  refused(s, "another magic number");
+  s = saved;
+  s[3] = 0.5;  // the thumb's anchor neither attached nor not
+  refused(s, "a flag");
+  s = saved;
+  s[1] = 1e3;  // an anchor a kilometre off
+  refused(s, "an anchor");
+  s = saved;
+  s[8] = 0.5;  // a time that is not a whole number of nanoseconds
+  refused(s, "a time");
+  s = saved;
+  s[10] = 5.0;  // a thimble 5 m from the device
+  refused(s, "a position");
+  s = saved;
+  s[s.size() - 9] = -1.0;  // the current set's mu_static
+  refused(s, "a parameter");
+  EXPECT_TRUE(b.restoreState(saved));
+}
+
+TEST(TissueProxy, AStateSavedUnderAnotherModelFadesIntoTheCurrentOne) {
+  const TissueParams healthy = tissueCase("healthy"), hyper = tissueCase("hypertonic");
+  const TissueModel m(healthy);
+  TissueProxy a(healthy, 0.25);
+  for (int i = 0; i < 500; ++i) a.render(circling(m, i), int64_t{i} * 1'000'000);
+  std::vector<double> saved;
+  a.saveState(saved);
+  TissueProxy b(hyper, 0.25);
+  ASSERT_TRUE(b.restoreState(saved));
+  const TissueOutput o = b.render(circling(m, 500), 500'000'000);
+  EXPECT_TRUE(o.blending) << "from the saved model to the current one, without a step";
 }
 
 }  // namespace

@@ -26,9 +26,11 @@
 /// the web passive.
 ///
 /// Forces at reference scale (N, device frame); the device gets force_scale of them.
-/// Allocation-free, noexcept.
+/// Allocation-free, noexcept (but for TissueProxy::saveState, a checkpoint's).
 #include <array>
 #include <cstdint>
+#include <span>
+#include <vector>
 
 #include "telehand/core/math.h"
 
@@ -167,6 +169,16 @@ class TissueProxy {
   /// Same with the velocities given (the server's samples, tests).
   TissueOutput renderWith(const PerFinger<Vec3>& p_device, const PerFinger<Vec3>& v_device,
                           int64_t t_ns) noexcept;
+
+  /// The proxy's state (anchors, velocity filter, fade, both parameter sets) appended to
+  /// `out` as kStateSize doubles, for a checkpoint (docs/pool.md).
+  static constexpr std::size_t kStateSize = 72;
+  void saveState(std::vector<double>& out) const;
+  /// Go on from a saveState(): false, with nothing changed, for anything else (a size, a
+  /// number that is not finite or out of its bounds, parameters invalidTissueParam refuses).
+  /// Saved under other parameters than the current ones, the proxy fades from those to the
+  /// current ones, as setParams would have.
+  bool restoreState(std::span<const double> state) noexcept;
 
  private:
   TissueModel current_;
