@@ -38,6 +38,14 @@ double smoothstepSlope(double e0, double e1, double x) noexcept {
   const double t = (x - e0) / (e1 - e0);
   return 6.0 * t * (1.0 - t) / (e1 - e0);
 }
+// A stiffer patch stores more energy at the same depth: its rim pushes the finger out of it
+// with the slope of that energy (-dV/dx), or the web would return more energy than it took
+// from a finger that presses beside the patch and lets go inside it. Web frame.
+Vec3 rimForce(const TissueModel& m, double depth, const Vec3& w) noexcept {
+  const TissueParams& p = m.params();
+  return -(p.patch_stiffness_factor - 1.0) * p.stiffness_n_per_m_pow *
+         std::pow(depth, p.exponent + 1.0) / (p.exponent + 1.0) * m.patchGradient(w.x(), w.y());
+}
 }  // namespace
 
 const char* invalidTissueParam(const TissueParams& p) noexcept {
@@ -179,12 +187,7 @@ TissueContact tissueContact(const TissueModel& m, int finger, const Vec3& p_devi
     anchor.y_m = w.y();
     anchor.attached = true;
   }
-  // A stiffer patch stores more energy at the same depth: its rim pushes the finger out of it
-  // with the slope of that energy (-dV/dx), or the web would return more energy than it took
-  // from a finger that presses beside the patch and lets go inside it.
-  const Vec3 rim = -(p.patch_stiffness_factor - 1.0) * p.stiffness_n_per_m_pow *
-                   std::pow(depth, p.exponent + 1.0) / (p.exponent + 1.0) *
-                   m.patchGradient(w.x(), w.y());
+  const Vec3 rim = rimForce(m, depth, w);
   const double g = 1.0 + m.patchWeight(w.x(), w.y()) * (p.patch_friction_factor - 1.0);
   const double kt = p.lateral_stiffness_n_per_m;
   const double limit_static = p.mu_static * g * fn;
@@ -274,6 +277,50 @@ TissueOutput TissueProxy::renderWith(const PerFinger<Vec3>& p, const PerFinger<V
                                  0.5 * tp.lateral_stiffness_n_per_m * stretch2);
   }
   return out;
+}
+
+bool TissueProxy::resync(int finger, const Vec3& force_device_n) noexcept {
+  if (finger != kThumb && finger != kIndex) return false;
+  if (!have_last_ || blending_ || !allFinite(force_device_n)) return false;
+  const auto k = static_cast<std::size_t>(finger);
+  const TissueParams& p = current_.params();
+  const double kt = p.lateral_stiffness_n_per_m;
+  const Vec3 w = current_.toWeb(last_p_[k]);
+  Vec3 v = p.orientation.conjugate() * v_[k];
+  const double depth = current_.depthOf(finger, last_p_[k]);
+  const bool over = std::abs(w.x()) <= p.half_extent_m && std::abs(w.y()) <= p.half_extent_m;
+  if (!(depth > 0.0) || !over || !(kt > 0.0) || !allFinite(w) || !allFinite(v)) return false;
+  const Vec3 f_w = p.orientation.conjugate() * force_device_n;
+  // The depth rate, from the normal part: F_n = k·δ^n·(1 + λ·δ̇), within kMaxRateStepMps of
+  // this proxy's own (+ pressing in: the thumb moves toward −z, the index toward +z).
+  const double side = finger == kThumb ? 1.0 : -1.0;
+  double rate = -side * v.z();
+  const double elastic = current_.normalForceN(depth, 0.0, w.x(), w.y());
+  const double claimed = side * f_w.z();
+  if (p.damping_s_per_m > 0.0 && elastic > 0.0 && claimed > 0.0) {
+    rate = std::clamp((claimed / elastic - 1.0) / p.damping_s_per_m, rate - kMaxRateStepMps,
+                      rate + kMaxRateStepMps);
+    v.z() = -side * rate;
+  }
+  // The stretch, from the tangential part as tissueContact() renders it:
+  // F_t = -kt·s - b·v + rim, s the stretch from the anchor.
+  const double fn = current_.normalForceN(depth, rate, w.x(), w.y());
+  const Vec3 rim = rimForce(current_, depth, w);
+  double sx = (-f_w.x() - p.viscous_n_s_per_m * v.x() + rim.x()) / kt;
+  double sy = (-f_w.y() - p.viscous_n_s_per_m * v.y() + rim.y()) / kt;
+  // Inside the static limit (by a hair, so that the next render at this sample sticks).
+  const double g = 1.0 + current_.patchWeight(w.x(), w.y()) * (p.patch_friction_factor - 1.0);
+  const double limit = (1.0 - 1e-9) * p.mu_static * g * fn / kt;
+  const double stretch = std::hypot(sx, sy);
+  if (!std::isfinite(stretch) || !allFinite(v)) return false;
+  if (stretch > limit) {
+    const double keep = stretch > 0.0 ? std::max(limit, 0.0) / stretch : 0.0;
+    sx *= keep;
+    sy *= keep;
+  }
+  anchor_[k] = {w.x() - sx, w.y() - sy, true};
+  v_[k] = p.orientation * v;
+  return true;
 }
 
 namespace {

@@ -102,6 +102,26 @@ bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Samp
       }
     }
     web_->step(grip, d.source_time_ns);
+    // Across a gap the web stepped the straight line, not the client's path: its velocity
+    // filter remembers another depth rate, and its skin sticks and slips at other ticks than
+    // the client's from then on (a stick-slip sawtooth out of phase: the web force 13-52 %
+    // off at the worst HandState on the spain-australia and extreme links, docs/massage.md
+    // "The server"). The sample carries the force the client's proxy rendered: wherever the
+    // two differ, the depth rate and the skin's stretch are taken from it within the model's
+    // bounds (WebSim::resync), as the drift corrector takes the hand back for the joint. On
+    // samples stepped in order the two agree and nothing changes. Only for the model the
+    // client rendered, and not while its model fades.
+    if (d.model_version == model.params().version &&
+        (d.flags & sample_flags::kModelBlending) == 0) {
+      PerFinger<Vec3> force;
+      PerFinger<double> depth;
+      for (std::size_t k = 0; k < 2; ++k) {
+        const auto& f = d.fingers[k];
+        force[k] = Vec3(f.tissue_force_n[0], f.tissue_force_n[1], f.tissue_force_n[2]);
+        depth[k] = f.contact_depth_m;
+      }
+      if (web_->resync(force, depth) > 0) ++web_resyncs_;
+    }
   }
   if (sim_ && live.isNew(d)) {
     // The simulation runs on device time: one 1 ms step per sample, and one per sample lost

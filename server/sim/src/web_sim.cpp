@@ -49,6 +49,26 @@ void WebSim::step(const PerFinger<Vec3>& p_device, int64_t t_ns) noexcept {
   grid_ = next_;
 }
 
+int WebSim::resync(const PerFinger<Vec3>& force_n, const PerFinger<double>& depth_m) noexcept {
+  namespace b = sample_bounds;
+  int changed = 0;
+  for (int k = 0; k < 2; ++k) {
+    const auto kk = static_cast<std::size_t>(k);
+    const Vec3& f = force_n[kk];
+    const double depth = depth_m[kk];
+    if (!allFinite(f) || f.cwiseAbs().maxCoeff() > b::kThimbleForceN) continue;
+    if (!std::isfinite(depth) || !(depth > 0.0) || depth > b::kDepthM) continue;
+    const TissueContact& here = out_.contact[kk];
+    // The same position gives the same depth under the same model: a client that rendered
+    // another depth rendered another web, whose skin is not this one's.
+    if (!(here.depth_m > 0.0) || std::abs(here.depth_m - depth) > 1e-9) continue;
+    if ((here.force() - f).norm() <= 1e-9) continue;
+    if (proxy_.resync(k, f)) ++changed;
+  }
+  if (changed > 0) out_ = proxy_.renderLast();
+  return changed;
+}
+
 namespace {
 constexpr double kWebStateMagic = 8808.0;  // the first number of a saved web
 constexpr std::size_t kContactSize = 12;

@@ -1,5 +1,6 @@
 // The web's tissue model: Hunt–Crossley normal force, stick–slip friction, the patch, the
-// proxy's fade and its passivity on closed paths, and its state saved and restored.
+// proxy's fade and its passivity on closed paths, its state saved and restored, and its skin
+// re-anchored from another proxy's force.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -318,6 +319,88 @@ TEST(TissueProxy, AStateSavedUnderAnotherModelFadesIntoTheCurrentOne) {
   ASSERT_TRUE(b.restoreState(saved));
   const TissueOutput o = b.render(circling(m, 500), 500'000'000);
   EXPECT_TRUE(o.blending) << "from the saved model to the current one, without a step";
+}
+
+TEST(TissueProxy, ResyncingTakesTheOtherProxysStateWithinTheModelsBounds) {
+  const TissueParams p = tissueCase("healthy");
+  const TissueModel m(p);
+  // The client's proxy renders every sample; this one misses 30 of them and renders the
+  // straight line between the ones either side instead.
+  TissueProxy client(p, 0.25), server(p, 0.25);
+  TissueOutput c, s;
+  for (int i = 0; i < 730; ++i) {
+    c = client.render(circling(m, i), int64_t{i} * 1'000'000);
+    if (i >= 700 && i < 730) {
+      const auto a = circling(m, 699), b = circling(m, 730);
+      const double w = (i - 699) / 31.0;
+      s = server.render({a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1])},
+                        int64_t{i} * 1'000'000);
+    } else {
+      s = server.render(circling(m, i), int64_t{i} * 1'000'000);
+    }
+  }
+  // Back on the client's samples: the skins have parted.
+  s = server.render(circling(m, 730), 730'000'000);
+  c = client.render(circling(m, 730), 730'000'000);
+  const Vec3 axis = m.normalAxis();
+  const auto tangential = [&](const Vec3& f) { return Vec3(f - f.dot(axis) * axis); };
+  ASSERT_GT((tangential(s.contact[0].force()) - tangential(c.contact[0].force())).norm(), 1e-3)
+      << "the gap left the skins apart";
+  for (int k = 0; k < 2; ++k) ASSERT_TRUE(server.resync(k, c.contact[k].force()));
+  s = server.renderLast();
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_LT((s.contact[k].force() - c.contact[k].force()).norm(), 1e-9);
+    EXPECT_EQ(s.contact[k].depth_m, c.contact[k].depth_m);
+  }
+  // And they go on together: the velocity filter's depth rate and the anchors are the
+  // client's (the filter's sideways velocity still remembers the straight line a while).
+  double normal_after = 0.0;
+  for (int i = 731; i < 760; ++i) {
+    s = server.render(circling(m, i), int64_t{i} * 1'000'000);
+    c = client.render(circling(m, i), int64_t{i} * 1'000'000);
+    for (int k = 0; k < 2; ++k) {
+      normal_after =
+          std::max(normal_after, std::abs((s.contact[k].force() - c.contact[k].force()).dot(axis)));
+    }
+  }
+  EXPECT_LT(normal_after, 1e-9);
+
+  // A force no skin could pull with: the stretch stops at the static limit, and the next
+  // render sticks there.
+  ASSERT_TRUE(server.resync(0, Vec3(90.0, -90.0, 0.0)));
+  s = server.renderLast();
+  const double fn = s.contact[0].normal_n.norm();
+  EXPECT_TRUE(s.contact[0].sticking);
+  // The spring pulls with at most mu_static * F_n; the skin's viscous drag adds b * |v|
+  // (the thimbles move under 0.1 m/s here).
+  EXPECT_LE(s.contact[0].tangential_n.norm(), p.mu_static * fn + p.viscous_n_s_per_m * 0.1);
+
+  // A normal force no press at this depth could make: the depth rate moves at most
+  // kMaxRateStepMps.
+  const double before_n = s.contact[0].normal_n.norm();
+  const double elastic =
+      m.normalForceN(s.contact[0].depth_m, 0.0, s.contact[0].point_w.x(), s.contact[0].point_w.y());
+  ASSERT_TRUE(server.resync(0, Vec3(0.0, 0.0, 90.0)));
+  s = server.renderLast();
+  EXPECT_NEAR(s.contact[0].normal_n.norm() - before_n,
+              elastic * p.damping_s_per_m * TissueProxy::kMaxRateStepMps, 1e-6);
+
+  // Nothing taken from a force that is not a number, for a finger off the web, or mid-fade.
+  const auto unchanged = [&](int finger, const Vec3& f, const char* what) {
+    std::vector<double> before, after;
+    server.saveState(before);
+    EXPECT_FALSE(server.resync(finger, f)) << what;
+    server.saveState(after);
+    EXPECT_EQ(before, after) << what;
+  };
+  unchanged(0, Vec3(std::numeric_limits<double>::quiet_NaN(), 0, 0), "NaN");
+  unchanged(2, Vec3::Zero(), "no such finger");
+  server.render({thumbAt(m, 0, 0, -0.002), indexAt(m, 0, 0, -0.002)}, 760'000'000);
+  unchanged(0, Vec3(1, 0, 0), "not pressing");
+  server.render(circling(m, 761), 761'000'000);
+  server.setParams(tissueCase("hypertonic"), 0.25);
+  server.render(circling(m, 762), 762'000'000);
+  unchanged(0, Vec3(1, 0, 0), "fading");
 }
 
 }  // namespace

@@ -2,7 +2,8 @@
 // into the hand's checkpoint and a server taking the session over goes on from it with the
 // same forces (docs/pool.md "Take-over"); checkpoints from before the web was kept restore
 // the hand alone, and a web part that is cut short or not numbers is refused with nothing
-// changed.
+// changed. On a link that loses samples the web takes the skin's stretch back from the force
+// the client recorded (docs/massage.md "The server"), never beyond the model's friction.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -72,6 +73,16 @@ Sample circling(const TissueModel& m, uint64_t i, uint32_t version = 3) {
   s.model_version = version;
   for (int k = 0; k < 2; ++k) {
     for (int j = 0; j < 3; ++j) s.fingers[k].position_m[j] = pos[k][j];
+  }
+  return s;
+}
+
+/// The same sample with the web force and depths the client's proxy rendered for it.
+Sample withClientForce(Sample s, const TissueOutput& client) {
+  for (int k = 0; k < 2; ++k) {
+    s.fingers[k].contact_depth_m = client.contact[k].depth_m;
+    const Vec3 f = client.contact[k].force();
+    for (int j = 0; j < 3; ++j) s.fingers[k].tissue_force_n[j] = f[j];
   }
   return s;
 }
@@ -252,6 +263,77 @@ TEST_F(WebCheckpointTest, WithoutAHandThereIsNoCheckpoint) {
   EXPECT_EQ(a->checkpoint(), "");
   auto with_hand = runner(p);
   EXPECT_FALSE(a->restore(with_hand->checkpoint()));
+}
+
+TEST_F(WebCheckpointTest, OnALossyLinkTheWebTakesTheSkinBackFromTheClientsForce) {
+  const JointModelParams p = massage();
+  const JointModel model(p);
+  const TissueModel web(p.tissue);
+  // The client's proxy renders every sample; the server hears 4 of every 53 lost in a burst.
+  TissueProxy client(p.tissue, p.force_scale);
+  auto follows = runner(p, false), alone = runner(p, false);
+  LiveStream live_f(0), live_a(0);
+  double largest = 0.0, alone_largest = 0.0;
+  for (uint64_t i = 0; i < 5000; ++i) {
+    const Sample bare = circling(web, i);
+    const TissueOutput c = client.render(thimblePositions(bare), bare.source_time_ns);
+    if (i % 53 >= 49) continue;  // lost on the way
+    feed(*follows, live_f, withClientForce(bare, c), model);
+    feed(*alone, live_a, bare, model);
+    if (i < 1000) continue;
+    largest = std::max(largest, largestDifference(follows->web()->last(), c));
+    alone_largest = std::max(alone_largest, largestDifference(alone->web()->last(), c));
+  }
+  EXPECT_GT(alone_largest, 0.5) << "the gaps alone part the skins";
+  // Only the normal force's rate term still differs (the velocity filter remembers the
+  // straight line across the gap for a few ticks).
+  EXPECT_LT(largest, 0.02);
+  EXPECT_GT(follows->webResyncs(), 50u);
+  EXPECT_EQ(alone->webResyncs(), 0u);
+  std::printf("web against the client's: %.2g N taking the skin back, %.2f N without\n", largest,
+              alone_largest);
+}
+
+TEST_F(WebCheckpointTest, AClientsForceMovesTheSkinNoFurtherThanItsFriction) {
+  const JointModelParams p = massage();
+  const JointModel model(p);
+  const TissueModel web(p.tissue);
+  auto r = runner(p, false);
+  LiveStream live(0);
+  const Vec3 axis = web.normalAxis();
+  double worst = 0.0;
+  for (uint64_t i = 0; i < 2000; ++i) {
+    Sample d = circling(web, i);
+    // A client that claims the web pulls its thimbles sideways with 90 N, or another model.
+    for (int k = 0; k < 2; ++k) {
+      d.fingers[k].contact_depth_m = web.depthOf(k, thimblePositions(d)[k]);
+      d.fingers[k].tissue_force_n[0] = i % 2 ? 90.0 : -90.0;
+      d.fingers[k].tissue_force_n[1] = 90.0;
+    }
+    feed(*r, live, d, model);
+    for (int k = 0; k < 2; ++k) {
+      const TissueContact& c = r->web()->last().contact[k];
+      if (c.depth_m <= 0.0) continue;
+      const Vec3 t = c.tangential_n - c.tangential_n.dot(axis) * axis;
+      // The spring within mu_static * F_n; the skin's viscous drag adds b * |v| (< 0.1 m/s).
+      worst = std::max(worst, t.norm() - (p.tissue.mu_static * c.normal_n.norm() +
+                                          p.tissue.viscous_n_s_per_m * 0.1));
+    }
+  }
+  EXPECT_LE(worst, 0.0);
+  EXPECT_GT(r->webResyncs(), 1000u);
+  // Samples of another model version are not taken.
+  auto other = runner(p, false);
+  LiveStream live_o(0);
+  for (uint64_t i = 0; i < 200; ++i) {
+    Sample d = circling(web, i, 2);
+    for (int k = 0; k < 2; ++k) {
+      d.fingers[k].contact_depth_m = web.depthOf(k, thimblePositions(d)[k]);
+      d.fingers[k].tissue_force_n[0] = 5.0;
+    }
+    feed(*other, live_o, d, model);
+  }
+  EXPECT_EQ(other->webResyncs(), 0u);
 }
 
 }  // namespace

@@ -70,6 +70,9 @@ class HandRunner {
   /// the hand nor the web) when it does not fit. A checkpoint without a web (written before
   /// the web was kept) restores the hand and leaves a massage's web as it is.
   bool restore(const std::string& data);
+  /// Samples on which the web took a finger's depth rate and skin stretch from the client's
+  /// recorded force (WebSim::resync): after gaps, until the two agree again.
+  uint64_t webResyncs() const noexcept { return web_resyncs_; }
 
   /// Time the pads pressed the joint (recovery).
   double treatmentS() const noexcept { return treatment_s_; }
@@ -101,6 +104,7 @@ class HandRunner {
   int64_t next_hand_ns_ = 0;
   HandStateDeadband hand_deadband_;
   uint64_t hand_withheld_ = 0;
+  uint64_t web_resyncs_ = 0;
 };
 
 }  // namespace telehand::server::session
