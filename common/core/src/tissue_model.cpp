@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstring>
 
+#include "telehand/core/sample.h"
+
 namespace telehand {
 
 const char* techniqueName(Technique t) noexcept {
@@ -35,6 +37,14 @@ double smoothstepSlope(double e0, double e1, double x) noexcept {
   if (e1 <= e0 || x <= e0 || x >= e1) return 0.0;
   const double t = (x - e0) / (e1 - e0);
   return 6.0 * t * (1.0 - t) / (e1 - e0);
+}
+// A stiffer patch stores more energy at the same depth: its rim pushes the finger out of it
+// with the slope of that energy (-dV/dx), or the web would return more energy than it took
+// from a finger that presses beside the patch and lets go inside it. Web frame.
+Vec3 rimForce(const TissueModel& m, double depth, const Vec3& w) noexcept {
+  const TissueParams& p = m.params();
+  return -(p.patch_stiffness_factor - 1.0) * p.stiffness_n_per_m_pow *
+         std::pow(depth, p.exponent + 1.0) / (p.exponent + 1.0) * m.patchGradient(w.x(), w.y());
 }
 }  // namespace
 
@@ -177,12 +187,7 @@ TissueContact tissueContact(const TissueModel& m, int finger, const Vec3& p_devi
     anchor.y_m = w.y();
     anchor.attached = true;
   }
-  // A stiffer patch stores more energy at the same depth: its rim pushes the finger out of it
-  // with the slope of that energy (-dV/dx), or the web would return more energy than it took
-  // from a finger that presses beside the patch and lets go inside it.
-  const Vec3 rim = -(p.patch_stiffness_factor - 1.0) * p.stiffness_n_per_m_pow *
-                   std::pow(depth, p.exponent + 1.0) / (p.exponent + 1.0) *
-                   m.patchGradient(w.x(), w.y());
+  const Vec3 rim = rimForce(m, depth, w);
   const double g = 1.0 + m.patchWeight(w.x(), w.y()) * (p.patch_friction_factor - 1.0);
   const double kt = p.lateral_stiffness_n_per_m;
   const double limit_static = p.mu_static * g * fn;
@@ -272,6 +277,190 @@ TissueOutput TissueProxy::renderWith(const PerFinger<Vec3>& p, const PerFinger<V
                                  0.5 * tp.lateral_stiffness_n_per_m * stretch2);
   }
   return out;
+}
+
+bool TissueProxy::resync(int finger, const Vec3& force_device_n) noexcept {
+  if (finger != kThumb && finger != kIndex) return false;
+  if (!have_last_ || blending_ || !allFinite(force_device_n)) return false;
+  const auto k = static_cast<std::size_t>(finger);
+  const TissueParams& p = current_.params();
+  const double kt = p.lateral_stiffness_n_per_m;
+  const Vec3 w = current_.toWeb(last_p_[k]);
+  Vec3 v = p.orientation.conjugate() * v_[k];
+  const double depth = current_.depthOf(finger, last_p_[k]);
+  const bool over = std::abs(w.x()) <= p.half_extent_m && std::abs(w.y()) <= p.half_extent_m;
+  if (!(depth > 0.0) || !over || !(kt > 0.0) || !allFinite(w) || !allFinite(v)) return false;
+  const Vec3 f_w = p.orientation.conjugate() * force_device_n;
+  // The depth rate, from the normal part: F_n = k·δ^n·(1 + λ·δ̇), within kMaxRateStepMps of
+  // this proxy's own (+ pressing in: the thumb moves toward −z, the index toward +z).
+  const double side = finger == kThumb ? 1.0 : -1.0;
+  double rate = -side * v.z();
+  const double elastic = current_.normalForceN(depth, 0.0, w.x(), w.y());
+  const double claimed = side * f_w.z();
+  if (p.damping_s_per_m > 0.0 && elastic > 0.0 && claimed > 0.0) {
+    rate = std::clamp((claimed / elastic - 1.0) / p.damping_s_per_m, rate - kMaxRateStepMps,
+                      rate + kMaxRateStepMps);
+    v.z() = -side * rate;
+  }
+  // The stretch, from the tangential part as tissueContact() renders it:
+  // F_t = -kt·s - b·v + rim, s the stretch from the anchor.
+  const double fn = current_.normalForceN(depth, rate, w.x(), w.y());
+  const Vec3 rim = rimForce(current_, depth, w);
+  double sx = (-f_w.x() - p.viscous_n_s_per_m * v.x() + rim.x()) / kt;
+  double sy = (-f_w.y() - p.viscous_n_s_per_m * v.y() + rim.y()) / kt;
+  // Inside the static limit (by a hair, so that the next render at this sample sticks).
+  const double g = 1.0 + current_.patchWeight(w.x(), w.y()) * (p.patch_friction_factor - 1.0);
+  const double limit = (1.0 - 1e-9) * p.mu_static * g * fn / kt;
+  const double stretch = std::hypot(sx, sy);
+  if (!std::isfinite(stretch) || !allFinite(v)) return false;
+  if (stretch > limit) {
+    const double keep = stretch > 0.0 ? std::max(limit, 0.0) / stretch : 0.0;
+    sx *= keep;
+    sy *= keep;
+  }
+  anchor_[k] = {w.x() - sx, w.y() - sy, true};
+  v_[k] = p.orientation * v;
+  return true;
+}
+
+namespace {
+constexpr double kProxyStateMagic = 7711.0;  // the first number of a saved proxy
+constexpr std::size_t kParamsSize = 23;
+
+void putParams(const TissueParams& p, std::vector<double>& out) {
+  for (int i = 0; i < 3; ++i) out.push_back(p.origin_m[i]);
+  out.insert(out.end(), {p.orientation.w(),
+                         p.orientation.x(),
+                         p.orientation.y(),
+                         p.orientation.z(),
+                         p.thickness_m,
+                         p.pad_radius_m,
+                         p.half_extent_m,
+                         p.stiffness_n_per_m_pow,
+                         p.exponent,
+                         p.damping_s_per_m,
+                         p.lateral_stiffness_n_per_m,
+                         p.mu_static,
+                         p.mu_kinetic,
+                         p.viscous_n_s_per_m,
+                         p.patch_x_m,
+                         p.patch_y_m,
+                         p.patch_radius_m,
+                         p.patch_stiffness_factor,
+                         p.patch_friction_factor,
+                         p.patch_rim_m});
+}
+
+TissueParams getParams(const double* d) noexcept {
+  TissueParams p;
+  p.origin_m = Vec3(d[0], d[1], d[2]);
+  p.orientation = Quat(d[3], d[4], d[5], d[6]);
+  double* fields[] = {&p.thickness_m,
+                      &p.pad_radius_m,
+                      &p.half_extent_m,
+                      &p.stiffness_n_per_m_pow,
+                      &p.exponent,
+                      &p.damping_s_per_m,
+                      &p.lateral_stiffness_n_per_m,
+                      &p.mu_static,
+                      &p.mu_kinetic,
+                      &p.viscous_n_s_per_m,
+                      &p.patch_x_m,
+                      &p.patch_y_m,
+                      &p.patch_radius_m,
+                      &p.patch_stiffness_factor,
+                      &p.patch_friction_factor,
+                      &p.patch_rim_m};
+  for (std::size_t i = 0; i < std::size(fields); ++i) *fields[i] = d[7 + i];
+  return p;
+}
+
+// A nanosecond time as two doubles that hold it exactly (a double holds 53 bits).
+void putTime(int64_t t, std::vector<double>& out) {
+  const auto u = static_cast<uint64_t>(t);
+  out.push_back(static_cast<double>(static_cast<int32_t>(static_cast<uint32_t>(u >> 32))));
+  out.push_back(static_cast<double>(u & 0xffffffffu));
+}
+
+bool getTime(const double* d, int64_t* t) noexcept {
+  if (!(d[0] >= -2147483648.0 && d[0] <= 2147483647.0 && d[0] == std::floor(d[0]))) return false;
+  if (!(d[1] >= 0.0 && d[1] <= 4294967295.0 && d[1] == std::floor(d[1]))) return false;
+  const auto hi = static_cast<uint64_t>(static_cast<int64_t>(d[0]));
+  *t = static_cast<int64_t>((hi << 32) | static_cast<uint64_t>(d[1]));
+  return true;
+}
+
+bool isFlag(double x) noexcept { return x == 0.0 || x == 1.0; }
+}  // namespace
+
+void TissueProxy::saveState(std::vector<double>& out) const {
+  out.push_back(kProxyStateMagic);
+  for (const TissueAnchor& a : anchor_)
+    out.insert(out.end(), {a.x_m, a.y_m, a.attached ? 1.0 : 0.0});
+  out.push_back(have_last_ ? 1.0 : 0.0);
+  putTime(last_ns_, out);
+  for (const Vec3& p : last_p_) out.insert(out.end(), {p.x(), p.y(), p.z()});
+  for (const Vec3& v : v_) out.insert(out.end(), {v.x(), v.y(), v.z()});
+  out.push_back(blending_ ? 1.0 : 0.0);
+  out.push_back(fade_started_ ? 1.0 : 0.0);
+  putTime(fade_start_ns_, out);
+  putParams(previous_.params(), out);
+  putParams(current_.params(), out);
+}
+
+bool TissueProxy::restoreState(std::span<const double> s) noexcept {
+  if (s.size() != kStateSize || s[0] != kProxyStateMagic) return false;
+  // Every number finite; positions, anchors and flags within what a render can leave.
+  for (double x : s) {
+    if (!std::isfinite(x)) return false;
+  }
+  const double* d = s.data() + 1;
+  PerFinger<TissueAnchor> anchor{};
+  for (std::size_t k = 0; k < 2; ++k, d += 3) {
+    if (std::abs(d[0]) > 2.0 * sample_bounds::kPositionM ||
+        std::abs(d[1]) > 2.0 * sample_bounds::kPositionM || !isFlag(d[2])) {
+      return false;
+    }
+    anchor[k] = {d[0], d[1], d[2] == 1.0};
+  }
+  if (!isFlag(d[0])) return false;
+  const bool have_last = d[0] == 1.0;
+  int64_t last_ns = 0;
+  if (!getTime(d + 1, &last_ns)) return false;
+  d += 3;
+  PerFinger<Vec3> last_p, v;
+  for (std::size_t k = 0; k < 2; ++k, d += 3) {
+    last_p[k] = Vec3(d[0], d[1], d[2]);
+    if (last_p[k].cwiseAbs().maxCoeff() > sample_bounds::kPositionM) return false;
+  }
+  for (std::size_t k = 0; k < 2; ++k, d += 3) v[k] = Vec3(d[0], d[1], d[2]);
+  if (!isFlag(d[0]) || !isFlag(d[1])) return false;
+  const bool blending = d[0] == 1.0, fade_started = d[1] == 1.0;
+  int64_t fade_start_ns = 0;
+  if (!getTime(d + 2, &fade_start_ns)) return false;
+  d += 4;
+  const TissueParams previous = getParams(d);
+  const TissueParams saved = getParams(d + kParamsSize);
+  if (invalidTissueParam(previous) != nullptr || invalidTissueParam(saved) != nullptr) return false;
+
+  anchor_ = anchor;
+  have_last_ = have_last;
+  last_ns_ = last_ns;
+  last_p_ = last_p;
+  v_ = v;
+  if (saved == current_.params()) {
+    previous_ = TissueModel(previous);
+    blending_ = blending && blend_ns_ > 0;
+    fade_started_ = fade_started;
+    fade_start_ns_ = fade_start_ns;
+  } else {
+    // Saved before the model changed: fade from the one it was saved under.
+    previous_ = TissueModel(saved);
+    blending_ = blend_ns_ > 0;
+    fade_started_ = false;
+    fade_start_ns_ = 0;
+  }
+  return true;
 }
 
 }  // namespace telehand

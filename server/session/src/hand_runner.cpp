@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <span>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
@@ -101,6 +102,26 @@ bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Samp
       }
     }
     web_->step(grip, d.source_time_ns);
+    // Across a gap the web stepped the straight line, not the client's path: its velocity
+    // filter remembers another depth rate, and its skin sticks and slips at other ticks than
+    // the client's from then on (a stick-slip sawtooth out of phase: the web force 13-52 %
+    // off at the worst HandState on the spain-australia and extreme links, docs/massage.md
+    // "The server"). The sample carries the force the client's proxy rendered: wherever the
+    // two differ, the depth rate and the skin's stretch are taken from it within the model's
+    // bounds (WebSim::resync), as the drift corrector takes the hand back for the joint. On
+    // samples stepped in order the two agree and nothing changes. Only for the model the
+    // client rendered, and not while its model fades.
+    if (d.model_version == model.params().version &&
+        (d.flags & sample_flags::kModelBlending) == 0) {
+      PerFinger<Vec3> force;
+      PerFinger<double> depth;
+      for (std::size_t k = 0; k < 2; ++k) {
+        const auto& f = d.fingers[k];
+        force[k] = Vec3(f.tissue_force_n[0], f.tissue_force_n[1], f.tissue_force_n[2]);
+        depth[k] = f.contact_depth_m;
+      }
+      if (web_->resync(force, depth) > 0) ++web_resyncs_;
+    }
   }
   if (sim_ && live.isNew(d)) {
     // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
@@ -300,6 +321,11 @@ std::string HandRunner::checkpoint() const {
   std::vector<double> v = {static_cast<double>(hand_seq_), treatment_s_};
   const std::vector<double> state = sim_->saveState();
   v.insert(v.end(), state.begin(), state.end());
+  if (web_) {
+    // A massage's web after the hand (WebSim::saveState, its own magic number first).
+    const std::vector<double> web = web_->saveState();
+    v.insert(v.end(), web.begin(), web.end());
+  }
   return {reinterpret_cast<const char*>(v.data()), v.size() * sizeof(double)};
 }
 
@@ -307,8 +333,24 @@ bool HandRunner::restore(const std::string& data) {
   if (!sim_ || data.size() % sizeof(double) != 0 || data.size() < 3 * sizeof(double)) return false;
   std::vector<double> v(data.size() / sizeof(double));
   std::memcpy(v.data(), data.data(), data.size());
-  if (!std::isfinite(v[0]) || v[0] < 0.0 || !std::isfinite(v[1])) return false;
-  if (!sim_->restoreState(std::vector<double>(v.begin() + 2, v.end()))) return false;
+  if (!std::isfinite(v[0]) || v[0] < 0.0 || v[0] > 9007199254740992.0 || !std::isfinite(v[1]))
+    return false;
+  // The hand's part is as long as this hand's own state; what follows it is the web's. A
+  // checkpoint with nothing after the hand (from before the web was kept) restores the hand
+  // and leaves the web to start afresh.
+  const std::size_t hand_size = sim_->saveState().size();
+  if (v.size() < 2 + hand_size) return false;
+  const std::span<const double> web_part = std::span<const double>(v).subspan(2 + hand_size);
+  std::optional<sim::WebSim> web;
+  if (!web_part.empty()) {
+    if (!web_) return false;  // a web for a session without one
+    web.emplace(*web_);
+    if (!web->restoreState(web_part)) return false;
+  }
+  if (!sim_->restoreState(std::vector<double>(
+          v.begin() + 2, v.begin() + 2 + static_cast<std::ptrdiff_t>(hand_size))))
+    return false;
+  if (web) *web_ = *web;
   hand_seq_ = std::max(hand_seq_, static_cast<uint64_t>(v[0]));
   treatment_s_ = v[1];
   return true;

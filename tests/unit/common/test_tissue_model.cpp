@@ -1,9 +1,12 @@
 // The web's tissue model: Hunt–Crossley normal force, stick–slip friction, the patch, the
-// proxy's fade and its passivity on closed paths.
+// proxy's fade and its passivity on closed paths, its state saved and restored, and its skin
+// re-anchored from another proxy's force.
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
+#include <vector>
 
 #include "telehand/core/tissue_model.h"
 #include "telehand/core/web_guide.h"
@@ -205,6 +208,200 @@ TEST(TissueProxy, ANewParameterSetFadesInWithoutAStep) {
   EXPECT_LT(largest_step, std::abs(gap) / 150.0);  // spread over the 200 ms fade
   EXPECT_FALSE(out.blending);
   EXPECT_NEAR(last, 0.25 * TissueModel(b).normalForceN(0.005, 0), 1e-6);
+}
+
+/// Both pads `depth` deep, circling `radius` at `hz` on the web, with a slow press wander and
+/// a little jitter (as a hand does): sample `i` of it (1 ms apart). On a circle of 8 mm the
+/// healthy skin's static limit (6.9 mm of stretch at 10 N) is passed all the way round: it
+/// sticks and slips.
+PerFinger<Vec3> circling(const TissueModel& m, int i, double radius = 0.008, double hz = 1.5,
+                         double depth = 0.006) {
+  const double t = i * 1e-3;
+  const double ph = 2 * kPi * hz * t;
+  const double jitter = 2e-5 * std::sin(i * 1.7) * std::cos(i * 0.31);
+  const double d = depth + 0.0005 * std::sin(2 * kPi * 0.4 * t);
+  const double x = radius * std::cos(ph) + jitter, y = radius * std::sin(ph) - jitter;
+  return {thumbAt(m, x, y, d), indexAt(m, x, y, d)};
+}
+
+TEST(TissueProxy, ARestoredStateGoesOnAsTheProxyItWasSavedFrom) {
+  for (const char* name : {"healthy", "scar"}) {
+    const TissueParams p = tissueCase(name);
+    TissueProxy a(p, 0.25);
+    const TissueModel m(p);
+    int slips = 0;
+    for (int i = 0; i < 1500; ++i) {
+      const TissueOutput o = a.render(circling(m, i), int64_t{i} * 1'000'000);
+      slips += o.contact[0].depth_m > 0.0 && !o.contact[0].sticking;
+    }
+    ASSERT_GT(slips, 10) << "the skin slips on the circle: the anchors are state to keep";
+    std::vector<double> saved;
+    a.saveState(saved);
+    ASSERT_EQ(saved.size(), TissueProxy::kStateSize);
+    TissueProxy b(p, 0.25);
+    ASSERT_TRUE(b.restoreState(saved));
+    TissueProxy fresh(p, 0.25);
+    double largest = 0.0, fresh_largest = 0.0;
+    for (int i = 1500; i < 3000; ++i) {
+      const auto pos = circling(m, i);
+      const TissueOutput oa = a.render(pos, int64_t{i} * 1'000'000);
+      const TissueOutput ob = b.render(pos, int64_t{i} * 1'000'000);
+      const TissueOutput of = fresh.render(pos, int64_t{i} * 1'000'000);
+      for (int k = 0; k < 2; ++k) {
+        largest = std::max(largest, (oa.contact[k].force() - ob.contact[k].force()).norm());
+        fresh_largest =
+            std::max(fresh_largest, (oa.contact[k].force() - of.contact[k].force()).norm());
+      }
+    }
+    EXPECT_EQ(largest, 0.0) << name;
+    EXPECT_GT(fresh_largest, 1.0) << name << ": a proxy started afresh there differs";
+  }
+}
+
+TEST(TissueProxy, ABadStateIsRefusedWithNothingChanged) {
+  const TissueParams p = tissueCase("healthy");
+  const TissueModel m(p);
+  TissueProxy a(p, 0.25);
+  for (int i = 0; i < 500; ++i) a.render(circling(m, i), int64_t{i} * 1'000'000);
+  std::vector<double> saved;
+  a.saveState(saved);
+  TissueProxy b(p, 0.25);
+  for (int i = 0; i < 300; ++i) b.render(circling(m, i, 0.005), int64_t{i} * 1'000'000);
+  std::vector<double> before;
+  b.saveState(before);
+  const auto refused = [&](std::vector<double> s, const char* what) {
+    EXPECT_FALSE(b.restoreState(s)) << what;
+    std::vector<double> now;
+    b.saveState(now);
+    EXPECT_EQ(now, before) << what;
+  };
+  refused({}, "empty");
+  refused(std::vector<double>(saved.begin(), saved.end() - 1), "truncated");
+  auto s = saved;
+  s.push_back(0.0);
+  refused(s, "too long");
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  for (std::size_t i = 0; i < saved.size(); ++i) {
+    s = saved;
+    s[i] = nan;
+    refused(s, "a NaN");
+    s[i] = std::numeric_limits<double>::infinity();
+    refused(s, "an infinity");
+  }
+  s = saved;
+  s[0] = 1.0;
+  refused(s, "another magic number");
+  s = saved;
+  s[3] = 0.5;  // the thumb's anchor neither attached nor not
+  refused(s, "a flag");
+  s = saved;
+  s[1] = 1e3;  // an anchor a kilometre off
+  refused(s, "an anchor");
+  s = saved;
+  s[8] = 0.5;  // a time that is not a whole number of nanoseconds
+  refused(s, "a time");
+  s = saved;
+  s[10] = 5.0;  // a thimble 5 m from the device
+  refused(s, "a position");
+  s = saved;
+  s[s.size() - 9] = -1.0;  // the current set's mu_static
+  refused(s, "a parameter");
+  EXPECT_TRUE(b.restoreState(saved));
+}
+
+TEST(TissueProxy, AStateSavedUnderAnotherModelFadesIntoTheCurrentOne) {
+  const TissueParams healthy = tissueCase("healthy"), hyper = tissueCase("hypertonic");
+  const TissueModel m(healthy);
+  TissueProxy a(healthy, 0.25);
+  for (int i = 0; i < 500; ++i) a.render(circling(m, i), int64_t{i} * 1'000'000);
+  std::vector<double> saved;
+  a.saveState(saved);
+  TissueProxy b(hyper, 0.25);
+  ASSERT_TRUE(b.restoreState(saved));
+  const TissueOutput o = b.render(circling(m, 500), 500'000'000);
+  EXPECT_TRUE(o.blending) << "from the saved model to the current one, without a step";
+}
+
+TEST(TissueProxy, ResyncingTakesTheOtherProxysStateWithinTheModelsBounds) {
+  const TissueParams p = tissueCase("healthy");
+  const TissueModel m(p);
+  // The client's proxy renders every sample; this one misses 30 of them and renders the
+  // straight line between the ones either side instead.
+  TissueProxy client(p, 0.25), server(p, 0.25);
+  TissueOutput c, s;
+  for (int i = 0; i < 730; ++i) {
+    c = client.render(circling(m, i), int64_t{i} * 1'000'000);
+    if (i >= 700 && i < 730) {
+      const auto a = circling(m, 699), b = circling(m, 730);
+      const double w = (i - 699) / 31.0;
+      s = server.render({a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1])},
+                        int64_t{i} * 1'000'000);
+    } else {
+      s = server.render(circling(m, i), int64_t{i} * 1'000'000);
+    }
+  }
+  // Back on the client's samples: the skins have parted.
+  s = server.render(circling(m, 730), 730'000'000);
+  c = client.render(circling(m, 730), 730'000'000);
+  const Vec3 axis = m.normalAxis();
+  const auto tangential = [&](const Vec3& f) { return Vec3(f - f.dot(axis) * axis); };
+  ASSERT_GT((tangential(s.contact[0].force()) - tangential(c.contact[0].force())).norm(), 1e-3)
+      << "the gap left the skins apart";
+  for (int k = 0; k < 2; ++k) ASSERT_TRUE(server.resync(k, c.contact[k].force()));
+  s = server.renderLast();
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_LT((s.contact[k].force() - c.contact[k].force()).norm(), 1e-9);
+    EXPECT_EQ(s.contact[k].depth_m, c.contact[k].depth_m);
+  }
+  // And they go on together: the velocity filter's depth rate and the anchors are the
+  // client's (the filter's sideways velocity still remembers the straight line a while).
+  double normal_after = 0.0;
+  for (int i = 731; i < 760; ++i) {
+    s = server.render(circling(m, i), int64_t{i} * 1'000'000);
+    c = client.render(circling(m, i), int64_t{i} * 1'000'000);
+    for (int k = 0; k < 2; ++k) {
+      normal_after =
+          std::max(normal_after, std::abs((s.contact[k].force() - c.contact[k].force()).dot(axis)));
+    }
+  }
+  EXPECT_LT(normal_after, 1e-9);
+
+  // A force no skin could pull with: the stretch stops at the static limit, and the next
+  // render sticks there.
+  ASSERT_TRUE(server.resync(0, Vec3(90.0, -90.0, 0.0)));
+  s = server.renderLast();
+  const double fn = s.contact[0].normal_n.norm();
+  EXPECT_TRUE(s.contact[0].sticking);
+  // The spring pulls with at most mu_static * F_n; the skin's viscous drag adds b * |v|
+  // (the thimbles move under 0.1 m/s here).
+  EXPECT_LE(s.contact[0].tangential_n.norm(), p.mu_static * fn + p.viscous_n_s_per_m * 0.1);
+
+  // A normal force no press at this depth could make: the depth rate moves at most
+  // kMaxRateStepMps.
+  const double before_n = s.contact[0].normal_n.norm();
+  const double elastic =
+      m.normalForceN(s.contact[0].depth_m, 0.0, s.contact[0].point_w.x(), s.contact[0].point_w.y());
+  ASSERT_TRUE(server.resync(0, Vec3(0.0, 0.0, 90.0)));
+  s = server.renderLast();
+  EXPECT_NEAR(s.contact[0].normal_n.norm() - before_n,
+              elastic * p.damping_s_per_m * TissueProxy::kMaxRateStepMps, 1e-6);
+
+  // Nothing taken from a force that is not a number, for a finger off the web, or mid-fade.
+  const auto unchanged = [&](int finger, const Vec3& f, const char* what) {
+    std::vector<double> before, after;
+    server.saveState(before);
+    EXPECT_FALSE(server.resync(finger, f)) << what;
+    server.saveState(after);
+    EXPECT_EQ(before, after) << what;
+  };
+  unchanged(0, Vec3(std::numeric_limits<double>::quiet_NaN(), 0, 0), "NaN");
+  unchanged(2, Vec3::Zero(), "no such finger");
+  server.render({thumbAt(m, 0, 0, -0.002), indexAt(m, 0, 0, -0.002)}, 760'000'000);
+  unchanged(0, Vec3(1, 0, 0), "not pressing");
+  server.render(circling(m, 761), 761'000'000);
+  server.setParams(tissueCase("hypertonic"), 0.25);
+  server.render(circling(m, 762), 762'000'000);
+  unchanged(0, Vec3(1, 0, 0), "fading");
 }
 
 }  // namespace

@@ -26,9 +26,11 @@
 /// the web passive.
 ///
 /// Forces at reference scale (N, device frame); the device gets force_scale of them.
-/// Allocation-free, noexcept.
+/// Allocation-free, noexcept (but for TissueProxy::saveState, a checkpoint's).
 #include <array>
 #include <cstdint>
+#include <span>
+#include <vector>
 
 #include "telehand/core/math.h"
 
@@ -169,6 +171,32 @@ class TissueProxy {
   /// Same with the velocities given (the server's samples, tests).
   TissueOutput renderWith(const PerFinger<Vec3>& p_device, const PerFinger<Vec3>& v_device,
                           int64_t t_ns) noexcept;
+
+  /// Take one finger's state from the force another proxy rendered for the last sample
+  /// rendered here (the client's, recorded with the sample; reference N, device frame): the
+  /// depth rate in the velocity filter from its normal part (Hunt–Crossley inverted, within
+  /// kMaxRateStepMps of this proxy's own), and the skin's anchor where the spring, with this
+  /// proxy's velocity, gives its tangential part, the stretch held inside the static friction
+  /// limit at the normal force (nothing the model could not reach itself). False, with
+  /// nothing changed, when the finger is not on the web here, the force is not finite, the
+  /// parameters are fading or the skin has no lateral stiffness. The next render() at the
+  /// same sample gives the force with the new state.
+  bool resync(int finger, const Vec3& force_device_n) noexcept;
+  /// How far resync() may move the depth rate (m/s): a sample's normal force is taken where
+  /// it lies within what the thimble's speed across a gap can explain.
+  static constexpr double kMaxRateStepMps = 1.0;
+  /// The last sample rendered again (as render() at its time; after resync()).
+  TissueOutput renderLast() noexcept { return renderWith(last_p_, v_, last_ns_); }
+
+  /// The proxy's state (anchors, velocity filter, fade, both parameter sets) appended to
+  /// `out` as kStateSize doubles, for a checkpoint (docs/pool.md).
+  static constexpr std::size_t kStateSize = 72;
+  void saveState(std::vector<double>& out) const;
+  /// Go on from a saveState(): false, with nothing changed, for anything else (a size, a
+  /// number that is not finite or out of its bounds, parameters invalidTissueParam refuses).
+  /// Saved under other parameters than the current ones, the proxy fades from those to the
+  /// current ones, as setParams would have.
+  bool restoreState(std::span<const double> state) noexcept;
 
  private:
   TissueModel current_;

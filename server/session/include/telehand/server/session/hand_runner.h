@@ -63,11 +63,16 @@ class HandRunner {
   void endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns);
 
   /// The hand's state as a checkpoint (docs/pool.md): the Bullet hand's bodies, grips and
-  /// time, the HandState numbering and the treatment time, as bytes ('' without a hand).
+  /// time, the HandState numbering and the treatment time, and a massage's web (its skin's
+  /// anchors, velocity filter, model fade, surface), as bytes ('' without a hand).
   std::string checkpoint() const;
-  /// Go on from a checkpoint() of a hand of the same model; false (nothing changed) when it
-  /// does not fit.
+  /// Go on from a checkpoint() of a hand of the same model; false (nothing changed, neither
+  /// the hand nor the web) when it does not fit. A checkpoint without a web (written before
+  /// the web was kept) restores the hand and leaves a massage's web as it is.
   bool restore(const std::string& data);
+  /// Samples on which the web took a finger's depth rate and skin stretch from the client's
+  /// recorded force (WebSim::resync): after gaps, until the two agree again.
+  uint64_t webResyncs() const noexcept { return web_resyncs_; }
 
   /// Time the pads pressed the joint (recovery).
   double treatmentS() const noexcept { return treatment_s_; }
@@ -99,6 +104,7 @@ class HandRunner {
   int64_t next_hand_ns_ = 0;
   HandStateDeadband hand_deadband_;
   uint64_t hand_withheld_ = 0;
+  uint64_t web_resyncs_ = 0;
 };
 
 }  // namespace telehand::server::session
