@@ -1352,4 +1352,18 @@ std::string massageCaseToml(const TissueFit& fit, const JointModelParams& joint,
   return o.str();
 }
 
+TissueParams tissueGeometry(const TissueParams& p) noexcept {
+  TissueParams n;
+  n.origin_m = p.origin_m;
+  n.orientation = p.orientation;
+  n.thickness_m = p.thickness_m;
+  n.pad_radius_m = p.pad_radius_m;
+  n.half_extent_m = p.half_extent_m;
+  n.patch_x_m = p.patch_x_m;
+  n.patch_y_m = p.patch_y_m;
+  n.patch_radius_m = p.patch_radius_m;
+  n.patch_rim_m = p.patch_rim_m;
+  return n;
+}
+
 }  // namespace telehand::server::estimate

@@ -17,19 +17,7 @@ namespace {
 
 double relErr(double fit, double truth) { return (fit - truth) / truth; }
 
-TissueParams nominalOf(const TissueParams& truth) {
-  TissueParams n;
-  n.origin_m = truth.origin_m;
-  n.orientation = truth.orientation;
-  n.thickness_m = truth.thickness_m;
-  n.pad_radius_m = truth.pad_radius_m;
-  n.half_extent_m = truth.half_extent_m;
-  n.patch_x_m = truth.patch_x_m;
-  n.patch_y_m = truth.patch_y_m;
-  n.patch_radius_m = truth.patch_radius_m;
-  n.patch_rim_m = truth.patch_rim_m;
-  return n;
-}
+TissueParams nominalOf(const TissueParams& truth) { return tissueGeometry(truth); }
 
 TissueFit captureAndFit(const TissueParams& web, double seconds, uint64_t seed) {
   test::MassageTrialOptions o;

@@ -63,6 +63,10 @@ struct TissuePoint {
   double normal_n = 0.0;      ///< eq. 2 as measured
 };
 
+/// What a clinician knows of a web before its fit: where it is, how thick, the pad, the
+/// contact area and where a scar sits; nothing of its mechanics (those stay the defaults).
+TissueParams tissueGeometry(const TissueParams& p) noexcept;
+
 struct TissueFitOptions {
   /// The thimble error, 1 σ (the expected value of eq. 2 near zero rests on it; the fit's own
   /// residual is reported beside it).
