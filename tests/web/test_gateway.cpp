@@ -349,9 +349,11 @@ TEST_F(GatewayTest, ATakeOverFromThePageLeadsTheRunsGuidedTrials) {
   // The take-over: acknowledged, then the server's event in the watched run.
   ASSERT_TRUE(c.send(R"({"op":"takeover","session":)" + std::to_string(run) + R"(,"from":)" +
                      std::to_string(lead) + "}"));
-  EXPECT_TRUE(c.waitFor(R"("op":"takeover")"));
-  const auto taken = c.waitFor("leads the guided trials from session " + std::to_string(lead), 10s);
-  EXPECT_TRUE(taken);
+  // The gateway's ack and the server's event may come in either order.
+  const auto got = c.waitForAll(
+      {R"("op":"takeover")", "leads the guided trials from session " + std::to_string(lead)}, 10s);
+  EXPECT_FALSE(got[0].empty()) << "the take-over acknowledged";
+  EXPECT_FALSE(got[1].empty()) << "the server's take-over event";
   EXPECT_EQ(statOf(stats(), "takeovers"), 1u);
 
   const auto rc = student.wait(120s);

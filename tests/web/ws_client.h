@@ -16,6 +16,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 namespace telehand::test {
 
@@ -55,6 +56,31 @@ class WsClient {
         if (f.find(needle) != std::string::npos) return f;
       }
       if (cv_.wait_until(lk, end) == std::cv_status::timeout && frames_.empty()) return {};
+    }
+  }
+  /// Frames containing each of `needles`, in whatever order they come (frames matching none
+  /// are dropped), within `timeout`: one per needle, empty where none came. For replies whose
+  /// order the gateway does not fix (an ack and the server's event it leads to).
+  std::vector<std::string> waitForAll(const std::vector<std::string>& needles,
+                                      std::chrono::milliseconds timeout) {
+    std::vector<std::string> got(needles.size());
+    std::size_t found = 0;
+    std::unique_lock lk(m_);
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    for (;;) {
+      while (!frames_.empty()) {
+        std::string f = std::move(frames_.front());
+        frames_.pop_front();
+        for (std::size_t i = 0; i < needles.size(); ++i) {
+          if (got[i].empty() && f.find(needles[i]) != std::string::npos) {
+            got[i] = f;
+            ++found;
+            break;
+          }
+        }
+        if (found == needles.size()) return got;
+      }
+      if (cv_.wait_until(lk, end) == std::cv_status::timeout && frames_.empty()) return got;
     }
   }
   /// True once the gateway closed the connection.
