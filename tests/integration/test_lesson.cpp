@@ -291,6 +291,8 @@ TEST_F(LessonRunTest, ConcurrentBarsDuringTrialsAndSelfRequestedFeedbackAfterAsk
   EXPECT_GE(bars_late.size(), 1u) << "bars during trial 2\n" << c_out;
   // Each bar: 30 columns from 0 to 1.5x the band's top; the last peak '|' where it belongs,
   // the frequency error against the target, the band's bottom '[' unless a mark covers it.
+  // The band printed at lesson creation is rounded to 0.01 N and the client draws the exact
+  // one, so a column is only known to within one either side.
   const double full = 1.5 * band_max;
   auto col = [&](double n) { return std::clamp(static_cast<int>(n / full * 30), 0, 29); };
   for (const Bar& b : bars) {
@@ -299,8 +301,13 @@ TEST_F(LessonRunTest, ConcurrentBarsDuringTrialsAndSelfRequestedFeedbackAfterAsk
     EXPECT_NEAR(peak, col(b.peak_n), 1) << b.bar << " peak " << b.peak_n;
     EXPECT_LE(b.trough_n, b.peak_n) << b.bar;
     EXPECT_NEAR(b.frequency_hz - target_hz, b.error_hz, 0.011) << b.bar;
-    if (col(b.peak_n) != col(band_min) && col(band_min) != col(b.trough_n)) {
-      EXPECT_EQ(b.bar[static_cast<std::size_t>(col(band_min))], '[') << b.bar;
+    const auto open = b.bar.find('[');
+    if (open != std::string::npos) {
+      EXPECT_NEAR(static_cast<int>(open), col(band_min), 1) << b.bar << " band " << band_min;
+    } else {
+      const bool covered = std::abs(col(b.peak_n) - col(band_min)) <= 1 ||
+                           std::abs(col(b.trough_n) - col(band_min)) <= 1;
+      EXPECT_TRUE(covered) << "no '[' and no mark near the band's bottom: " << b.bar;
     }
   }
   // The scores: after the last trial only.
