@@ -37,6 +37,12 @@ int main(int argc, char** argv) {
          "--hand-deadband", hand_deadband,
          "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
       ->check(CLI::Range(0.0, 0.5));
+  double hand_slice_ms = 2.0;
+  app.add_option("--hand-slice-ms", hand_slice_ms,
+                 "the Bullet hands step between rounds of taking and recording samples, at most "
+                 "this long at a time; 0: each live sample steps its hand as it is taken")
+      ->check(CLI::Range(0.0, 100.0))
+      ->capture_default_str();
   bool insecure = false;
   app::addDdsOptions(app, dds_opts, insecure, "server");
   std::string hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
@@ -102,6 +108,9 @@ int main(int argc, char** argv) {
     }
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(*store, link, cfg, hand_model ? &*hand_model : nullptr);
+    // The hands step between rounds of taking and recording, at most a slice at a time
+    // (docs/performance.md "Capacity").
+    manager.setHandSlice(hand_slice_ms > 0.0 ? static_cast<int64_t>(hand_slice_ms * 1e6) : 0);
     // The lease is renewed on a thread (and a connection) of its own as well as by the serve
     // loop: a loop held up for a moment (closing sessions, a busy record) keeps its sessions.
     std::jthread beat;
@@ -164,9 +173,11 @@ int main(int argc, char** argv) {
     const auto& lc = link.counters();
     spdlog::info(
         "stopped: {} samples recorded, {} live, {} invalid, {} for unknown sessions, "
-        "{} bad commands, {} refused (security), {} store errors, {} echoes",
+        "{} bad commands, {} refused (security), {} store errors, {} echoes; hands: {} steps, "
+        "{} live samples stepped over (short of CPU)",
         st.recorded_samples, st.live_samples, st.nonfinite_samples, st.unknown_session_samples,
-        st.bad_commands, st.refused, st.store_errors, lc.echoes.load());
+        st.bad_commands, st.refused, st.store_errors, lc.echoes.load(), st.hand_steps,
+        st.hand_samples_skipped);
     return 0;
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-server: " << e.what() << "\n";

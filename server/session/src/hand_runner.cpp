@@ -67,58 +67,59 @@ void HandRunner::step(const JointModel& model) {
   if (f[0].norm() + f[1].norm() > 1.0) treatment_s_ += 1e-3;
 }
 
-bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
-                         const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
+bool HandRunner::advance(SessionContext& ctx, const Sample& d, const PerFinger<Vec3>& grip,
+                         uint64_t steps, bool coded, const JointModel& model,
                          telehand_msg_SessionMode mode, Vec3* before) {
-  if (sim_ && live.isNew(d)) {
-    // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
-    // on the way, with the thimbles moving in a straight line across the gap (jumping the
-    // pads to the new sample would kick the finger and leave the hand lagging the
-    // thimbles). An overloaded server must not try to catch up on every lost millisecond
-    // (each catch-up would fall further behind): past kMaxCatchUpSteps the hand skips time
-    // and the gap shows in HandState.device_lost. A deadband-coded stream withholds samples
-    // on purpose: those steps run on the last state received.
-    if (!live.have()) {
-      // The first sample: the student takes hold of the finger where their fingers are. The
-      // hand's MCP starts there (inside its range), not at the model's neutral pose: pads
-      // closing on a phalanx that is still swinging from neutral to rest (or flexed 45 deg
-      // away, for a stiff joint) grip it off the thimbles' line, and the hand would stay
-      // that far from the script (3.4 deg of abduction measured on the healthy joint).
-      Vec3 start = model.anglesFromGrip(grip);
-      for (int i = 0; i < kAxes; ++i) {
-        const CubicCurve& c = model.params().axes[static_cast<std::size_t>(i)];
-        start[i] = std::clamp(start[i], degToRad(c.min_deg), degToRad(c.max_deg));
-      }
-      if (allFinite(start)) sim_->resetMcp(start);
+  // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
+  // on the way, with the thimbles moving in a straight line across the gap (jumping the pads
+  // to the new sample would kick the finger and leave the hand lagging the thimbles). An
+  // overloaded server must not try to catch up on every lost millisecond (each catch-up
+  // would fall further behind): past kMaxCatchUpSteps the hand skips time and the gap shows
+  // in HandState.device_lost. A deadband-coded stream withholds samples on purpose: those
+  // steps run on the last state received.
+  if (!have_last_) {
+    // The first sample: the student takes hold of the finger where their fingers are. The
+    // hand's MCP starts there (inside its range), not at the model's neutral pose: pads
+    // closing on a phalanx that is still swinging from neutral to rest (or flexed 45 deg
+    // away, for a stiff joint) grip it off the thimbles' line, and the hand would stay that
+    // far from the script (3.4 deg of abduction measured on the healthy joint).
+    Vec3 start = model.anglesFromGrip(grip);
+    for (int i = 0; i < kAxes; ++i) {
+      const CubicCurve& c = model.params().axes[static_cast<std::size_t>(i)];
+      start[i] = std::clamp(start[i], degToRad(c.min_deg), degToRad(c.max_deg));
     }
-    const uint64_t gap = live.ticksTo(d);
-    const uint64_t steps = std::min<uint64_t>(
-        gap, coded ? SessionManager::kMaxHeldSteps : SessionManager::kMaxCatchUpSteps);
-    if (live.have() && steps > 1) {
-      const bool hold = coded;
-      const PerFinger<Vec3> from = thimblePositions(live.last()), &to = grip;
-      for (uint64_t i = 1; i < steps; ++i) {
-        const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
-        sim_->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
-                               true);
-        step(model);
-      }
+    if (allFinite(start)) sim_->resetMcp(start);
+    steps = 1;
+  }
+  steps = std::max<uint64_t>(steps, 1);
+  if (have_last_ && steps > 1) {
+    const bool hold = coded;
+    const PerFinger<Vec3> from = thimblePositions(last_), &to = grip;
+    for (uint64_t i = 1; i < steps; ++i) {
+      const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
+      sim_->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
+                             true);
+      step(model);
     }
-    sim_->setFingerTargets(grip, true);
-    step(model);
-    // On device time, like the steps: the hand is a function of the samples alone (a replay
-    // of the record reproduces it, docs/lessons.md "Watch").
-    return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, d.source_time_ns,
-                        before);
   }
-  if (!sim_ && exploration_.active()) {
-    // No hand: the thimbles set the angles and the joint model gives the force holding them.
-    const Vec3 angles = model.anglesFromGrip(grip);
-    Vec3 holding_n;
-    for (int i = 0; i < kAxes; ++i) holding_n[i] = model.holdingForceN(i, angles[i]);
-    exploration_.observe(angles, restAngles(model), holding_n, true);
-  }
-  return false;
+  sim_->setFingerTargets(grip, true);
+  step(model);
+  ctx.stats.hand_steps += steps;
+  last_ = d;
+  have_last_ = true;
+  // On device time, like the steps: the hand is a function of the samples alone (a replay of
+  // the record reproduces it, docs/lessons.md "Watch").
+  return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, d.source_time_ns,
+                      before);
+}
+
+void HandRunner::observeGrip(const PerFinger<Vec3>& grip, const JointModel& model) {
+  if (sim_ || !exploration_.active()) return;
+  // No hand: the thimbles set the angles and the joint model gives the force holding them.
+  const Vec3 angles = model.anglesFromGrip(grip);
+  Vec3 holding_n;
+  for (int i = 0; i < kAxes; ++i) holding_n[i] = model.holdingForceN(i, angles[i]);
+  exploration_.observe(angles, restAngles(model), holding_n, true);
 }
 
 bool HandRunner::correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip,
@@ -177,8 +178,11 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
   hf.device_lost = live.lost();
   hf.device_overruns = live.overruns();
   hf.model_version = params.version;
-  if (live.have()) {
-    const auto& d = live.last();
+  // The Bullet hand shows the sample it stepped to last (behind the live stream while the
+  // hand's steps wait for their turn, SessionManager::setHandSlice).
+  const Sample* shown = sim_ && have_last_ ? &last_ : live.have() ? &live.last() : nullptr;
+  if (shown) {
+    const auto& d = *shown;
     hf.have_device = true;
     hf.device_seq = d.seq;
     hf.device_time_ns = d.source_time_ns;
