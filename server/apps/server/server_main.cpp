@@ -37,10 +37,11 @@ int main(int argc, char** argv) {
          "--hand-deadband", hand_deadband,
          "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
       ->check(CLI::Range(0.0, 0.5));
-  double hand_slice_ms = 2.0;
+  double hand_slice_ms = 0.0;
   app.add_option("--hand-slice-ms", hand_slice_ms,
                  "the Bullet hands step between rounds of taking and recording samples, at most "
-                 "this long at a time; 0: each live sample steps its hand as it is taken")
+                 "this long at a time (2: 64 sessions per core, docs/performance.md "
+                 "\"Capacity\"); 0: each live sample steps its hand as it is taken")
       ->check(CLI::Range(0.0, 100.0))
       ->capture_default_str();
   bool insecure = false;
@@ -108,8 +109,8 @@ int main(int argc, char** argv) {
     }
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(*store, link, cfg, hand_model ? &*hand_model : nullptr);
-    // The hands step between rounds of taking and recording, at most a slice at a time
-    // (docs/performance.md "Capacity").
+    // With a slice, the hands step between rounds of taking and recording, at most a slice
+    // at a time (docs/performance.md "Capacity").
     manager.setHandSlice(hand_slice_ms > 0.0 ? static_cast<int64_t>(hand_slice_ms * 1e6) : 0);
     // The lease is renewed on a thread (and a connection) of its own as well as by the serve
     // loop: a loop held up for a moment (closing sessions, a busy record) keeps its sessions.
