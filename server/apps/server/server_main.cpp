@@ -37,6 +37,19 @@ int main(int argc, char** argv) {
          "--hand-deadband", hand_deadband,
          "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
       ->check(CLI::Range(0.0, 0.5));
+  double hand_slice_ms = static_cast<double>(server::session::SessionManager::kHandSliceNs) * 1e-6;
+  app.add_option("--hand-slice-ms", hand_slice_ms,
+                 "the Bullet hands step between rounds of taking and recording samples, at most "
+                 "this long at a time (docs/performance.md \"Capacity\"); 0: each live sample "
+                 "steps its hand as it is taken")
+      ->check(CLI::Range(0.0, 100.0))
+      ->capture_default_str();
+  double hand_share = server::session::SessionManager::kHandShare;
+  app.add_option("--hand-share", hand_share,
+                 "with a slice, the most of the serving thread's time the hands may take; hands "
+                 "short of it step over samples (HandState slows, the record keeps every one)")
+      ->check(CLI::Range(0.01, 1.0))
+      ->capture_default_str();
   bool insecure = false;
   app::addDdsOptions(app, dds_opts, insecure, "server");
   std::string hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
@@ -105,6 +118,10 @@ int main(int argc, char** argv) {
     if (pool) dds_opts.lease_s = 3.0;
     server::link::ServerLink link(dds_opts);
     server::session::SessionManager manager(*store, link, cfg, hand_model ? &*hand_model : nullptr);
+    // With a slice, the hands step between rounds of taking and recording, at most a slice
+    // at a time (docs/performance.md "Capacity").
+    manager.setHandSlice(hand_slice_ms > 0.0 ? static_cast<int64_t>(hand_slice_ms * 1e6) : 0);
+    manager.setHandShare(hand_share);
     // The lease is renewed on a thread (and a connection) of its own as well as by the serve
     // loop: a loop held up for a moment (closing sessions, a busy record) keeps its sessions.
     std::jthread beat;
@@ -167,9 +184,11 @@ int main(int argc, char** argv) {
     const auto& lc = link.counters();
     spdlog::info(
         "stopped: {} samples recorded, {} live, {} invalid, {} for unknown sessions, "
-        "{} bad commands, {} refused (security), {} store errors, {} echoes",
+        "{} bad commands, {} refused (security), {} store errors, {} echoes; hands: {} steps, "
+        "{} live samples stepped over (short of CPU)",
         st.recorded_samples, st.live_samples, st.nonfinite_samples, st.unknown_session_samples,
-        st.bad_commands, st.refused, st.store_errors, lc.echoes.load());
+        st.bad_commands, st.refused, st.store_errors, lc.echoes.load(), st.hand_steps,
+        st.hand_samples_skipped);
     return 0;
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-server: " << e.what() << "\n";

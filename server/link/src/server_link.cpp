@@ -8,6 +8,9 @@ namespace {
 // The server takes the live stream in batches; a deep reader history keeps a slow tick
 // (a large SQLite commit) from overwriting samples that HandState and the rate need.
 constexpr int32_t kDeviceReaderDepth = 256;
+// DeviceStates taken per round: the hands stepping with them, or later (deferred).
+constexpr std::size_t kLiveBatch = 256;
+constexpr std::size_t kDeferredLiveBatch = 4096;
 enum Attach : dds_attach_t { kWake = 1, kCommands, kDevice, kChunks, kFiles };
 }  // namespace
 
@@ -134,7 +137,10 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
                        std::chrono::nanoseconds tick) {
   SteadyClock clock;
   while (!stop.load(std::memory_order_acquire)) {
-    waitset_.wait(tick);
+    // Hands behind the live stream step in the tick, a slice at a time, between rounds of
+    // taking what arrived: the loop sleeps only as long as their budget is spent.
+    const int64_t hand_wait = manager.handWaitNs(clock.nowNs());
+    waitset_.wait(hand_wait < 0 ? tick : std::min(tick, std::chrono::nanoseconds(hand_wait)));
     wake_.clear();
     const int64_t now = clock.nowNs();
     // Commands first so that an OPEN is known before its first samples are handled.
@@ -150,11 +156,14 @@ void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>
           manager.onChunk(c, now, origin(chunk_reader_.handle(), info));
         },
         1024);
+    // Then tick: HandState and closing sessions wait at most one batch. A live sample whose
+    // hand steps later (SessionManager::setHandSlice) costs a copy into its session's queue:
+    // the batch is larger, or a round's hand slice would outlast the samples it takes.
     counters_.device_states += device_reader_.take(
         [&](const telehand_msg_DeviceState& d, const dds_sample_info_t& info) {
           manager.onDeviceState(d, now, origin(device_reader_.handle(), info));
         },
-        256);  // then tick: HandState and closing sessions wait at most one batch
+        manager.handSlice() > 0 ? kDeferredLiveBatch : kLiveBatch);
     manager.tick(clock.nowNs());
   }
   // Whatever is still in the readers belongs in the record.

@@ -80,98 +80,102 @@ void HandRunner::step(const JointModel& model) {
   if (f[0].norm() + f[1].norm() > 1.0) treatment_s_ += 1e-3;
 }
 
-bool HandRunner::advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
-                         const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
+void HandRunner::stepWeb(const Sample& d, const PerFinger<Vec3>& grip, uint64_t steps, bool coded,
+                         const JointModel& model) {
+  if (!web_) return;
+  // The web steps as the client's proxy did: once per sample at its time; samples lost on
+  // the way are stepped on a straight line between the two received (withheld ones of a
+  // deadband-coded stream on the last received), as the hand. It is cheap and it is what the
+  // checkpoint and HandState carry, so it steps with every live sample, never deferred.
+  steps = std::max<uint64_t>(steps, 1);
+  if (have_web_last_ && steps > 1) {
+    const PerFinger<Vec3> from = thimblePositions(web_last_);
+    const int64_t t0 = web_last_.source_time_ns;
+    for (uint64_t i = 1; i < steps; ++i) {
+      const double w = coded ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
+      const int64_t t =
+          t0 + static_cast<int64_t>(static_cast<double>(d.source_time_ns - t0) *
+                                    static_cast<double>(i) / static_cast<double>(steps));
+      web_->step({from[0] + w * (grip[0] - from[0]), from[1] + w * (grip[1] - from[1])}, t);
+    }
+  }
+  web_->step(grip, d.source_time_ns);
+  web_last_ = d;
+  have_web_last_ = true;
+  // Across a gap the web stepped the straight line, not the client's path: its velocity
+  // filter remembers another depth rate, and its skin sticks and slips at other ticks than
+  // the client's from then on (a stick-slip sawtooth out of phase: the web force 13-52 %
+  // off at the worst HandState on the spain-australia and extreme links, docs/massage.md
+  // "The server"). The sample carries the force the client's proxy rendered: wherever the
+  // two differ, the depth rate and the skin's stretch are taken from it within the model's
+  // bounds (WebSim::resync), as the drift corrector takes the hand back for the joint. On
+  // samples stepped in order the two agree and nothing changes. Only for the model the
+  // client rendered, and not while its model fades.
+  if (d.model_version == model.params().version && (d.flags & sample_flags::kModelBlending) == 0) {
+    PerFinger<Vec3> force;
+    PerFinger<double> depth;
+    for (std::size_t k = 0; k < 2; ++k) {
+      const auto& f = d.fingers[k];
+      force[k] = Vec3(f.tissue_force_n[0], f.tissue_force_n[1], f.tissue_force_n[2]);
+      depth[k] = f.contact_depth_m;
+    }
+    if (web_->resync(force, depth) > 0) ++web_resyncs_;
+  }
+}
+
+bool HandRunner::advance(SessionContext& ctx, const Sample& d, const PerFinger<Vec3>& grip,
+                         uint64_t steps, bool coded, const JointModel& model,
                          telehand_msg_SessionMode mode, Vec3* before) {
-  if (web_ && live.isNew(d)) {
-    // The web steps as the client's proxy did: once per sample at its time; samples lost on
-    // the way are stepped on a straight line between the two received (withheld ones of a
-    // deadband-coded stream on the last received), as the hand below.
-    const uint64_t gap = live.have() ? live.ticksTo(d) : 1;
-    const uint64_t steps = std::min<uint64_t>(
-        gap, coded ? SessionManager::kMaxHeldSteps : SessionManager::kMaxCatchUpSteps);
-    if (live.have() && steps > 1) {
-      const PerFinger<Vec3> from = thimblePositions(live.last());
-      const int64_t t0 = live.last().source_time_ns;
-      for (uint64_t i = 1; i < steps; ++i) {
-        const double w = coded ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
-        const int64_t t =
-            t0 + static_cast<int64_t>(static_cast<double>(d.source_time_ns - t0) *
-                                      static_cast<double>(i) / static_cast<double>(steps));
-        web_->step({from[0] + w * (grip[0] - from[0]), from[1] + w * (grip[1] - from[1])}, t);
-      }
+  // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
+  // on the way, with the thimbles moving in a straight line across the gap (jumping the pads
+  // to the new sample would kick the finger and leave the hand lagging the thimbles). An
+  // overloaded server must not try to catch up on every lost millisecond (each catch-up
+  // would fall further behind): past kMaxCatchUpSteps the hand skips time and the gap shows
+  // in HandState.device_lost. A deadband-coded stream withholds samples on purpose: those
+  // steps run on the last state received.
+  if (!have_last_) {
+    // The first sample: the student takes hold of the finger where their fingers are. The
+    // hand's MCP starts there (inside its range), not at the model's neutral pose: pads
+    // closing on a phalanx that is still swinging from neutral to rest (or flexed 45 deg
+    // away, for a stiff joint) grip it off the thimbles' line, and the hand would stay that
+    // far from the script (3.4 deg of abduction measured on the healthy joint).
+    Vec3 start = model.anglesFromGrip(grip);
+    for (int i = 0; i < kAxes; ++i) {
+      const CubicCurve& c = model.params().axes[static_cast<std::size_t>(i)];
+      start[i] = std::clamp(start[i], degToRad(c.min_deg), degToRad(c.max_deg));
     }
-    web_->step(grip, d.source_time_ns);
-    // Across a gap the web stepped the straight line, not the client's path: its velocity
-    // filter remembers another depth rate, and its skin sticks and slips at other ticks than
-    // the client's from then on (a stick-slip sawtooth out of phase: the web force 13-52 %
-    // off at the worst HandState on the spain-australia and extreme links, docs/massage.md
-    // "The server"). The sample carries the force the client's proxy rendered: wherever the
-    // two differ, the depth rate and the skin's stretch are taken from it within the model's
-    // bounds (WebSim::resync), as the drift corrector takes the hand back for the joint. On
-    // samples stepped in order the two agree and nothing changes. Only for the model the
-    // client rendered, and not while its model fades.
-    if (d.model_version == model.params().version &&
-        (d.flags & sample_flags::kModelBlending) == 0) {
-      PerFinger<Vec3> force;
-      PerFinger<double> depth;
-      for (std::size_t k = 0; k < 2; ++k) {
-        const auto& f = d.fingers[k];
-        force[k] = Vec3(f.tissue_force_n[0], f.tissue_force_n[1], f.tissue_force_n[2]);
-        depth[k] = f.contact_depth_m;
-      }
-      if (web_->resync(force, depth) > 0) ++web_resyncs_;
+    if (allFinite(start)) sim_->resetMcp(start);
+    steps = 1;
+  }
+  steps = std::max<uint64_t>(steps, 1);
+  if (have_last_ && steps > 1) {
+    const bool hold = coded;
+    const PerFinger<Vec3> from = thimblePositions(last_), &to = grip;
+    for (uint64_t i = 1; i < steps; ++i) {
+      const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
+      sim_->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
+                             true);
+      step(model);
     }
   }
-  if (sim_ && live.isNew(d)) {
-    // The simulation runs on device time: one 1 ms step per sample, and one per sample lost
-    // on the way, with the thimbles moving in a straight line across the gap (jumping the
-    // pads to the new sample would kick the finger and leave the hand lagging the
-    // thimbles). An overloaded server must not try to catch up on every lost millisecond
-    // (each catch-up would fall further behind): past kMaxCatchUpSteps the hand skips time
-    // and the gap shows in HandState.device_lost. A deadband-coded stream withholds samples
-    // on purpose: those steps run on the last state received.
-    if (!live.have()) {
-      // The first sample: the student takes hold of the finger where their fingers are. The
-      // hand's MCP starts there (inside its range), not at the model's neutral pose: pads
-      // closing on a phalanx that is still swinging from neutral to rest (or flexed 45 deg
-      // away, for a stiff joint) grip it off the thimbles' line, and the hand would stay
-      // that far from the script (3.4 deg of abduction measured on the healthy joint).
-      Vec3 start = model.anglesFromGrip(grip);
-      for (int i = 0; i < kAxes; ++i) {
-        const CubicCurve& c = model.params().axes[static_cast<std::size_t>(i)];
-        start[i] = std::clamp(start[i], degToRad(c.min_deg), degToRad(c.max_deg));
-      }
-      if (allFinite(start)) sim_->resetMcp(start);
-    }
-    const uint64_t gap = live.ticksTo(d);
-    const uint64_t steps = std::min<uint64_t>(
-        gap, coded ? SessionManager::kMaxHeldSteps : SessionManager::kMaxCatchUpSteps);
-    if (live.have() && steps > 1) {
-      const bool hold = coded;
-      const PerFinger<Vec3> from = thimblePositions(live.last()), &to = grip;
-      for (uint64_t i = 1; i < steps; ++i) {
-        const double w = hold ? 0.0 : static_cast<double>(i) / static_cast<double>(steps);
-        sim_->setFingerTargets({from[0] + w * (to[0] - from[0]), from[1] + w * (to[1] - from[1])},
-                               true);
-        step(model);
-      }
-    }
-    sim_->setFingerTargets(grip, true);
-    step(model);
-    // On device time, like the steps: the hand is a function of the samples alone (a replay
-    // of the record reproduces it, docs/lessons.md "Watch").
-    return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, d.source_time_ns,
-                        before);
-  }
-  if (!sim_ && exploration_.active()) {
-    // No hand: the thimbles set the angles and the joint model gives the force holding them.
-    const Vec3 angles = model.anglesFromGrip(grip);
-    Vec3 holding_n;
-    for (int i = 0; i < kAxes; ++i) holding_n[i] = model.holdingForceN(i, angles[i]);
-    exploration_.observe(angles, restAngles(model), holding_n, true);
-  }
-  return false;
+  sim_->setFingerTargets(grip, true);
+  step(model);
+  ctx.stats.hand_steps += steps;
+  last_ = d;
+  have_last_ = true;
+  // On device time, like the steps: the hand is a function of the samples alone (a replay of
+  // the record reproduces it, docs/lessons.md "Watch").
+  return correctDrift(ctx, grip, model, mode, static_cast<double>(steps) * 1e-3, d.source_time_ns,
+                      before);
+}
+
+void HandRunner::observeGrip(const PerFinger<Vec3>& grip, const JointModel& model) {
+  if (sim_ || !exploration_.active()) return;
+  // No hand: the thimbles set the angles and the joint model gives the force holding them.
+  const Vec3 angles = model.anglesFromGrip(grip);
+  Vec3 holding_n;
+  for (int i = 0; i < kAxes; ++i) holding_n[i] = model.holdingForceN(i, angles[i]);
+  exploration_.observe(angles, restAngles(model), holding_n, true);
 }
 
 bool HandRunner::correctDrift(SessionContext& ctx, const PerFinger<Vec3>& grip,
@@ -231,8 +235,11 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
   hf.device_lost = live.lost();
   hf.device_overruns = live.overruns();
   hf.model_version = params.version;
-  if (live.have()) {
-    const auto& d = live.last();
+  // The Bullet hand shows the sample it stepped to last (behind the live stream while the
+  // hand's steps wait for their turn, SessionManager::setHandSlice).
+  const Sample* shown = sim_ && have_last_ ? &last_ : live.have() ? &live.last() : nullptr;
+  if (shown) {
+    const auto& d = *shown;
     hf.have_device = true;
     hf.device_seq = d.seq;
     hf.device_time_ns = d.source_time_ns;

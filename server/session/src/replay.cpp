@@ -6,6 +6,7 @@
 
 #include "telehand/core/error.h"
 #include "telehand/core/thimble.h"
+#include "telehand/server/session/session_manager.h"
 
 namespace telehand::server::session {
 
@@ -107,8 +108,10 @@ void Replay::tick(int64_t now_ns) {
       // As Session::onLive does for a live sample (every sample is here: none coded).
       const PerFinger<Vec3> grip = thimblePositions(d);
       Vec3 before = Vec3::Zero();
-      if (hand_->advance(ctx_, *live_, d, grip, false, model_, telehand_msg_MODE_MOBILIZATION,
-                         &before)) {
+      if (hand_->simulated() && live_->isNew(d) &&
+          hand_->advance(ctx_, d, grip,
+                         std::min<uint64_t>(live_->ticksTo(d), SessionManager::kMaxCatchUpSteps),
+                         false, model_, telehand_msg_MODE_MOBILIZATION, &before)) {
         ++params_.version;
         params_.grip_offset_rad = hand_->drift().offset();
         model_ = JointModel(params_);

@@ -138,13 +138,59 @@ void Session::onLive(const Sample& d, int64_t now_ns) {
     ctx.out.publish(f);
     ++direct_sent_;
   }
+  const bool is_new = live.isNew(d);
+  const uint64_t steps =
+      is_new ? std::min<uint64_t>(live.ticksTo(d), coded ? SessionManager::kMaxHeldSteps
+                                                         : SessionManager::kMaxCatchUpSteps)
+             : 0;
+  if (is_new) hand.stepWeb(d, grip, steps, coded, model);
+  if (hand.simulated() && is_new) {
+    if (!hand_deferred) {
+      stepTo(d, grip, steps, coded, now_ns);
+    } else {
+      if (hand_queue_.size() >= SessionManager::kMaxHandQueue) {
+        // The hand is this far behind the live stream: every other sample waiting goes (the
+        // newest stays), and the hand steps in 2 ms strides over them rather than lag
+        // further. The record has every sample all the same.
+        std::size_t kept = 0;
+        const std::size_t n = hand_queue_.size();
+        for (std::size_t i = 0; i < n; ++i) {
+          if ((n - 1 - i) % 2 == 0) hand_queue_[kept++] = hand_queue_[i];
+        }
+        hand_skipped_ += n - kept;
+        ctx.stats.hand_samples_skipped += n - kept;
+        hand_queue_.resize(kept);
+      }
+      hand_queue_.push_back({d, grip, steps, coded});
+    }
+  } else if (!hand.simulated()) {
+    hand.observeGrip(grip, model);
+  }
+  live.accept(d, coded);
+}
+
+void Session::stepTo(const Sample& d, const PerFinger<Vec3>& grip, uint64_t steps, bool coded,
+                     int64_t now_ns) {
   Vec3 before = Vec3::Zero();
-  if (hand.advance(ctx, live, d, grip, coded, model, mode, &before)) {
+  if (hand.advance(ctx, d, grip, steps, coded, model, mode, &before)) {
     ++ctx.stats.drift_corrections;
     adoptModel(params, nullptr);
     hand.reportDrift(ctx, before, params.version, now_ns);
   }
-  live.accept(d, coded);
+}
+
+bool Session::stepHand(int64_t deadline_ns, int64_t now_ns) {
+  // At least one sample per turn: a hand whose steps outlast the slice still moves.
+  SteadyClock clock;
+  while (!hand_queue_.empty()) {
+    const PendingStep p = hand_queue_.front();
+    hand_queue_.pop_front();
+    stepTo(p.d, p.grip, p.steps, p.coded, now_ns);
+    if (!hand_queue_.empty() && deadline_ns != INT64_MAX && clock.nowNs() >= deadline_ns) {
+      return false;
+    }
+  }
+  return true;
 }
 
 void Session::onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid,
@@ -453,7 +499,14 @@ void Session::close(const std::string& state, int64_t now_ns) {
                              "/s sent")
                                 .c_str()
                           : "");
-    ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, text, now_ns);
+    std::string link = text;
+    if (hand_skipped_ > 0) {
+      // The server had less CPU for the hands than they needed: the record is whole, the hand
+      // stepped over some of the live stream.
+      link += "; the hand stepped over " + std::to_string(hand_skipped_) +
+              " live samples (the server's hands were short of CPU)";
+    }
+    ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, link, now_ns);
   }
   try {
     ctx.store.closeSession(info.id, wallNs(), expected, state);

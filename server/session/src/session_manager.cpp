@@ -171,6 +171,11 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
         return;
     }
   }
+  // A command acts after the live samples that came before it: its session's hand steps to
+  // them first.
+  if (cmd.kind != telehand_msg_CMD_OPEN) {
+    if (Session* s = find(cmd.session_id)) s->flushHand(now_ns);
+  }
   switch (cmd.kind) {
     case telehand_msg_CMD_OPEN:
       open(cmd, now_ns, from);
@@ -435,6 +440,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
                    .first->second;
   s.owner = from.participant;
   s.owner_identity = from.identity;
+  s.hand_deferred = hand_slice_ns_ > 0;
   std::string hand_from;
   if (resumed) {
     // What the record holds: acknowledged at once, so the client sends what it lacks.
@@ -829,6 +835,7 @@ void SessionManager::tick(int64_t now_ns) {
                    "not resumed within " + fmt::format("{:g}", config_.resume_wait_s) +
                        " s: closed as interrupted with what the record holds");
   }
+  if (hand_slice_ns_ > 0) stepHands(now_ns);
   const auto lookup = [this](uint64_t id) { return find(id); };
   std::vector<uint64_t> done;
   for (auto& [id, s] : sessions_) {
@@ -877,6 +884,81 @@ void SessionManager::tick(int64_t now_ns) {
 #endif
 }
 
+void SessionManager::setHandSlice(int64_t slice_ns) {
+  hand_slice_ns_ = std::max<int64_t>(slice_ns, 0);
+  for (auto& [id, s] : sessions_) {
+    if (hand_slice_ns_ == 0) s.flushHand(SteadyClock{}.nowNs());
+    s.hand_deferred = hand_slice_ns_ > 0;
+  }
+}
+
+void SessionManager::setHandShare(double share) {
+  if (!(share > 0.0 && share <= 1.0)) {
+    throw ConfigError("the hands' share of the serving thread must be in (0, 1], not " +
+                      fmt::format("{:g}", share));
+  }
+  hand_share_ = share;
+}
+
+int64_t SessionManager::handWaitNs(int64_t now_ns) const noexcept {
+  if (hand_slice_ns_ <= 0 || !handPending()) return -1;
+  if (hand_credit_at_ns_ == 0) return 0;  // a full slice before the first
+  // The credit the budget will have by now_ns; the hands step once it is positive.
+  const int64_t credit =
+      hand_credit_ns_ +
+      static_cast<int64_t>(hand_share_ * static_cast<double>(now_ns - hand_credit_at_ns_));
+  if (credit > 0) return 0;
+  return static_cast<int64_t>(static_cast<double>(-credit) / hand_share_) + 1;
+}
+
+bool SessionManager::handPending() const noexcept {
+  return std::any_of(sessions_.begin(), sessions_.end(),
+                     [](const auto& kv) { return kv.second.handPending() > 0; });
+}
+
+void SessionManager::stepHands(int64_t now_ns) {
+  // Session after session from where the last slice stopped, so that every hand gets its
+  // turn when they cannot all keep up.
+  if (sessions_.empty()) return;
+  SteadyClock clock;
+  const int64_t start = clock.nowNs();
+  // The budget: share x the wall time since it was last counted, at most one slice in hand
+  // (a thread that slept long does not buy a long stall with it).
+  if (hand_credit_at_ns_ == 0) {
+    hand_credit_at_ns_ = start;
+    hand_credit_ns_ = hand_slice_ns_;
+  }
+  hand_credit_ns_ = std::min(
+      hand_slice_ns_,
+      hand_credit_ns_ +
+          static_cast<int64_t>(hand_share_ * static_cast<double>(start - hand_credit_at_ns_)));
+  hand_credit_at_ns_ = start;
+  if (hand_credit_ns_ <= 0) return;
+  const int64_t deadline = start + std::min(hand_slice_ns_, hand_credit_ns_);
+  struct Spend {
+    SessionManager& m;
+    SteadyClock& clock;
+    int64_t start;
+    ~Spend() {
+      // The share of the time spent stepping is the budget's too.
+      const int64_t end = clock.nowNs();
+      m.hand_credit_ns_ -=
+          end - start - static_cast<int64_t>(m.hand_share_ * static_cast<double>(end - start));
+      m.hand_credit_at_ns_ = end;
+    }
+  } spend{*this, clock, start};
+  auto it = sessions_.lower_bound(hand_cursor_);
+  for (std::size_t n = 0; n < sessions_.size(); ++n, ++it) {
+    if (it == sessions_.end()) it = sessions_.begin();
+    if ((n > 0 && it->second.handPending() > 0 && clock.nowNs() >= deadline) ||
+        !it->second.stepHand(deadline, now_ns)) {
+      hand_cursor_ = it->first;
+      return;
+    }
+  }
+  hand_cursor_ = it == sessions_.end() ? 0 : it->first;
+}
+
 void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state) {
   if (pooled()) {
     // Only the owner closes a session's record: one that another server took over while
@@ -892,6 +974,7 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
       spdlog::error("session {}: {}", s.info.id, e.what());
     }
   }
+  s.flushHand(now_ns);
   s.hand.endExploration(ctx_, s.client_id, now_ns);
   if (s.capture.follows()) {
     if (Session* capture = find(s.capture.follows())) capture->capture.removeFollower(s.info.id);
@@ -918,6 +1001,7 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
 void SessionManager::closeAll(int64_t now_ns) {
   for (auto& [id, s] : sessions_) {
     s.recorder.retry(ctx_);
+    s.flushHand(now_ns);
     if (s.closing) {
       finish(s, now_ns, s.recorder.recorded() >= s.expected ? "closed" : "incomplete");
       continue;
@@ -1016,7 +1100,10 @@ void SessionManager::poolTick(int64_t now_ns) {
     for (auto& [id, s] : sessions_) {
       if (!s.hand.simulated() || s.closing) continue;
       try {
-        store_.putCheckpoint(id, {s.seq_high, wallNs(), s.hand.checkpoint()});
+        // The hand as it is: at the sample it stepped to last (behind seq_high while a
+        // deferred hand waits for its turn).
+        const Sample* at = s.hand.lastStepped();
+        store_.putCheckpoint(id, {at ? at->seq : s.seq_high, wallNs(), s.hand.checkpoint()});
       } catch (const StoreError& e) {
         ++stats_.store_errors;
         spdlog::error("session {}: checkpoint: {}", id, e.what());

@@ -11,10 +11,12 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "../../support/grip_sample.h"
 #include "telehand/core/clock.h"
+#include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/sim/hand_model.h"
@@ -592,6 +594,120 @@ TEST_F(SessionManagerTest, LostSamplesAreSteppedAlongTheWayOnDeviceTime) {
   const double whole = lag(1);
   const double lossy = lag(10);
   EXPECT_LT(lossy, whole + 0.1) << "whole stream " << whole << " deg";
+}
+
+TEST_F(SessionManagerTest, ADeferredHandStepsInTheTickAsItDoesWithEachSample) {
+  // A second server on a record of its own whose hands step in the tick (setHandSlice, with a
+  // slice long enough for every sample waiting): its HandStates are the same, bit for bit.
+  SqliteStore store2((dir_ / "deferred.db").string());
+  RecordingOutbox out2;
+  SessionManager deferred(store2, out2, config_, &hand());
+  deferred.setHandSlice(1'000'000'000);
+  deferred.setHandShare(1.0);  // no budget: every sample waiting steps in the tick
+  ASSERT_NE(open("healthy"), 0u);
+  auto c = command(telehand_msg_CMD_OPEN);
+  c.mode = telehand_msg_MODE_MOBILIZATION;
+  copyString(c.case_name, "healthy");
+  copyString(c.user, "student");
+  deferred.onCommand(c, now_ns_, from_);
+  ASSERT_EQ(out2.statuses.size(), 1u);
+  ASSERT_EQ(out2.statuses.back().session_id, session_);
+  for (int i = 0; i < 2000; ++i) {
+    const double t = i * 1e-3;
+    const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), degToRad(2.0), 0.0);
+    telehand_msg_DeviceState d{};
+    d.session_id = session_;
+    d.seq = seq_++;
+    d.source_time_ns = now_ns_;
+    d.model_version = 1;
+    telehand::test::setGrip(d, *grip_model_, a);
+    manager_->onDeviceState(d, now_ns_, from_);
+    deferred.onDeviceState(d, now_ns_, from_);
+    now_ns_ += 1'000'000;
+    if (now_ns_ % 10'000'000 == 0) {
+      EXPECT_TRUE(deferred.handPending());
+      manager_->tick(now_ns_);
+      deferred.tick(now_ns_);
+      EXPECT_FALSE(deferred.handPending());
+    }
+  }
+  ASSERT_GT(out_.hands.size(), 150u);
+  ASSERT_EQ(out2.hands.size(), out_.hands.size());
+  for (std::size_t k = 0; k < out_.hands.size(); ++k) {
+    const auto &inline_hand = out_.hands[k], &deferred_hand = out2.hands[k];
+    ASSERT_EQ(deferred_hand.device_seq, inline_hand.device_seq) << k;
+    for (int j = 0; j < 3; ++j) {
+      EXPECT_EQ(deferred_hand.mcp_angles_rad[j], inline_hand.mcp_angles_rad[j]) << k;
+    }
+    for (int j = 0; j < inline_hand.dof_count; ++j) {
+      EXPECT_EQ(deferred_hand.joint_angles_rad[j], inline_hand.joint_angles_rad[j]) << k;
+    }
+  }
+  EXPECT_EQ(deferred.stats().hand_steps, manager_->stats().hand_steps);
+  EXPECT_EQ(deferred.stats().hand_samples_skipped, 0u);
+}
+
+TEST_F(SessionManagerTest, HandsShortOfCpuStepOverLiveSamplesButTheRecordKeepsEveryOne) {
+  // A slice of 1 ns: one live sample stepped per tick while ten arrive. The hand falls 100
+  // samples behind, then steps over every other one waiting; the record has every sample and
+  // the close says what the hand missed.
+  manager_->setHandSlice(1);
+  manager_->setHandShare(1.0);
+  ASSERT_NE(open("healthy"), 0u);
+  constexpr int kSamples = 2000;
+  std::vector<telehand_msg_DeviceState> chunk;
+  uint64_t chunk_seq = 0;
+  for (int i = 0; i < kSamples; ++i) {
+    const double t = i * 1e-3;
+    const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), 0.0, 0.0);
+    telehand_msg_DeviceState d{};
+    d.session_id = session_;
+    d.seq = seq_++;
+    d.source_time_ns = now_ns_;
+    d.model_version = 1;
+    telehand::test::setGrip(d, *grip_model_, a);
+    manager_->onDeviceState(d, now_ns_, from_);
+    chunk.push_back(d);
+    if (chunk.size() == 100) {
+      telehand_msg_RecordChunk rc{};
+      rc.session_id = session_;
+      rc.chunk_seq = chunk_seq++;
+      rc.samples._buffer = chunk.data();
+      rc.samples._length = static_cast<uint32_t>(chunk.size());
+      rc.samples._maximum = rc.samples._length;
+      manager_->onChunk(rc, now_ns_, from_);
+      chunk.clear();
+    }
+    now_ns_ += 1'000'000;
+    if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
+  }
+  const auto& stats = manager_->stats();
+  EXPECT_EQ(stats.recorded_samples, static_cast<uint64_t>(kSamples));
+  EXPECT_GT(stats.hand_samples_skipped, 0u);
+  EXPECT_LT(stats.hand_steps, static_cast<uint64_t>(kSamples));
+  EXPECT_TRUE(manager_->handPending());
+  // The HandStates went on at their rate, the hand behind the live stream and still moving
+  // along it (a tenth of the samples stepped: up to half a second behind).
+  ASSERT_EQ(out_.hands.size(), static_cast<std::size_t>(kSamples / 10));
+  const auto& last = out_.hands.back();
+  EXPECT_LT(last.device_seq, seq_ - 50);
+  EXPECT_GT(last.device_seq, seq_ - 500);
+  EXPECT_GT(last.device_seq, out_.hands[out_.hands.size() - 50].device_seq + 200);
+  auto c = command(telehand_msg_CMD_CLOSE, session_);
+  c.samples_sent = kSamples;
+  manager_->onCommand(c, now_ns_, from_);
+  EXPECT_FALSE(manager_->handPending());  // a command waits for the hand to step to its samples
+  now_ns_ += 10'000'000;
+  manager_->tick(now_ns_);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->session(session_)->samples, static_cast<uint64_t>(kSamples));
+  bool said = false;
+  for (const auto* e : out_.eventsOf(telehand_msg_EVENT_INFO)) {
+    said = said || std::string(e->text).find("the hand stepped over " +
+                                             std::to_string(stats.hand_samples_skipped) +
+                                             " live samples") != std::string::npos;
+  }
+  EXPECT_TRUE(said);
 }
 
 // --- Drift between the hand and the client's proxy ---------------------------------------------
@@ -1305,6 +1421,59 @@ TEST_F(RecoveryManagerTest, ASessionNobodyResumesIsClosedAsInterruptedCountingWh
   EXPECT_THAT(std::string(errors.back()->text),
               AllOf(HasSubstr("cannot resume session " + std::to_string(session_)),
                     HasSubstr("interrupted")));
+}
+
+TEST_F(SessionManagerTest, TheHandsStepWithinTheirShareOfTheServingThread) {
+  // A 1 ms slice within a quarter of the thread, a hand that cannot keep up: once the hands
+  // have spent their budget the loop is told to sleep, a tick before then steps nothing, and
+  // after it the hands step again.
+  manager_->setHandSlice(1'000'000);
+  manager_->setHandShare(0.25);
+  EXPECT_THROW(manager_->setHandShare(0.0), telehand::ConfigError);
+  EXPECT_THROW(manager_->setHandShare(1.5), telehand::ConfigError);
+  EXPECT_EQ(manager_->handWaitNs(SteadyClock{}.nowNs()), -1);  // no session, no hand waiting
+  ASSERT_NE(open("healthy"), 0u);
+  int i = 0;
+  auto feed = [&](int n) {
+    for (int k = 0; k < n; ++k, ++i) {
+      const double t = i * 1e-3;
+      const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), degToRad(2.0), 0.0);
+      telehand_msg_DeviceState d{};
+      d.session_id = session_;
+      d.seq = seq_++;
+      d.source_time_ns = now_ns_;
+      d.model_version = 1;
+      telehand::test::setGrip(d, *grip_model_, a);
+      manager_->onDeviceState(d, now_ns_, from_);
+      now_ns_ += 1'000'000;
+    }
+  };
+  SteadyClock clock;
+  feed(100);
+  EXPECT_EQ(manager_->handWaitNs(clock.nowNs()), 0);  // a whole slice before the first
+  // Ticks back to back with samples arriving faster than the hand steps them.
+  int64_t wait = 0;
+  int ticks = 0;
+  for (; ticks < 1000 && wait <= 0; ++ticks) {
+    feed(50);
+    manager_->tick(now_ns_);
+    wait = manager_->handWaitNs(clock.nowNs());
+  }
+  ASSERT_GT(wait, 0) << "the budget never ran out in " << ticks << " ticks";
+  EXPECT_LT(wait, 100'000'000);  // at most the slice and one sample over it, times 4
+  const uint64_t steps = manager_->stats().hand_steps;
+  EXPECT_GT(steps, 0u);
+  EXPECT_GT(manager_->stats().hand_samples_skipped, 0u);  // the hand stepped over samples
+  const int64_t asked = clock.nowNs();
+  const int64_t held = manager_->handWaitNs(asked);
+  manager_->tick(now_ns_);
+  if (clock.nowNs() < asked + held) {
+    EXPECT_EQ(manager_->stats().hand_steps, steps);
+  }
+  std::this_thread::sleep_for(std::chrono::nanoseconds(held));
+  EXPECT_EQ(manager_->handWaitNs(clock.nowNs()), 0);
+  manager_->tick(now_ns_);
+  EXPECT_GT(manager_->stats().hand_steps, steps);
 }
 
 }  // namespace

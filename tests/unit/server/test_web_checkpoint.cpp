@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -21,6 +22,7 @@
 #include "telehand/core/sample.h"
 #include "telehand/core/tissue_model.h"
 #include "telehand/server/session/hand_runner.h"
+#include "telehand/server/session/session_manager.h"
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/sim/web_sim.h"
 #include "telehand/server/store/sqlite_store.h"
@@ -114,8 +116,14 @@ class WebCheckpointTest : public ::testing::Test {
   /// One live sample through the runner as Session::onLive passes it.
   void feed(HandRunner& r, LiveStream& live, const Sample& d, const JointModel& model) {
     Vec3 before;
-    r.advance(*ctx_, live, d, thimblePositions(d), false, model, telehand_msg_MODE_MASSAGE,
-              &before);
+    if (live.isNew(d)) {
+      const uint64_t steps = std::min<uint64_t>(live.ticksTo(d), SessionManager::kMaxCatchUpSteps);
+      r.stepWeb(d, thimblePositions(d), steps, false, model);
+      if (r.simulated()) {
+        r.advance(*ctx_, d, thimblePositions(d), steps, false, model, telehand_msg_MODE_MASSAGE,
+                  &before);
+      }
+    }
     live.accept(d, false);
   }
 

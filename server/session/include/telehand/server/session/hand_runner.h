@@ -44,12 +44,21 @@ class HandRunner {
   /// A massage session's web (null otherwise).
   const sim::WebSim* web() const noexcept { return web_.get(); }
 
-  /// A finite live sample, before `live` takes it: step the hand to it and observe it.
-  /// True when the drift corrector changed its offset (the session adopts it; `before` is
-  /// the offset it had).
-  bool advance(SessionContext& ctx, const LiveStream& live, const Sample& d,
-               const PerFinger<Vec3>& grip, bool coded, const JointModel& model,
-               telehand_msg_SessionMode mode, Vec3* before);
+  /// A massage's web steps to a finite live sample newer than the last it stepped to
+  /// (`steps` as for `advance`) and takes its state back from the force the client rendered.
+  void stepWeb(const Sample& d, const PerFinger<Vec3>& grip, uint64_t steps, bool coded,
+               const JointModel& model);
+  /// Step the Bullet hand to a finite live sample newer than the last it stepped to:
+  /// `steps` 1 ms steps (itself and the samples lost or withheld before it, capped), the
+  /// thimbles moving in a straight line from the last sample stepped to (held there when
+  /// `coded`), and observe it. True when the drift corrector changed its offset (the session
+  /// adopts it; `before` is the offset it had).
+  bool advance(SessionContext& ctx, const Sample& d, const PerFinger<Vec3>& grip, uint64_t steps,
+               bool coded, const JointModel& model, telehand_msg_SessionMode mode, Vec3* before);
+  /// Without a Bullet hand: an exploration phase observes the joint model at the thimbles.
+  void observeGrip(const PerFinger<Vec3>& grip, const JointModel& model);
+  /// The newest sample the Bullet hand stepped to, if any.
+  const Sample* lastStepped() const noexcept { return have_last_ ? &last_ : nullptr; }
   /// Report a drift correction just adopted as model `version`.
   void reportDrift(SessionContext& ctx, const Vec3& before, uint32_t version, int64_t now_ns);
   const DriftCorrector& drift() const noexcept { return drift_; }
@@ -105,6 +114,10 @@ class HandRunner {
   HandStateDeadband hand_deadband_;
   uint64_t hand_withheld_ = 0;
   uint64_t web_resyncs_ = 0;
+  Sample last_{};  // the newest sample stepped to (have_last_)
+  bool have_last_ = false;
+  Sample web_last_{};  // the newest sample the web stepped to (have_web_last_)
+  bool have_web_last_ = false;
 };
 
 }  // namespace telehand::server::session

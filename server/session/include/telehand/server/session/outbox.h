@@ -39,6 +39,11 @@ struct ManagerStats {
   /// (sequence window, file limits, session limits): each is also a security event.
   uint64_t refused = 0;
   uint64_t retired_sessions = 0;  ///< ended sessions taken off the transient-local topics
+  /// Bullet steps of the sessions' hands (one per millisecond of device time followed).
+  uint64_t hand_steps = 0;
+  /// Live samples a deferred hand did not step to: thinned out of a session's full queue
+  /// when the hands had less CPU than they needed (SessionManager::setHandSlice).
+  uint64_t hand_samples_skipped = 0;
 };
 
 }  // namespace telehand::server::session

@@ -3,6 +3,7 @@
 /// k-nearest-neighbour models that model may use), and its parts: the live stream, the
 /// record, the hand and, for captures and their followers, the live fit's fan-out.
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <optional>
 #include <string>
@@ -48,8 +49,18 @@ class Session {
   void publishModel();
   void publishStatus(telehand_msg_SessionState state);
 
-  /// A live sample of this session.
+  /// A live sample of this session. The hand steps to it at once, or (hand_deferred) when
+  /// stepHand() gets to it.
   void onLive(const Sample& d, int64_t now_ns);
+  /// Step the hand to the live samples waiting for it, in order, until they are done (true)
+  /// or the steady clock reaches `deadline_ns` (false: the rest wait for the next turn).
+  bool stepHand(int64_t deadline_ns, int64_t now_ns);
+  /// Step the hand to every live sample waiting for it (before anything reads or changes the
+  /// hand on the session's behalf: a command, the close).
+  void flushHand(int64_t now_ns) { stepHand(INT64_MAX, now_ns); }
+  std::size_t handPending() const noexcept { return hand_queue_.size(); }
+  /// Live samples the hand did not step to, thinned out of a full queue (an overloaded server).
+  uint64_t handSkipped() const noexcept { return hand_skipped_; }
   /// Recorded samples of this session (`valid` per sample): the live fit, then the record.
   void onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid, int64_t now_ns);
   /// Periodic work of its own: rate, due HandState, store retries.
@@ -89,6 +100,10 @@ class Session {
   uint64_t expected = 0;
   int64_t recount_ns = 0;  // pool: when the record's own count is read next while closing
   int64_t close_deadline_ns = 0;
+
+  /// The hand steps in SessionManager::tick, within its slice, rather than with each live
+  /// sample (SessionManager::setHandSlice).
+  bool hand_deferred = false;
 
   LiveStream live;
   Recorder recorder;
@@ -132,6 +147,18 @@ class Session {
   int64_t next_ack_ns_ = 0;
   int64_t last_status_ns_ = 0;  // the last acknowledgement or heartbeat
   uint64_t acked_below_ = 0;
+
+  /// Step the hand to one live sample (`steps` 1 ms steps) and adopt a drift correction.
+  void stepTo(const Sample& d, const PerFinger<Vec3>& grip, uint64_t steps, bool coded,
+              int64_t now_ns);
+  struct PendingStep {
+    Sample d;
+    PerFinger<Vec3> grip;
+    uint64_t steps = 1;
+    bool coded = false;
+  };
+  std::deque<PendingStep> hand_queue_;  // live samples the deferred hand has yet to step to
+  uint64_t hand_skipped_ = 0;
 
   const sim::HandModel* hand_model_;
   sim::HandSimConfig hand_config_;

@@ -112,6 +112,31 @@ class SessionManager {
   static constexpr uint64_t kMaxCatchUpSteps = 50;
   /// How the hand of sessions opened later is simulated.
   void setHandConfig(const sim::HandSimConfig& c) { hand_config_ = c; }
+  /// Where the Bullet hands step (docs/design.md "Threads", docs/performance.md "Capacity").
+  /// 0 (the default): each live sample steps its session's hand as it is taken. Otherwise
+  /// the live samples wait in their session's queue and tick() steps the hands, session
+  /// after session in turn, for at most `slice_ns` (steady clock) per call: taking and
+  /// recording what arrives never waits for more than one slice of the hands, and hands
+  /// short of CPU fall behind the live stream and then step over samples (every other one
+  /// of a queue of kMaxHandQueue, counted in ManagerStats::hand_samples_skipped) while the
+  /// record keeps every sample. telehand-server uses kHandSliceNs.
+  void setHandSlice(int64_t slice_ns);
+  int64_t handSlice() const noexcept { return hand_slice_ns_; }
+  /// The hands' budget with a slice: at most this share of the serving thread's wall time
+  /// (0 < share <= 1) goes to stepping them. Hands short of it fall behind and step over
+  /// samples; the thread sleeps rather than spend more, so that the record, the lease and
+  /// the other processes on the machine (a pool's servers, the database) keep their CPU.
+  void setHandShare(double share);
+  double handShare() const noexcept { return hand_share_; }
+  /// How long the serve loop may sleep before the hands can step again: 0 when live samples
+  /// wait for their hand and the budget has time for them; -1 when no hand waits.
+  int64_t handWaitNs(int64_t now_ns) const noexcept;
+  /// Live samples waiting for their hand.
+  bool handPending() const noexcept;
+  static constexpr int64_t kHandSliceNs = 2'000'000;
+  static constexpr double kHandShare = 0.5;
+  /// Live samples one session's deferred hand may fall behind (100 ms at 1 kHz).
+  static constexpr std::size_t kMaxHandQueue = 100;
   /// Steps one deadband-coded sample may trigger: the withheld samples it stands for, held
   /// at the last value received (zero-order hold). Beyond this the hand skips time.
   static constexpr uint64_t kMaxHeldSteps = 200;
@@ -190,6 +215,12 @@ class SessionManager {
   std::map<std::string, uint64_t> answered_opens_;
   std::vector<std::string> answered_order_;  // oldest first, for the bound
   static constexpr std::size_t kMaxAnsweredOpens = 1024;
+  int64_t hand_slice_ns_ = 0;  // 0: the hands step with each live sample
+  uint64_t hand_cursor_ = 0;   // the session whose hand steps first in the next slice
+  double hand_share_ = kHandShare;
+  int64_t hand_credit_ns_ = 0;  // the hands' budget left (negative: overspent)
+  int64_t hand_credit_at_ns_ = 0;
+  void stepHands(int64_t now_ns);
   std::string pool_id_;  // '' : not in a pool
   int64_t last_beat_ns_ = 0;
   int64_t next_pool_ns_ = 0;
