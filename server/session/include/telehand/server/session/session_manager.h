@@ -119,7 +119,7 @@ class SessionManager {
   /// recording what arrives never waits for more than one slice of the hands, and hands
   /// short of CPU fall behind the live stream and then step over samples (every other one
   /// of a queue of kMaxHandQueue, counted in ManagerStats::hand_samples_skipped) while the
-  /// record keeps every sample. telehand-server uses kHandSliceNs.
+  /// record keeps every sample. `telehand-server --hand-slice-ms 2` uses kHandSliceNs.
   void setHandSlice(int64_t slice_ns);
   int64_t handSlice() const noexcept { return hand_slice_ns_; }
   /// The hands' budget with a slice: at most this share of the serving thread's wall time
@@ -134,7 +134,7 @@ class SessionManager {
   /// Live samples waiting for their hand.
   bool handPending() const noexcept;
   static constexpr int64_t kHandSliceNs = 2'000'000;
-  static constexpr double kHandShare = 0.5;
+  static constexpr double kHandShare = 0.75;
   /// Live samples one session's deferred hand may fall behind (100 ms at 1 kHz).
   static constexpr std::size_t kMaxHandQueue = 100;
   /// Steps one deadband-coded sample may trigger: the withheld samples it stands for, held
