@@ -188,6 +188,20 @@ class SessionManagerTest : public ::testing::Test {
     return nullptr;
   }
 
+  /// Sample i of a 3 Hz pinch (MCP flexion 30 +/- 15 deg, `abduction_deg` held) as the
+  /// next live sample of the session at now_ns_.
+  telehand_msg_DeviceState pinchSample(int i, double abduction_deg = 2.0) {
+    const double t = i * 1e-3;
+    const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), degToRad(abduction_deg), 0.0);
+    telehand_msg_DeviceState d{};
+    d.session_id = session_;
+    d.seq = seq_++;
+    d.source_time_ns = now_ns_;
+    d.model_version = 1;
+    telehand::test::setGrip(d, *grip_model_, a);
+    return d;
+  }
+
   fs::path dir_;
   ServerConfig config_;
   RecordingOutbox out_;
@@ -613,14 +627,7 @@ TEST_F(SessionManagerTest, ADeferredHandStepsInTheTickAsItDoesWithEachSample) {
   ASSERT_EQ(out2.statuses.size(), 1u);
   ASSERT_EQ(out2.statuses.back().session_id, session_);
   for (int i = 0; i < 2000; ++i) {
-    const double t = i * 1e-3;
-    const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), degToRad(2.0), 0.0);
-    telehand_msg_DeviceState d{};
-    d.session_id = session_;
-    d.seq = seq_++;
-    d.source_time_ns = now_ns_;
-    d.model_version = 1;
-    telehand::test::setGrip(d, *grip_model_, a);
+    const telehand_msg_DeviceState d = pinchSample(i);
     manager_->onDeviceState(d, now_ns_, from_);
     deferred.onDeviceState(d, now_ns_, from_);
     now_ns_ += 1'000'000;
@@ -658,14 +665,7 @@ TEST_F(SessionManagerTest, HandsShortOfCpuStepOverLiveSamplesButTheRecordKeepsEv
   std::vector<telehand_msg_DeviceState> chunk;
   uint64_t chunk_seq = 0;
   for (int i = 0; i < kSamples; ++i) {
-    const double t = i * 1e-3;
-    const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), 0.0, 0.0);
-    telehand_msg_DeviceState d{};
-    d.session_id = session_;
-    d.seq = seq_++;
-    d.source_time_ns = now_ns_;
-    d.model_version = 1;
-    telehand::test::setGrip(d, *grip_model_, a);
+    const telehand_msg_DeviceState d = pinchSample(i, 0.0);
     manager_->onDeviceState(d, now_ns_, from_);
     chunk.push_back(d);
     if (chunk.size() == 100) {
@@ -1436,14 +1436,7 @@ TEST_F(SessionManagerTest, TheHandsStepWithinTheirShareOfTheServingThread) {
   int i = 0;
   auto feed = [&](int n) {
     for (int k = 0; k < n; ++k, ++i) {
-      const double t = i * 1e-3;
-      const Vec3 a(degToRad(30.0 + 15.0 * std::sin(2 * kPi * 3.0 * t)), degToRad(2.0), 0.0);
-      telehand_msg_DeviceState d{};
-      d.session_id = session_;
-      d.seq = seq_++;
-      d.source_time_ns = now_ns_;
-      d.model_version = 1;
-      telehand::test::setGrip(d, *grip_model_, a);
+      const telehand_msg_DeviceState d = pinchSample(i);
       manager_->onDeviceState(d, now_ns_, from_);
       now_ns_ += 1'000'000;
     }
