@@ -18,7 +18,7 @@
 //     PROBE_TRUTH=1 the truth's own residual at lags of 0-2 samples against the fit's
 //     (a fit worse than the truth: a search problem; better: the model misses something),
 //     PROBE_NOSPASM=1 fits without the spasm term, PROBE_RHW=H fits (and rates the truth)
-//     with rates by central differences over ±H samples, PROBE_DUMP=FILE writes the points.
+//     with rates over ±H samples (FitOptions::rate_half_window), PROBE_DUMP=FILE the points.
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
 //     captures (server/estimate/synthetic_massage.h: 60 s, 10 ± 2 N, the paper's 1.43 N
 //     thimble noise), the shipped webs' [tissue] (healthy, oedema, scar, hypertonic) or

@@ -11,6 +11,10 @@
 
 namespace telehand::server::estimate {
 
+namespace {
+constexpr double kRateSamplePeriodS = 1e-3;  // the capture's 1 kHz
+}  // namespace
+
 std::optional<CapturePoint> capturePoint(const JointModel& geometry, const Sample& s, bool valid,
                                          CaptureCounts& counts) {
   if (!valid) {
@@ -73,18 +77,56 @@ bool CaptureFitter::add(const Sample& s, bool valid) {
   return true;
 }
 
-std::vector<Vec3> CaptureFitter::rates() const {
-  const std::size_t n = points_.size();
-  std::vector<Vec3> out(n, Vec3::Zero());
-  const auto h = static_cast<std::size_t>(std::max(options_.rate_half_window, 1));
+std::vector<double> windowedRates(std::span<const int64_t> t_ns, std::span<const double> x,
+                                  int half_window) {
+  const std::size_t n = std::min(t_ns.size(), x.size());
+  std::vector<double> out(n, 0.0);
+  const auto h = static_cast<std::size_t>(std::max(half_window, 1));
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t lo = i >= h ? i - h : 0;
     const std::size_t hi = std::min(i + h, n - 1);
+    // A least-squares quadratic through the samples in the window, its slope at the centre:
+    // with the window whole, the least-squares slope; with samples missing on one side, not
+    // tilted by the curvature as a straight line would be.
+    Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+    int before = 0, after = 0;
+    for (std::size_t j = lo; j <= hi; ++j) {
+      const double t = static_cast<double>(t_ns[j] - t_ns[i]) * 1e-9 / kRateSamplePeriodS;
+      if (std::abs(t) > static_cast<double>(h) + 0.5) continue;
+      const Eigen::Vector3d p(1.0, t, t * t);
+      a += p * p.transpose();
+      rhs += p * (x[j] - x[i]);
+      before += t < 0.0;
+      after += t > 0.0;
+    }
+    if (before >= 1 && after >= 1 && before + after >= 3) {
+      const Eigen::Vector3d c = a.ldlt().solve(rhs);
+      if (std::isfinite(c[1])) {
+        out[i] = c[1] / kRateSamplePeriodS;
+        continue;
+      }
+    }
+    // Too few samples around (the ends, wide gaps): the difference across the window, where
+    // it does not span a gap.
     if (hi == lo) continue;
-    const double dt = static_cast<double>(points_[hi].t_ns - points_[lo].t_ns) * 1e-9;
-    // Across a gap (samples left out) the difference would not be a rate.
-    if (!(dt > 0.0) || dt > 3e-3 * static_cast<double>(hi - lo)) continue;
-    out[i] = (points_[hi].angles_rad - points_[lo].angles_rad) / dt;
+    const double dt = static_cast<double>(t_ns[hi] - t_ns[lo]) * 1e-9;
+    if (!(dt > 0.0) || dt > 3.0 * kRateSamplePeriodS * static_cast<double>(hi - lo)) continue;
+    out[i] = (x[hi] - x[lo]) / dt;
+  }
+  return out;
+}
+
+std::vector<Vec3> CaptureFitter::rates() const {
+  const std::size_t n = points_.size();
+  std::vector<Vec3> out(n, Vec3::Zero());
+  std::vector<int64_t> t(n);
+  std::vector<double> x(n);
+  for (std::size_t i = 0; i < n; ++i) t[i] = points_[i].t_ns;
+  for (int axis = 0; axis < kAxes; ++axis) {
+    for (std::size_t i = 0; i < n; ++i) x[i] = points_[i].angles_rad[axis];
+    const std::vector<double> r = windowedRates(t, x, options_.rate_half_window);
+    for (std::size_t i = 0; i < n; ++i) out[i][axis] = r[i];
   }
   return out;
 }
@@ -498,13 +540,14 @@ double CaptureFitter::delaySamples() const {
 
 double CaptureFitter::delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
                                    const std::array<double, kAxes>& known_j) const {
-  // The residual of a plain cubic with the dynamic terms, summed over the axes, for each
-  // whole-sample delay; a parabola through the best and its neighbours gives the fraction.
+  // The residual of a fit with the dynamic terms (the walls and zone searched, or a plain
+  // cubic: FitOptions::lag_with_shape), summed over the axes, for each whole-sample delay; a
+  // parabola through the best and its neighbours gives the fraction.
   const int most = std::max(options_.max_delay_samples, 0);
   if (most == 0 || points_.size() < options_.min_samples) return 0.0;
   std::vector<double> rss(static_cast<std::size_t>(most) + 1, 0.0);
   PiecewiseFitOptions plain;
-  plain.find_walls = plain.find_zone = false;
+  plain.find_walls = plain.find_zone = options_.lag_with_shape;
   for (int k = 0; k <= most; ++k) {
     for (int axis = 0; axis < kAxes; ++axis) {
       const AxisData d = axisData(points_, rate, acc, axis, k);

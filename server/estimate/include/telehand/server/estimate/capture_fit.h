@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <functional>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -112,9 +113,13 @@ struct FitOptions {
   /// Force below which the joint counts as lax (the neutral zone), N. About a force JND
   /// (7-10 %, docs/facts.md) of the paper's 12-16 N band.
   double neutral_force_n = 1.0;
-  /// Central difference half window for angular rates, samples (1 kHz: ±5 ms).
-  int rate_half_window = 5;
-  /// The same for accelerations (second differences). Narrower windows let encoder
+  /// Angular rates: the least-squares slope of the angle over ±rate_half_window samples
+  /// (1 kHz: ±4 ms; windowedRates). A sweep at ω reads about (ω·1 ms)²·Σk⁴ / (6·Σk²) slow,
+  /// 0.28 % at 6 Hz, and the angle's noise reaches the rate by 1/√Σk² = 1/√60 per ms; the
+  /// central difference over ±5 ms used before read 0.59 % slow at 6 Hz with 1/√50 (against
+  /// a damping at the cap, tens of newtons at 6 Hz, 0.6 % is 0.2-0.4 N).
+  int rate_half_window = 4;
+  /// Half window for accelerations (second differences), samples. Narrower windows let encoder
   /// quantization into the acceleration and bias the inertia toward zero (±1 ms: by half).
   int acc_half_window = 5;
   /// Samples an axis needs spread over at least this many degrees to be fitted.
@@ -123,6 +128,12 @@ struct FitOptions {
   /// The force channel may lag the position channel (FSR conditioning, sampling order):
   /// the fit finds the lag, up to this many samples, that explains the data best.
   int max_delay_samples = 4;
+  /// The lag is chosen by the residual of fits with the end walls and the neutral zone
+  /// searched at each lag (true), or of a plain cubic (false). Where the stiffness is
+  /// constant a lag is a change of damping; the walls and zone edges, where it changes,
+  /// tell them apart, and a plain cubic misreads them (random patient 10 at 3 Hz, seed 1: lag
+  /// 0 for the truth's 1, its 6° zone lost, flexion 0.39 N off; with the shape 1.0, 0.16 N).
+  bool lag_with_shape = true;
   /// The moving mass about the MCP, kg·m²: the proximal phalanx (2.1e-5, docs/facts.md
   /// "Ground truth") and the grip's thimbles and links (the simulated MF-2's 0.05 kg at the
   /// 1 cm lever arm, 0.5e-5). Used when the capture cannot separate inertia from stiffness.
@@ -155,6 +166,14 @@ struct FitOptions {
   double render_force_scale = 0.25;
 };
 
+/// Rates of a signal `x` sampled at `t_ns` (about 1 kHz, in order; samples may be missing):
+/// per sample, the slope at its time of a least-squares quadratic through the samples within
+/// ±half_window of it (and within half_window + 0.5 ms), when that holds one on each side
+/// and four in all (with the window whole: the least-squares slope); else the difference
+/// across the window where it spans no gap, else 0. Per second.
+std::vector<double> windowedRates(std::span<const int64_t> t_ns, std::span<const double> x,
+                                  int half_window);
+
 /// The per-axis force that a sample's thimbles exert at the lever arm (paper eqs. 1-2 for
 /// each thimble, τ = Σ (p − c) × F, generalized per axis, divided by the lever arm), or
 /// nullopt with the reason counted.
@@ -170,7 +189,7 @@ class CaptureFitter {
   std::size_t size() const noexcept { return points_.size(); }
   const CaptureCounts& counts() const noexcept { return counts_; }
   const std::vector<CapturePoint>& points() const noexcept { return points_; }
-  /// Angular rates of every point (central differences), rad/s.
+  /// Angular rates of every point (windowedRates over FitOptions::rate_half_window), rad/s.
   std::vector<Vec3> rates() const;
   /// Angular accelerations of every point (second central differences), rad/s².
   std::vector<Vec3> accelerations() const;
