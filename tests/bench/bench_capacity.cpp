@@ -391,42 +391,54 @@ std::vector<int> parseList(const std::string& s) {
 
 int main(int argc, char** argv) {
   Options opt;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", a.c_str());
-        std::exit(2);
+  int i = 1;
+  try {
+    for (; i < argc; ++i) {
+      const std::string a = argv[i];
+      auto next = [&]() -> std::string {
+        if (i + 1 >= argc) {
+          std::fprintf(stderr, "%s needs a value\n", a.c_str());
+          std::exit(2);
+        }
+        return argv[++i];
+      };
+      if (a == "--sessions") {
+        opt.sessions = parseList(next());
+      } else if (a == "--seconds") {
+        opt.seconds = std::stoi(next());
+      } else if (a == "--hand-slice-ms") {
+        opt.hand_slice_ms = std::stod(next());
+      } else if (a == "--hand-share") {
+        opt.hand_share = std::stod(next());
+      } else if (a == "--warmup") {
+        opt.warmup = std::stoi(next());
+      } else if (a == "--cpu") {
+        opt.cpu = std::stoi(next());
+      } else if (a == "--no-hand") {
+        opt.hand = false;
+      } else if (a == "--case") {
+        opt.case_name = next();
+      } else if (a == "--quick") {
+        opt.sessions = {4};
+        opt.seconds = 3;
+        opt.warmup = 1;
+      } else {
+        const bool help = a == "--help" || a == "-h";
+        if (!help) std::fprintf(stderr, "unknown option '%s'\n", a.c_str());
+        std::fprintf(help ? stdout : stderr,
+                     "usage: %s [--sessions 16,32,48,64] [--seconds 13] [--warmup 3] [--cpu K] "
+                     "[--hand-slice-ms MS] [--hand-share F] [--no-hand] [--case NAME] [--quick]\n"
+                     "N sessions of 1 kHz samples through one SessionManager pinned to one core: "
+                     "recorded / sent, lateness, the hands' steps (docs/performance.md "
+                     "\"Capacity\")\n",
+                     argv[0]);
+        return help ? 0 : 2;
       }
-      return argv[++i];
-    };
-    if (a == "--sessions") {
-      opt.sessions = parseList(next());
-    } else if (a == "--seconds") {
-      opt.seconds = std::stoi(next());
-    } else if (a == "--hand-slice-ms") {
-      opt.hand_slice_ms = std::stod(next());
-    } else if (a == "--hand-share") {
-      opt.hand_share = std::stod(next());
-    } else if (a == "--warmup") {
-      opt.warmup = std::stoi(next());
-    } else if (a == "--cpu") {
-      opt.cpu = std::stoi(next());
-    } else if (a == "--no-hand") {
-      opt.hand = false;
-    } else if (a == "--case") {
-      opt.case_name = next();
-    } else if (a == "--quick") {
-      opt.sessions = {4};
-      opt.seconds = 3;
-      opt.warmup = 1;
-    } else {
-      std::fprintf(stderr,
-                   "usage: %s [--sessions 16,32,48,64] [--seconds 13] [--warmup 3] [--cpu K] "
-                   "[--hand-slice-ms MS] [--hand-share F] [--no-hand] [--case NAME] [--quick]\n",
-                   argv[0]);
-      return 2;
     }
+  } catch (const std::exception&) {
+    // std::stoi/stod on what followed an option.
+    std::fprintf(stderr, "telehand_bench_capacity: bad value '%s' for %s\n", argv[i], argv[i - 1]);
+    return 2;
   }
   spdlog::set_level(spdlog::level::warn);
   // One core: the serving thread and everything it calls (SQLite, Bullet) on it.
