@@ -1,12 +1,14 @@
 #pragma once
-// A test of programs run as processes: a scratch directory (kept when the test fails, for
-// its logs) and a DDS partition of its own, so tests never see each other's sessions.
+// A test of programs run as processes: a scratch directory (kept when the test fails, or
+// always with TELEHAND_KEEP_TEST_DIRS=1, for its logs) and a DDS partition of its own, so tests
+// never see each other's sessions.
 #include <gtest/gtest.h>
 #include <stdlib.h>
 #include <unistd.h>
 
 #include <cstdint>
 #include <filesystem>
+#include <iostream>
 #include <regex>
 #include <string>
 #include <vector>
@@ -32,7 +34,11 @@ class ProcessTest : public ::testing::Test {
     partition_ = prefix_ + "-" + std::to_string(getpid()) + "-" + info->name();
   }
   void TearDown() override {
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
+    if (HasFailure() || getenv("TELEHAND_KEEP_TEST_DIRS") != nullptr) {
+      std::cout << "logs kept in " << dir_ << "\n";
+      return;
+    }
+    std::filesystem::remove_all(dir_);
   }
   std::vector<std::string> dds() const {
     std::vector<std::string> v{"--dds-config", dds_config_, "--partition", partition_};

@@ -68,7 +68,7 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
     for (int i = 0; i < kSessions; ++i) {
       clients.push_back(std::make_unique<Process>(
           cmd(TELEHAND_CLIENT_BIN,
-              {"--seconds", "20", "-q", "--no-fault-stop", "--seed", std::to_string(11 + i)}),
+              {"--seconds", "30", "-q", "--no-fault-stop", "--seed", std::to_string(11 + i)}),
           path("client" + std::to_string(i) + ".log")));
       const std::string id = await(*clients.back(), R"(session (\d+) open)", 30s);
       ASSERT_FALSE(id.empty()) << clients.back()->output();
@@ -87,6 +87,17 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
     std::this_thread::sleep_for(4s);
     const std::string victim = owned.begin()->first;
     const int v = victim.back() - '1';
+    // The victim's sessions still open at the kill: on a loaded machine the OPENs can take
+    // so long that the first sessions end before it.
+    std::vector<uint64_t> victims;
+    {
+      const auto store = server::store::openStore(db, server::store::SessionStore::Mode::kReadOnly);
+      for (uint64_t id : owned[victim]) {
+        if (store->session(id)->state == "active") victims.push_back(id);
+      }
+    }
+    ASSERT_GE(victims.size(), 2u) << "the kill came after most of " << victim
+                                  << "'s sessions ended";
     const int64_t killed_ns = wallNs();
     ASSERT_EQ(::kill(servers[static_cast<std::size_t>(v)]->pid(), SIGKILL), 0);
     ASSERT_TRUE(servers[static_cast<std::size_t>(v)]->wait(10s).has_value());
@@ -103,9 +114,9 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
       if (std::regex_search(out, m, std::regex(R"(sent (\d+ samples, digest [0-9a-f]+))"))) {
         digests[ids[i]] = m[1];
       }
-      // 20 s at 1 kHz; a loaded host loses ticks (RecoveryTest checks that the loop runs on
+      // 30 s at 1 kHz; a loaded host loses ticks (RecoveryTest checks that the loop runs on
       // through an outage), a client that stopped at the kill would not have half of them.
-      EXPECT_GT(sent[ids[i]], 10000u) << out;
+      EXPECT_GT(sent[ids[i]], 15000u) << out;
     }
     for (int k = 0; k < kServers; ++k) {
       if (k != v) {
@@ -159,9 +170,7 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
         ++takeovers;
       }
       EXPECT_EQ(current, store->poolOwner(id)) << "the last owner event names the owner\n" << all;
-      const bool victims =
-          std::find(owned[victim].begin(), owned[victim].end(), id) != owned[victim].end();
-      if (!victims) {
+      if (std::find(victims.begin(), victims.end(), id) == victims.end()) {
         spurious += takeovers;
         continue;
       }
@@ -171,12 +180,12 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
       EXPECT_NE(all.find("the hand goes on from its checkpoint"), std::string::npos) << all;
     }
     std::cout << "pool on " << GetParam() << ": killed " << victim << " (sessions";
-    for (uint64_t id : owned[victim]) std::cout << " " << id;
+    for (uint64_t id : victims) std::cout << " " << id;
     std::cout << "); taken over within " << worst_claim_s << " s, resumed by their clients within "
               << worst_resume_s << " s of the kill; " << spurious
               << " take-over(s) of live servers' sessions (leases run out in stalls)\n";
     // How fast is a benchmark's question (tests/bench/bench_pool.sh runs this test and
-    // reports the figures); here only that the take-over came from the pool's lease (0.8 s)
+    // reports the figures); here only that the take-over came from the pool's lease (1 s)
     // and not from a client's own 4 s without acknowledgement, with room for a loaded machine.
     EXPECT_GT(worst_claim_s, 0.5) << "no claim before the dead server's lease ran out";
     EXPECT_LE(worst_resume_s, 15.0);

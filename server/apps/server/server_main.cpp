@@ -11,6 +11,7 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/log.h"
 #include "telehand/server/link/server_link.h"
+#include "telehand/server/session/serve_watch.h"
 #include "telehand/server/store/open_store.h"
 #include "telehand/server/store/server_lock.h"
 
@@ -124,28 +125,44 @@ int main(int argc, char** argv) {
     manager.setHandSlice(hand_slice_ms > 0.0 ? static_cast<int64_t>(hand_slice_ms * 1e6) : 0);
     manager.setHandShare(hand_share);
     // The lease is renewed on a thread (and a connection) of its own as well as by the serve
-    // loop: a loop held up for a moment (closing sessions, a busy record) keeps its sessions.
+    // loop: a loop held up for a moment (closing sessions, a busy record, a starved CPU)
+    // keeps its sessions; one held up for kServeStallNs (wedged) lets them go to the pool.
     std::jthread beat;
     if (pool) {
       // The pool takes on what the record holds open as orphans, a share per server.
       manager.joinPool(pool_id);
       spdlog::info("serving as '{}' in the pool on {}", pool_id, store->location());
-      beat = std::jthread([db_spec = cfg.db_path, pool_id](std::stop_token token) {
+      beat = std::jthread([db_spec = cfg.db_path, pool_id, &manager](std::stop_token token) {
+        using Manager = server::session::SessionManager;
         std::unique_ptr<server::store::SessionStore> own;
         int64_t reported_ns = 0;
+        bool stalled = false;
+        server::session::ServeWatch watch(Manager::kServeStallNs);
         while (!token.stop_requested()) {
+          const int64_t now = SteadyClock{}.nowNs();
+          if (!watch.alive(manager.progress(), now)) {
+            if (!stalled) {
+              spdlog::error(
+                  "pool: the serve loop has handled nothing for {:.1f} s: the lease is not "
+                  "renewed, and the pool takes this server's sessions over",
+                  static_cast<double>(watch.idleNs(now)) * 1e-9);
+            }
+            stalled = true;
+            std::this_thread::sleep_for(std::chrono::nanoseconds(Manager::kLeaseRenewNs));
+            continue;
+          }
+          stalled = false;
           try {
             if (!own) own = server::store::openStore(db_spec);
-            own->poolHeartbeat(pool_id, 0, server::session::SessionManager::kPoolLeaseNs);
+            own->poolHeartbeat(pool_id, 0, Manager::kPoolLeaseNs);
           } catch (const Error& e) {
-            if (const int64_t now = SteadyClock{}.nowNs(); now - reported_ns > 5'000'000'000) {
+            if (now - reported_ns > 5'000'000'000) {
               reported_ns = now;
               spdlog::error("pool: cannot renew the lease: {}", e.what());
             }
             own.reset();
           }
-          std::this_thread::sleep_for(
-              std::chrono::nanoseconds(server::session::SessionManager::kPoolHeartbeatNs));
+          std::this_thread::sleep_for(std::chrono::nanoseconds(Manager::kLeaseRenewNs));
         }
       });
     } else if (const std::size_t n = manager.recoverFromStore(SteadyClock{}.nowNs())) {

@@ -29,6 +29,16 @@ void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
   }
 }
 
+void Recorder::add(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid) {
+  if (pending_.empty()) {
+    pending_ = std::move(samples);
+    pending_valid_ = std::move(valid);
+    return;
+  }
+  pending_.insert(pending_.end(), samples.begin(), samples.end());
+  pending_valid_.insert(pending_valid_.end(), valid.begin(), valid.end());
+}
+
 void Recorder::markStored(const std::vector<Sample>& samples) {
   // A chunk is a run of consecutive sequence numbers: one interval per run.
   std::size_t i = 0;

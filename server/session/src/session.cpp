@@ -197,10 +197,12 @@ void Session::onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& val
                        int64_t now_ns) {
   live.touch(now_ns);
   capture.add(samples, valid, now_ns);
-  recorder.store(ctx, std::move(samples), std::move(valid));
+  recorder.add(std::move(samples), std::move(valid));  // stored at the round's tick
 }
 
 void Session::tick(int64_t now_ns) {
+  // What the round took, in one write: the acknowledgement below counts it.
+  recorder.flush(ctx);
   live.updateRate(now_ns);
   // The record's acknowledgement (what the client may forget) when it has grown, and at
   // least every kHeartbeatNs: a client that hears nothing for longer knows its server went
@@ -237,7 +239,6 @@ void Session::tick(int64_t now_ns) {
   }
   if (lesson) lesson->scoreDue(ctx, info.id, client_id, params.force_scale, now_ns, false);
   followTakeover(now_ns);
-  recorder.retry(ctx);
 }
 
 void Session::startReplay(uint64_t source, const JointModelParams& m, double speed,

@@ -138,6 +138,7 @@ bool SessionManager::owns(Session& s, const Origin& from, const char* what, uint
 
 void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
                                const Origin& from) {
+  progress_.fetch_add(1, std::memory_order_relaxed);
   // In a pool every server hears every command: one for a session another server runs is
   // that server's (an OPEN goes through the record's assignment, a resume to the claimer).
   if (cmd.kind != telehand_msg_CMD_OPEN && cmd.session_id != 0 && elsewhere(cmd.session_id)) {
@@ -400,6 +401,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   SessionInfo info;
   uint64_t stored_below = 0;
   std::optional<store::SessionStore::Extent> extent;
+  const int64_t open_t0 = SteadyClock{}.nowNs();
   try {
     if (resumed) {
       info = *resumed;
@@ -436,6 +438,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       answered_order_.erase(answered_order_.begin());
     }
   }
+  const int64_t open_t1 = SteadyClock{}.nowNs();
   Session& s = sessions_.try_emplace(info.id, ctx_, info, cmd, patient, hand_, hand_config_, now_ns)
                    .first->second;
   s.owner = from.participant;
@@ -500,11 +503,17 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   s.publishStatus(telehand_msg_SESSION_ACTIVE);
   s.publishModel();
   if (resumed) {
+    const int64_t open_t2 = SteadyClock{}.nowNs();
     event(s.info.id, cmd.client_id, telehand_msg_EVENT_INFO,
           "resumed: " + info.mode + " on case '" + case_name + "' for " + info.user +
               "; the record holds " + std::to_string(resumed->samples) +
               " samples, all below seq " + std::to_string(stored_below) +
-              ", and the client sends what it lacks" + hand_from,
+              ", and the client sends what it lacks" + hand_from +
+              fmt::format(" (record read in {:.0f} ms, hand made in {:.0f} ms, {:.0f} ms after "
+                          "the request was taken)",
+                          static_cast<double>(open_t1 - open_t0) * 1e-6,
+                          static_cast<double>(open_t2 - open_t1) * 1e-6,
+                          static_cast<double>(open_t2 - now_ns) * 1e-6),
           now_ns);
     return;
   }
@@ -714,6 +723,7 @@ void SessionManager::onSample(const Sample& d, int64_t now_ns, const Origin& fro
 
 void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
                              const Origin& from) {
+  progress_.fetch_add(1, std::memory_order_relaxed);
   Session* s = find(c.session_id);
   if (!s && elsewhere(c.session_id) &&
       std::none_of(ended_owners_.begin(), ended_owners_.end(),
@@ -779,6 +789,7 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
 }
 
 void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns, const Origin& from) {
+  progress_.fetch_add(1, std::memory_order_relaxed);
   Session* s = find(f.session_id);
   if (!s) {
     if (elsewhere(f.session_id)) return;
@@ -819,6 +830,7 @@ void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns, c
 }
 
 void SessionManager::tick(int64_t now_ns) {
+  progress_.fetch_add(1, std::memory_order_relaxed);
   if (pooled() && now_ns >= next_pool_ns_) poolTick(now_ns);
   // Ended sessions leave the transient-local topics once late joiners had their chance.
   std::size_t due = 0;
@@ -1059,12 +1071,13 @@ void SessionManager::poolTick(int64_t now_ns) {
     return;
   }
   const int64_t t1 = SteadyClock{}.nowNs();
-  if (last_beat_ns_ != 0 && t1 - last_beat_ns_ > kPoolLeaseNs / 2) {
+  if (last_beat_ns_ != 0 && t1 - last_beat_ns_ > 1'000'000'000) {
     spdlog::warn(
-        "pool: {:.0f} ms between two renewals of the lease ({:.0f} ms in the record); "
-        "its sessions are taken over past {:.0f} ms",
+        "pool: {:.0f} ms between two heartbeats of the serve loop ({:.0f} ms in the record); "
+        "the lease ({:.0f} ms) is renewed on a thread of its own while the loop is held up "
+        "less than {:.0f} s",
         static_cast<double>(t1 - last_beat_ns_) * 1e-6, static_cast<double>(t1 - t0) * 1e-6,
-        static_cast<double>(kPoolLeaseNs) * 1e-6);
+        static_cast<double>(kPoolLeaseNs) * 1e-6, static_cast<double>(kServeStallNs) * 1e-9);
   }
   last_beat_ns_ = t1;
   const auto owned = [&](uint64_t id) { return std::binary_search(mine.begin(), mine.end(), id); };

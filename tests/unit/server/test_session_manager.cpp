@@ -18,6 +18,7 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/session/serve_watch.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/store/sqlite_store.h"
@@ -849,6 +850,7 @@ class OwnershipTest : public SessionManagerTest {
     c.samples._length = c.samples._maximum = static_cast<uint32_t>(samples.size());
     c.samples._release = false;
     manager_->onChunk(c, now_ns_, from);
+    manager_->tick(now_ns_);  // the serve loop's round ends: what it took is stored
   }
   /// Sequence numbers [first, first + n) of `session` with `model_version`, in chunks of 200.
   void sendRange(uint64_t session, uint64_t first, uint64_t n, const Origin& from,
@@ -1467,6 +1469,45 @@ TEST_F(SessionManagerTest, TheHandsStepWithinTheirShareOfTheServingThread) {
   EXPECT_EQ(manager_->handWaitNs(clock.nowNs()), 0);
   manager_->tick(now_ns_);
   EXPECT_GT(manager_->stats().hand_steps, steps);
+}
+
+}  // namespace
+}  // namespace telehand::server::session
+
+namespace telehand::server::session {
+namespace {
+
+TEST(ServeWatchTest, ALoopThatHandlesNothingForTheStallTimeIsWedged) {
+  // The pool's lease is renewed while the serve loop gets on (docs/pool.md): a counter that
+  // stands still for longer than the stall time stops the renewals; one that moves again
+  // starts them again.
+  ServeWatch watch(5'000'000'000);
+  EXPECT_TRUE(watch.alive(7, 1'000'000'000));
+  EXPECT_TRUE(watch.alive(7, 6'000'000'000));  // 5 s still: not yet
+  EXPECT_EQ(watch.idleNs(6'000'000'000), 5'000'000'000);
+  EXPECT_FALSE(watch.alive(7, 6'000'000'001));
+  EXPECT_FALSE(watch.alive(7, 60'000'000'000));
+  EXPECT_TRUE(watch.alive(8, 60'000'000'001));  // handled something: alive again
+  EXPECT_EQ(watch.idleNs(60'000'000'001), 0);
+  EXPECT_TRUE(watch.alive(9, 64'000'000'000));
+  EXPECT_FALSE(watch.alive(9, 69'000'000'001));
+}
+
+TEST_F(SessionManagerTest, TheServeLoopsProgressCountsRoundsCommandsAndChunks) {
+  const uint64_t p0 = manager_->progress();
+  manager_->tick(now_ns_);
+  EXPECT_EQ(manager_->progress(), p0 + 1);
+  const uint64_t id = open("healthy");
+  ASSERT_NE(id, 0u);
+  EXPECT_GT(manager_->progress(), p0 + 1);
+  const uint64_t p1 = manager_->progress();
+  telehand_msg_RecordChunk chunk{};
+  chunk.session_id = id;
+  manager_->onChunk(chunk, now_ns_, from_);
+  EXPECT_EQ(manager_->progress(), p1 + 1);
+  // A live sample is no progress of its own: the round that took it counts.
+  manager_->onDeviceState(pinchSample(0), now_ns_, from_);
+  EXPECT_EQ(manager_->progress(), p1 + 1);
 }
 
 }  // namespace

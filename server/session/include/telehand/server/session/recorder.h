@@ -18,10 +18,15 @@ class Recorder {
 
   /// Append to the record, after whatever is still pending (kept on a store error).
   void store(SessionContext& ctx, std::vector<Sample>&& samples, std::vector<uint8_t>&& valid);
-  /// Retry what the store refused before.
-  void retry(SessionContext& ctx) {
+  /// Queue for the record without storing yet: the chunks a round of the serve loop takes
+  /// go to the store together at flush(), one batch per session (one COPY, one transaction)
+  /// rather than one per chunk, so that a loop that fell behind catches up in a few writes.
+  void add(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid);
+  /// Store what was queued, and retry what the store refused before.
+  void flush(SessionContext& ctx) {
     if (!pending_.empty()) store(ctx, {}, {});
   }
+  void retry(SessionContext& ctx) { flush(ctx); }
   bool drained() const noexcept { return pending_.empty(); }
   uint64_t recorded() const noexcept { return recorded_; }
   /// Every sample with seq < this is in the record (what the client may forget,

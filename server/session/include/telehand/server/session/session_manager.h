@@ -3,6 +3,7 @@
 /// records what clients send, computes the decimated HandState from the shared joint model,
 /// and reports bad input as events without disturbing other sessions.
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -93,6 +94,16 @@ class SessionManager {
   const std::string& poolId() const noexcept { return pool_id_; }
   static constexpr int64_t kPoolHeartbeatNs = 200'000'000;
   static constexpr int64_t kPoolLeaseNs = 1'000'000'000;
+  /// How often telehand-server's lease thread renews the lease: ten chances within it, so
+  /// that a renewal held up behind the record's other writers does not lose it.
+  static constexpr int64_t kLeaseRenewNs = 100'000'000;
+  /// The lease is renewed on a thread of its own (telehand-server), and only while the serve
+  /// loop gets on: one that has handled nothing (no round, command or chunk) for this long is
+  /// wedged, lets its lease run out, and the pool takes its sessions over.
+  static constexpr int64_t kServeStallNs = 20'000'000'000;
+  /// Counts the serve loop's rounds and the commands and chunks it handled; read from the
+  /// lease's thread, which renews only while it grows.
+  uint64_t progress() const noexcept { return progress_.load(std::memory_order_relaxed); }
   static constexpr int64_t kCheckpointNs = 500'000'000;
   /// Orphans one server claims per heartbeat: the others get their share of a dead one's.
   static constexpr int kMaxClaimsPerBeat = 2;
@@ -223,6 +234,7 @@ class SessionManager {
   void stepHands(int64_t now_ns);
   std::string pool_id_;  // '' : not in a pool
   int64_t last_beat_ns_ = 0;
+  std::atomic<uint64_t> progress_{0};
   int64_t next_pool_ns_ = 0;
   int64_t next_checkpoint_ns_ = 0;
   SessionContext ctx_;  // for the sessions' parts: the members above
