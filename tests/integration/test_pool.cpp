@@ -67,8 +67,8 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
     std::vector<uint64_t> ids;
     for (int i = 0; i < kSessions; ++i) {
       clients.push_back(std::make_unique<Process>(
-          cmd(TELEHAND_CLIENT_BIN,
-              {"--seconds", "30", "-q", "--no-fault-stop", "--seed", std::to_string(11 + i)}),
+          cmd(TELEHAND_CLIENT_BIN, {"--seconds", "30", "--connect-timeout", "30", "-q",
+                                    "--no-fault-stop", "--seed", std::to_string(11 + i)}),
           path("client" + std::to_string(i) + ".log")));
       const std::string id = await(*clients.back(), R"(session (\d+) open)", 30s);
       ASSERT_FALSE(id.empty()) << clients.back()->output();
