@@ -57,6 +57,9 @@ struct PiecewiseFitOptions {
   /// A zone or wall is kept only when it lowers the residual sum of squares by more than
   /// this many times σ² ln n (a Bayesian-information-style penalty against fitting noise).
   double penalty = 2.0;
+  /// With walls and zone searched, a second search from a start with the zone searched
+  /// first, the better kept (twice the search's cost).
+  bool zone_first_start = true;
   /// Fit only the linear part, with this shape's walls, zone and rest (no search).
   const PiecewiseCubic* fixed_shape = nullptr;
   /// Per sample (empty, or as long as x), a known factor on the piecewise curve:
