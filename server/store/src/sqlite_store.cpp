@@ -354,17 +354,6 @@ SqliteStore::SqliteStore(const std::string& path, Mode mode) : path_(path) {
       throw StoreError("record database '" + path + "' does not exist");
     flags |= SQLITE_OPEN_READONLY;
   }
-  // Each connection's page cache in one block, allocated as it opens, for the 64 pages of
-  // 4 KiB that cache_size (below) allows: by default SQLite allocates the first 20 so and
-  // each further one on its own as the cache grows, shrinks and grows again, among the
-  // server's longer-lived blocks (docs/security.md, Memory). Process-wide, before SQLite
-  // first initialises (refused, harmlessly, after).
-  static const bool kPageCacheSet = [] {
-    int header = 0;
-    return sqlite3_config(SQLITE_CONFIG_PCACHE_HDRSZ, &header) == SQLITE_OK &&
-           sqlite3_config(SQLITE_CONFIG_PAGECACHE, nullptr, 4096 + header, 64) == SQLITE_OK;
-  }();
-  (void)kPageCacheSet;
   if (sqlite3_open_v2(path.c_str(), &db_, flags, nullptr) != SQLITE_OK) {
     const std::string why = db_ ? sqlite3_errmsg(db_) : "out of memory";
     sqlite3_close(db_);
