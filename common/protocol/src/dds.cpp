@@ -171,6 +171,8 @@ void releaseUnregistered(dds_instance_handle_t instance) noexcept {
   telehand_dds_release_unregistered(instance);
 }
 
+int releasePooledSamples() noexcept { return telehand_dds_release_pooled_samples(); }
+
 std::string participantConfig(const Options& options) {
   std::string uri = configUri(options.config);
   if (options.lease_s > 0.0) {

@@ -106,6 +106,8 @@ void ServerLink::retire(uint64_t session_id) {
   unregisterSession(direct_writer_, session_id);
 }
 
+void ServerLink::idle() { dds::releasePooledSamples(); }
+
 const session::Origin& ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
   // Per sample (1 kHz per client): the last writer's origin, or one lookup; built once per
   // writer (DDS Security adds no work of telehand's per sample).

@@ -30,6 +30,7 @@ SessionManager::SessionManager(SessionStore& store, Outbox& out, const ServerCon
                   const std::string& text,
                   int64_t now_ns) { event(session_id, client_id, kind, text, now_ns); }} {
   ended_owners_.reserve(kMaxEndedOwners);
+  answered_opens_.reserve(kMaxAnsweredOpens);
 }
 
 SessionManager::~SessionManager() = default;
@@ -238,11 +239,22 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   }
   const std::string open_key = fmt::format("{}:{:x}:{}", from.guid.empty() ? "?" : from.guid,
                                            cmd.client_id, cmd.request_seq);
+  AnsweredOpen answer;
+  answer.client_id = cmd.client_id;
+  answer.request_seq = cmd.request_seq;
+  (from.guid.empty() ? std::string_view("?") : std::string_view(from.guid))
+      .copy(answer.guid.data(), answer.guid.size() - 1);
   if (!resumed) {
-    if (const auto it = answered_opens_.find(open_key); it != answered_opens_.end()) {
+    if (const auto it = std::find_if(answered_opens_.begin(), answered_opens_.end(),
+                                     [&](const AnsweredOpen& a) {
+                                       return a.client_id == answer.client_id &&
+                                              a.request_seq == answer.request_seq &&
+                                              a.guid == answer.guid;
+                                     });
+        it != answered_opens_.end()) {
       // The same request again (its answer was lost, or it came before the client saw it):
       // the session it made, announced again.
-      if (Session* again = find(it->second)) {
+      if (Session* again = find(it->session_id)) {
         again->publishStatus(telehand_msg_SESSION_ACTIVE);
         again->publishModel();
       }
@@ -431,12 +443,13 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   }
   suspended_.erase(info.id);
   if (!resumed) {
-    answered_opens_[open_key] = info.id;
-    answered_order_.push_back(open_key);
-    if (answered_order_.size() > kMaxAnsweredOpens) {
-      answered_opens_.erase(answered_order_.front());
-      answered_order_.erase(answered_order_.begin());
+    answer.session_id = info.id;
+    if (answered_opens_.size() < kMaxAnsweredOpens) {
+      answered_opens_.push_back(answer);
+    } else {
+      answered_opens_[answered_next_] = answer;
     }
+    answered_next_ = (answered_next_ + 1) % kMaxAnsweredOpens;
   }
   const int64_t open_t1 = SteadyClock{}.nowNs();
   Session& s = sessions_.try_emplace(info.id, ctx_, info, cmd, patient, hand_, hand_config_, now_ns)
@@ -891,8 +904,12 @@ void SessionManager::tick(int64_t now_ns) {
   // A session's hand is megabytes of blocks (hand_heap.h): glibc keeps freed ones in its
   // arenas, so without this a burst of sessions (a flood of OPENs up to
   // server.max_sessions) would hold the server's RSS at its peak after they ended. Retired
-  // sessions free their samples in Cyclone: trimmed too.
-  if (!done.empty() || due > 0) malloc_trim(0);
+  // sessions free their samples in Cyclone: trimmed too, and once none is left, the samples
+  // Cyclone pooled for reuse (a burst fills its pool) are given back first.
+  if (!done.empty() || due > 0) {
+    if (sessions_.empty() && retiring_.empty()) out_.idle();
+    malloc_trim(0);
+  }
 #endif
 }
 

@@ -146,6 +146,12 @@ class SenderCache {
 /// unregistered instance keeps its key entry, about 0.5 kB, for the life of the process.
 void releaseUnregistered(dds_instance_handle_t instance) noexcept;
 
+/// Frees the samples Cyclone DDS 0.10 keeps for reuse once they are freed (up to 8,192 of up
+/// to 256 bytes per domain, never given back while the domain lives; a no-op with other
+/// versions), in the domain this thread last called into. Returns how many it freed. A server
+/// calls it when its sessions have ended, so that a burst's samples do not keep its pages.
+int releasePooledSamples() noexcept;
+
 /// Which DDS world to join.
 struct Options {
   uint32_t domain = 0;

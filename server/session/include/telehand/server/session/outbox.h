@@ -22,6 +22,9 @@ class Outbox {
   /// SessionEvent, HandState, DirectForce): late joiners no longer receive it and the
   /// writers free its instances.
   virtual void retire(uint64_t session_id) { (void)session_id; }
+  /// No session is open or waiting to be retired: what the link keeps for reuse (Cyclone's
+  /// pool of freed samples) can be given back.
+  virtual void idle() {}
 };
 
 struct ManagerStats {

@@ -222,9 +222,18 @@ class SessionManager {
   estimate::LiveRefitOptions refit_options_;
   sim::HandSimConfig hand_config_;
   /// OPENs answered (sender, client id, request number -> session): a client asks again
-  /// until answered, and a repeat gets the session it made, not another one. Bounded.
-  std::map<std::string, uint64_t> answered_opens_;
-  std::vector<std::string> answered_order_;  // oldest first, for the bound
+  /// until answered, and a repeat gets the session it made, not another one. The last
+  /// kMaxAnsweredOpens, in a ring reserved at construction: remembering them allocates
+  /// nothing per session (each allocation outliving its session among the short-lived ones
+  /// kept pages of the serving thread's heap resident after the sessions ended).
+  struct AnsweredOpen {
+    uint64_t client_id = 0;
+    uint32_t request_seq = 0;
+    uint64_t session_id = 0;
+    std::array<char, 40> guid{};  // the sender's GUID, hex, NUL-terminated ("?": unknown)
+  };
+  std::vector<AnsweredOpen> answered_opens_;
+  std::size_t answered_next_ = 0;  // where the next one goes (the oldest, once full)
   static constexpr std::size_t kMaxAnsweredOpens = 1024;
   int64_t hand_slice_ns_ = 0;  // 0: the hands step with each live sample
   uint64_t hand_cursor_ = 0;   // the session whose hand steps first in the next slice
