@@ -1029,7 +1029,7 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
 
 void SessionManager::closeAll(int64_t now_ns) {
   for (auto& [id, s] : sessions_) {
-    s.recorder.retry(ctx_);
+    s.recorder.flush(ctx_);
     s.flushHand(now_ns);
     if (s.closing) {
       finish(s, now_ns, s.recorder.recorded() >= s.expected ? "closed" : "incomplete");

@@ -26,7 +26,6 @@ class Recorder {
   void flush(SessionContext& ctx) {
     if (!pending_.empty()) store(ctx, {}, {});
   }
-  void retry(SessionContext& ctx) { flush(ctx); }
   bool drained() const noexcept { return pending_.empty(); }
   uint64_t recorded() const noexcept { return recorded_; }
   /// Every sample with seq < this is in the record (what the client may forget,
