@@ -158,6 +158,17 @@ void BM_HandSimRoundRobin(benchmark::State& state) {
 }
 BENCHMARK(BM_HandSimRoundRobin)->Arg(1)->Arg(4)->Arg(16)->Unit(benchmark::kMicrosecond);
 
+/// What a session's start (or a pool's take-over) pays for its hand: one HandSim built and
+/// freed (the bodies, hull shapes and constraints of the 24-DoF model in a world of its own).
+void BM_HandSimBuild(benchmark::State& state) {
+  const JointModelParams params = healthyIndexMcp();
+  for (auto _ : state) {
+    auto h = std::make_unique<HandSim>(hand(), params);
+    benchmark::DoNotOptimize(h.get());
+  }
+}
+BENCHMARK(BM_HandSimBuild)->Unit(benchmark::kMillisecond);
+
 }  // namespace
 }  // namespace telehand::server::sim
 

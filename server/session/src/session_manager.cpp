@@ -457,6 +457,8 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   s.owner = from.participant;
   s.owner_identity = from.identity;
   s.hand_deferred = hand_slice_ns_ > 0;
+  const int64_t open_built = SteadyClock{}.nowNs();
+  int64_t open_restored = open_built;
   std::string hand_from;
   if (resumed) {
     // What the record holds: acknowledged at once, so the client sends what it lacks.
@@ -479,6 +481,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       ++stats_.store_errors;
       hand_from = std::string("; the hand's checkpoint cannot be read: ") + e.what();
     }
+    open_restored = SteadyClock{}.nowNs();
   }
   const bool wants_knn = cmd.stiffness == telehand_msg_STIFFNESS_KNN;
   if (capture) {
@@ -522,10 +525,13 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
               "; the record holds " + std::to_string(resumed->samples) +
               " samples, all below seq " + std::to_string(stored_below) +
               ", and the client sends what it lacks" + hand_from +
-              fmt::format(" (record read in {:.0f} ms, hand made in {:.0f} ms, {:.0f} ms after "
-                          "the request was taken)",
+              fmt::format(" (record read in {:.0f} ms, hand made in {:.0f} ms, its checkpoint "
+                          "read and restored in {:.0f} ms, status and model published in {:.0f} "
+                          "ms; {:.0f} ms after the request was taken)",
                           static_cast<double>(open_t1 - open_t0) * 1e-6,
-                          static_cast<double>(open_t2 - open_t1) * 1e-6,
+                          static_cast<double>(open_built - open_t1) * 1e-6,
+                          static_cast<double>(open_restored - open_built) * 1e-6,
+                          static_cast<double>(open_t2 - open_restored) * 1e-6,
                           static_cast<double>(open_t2 - now_ns) * 1e-6),
           now_ns);
     return;

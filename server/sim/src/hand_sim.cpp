@@ -208,8 +208,22 @@ class PadGrip final : public btTypedConstraint {
 
 }  // namespace
 
+namespace {
+/// Bullet's default pools hold 4,096 contact manifolds and 4,096 collision algorithms, about
+/// 6 MB written through when the world is made: most of what a hand cost to build (tens of
+/// ms of page faults on a server whose freed hands went back to the system) and to keep. A
+/// hand has two pads against 20 bones, at most 40 pairs; beyond the pool Bullet takes
+/// further ones from the heap.
+btDefaultCollisionConstructionInfo handPools() {
+  btDefaultCollisionConstructionInfo info;
+  info.m_defaultMaxPersistentManifoldPoolSize = 64;
+  info.m_defaultMaxCollisionAlgorithmPoolSize = 64;
+  return info;
+}
+}  // namespace
+
 struct HandSim::Impl {
-  btDefaultCollisionConfiguration collision_config;
+  btDefaultCollisionConfiguration collision_config{handPools()};
   btCollisionDispatcher dispatcher{&collision_config};
   btDbvtBroadphase broadphase;
   btSequentialImpulseConstraintSolver solver;
