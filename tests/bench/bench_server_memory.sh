@@ -7,6 +7,8 @@
 #   - a churn: SESSIONS sessions opened and closed (16 participants, each keeping 4
 #     sessions opening or open, every OPEN taken);
 # and the server's RSS once each has ended and been retired (status_keep_s = 2 s).
+# With BENCH_SMAPS=1, the server's largest resident mappings at the end (/proc/PID/smaps:
+# [heap] is the main malloc arena, anonymous 64 MB-aligned ones the threads' arenas).
 # Usage: tests/bench/bench_server_memory.sh [ROUNDS (3)] [SESSIONS per churn (9000)] [--secure]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -64,3 +66,8 @@ for r in $(seq "$rounds"); do
     "$(mb "$after")" "$(awk -v a="$after" -v b="$base" 'BEGIN{printf "%+.1f", 100 * (a - b) / b}')" \
     "$(tr '\n' ' ' <"$work/churn.log")"
 done
+if [ "${BENCH_SMAPS:-}" = 1 ]; then
+  echo "largest resident mappings (kB):"
+  awk '/^[0-9a-f]+-[0-9a-f]+ /{m=$1" "$6} /^Rss:/{if ($2 > 0) print $2, m}' "/proc/$server/smaps" |
+    sort -rn | head -12
+fi

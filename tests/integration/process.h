@@ -12,9 +12,10 @@ namespace telehand::test {
 
 class Process : public app::Process {
  public:
-  /// Starts argv[0] with stdout and stderr to `log_path`.
-  Process(std::vector<std::string> argv, std::string log_path)
-      : app::Process(app::ProcessOptions{.argv = std::move(argv), .out_path = log_path}),
+  /// Starts argv[0] with stdout and stderr to `log_path`, its niceness raised by `nice`.
+  Process(std::vector<std::string> argv, std::string log_path, int nice = 0)
+      : app::Process(
+            app::ProcessOptions{.argv = std::move(argv), .out_path = log_path, .nice = nice}),
         log_(std::move(log_path)) {}
 
   std::string output() const {

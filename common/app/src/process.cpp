@@ -85,6 +85,10 @@ Process::Process(const ProcessOptions& o) {
       prctl(PR_SET_PDEATHSIG, SIGTERM);
       if (getppid() != parent) _exit(127);
     }
+    // Best effort: a child that keeps the parent's priority still runs.
+    if (o.nice > 0) {
+      [[maybe_unused]] const int niceness = ::nice(o.nice);
+    }
     if (in_fd >= 0) dup2(in_fd, STDIN_FILENO);
     if (out_fd >= 0) {
       dup2(out_fd, STDOUT_FILENO);

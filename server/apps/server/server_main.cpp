@@ -132,7 +132,7 @@ int main(int argc, char** argv) {
       // The pool takes on what the record holds open as orphans, a share per server.
       manager.joinPool(pool_id);
       spdlog::info("serving as '{}' in the pool on {}", pool_id, store->location());
-      beat = std::jthread([db_spec = cfg.db_path, pool_id, &manager](std::stop_token token) {
+      beat = std::jthread([db_spec = cfg.db_path, pool_id, &manager, &link](std::stop_token token) {
         using Manager = server::session::SessionManager;
         std::unique_ptr<server::store::SessionStore> own;
         int64_t reported_ns = 0;
@@ -155,6 +155,12 @@ int main(int argc, char** argv) {
           try {
             if (!own) own = server::store::openStore(db_spec);
             own->poolHeartbeat(pool_id, 0, Manager::kPoolLeaseNs);
+            // A dead server's sessions: claimed at the serve loop's next round, not its next
+            // heartbeat (up to 0.2 s later, more when the loop is busy).
+            if (!own->poolOrphans().empty()) {
+              manager.claimSoon();
+              link.wake();
+            }
           } catch (const Error& e) {
             if (now - reported_ns > 5'000'000'000) {
               reported_ns = now;

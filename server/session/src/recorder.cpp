@@ -15,18 +15,28 @@ void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
   pending_.insert(pending_.end(), samples.begin(), samples.end());
   pending_valid_.insert(pending_valid_.end(), valid.begin(), valid.end());
   if (pending_.empty()) return;
+  store::SessionStore::BatchResult r;
   try {
-    const uint64_t added = ctx.store.appendSamples(session_id_, pending_, pending_valid_);
-    recorded_ += added;
-    ctx.stats.recorded_samples += added;
-    markStored(pending_);
-    pending_.clear();
-    pending_valid_.clear();
+    r.added = ctx.store.appendSamples(session_id_, pending_, pending_valid_);
+    r.stored = true;
   } catch (const StoreError& e) {
-    ++ctx.stats.store_errors;
-    spdlog::error("session {}: {} ({} samples kept in memory, retrying)", session_id_, e.what(),
-                  pending_.size());
+    r.error = e.what();
   }
+  stored(ctx, r);
+}
+
+void Recorder::stored(SessionContext& ctx, const store::SessionStore::BatchResult& result) {
+  if (!result.stored) {
+    ++ctx.stats.store_errors;
+    spdlog::error("session {}: {} ({} samples kept in memory, retrying)", session_id_, result.error,
+                  pending_.size());
+    return;
+  }
+  recorded_ += result.added;
+  ctx.stats.recorded_samples += result.added;
+  markStored(pending_);
+  pending_.clear();
+  pending_valid_.clear();
 }
 
 void Recorder::add(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid) {

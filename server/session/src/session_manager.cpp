@@ -848,9 +848,27 @@ void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns, c
         now_ns);
 }
 
+void SessionManager::flushRecords() {
+  batches_.clear();
+  batch_sessions_.clear();
+  for (auto& [id, s] : sessions_) {
+    if (s.recorder.drained()) continue;
+    batches_.push_back(s.recorder.batch());
+    batch_sessions_.push_back(&s);
+  }
+  if (batches_.empty()) return;
+  const auto results = store_.appendSampleBatches(batches_);
+  for (std::size_t i = 0; i < batch_sessions_.size(); ++i) {
+    batch_sessions_[i]->recorder.stored(ctx_, results[i]);
+  }
+}
+
 void SessionManager::tick(int64_t now_ns) {
   progress_.fetch_add(1, std::memory_order_relaxed);
-  if (pooled() && now_ns >= next_pool_ns_) poolTick(now_ns);
+  if (pooled() &&
+      (now_ns >= next_pool_ns_ || claim_soon_.exchange(false, std::memory_order_relaxed))) {
+    poolTick(now_ns);
+  }
   // Ended sessions leave the transient-local topics once late joiners had their chance.
   std::size_t due = 0;
   while (due < retiring_.size() && retiring_[due].first <= now_ns) {
@@ -867,6 +885,7 @@ void SessionManager::tick(int64_t now_ns) {
                        " s: closed as interrupted with what the record holds");
   }
   if (hand_slice_ns_ > 0) stepHands(now_ns);
+  flushRecords();
   const auto lookup = [this](uint64_t id) { return find(id); };
   std::vector<uint64_t> done;
   for (auto& [id, s] : sessions_) {

@@ -746,35 +746,38 @@ uint64_t PgStore::insertSamples(uint64_t session_id, std::span<const Sample> sam
 /// The fast path: the batch in one COPY (a statement of its own, so all of it or nothing).
 /// nullopt when a sequence number was stored already (a resend): nothing was stored, and the
 /// caller inserts what is new.
-std::optional<uint64_t> PgStore::copySamples(uint64_t session_id, std::span<const Sample> samples,
-                                             std::span<const uint8_t> valid) {
+std::optional<uint64_t> PgStore::copySamples(std::span<const SampleBatch> batches) {
   thread_local std::string buf;
   buf.clear();
   buf.append("PGCOPY\n\377\r\n\0", 11);
   put32(buf, 0);  // flags
   put32(buf, 0);  // header extension
   const auto columns = static_cast<uint16_t>(fieldCount() + 2);
-  for (std::size_t k = 0; k < samples.size(); ++k) {
-    put16(buf, columns);
-    put32(buf, 8);
-    put64(buf, session_id);
-    visitFields(samples[k], [&](const auto& v) {
-      using T = std::remove_cvref_t<decltype(v)>;
-      if constexpr (std::is_integral_v<T>) {
-        put32(buf, 8);
-        put64(buf, static_cast<uint64_t>(static_cast<int64_t>(v)));
-      } else if (std::isnan(v)) {
-        put32(buf, 0xffffffffu);  // NULL, as SQLite keeps NaN
-      } else if constexpr (std::is_same_v<T, float>) {
-        put32(buf, 4);
-        put32(buf, std::bit_cast<uint32_t>(v));
-      } else {
-        put32(buf, 8);
-        put64(buf, std::bit_cast<uint64_t>(static_cast<double>(v)));
-      }
-    });
-    put32(buf, 4);
-    put32(buf, k < valid.size() && valid[k] == 0 ? 0 : 1);
+  for (const SampleBatch& b : batches) {
+    const std::span<const Sample> samples = b.samples;
+    const std::span<const uint8_t> valid = b.valid;
+    for (std::size_t k = 0; k < samples.size(); ++k) {
+      put16(buf, columns);
+      put32(buf, 8);
+      put64(buf, b.session_id);
+      visitFields(samples[k], [&](const auto& v) {
+        using T = std::remove_cvref_t<decltype(v)>;
+        if constexpr (std::is_integral_v<T>) {
+          put32(buf, 8);
+          put64(buf, static_cast<uint64_t>(static_cast<int64_t>(v)));
+        } else if (std::isnan(v)) {
+          put32(buf, 0xffffffffu);  // NULL, as SQLite keeps NaN
+        } else if constexpr (std::is_same_v<T, float>) {
+          put32(buf, 4);
+          put32(buf, std::bit_cast<uint32_t>(v));
+        } else {
+          put32(buf, 8);
+          put64(buf, std::bit_cast<uint64_t>(static_cast<double>(v)));
+        }
+      });
+      put32(buf, 4);
+      put32(buf, k < valid.size() && valid[k] == 0 ? 0 : 1);
+    }
   }
   put16(buf, 0xffff);  // trailer
 
@@ -797,6 +800,43 @@ std::optional<uint64_t> PgStore::copySamples(uint64_t session_id, std::span<cons
     throw StoreError("lost the connection to record database '" + location_ + "': " + why);
   }
   throw StoreError("PostgreSQL on '" + location_ + "': " + why + " (in: COPY samples)");
+}
+
+std::vector<SessionStore::BatchResult> PgStore::appendSampleBatches(
+    std::span<const SampleBatch> batches) {
+  if (batches.size() < 2) return SessionStore::appendSampleBatches(batches);
+  {
+    std::lock_guard lock(mutex_);
+    bool plain = true;  // each batch's sequence numbers rise: no key twice in the COPY
+    std::size_t rows = 0;
+    for (const SampleBatch& b : batches) {
+      rows += b.samples.size();
+      for (std::size_t i = 1; i < b.samples.size() && plain; ++i) {
+        plain = b.samples[i].seq > b.samples[i - 1].seq;
+      }
+    }
+    if (plain && rows > 0) {
+      std::vector<BatchResult> out(batches.size());
+      try {
+        connect();
+        prepare();
+        const auto copied = copySamples(batches);
+        if (copied) {
+          for (std::size_t i = 0; i < batches.size(); ++i) {
+            out[i].stored = true;
+            out[i].added = batches[i].samples.size();
+          }
+          return out;
+        }
+      } catch (const StoreError& e) {
+        for (auto& r : out) r.error = e.what();
+        return out;
+      }
+    }
+  }
+  // Some sample was stored before (or a batch repeats one): batch by batch, each skipping
+  // what the record holds.
+  return SessionStore::appendSampleBatches(batches);
 }
 
 uint64_t PgStore::appendSamples(uint64_t session_id, std::span<const Sample> samples,
@@ -825,7 +865,8 @@ uint64_t PgStore::appendSamples(uint64_t session_id, std::span<const Sample> sam
       valid = unique_valid;
     }
   }
-  if (const auto copied = copySamples(session_id, samples, valid)) return *copied;
+  const SampleBatch one{session_id, samples, valid};
+  if (const auto copied = copySamples(std::span<const SampleBatch>(&one, 1))) return *copied;
   // Some were stored before: an INSERT that skips them, in slices, in one transaction.
   if (samples.size() <= kRowsPerStatement) return insertSamples(session_id, samples, valid);
   Db db(conn_, location_);

@@ -296,6 +296,41 @@ TEST_P(SessionStoreTest, SessionsDoNotMix) {
   EXPECT_EQ(seqsOf(*store, a).size(), 4u);
 }
 
+TEST_P(SessionStoreTest, BatchesOfSeveralSessionsAreStoredAsEachWouldBeAlone) {
+  auto store = this->open();
+  const uint64_t a = store->createSession(info("alice"));
+  const uint64_t b = store->createSession(info("bob"));
+  using Batch = server::store::SessionStore::SampleBatch;
+  const auto write = [&](std::vector<Sample> sa, std::vector<Sample> sb,
+                         std::vector<uint8_t> vb = {}) {
+    const std::vector<Batch> batches = {{a, sa, {}}, {b, sb, vb}};
+    const auto r = store->appendSampleBatches(batches);
+    EXPECT_EQ(r.size(), 2u);
+    for (const auto& x : r) EXPECT_TRUE(x.stored) << x.error;
+    return std::vector<uint64_t>{r[0].added, r[1].added};
+  };
+  EXPECT_EQ(write(samples(a, 0, 10), samples(b, 0, 6)), (std::vector<uint64_t>{10, 6}));
+  // Some stored before (PostgreSQL's one COPY fails on the key): each batch counts its new.
+  EXPECT_EQ(write(samples(a, 5, 15), samples(b, 6, 9)), (std::vector<uint64_t>{5, 3}));
+  // A repeat within a batch keeps the first copy and its flag.
+  std::vector<Sample> repeat = {sample(b, 9), sample(b, 9), sample(b, 10)};
+  repeat[1].fingers[1].normal_n = 77.0f;
+  EXPECT_EQ(write(samples(a, 20, 22), repeat, {0, 1, 1}), (std::vector<uint64_t>{2, 2}));
+  EXPECT_TRUE(store->appendSampleBatches({}).empty());
+  EXPECT_EQ(store->session(a)->samples, 17u);
+  EXPECT_EQ(store->session(b)->samples, 11u);
+  EXPECT_EQ(store->session(b)->rejected, 1u);
+  store->forEachSample(a,
+                       [&](const Sample& got, bool) { expectSameSample(got, sample(a, got.seq)); });
+  store->forEachSample(b, [&](const Sample& got, bool) {
+    if (got.seq == 9) {
+      EXPECT_NE(got.fingers[1].normal_n, 77.0f) << "the first copy";
+    } else {
+      expectSameSample(got, sample(b, got.seq));
+    }
+  });
+}
+
 TEST_P(SessionStoreTest, InvalidSamplesAreKeptAndCounted) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));

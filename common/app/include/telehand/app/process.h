@@ -21,6 +21,7 @@ struct ProcessOptions {
   std::string out_path{};        ///< or to this file, truncated (when out_fd is -1)
   bool null_stdin = false;       ///< stdin from /dev/null instead of ours
   bool die_with_parent = false;  ///< SIGTERM when this process dies (PR_SET_PDEATHSIG)
+  int nice = 0;                  ///< added to the child's niceness (0-19: yields the CPU)
 };
 
 class Process {

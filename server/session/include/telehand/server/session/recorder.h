@@ -26,6 +26,13 @@ class Recorder {
   void flush(SessionContext& ctx) {
     if (!pending_.empty()) store(ctx, {}, {});
   }
+  /// What flush() would store, for a write of several sessions' together (valid until the
+  /// next add or store); its outcome goes to stored().
+  store::SessionStore::SampleBatch batch() const noexcept {
+    return {session_id_, pending_, pending_valid_};
+  }
+  /// The outcome of writing batch(): counted and acknowledged, or kept for the next try.
+  void stored(SessionContext& ctx, const store::SessionStore::BatchResult& result);
   bool drained() const noexcept { return pending_.empty(); }
   uint64_t recorded() const noexcept { return recorded_; }
   /// Every sample with seq < this is in the record (what the client may forget,

@@ -104,6 +104,10 @@ class SessionManager {
   /// Counts the serve loop's rounds and the commands and chunks it handled; read from the
   /// lease's thread, which renews only while it grows.
   uint64_t progress() const noexcept { return progress_.load(std::memory_order_relaxed); }
+  /// Pool: the lease's thread saw orphans in the record (a server's lease ran out): the serve
+  /// loop runs its pool round at its next round rather than at its next heartbeat (safe from
+  /// any thread; wake the loop after it).
+  void claimSoon() noexcept { claim_soon_.store(true, std::memory_order_relaxed); }
   static constexpr int64_t kCheckpointNs = 500'000'000;
   /// Orphans one server claims per heartbeat: the others get their share of a dead one's.
   static constexpr int kMaxClaimsPerBeat = 2;
@@ -192,6 +196,8 @@ class SessionManager {
   /// Error about a session id nobody opened, at most once per id per 5 s.
   void unknownSession(uint64_t session_id, const std::string& what, int64_t now_ns);
   Session* find(uint64_t session_id);
+  /// What this round took for every session, in one write (SessionStore::appendSampleBatches).
+  void flushRecords();
   /// Pool: heartbeat, let go of sessions lost, claim orphans, checkpoint hands.
   void poolTick(int64_t now_ns);
   /// Pool: a session this server just claimed from the record (its owner's lease ran out).
@@ -244,6 +250,9 @@ class SessionManager {
   std::string pool_id_;  // '' : not in a pool
   int64_t last_beat_ns_ = 0;
   std::atomic<uint64_t> progress_{0};
+  std::atomic<bool> claim_soon_{false};
+  std::vector<store::SessionStore::SampleBatch> batches_;  // flushRecords', kept for reuse
+  std::vector<Session*> batch_sessions_;
   int64_t next_pool_ns_ = 0;
   int64_t next_checkpoint_ns_ = 0;
   SessionContext ctx_;  // for the sessions' parts: the members above

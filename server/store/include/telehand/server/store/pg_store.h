@@ -52,6 +52,9 @@ class PgStore final : public SessionStore {
   uint64_t createSession(const SessionInfo& info) override;
   uint64_t appendSamples(uint64_t session_id, std::span<const Sample> samples,
                          std::span<const uint8_t> valid) override;
+  /// Every batch in one COPY (one statement: all stored or none). When some sample was
+  /// stored before (a unique violation) or a batch repeats a sequence number, batch by batch.
+  std::vector<BatchResult> appendSampleBatches(std::span<const SampleBatch> batches) override;
   void appendEvent(uint64_t session_id, const EventRecord& e) override;
   void appendReach(uint64_t session_id, const Reach& r) override;
   std::vector<Reach> reaches(uint64_t session_id) override;
@@ -97,8 +100,7 @@ class PgStore final : public SessionStore {
   void createSchema();
   void readSamples(uint64_t session_id, int64_t first, int64_t last,
                    const std::function<void(const Sample&, bool)>& fn);
-  std::optional<uint64_t> copySamples(uint64_t session_id, std::span<const Sample> samples,
-                                      std::span<const uint8_t> valid);
+  std::optional<uint64_t> copySamples(std::span<const SampleBatch> batches);
   uint64_t insertSamples(uint64_t session_id, std::span<const Sample> samples,
                          std::span<const uint8_t> valid);
 

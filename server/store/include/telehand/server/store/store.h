@@ -110,6 +110,22 @@ class SessionStore {
   /// sample whose non-finite fields must not be trusted. Returns how many were new.
   virtual uint64_t appendSamples(uint64_t session_id, std::span<const Sample> samples,
                                  std::span<const uint8_t> valid) = 0;
+  /// One session's samples in a write of several sessions' (appendSampleBatches).
+  struct SampleBatch {
+    uint64_t session_id = 0;
+    std::span<const Sample> samples;
+    std::span<const uint8_t> valid;
+  };
+  /// What became of one batch: how many samples were new, or why none was stored.
+  struct BatchResult {
+    bool stored = false;
+    uint64_t added = 0;
+    std::string error;  ///< when not stored (the store's message)
+  };
+  /// appendSamples for several sessions at once, a result per batch: a server's serve loop
+  /// writes what one round took of all its sessions together. By default one write per
+  /// batch, each failing on its own; a store may send them as one (PostgreSQL: one COPY).
+  virtual std::vector<BatchResult> appendSampleBatches(std::span<const SampleBatch> batches);
   virtual void appendEvent(uint64_t session_id, const EventRecord& e) = 0;
   /// Exploration result: the angle reached in one direction of one axis and the force there.
   struct Reach {
