@@ -10,8 +10,31 @@
 
 namespace telehand::server::session {
 
+bool Recorder::holds(uint64_t seq) const noexcept {
+  if (seq < below_) return true;
+  auto it = above_.upper_bound(seq);
+  return it != above_.begin() && std::prev(it)->second > seq;
+}
+
+void Recorder::dropHeld(std::vector<Sample>& samples, std::vector<uint8_t>& valid) const {
+  if (below_ == 0 && above_.empty()) return;
+  const bool flags = valid.size() == samples.size();
+  std::size_t out = 0;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    if (holds(samples[i].seq)) continue;
+    if (out != i) {
+      samples[out] = samples[i];
+      if (flags) valid[out] = valid[i];
+    }
+    ++out;
+  }
+  samples.resize(out);
+  if (flags) valid.resize(out);
+}
+
 void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
                      std::vector<uint8_t>&& valid) {
+  dropHeld(samples, valid);
   pending_.insert(pending_.end(), samples.begin(), samples.end());
   pending_valid_.insert(pending_valid_.end(), valid.begin(), valid.end());
   if (pending_.empty()) return;
@@ -40,6 +63,7 @@ void Recorder::stored(SessionContext& ctx, const store::SessionStore::BatchResul
 }
 
 void Recorder::add(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid) {
+  dropHeld(samples, valid);
   if (pending_.empty()) {
     pending_ = std::move(samples);
     pending_valid_ = std::move(valid);

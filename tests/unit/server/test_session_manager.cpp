@@ -18,6 +18,7 @@
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
 #include "telehand/protocol/wire.h"
+#include "telehand/server/session/recorder.h"
 #include "telehand/server/session/serve_watch.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/sim/hand_model.h"
@@ -1508,6 +1509,90 @@ TEST_F(SessionManagerTest, TheServeLoopsProgressCountsRoundsCommandsAndChunks) {
   // A live sample is no progress of its own: the round that took it counts.
   manager_->onDeviceState(pinchSample(0), now_ns_, from_);
   EXPECT_EQ(manager_->progress(), p1 + 1);
+}
+
+}  // namespace
+}  // namespace telehand::server::session
+
+namespace telehand::server::session {
+namespace {
+
+/// An SQLite record that counts the rows it is asked to write.
+class CountingStore : public SqliteStore {
+ public:
+  using SqliteStore::SqliteStore;
+  uint64_t appendSamples(uint64_t session_id, std::span<const Sample> samples,
+                         std::span<const uint8_t> valid) override {
+    written += samples.size();
+    return SqliteStore::appendSamples(session_id, samples, valid);
+  }
+  uint64_t written = 0;
+};
+
+std::vector<Sample> run(uint64_t session_id, uint64_t first, uint64_t end) {
+  std::vector<Sample> v;
+  for (uint64_t q = first; q < end; ++q) {
+    Sample s{};
+    s.session_id = session_id;
+    s.seq = q;
+    s.source_time_ns = static_cast<int64_t>(q) * 1'000'000;
+    v.push_back(s);
+  }
+  return v;
+}
+
+// A client sends again what was not acknowledged in time (its server stalled, or it resumed):
+// what the record holds is not written again, what it lacks is, and every count stays right.
+TEST(RecorderTest, WhatTheRecordHoldsIsNotWrittenAgain) {
+  const auto dir = fs::path(::testing::TempDir()) / ("recorder-" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  CountingStore store((dir / "records.db").string());
+  store::SessionInfo info;
+  info.user = "student";
+  info.mode = "mobilization";
+  info.state = "active";
+  const uint64_t id = store.createSession(info);
+  RecordingOutbox out;
+  ServerConfig config;
+  ManagerStats stats;
+  SessionContext ctx{
+      store, out, config, stats,
+      [](uint64_t, uint64_t, telehand_msg_EventKind, const std::string&, int64_t) {}};
+  Recorder r(id);
+  const auto add = [&](uint64_t first, uint64_t end) {
+    auto s = run(id, first, end);
+    std::vector<uint8_t> valid(s.size(), 1);
+    r.add(std::move(s), std::move(valid));
+  };
+  add(0, 100);
+  r.flush(ctx);
+  EXPECT_EQ(store.written, 100u);
+  add(50, 150);  // half of it sent before
+  r.flush(ctx);
+  EXPECT_EQ(store.written, 150u);
+  add(300, 310);  // beyond a gap
+  r.flush(ctx);
+  EXPECT_EQ(store.written, 160u);
+  EXPECT_EQ(r.storedBelow(), 150u);
+  add(300, 310);  // again, with the gap's samples
+  add(150, 300);
+  r.flush(ctx);
+  EXPECT_EQ(store.written, 310u);
+  EXPECT_EQ(r.recorded(), 310u);
+  EXPECT_EQ(r.storedBelow(), 310u);
+  EXPECT_EQ(stats.recorded_samples, 310u);
+  EXPECT_EQ(store.session(id)->samples, 310u);
+  // Taken on from the record (a resume): what it holds is known without a write.
+  Recorder resumed(id);
+  resumed.resumeFrom(310, 310);
+  auto again = run(id, 290, 320);
+  std::vector<uint8_t> valid(again.size(), 1);
+  resumed.add(std::move(again), std::move(valid));
+  resumed.flush(ctx);
+  EXPECT_EQ(store.written, 320u);
+  EXPECT_EQ(resumed.recorded(), 320u);
+  EXPECT_EQ(store.session(id)->samples, 320u);
+  fs::remove_all(dir);
 }
 
 }  // namespace

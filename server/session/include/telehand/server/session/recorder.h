@@ -62,6 +62,12 @@ class Recorder {
   uint64_t session_id_;
   uint64_t recorded_ = 0;
   void markStored(const std::vector<Sample>& samples);
+  /// True when the record already holds `seq` (stored by this recorder or before it took on).
+  bool holds(uint64_t seq) const noexcept;
+  /// Leave out what the record already holds: a client sends again what was not acknowledged
+  /// in time, and a write that repeats a stored row costs the store far more than a new one
+  /// (PostgreSQL's COPY fails on the key, and the rows go again one INSERT at a time).
+  void dropHeld(std::vector<Sample>& samples, std::vector<uint8_t>& valid) const;
   uint64_t below_ = 0;                  // every seq < below_ is stored
   std::map<uint64_t, uint64_t> above_;  // stored runs beyond it: first seq -> one past the last
   std::vector<Sample> pending_;         // not yet stored (store error): retried

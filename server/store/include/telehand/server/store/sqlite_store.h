@@ -16,7 +16,7 @@
 
 namespace telehand::server::store {
 
-class SqliteStore final : public SessionStore {
+class SqliteStore : public SessionStore {
  public:
   /// Creates the file and its directory (read-write) or opens an existing one (read-only);
   /// StoreError naming the path on failure or refusal.
