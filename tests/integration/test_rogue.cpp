@@ -281,7 +281,11 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   RecordProperty("rss_after_third_flood_kb", static_cast<int>(after_again));
   RecordProperty("rss_after_churn_kb", static_cast<int>(after_churn));
   // Generous margins: the bound the limits promise, +25 %, and 1 GB whatever was measured.
-  EXPECT_LT(static_cast<double>(peak), 1.25 * bound_kb);
+  // Beside its 64 sessions a flood brings 16 participants to discover and 10,000 OPENs
+  // through Cyclone's receive buffers (2 MB): a few MB that a hand's 7 MB once hid, and that
+  // the hand's 0.3 MB no longer does.
+  constexpr double kFloodBesidesSessionsKb = 8.0 * 1024.0;
+  EXPECT_LT(static_cast<double>(peak), 1.25 * bound_kb + kFloodBesidesSessionsKb);
   EXPECT_LT(peak, 1024u * 1024u);
   // Once the sessions ended the server is back near its baseline (docs/security.md, Memory;
   // tests/bench/bench_server_memory.sh measures 9,000 sessions a round). A flood left +30 %
