@@ -857,7 +857,9 @@ void SessionManager::flushRecords() {
     batch_sessions_.push_back(&s);
   }
   if (batches_.empty()) return;
+  const int64_t t0 = SteadyClock{}.nowNs();
   const auto results = store_.appendSampleBatches(batches_);
+  records_ns_ += SteadyClock{}.nowNs() - t0;
   for (std::size_t i = 0; i < batch_sessions_.size(); ++i) {
     batch_sessions_[i]->recorder.stored(ctx_, results[i]);
   }
@@ -1113,15 +1115,20 @@ void SessionManager::poolTick(int64_t now_ns) {
     return;
   }
   const int64_t t1 = SteadyClock{}.nowNs();
+  const uint64_t progress = progress_.load(std::memory_order_relaxed);
   if (last_beat_ns_ != 0 && t1 - last_beat_ns_ > 1'000'000'000) {
     spdlog::warn(
-        "pool: {:.0f} ms between two heartbeats of the serve loop ({:.0f} ms in the record); "
-        "the lease ({:.0f} ms) is renewed on a thread of its own while the loop is held up "
-        "less than {:.0f} s",
+        "pool: {:.0f} ms between two heartbeats of the serve loop ({:.0f} ms in the record's "
+        "heartbeat, {:.0f} ms writing samples, {} rounds, commands and chunks); the lease "
+        "({:.0f} ms) is renewed on a thread of its own while the loop is held up less than "
+        "{:.0f} s",
         static_cast<double>(t1 - last_beat_ns_) * 1e-6, static_cast<double>(t1 - t0) * 1e-6,
+        static_cast<double>(records_ns_) * 1e-6, progress - beat_progress_,
         static_cast<double>(kPoolLeaseNs) * 1e-6, static_cast<double>(kServeStallNs) * 1e-9);
   }
   last_beat_ns_ = t1;
+  records_ns_ = 0;
+  beat_progress_ = progress;
   const auto owned = [&](uint64_t id) { return std::binary_search(mine.begin(), mine.end(), id); };
   // Sessions another server took over while this one did not renew its lease in time: let go,
   // writing nothing more (their clients follow the new owner).

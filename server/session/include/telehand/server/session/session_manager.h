@@ -249,6 +249,8 @@ class SessionManager {
   void stepHands(int64_t now_ns);
   std::string pool_id_;  // '' : not in a pool
   int64_t last_beat_ns_ = 0;
+  int64_t records_ns_ = 0;      // spent writing samples since the last heartbeat (flushRecords)
+  uint64_t beat_progress_ = 0;  // progress() at the last heartbeat
   std::atomic<uint64_t> progress_{0};
   std::atomic<bool> claim_soon_{false};
   std::vector<store::SessionStore::SampleBatch> batches_;  // flushRecords', kept for reuse
