@@ -829,13 +829,16 @@ std::vector<SessionStore::BatchResult> PgStore::appendSampleBatches(
           return out;
         }
       } catch (const StoreError& e) {
-        for (auto& r : out) r.error = e.what();
-        return out;
+        if (PQstatus(conn_) != CONNECTION_OK) {
+          for (auto& r : out) r.error = e.what();
+          return out;
+        }
+        // A row the COPY could not take: batch by batch, so that only its session waits.
       }
     }
   }
-  // Some sample was stored before (or a batch repeats one): batch by batch, each skipping
-  // what the record holds.
+  // Some sample was stored before (or a batch repeats one, or one could not be stored):
+  // batch by batch, each skipping what the record holds.
   return SessionStore::appendSampleBatches(batches);
 }
 
