@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <iterator>
+#include <span>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
@@ -38,14 +39,8 @@ void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
   pending_.insert(pending_.end(), samples.begin(), samples.end());
   pending_valid_.insert(pending_valid_.end(), valid.begin(), valid.end());
   if (pending_.empty()) return;
-  store::SessionStore::BatchResult r;
-  try {
-    r.added = ctx.store.appendSamples(session_id_, pending_, pending_valid_);
-    r.stored = true;
-  } catch (const StoreError& e) {
-    r.error = e.what();
-  }
-  stored(ctx, r);
+  const store::SessionStore::SampleBatch one = batch();
+  stored(ctx, ctx.store.appendSampleBatches(std::span(&one, 1)).front());
 }
 
 void Recorder::stored(SessionContext& ctx, const store::SessionStore::BatchResult& result) {

@@ -206,9 +206,6 @@ class PadGrip final : public btTypedConstraint {
   double pad_radius_ = 0.0, stiffness_ = 0.0, damping_ = 0.0, limit_n_ = 0.0;
 };
 
-}  // namespace
-
-namespace {
 /// Bullet's default pools hold 4,096 contact manifolds and 4,096 collision algorithms, about
 /// 6 MB written through when the world is made: most of what a hand cost to build (tens of
 /// ms of page faults on a server whose freed hands went back to the system) and to keep. A
