@@ -124,6 +124,11 @@ int main(int argc, char** argv) {
     // at a time (docs/performance.md "Capacity").
     manager.setHandSlice(hand_slice_ms > 0.0 ? static_cast<int64_t>(hand_slice_ms * 1e6) : 0);
     manager.setHandShare(hand_share);
+    // PostgreSQL: the samples are written on a thread and connection of their own, so that a
+    // slow record holds up the acknowledgements and not the serve loop (docs/pool.md).
+    if (manager.writeSamplesOnThread()) {
+      spdlog::info("samples go to the record on a writer thread of their own");
+    }
     // The lease is renewed on a thread (and a connection) of its own as well as by the serve
     // loop: a loop held up for a moment (closing sessions, a busy record, a starved CPU)
     // keeps its sessions; one held up for kServeStallNs (wedged) lets them go to the pool.

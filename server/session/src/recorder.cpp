@@ -33,11 +33,31 @@ void Recorder::dropHeld(std::vector<Sample>& samples, std::vector<uint8_t>& vali
   if (flags) valid.resize(out);
 }
 
+void Recorder::append(std::vector<Sample>& to, std::vector<uint8_t>& to_valid,
+                      std::vector<Sample>&& samples, std::vector<uint8_t>&& valid) {
+  if (samples.empty()) return;
+  if (to.empty()) {
+    to = std::move(samples);
+    to_valid = std::move(valid);
+    return;
+  }
+  if (to_valid.size() != to.size() || valid.size() != samples.size()) {
+    // One queue, one flag per sample: a chunk sent without flags counts as all valid.
+    if (to_valid.empty() && valid.empty()) {
+      // Neither has flags: none needed.
+    } else {
+      to_valid.resize(to.size(), 1);
+      valid.resize(samples.size(), 1);
+    }
+  }
+  to.insert(to.end(), samples.begin(), samples.end());
+  to_valid.insert(to_valid.end(), valid.begin(), valid.end());
+}
+
 void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
                      std::vector<uint8_t>&& valid) {
   dropHeld(samples, valid);
-  pending_.insert(pending_.end(), samples.begin(), samples.end());
-  pending_valid_.insert(pending_valid_.end(), valid.begin(), valid.end());
+  append(pending_, pending_valid_, std::move(samples), std::move(valid));
   if (pending_.empty()) return;
   const store::SessionStore::SampleBatch one = batch();
   stored(ctx, ctx.store.appendSampleBatches(std::span(&one, 1)).front());
@@ -45,27 +65,53 @@ void Recorder::store(SessionContext& ctx, std::vector<Sample>&& samples,
 
 void Recorder::stored(SessionContext& ctx, const store::SessionStore::BatchResult& result) {
   if (!result.stored) {
-    ++ctx.stats.store_errors;
-    spdlog::error("session {}: {} ({} samples kept in memory, retrying)", session_id_, result.error,
-                  pending_.size());
+    refused(ctx, result.error, pending_.size());
     return;
   }
-  recorded_ += result.added;
-  ctx.stats.recorded_samples += result.added;
-  markStored(pending_);
+  landed(ctx, pending_, result.added);
   pending_.clear();
   pending_valid_.clear();
 }
 
-void Recorder::add(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid) {
-  dropHeld(samples, valid);
-  if (pending_.empty()) {
-    pending_ = std::move(samples);
-    pending_valid_ = std::move(valid);
+void Recorder::handOver(std::vector<Sample>& samples, std::vector<uint8_t>& valid) noexcept {
+  samples.clear();
+  valid.clear();
+  samples.swap(pending_);
+  valid.swap(pending_valid_);
+  writing_ = true;
+}
+
+void Recorder::written(SessionContext& ctx, std::vector<Sample>& samples,
+                       std::vector<uint8_t>& valid,
+                       const store::SessionStore::BatchResult& result) {
+  writing_ = false;
+  if (result.stored) {
+    landed(ctx, samples, result.added);
     return;
   }
-  pending_.insert(pending_.end(), samples.begin(), samples.end());
-  pending_valid_.insert(pending_valid_.end(), valid.begin(), valid.end());
+  refused(ctx, result.error, samples.size() + pending_.size());
+  // Back in front of what came meanwhile (a chunk is a run of sequence numbers; the order
+  // only matters to how the acknowledgement grows).
+  append(samples, valid, std::move(pending_), std::move(pending_valid_));
+  samples.swap(pending_);
+  valid.swap(pending_valid_);
+  dropHeld(pending_, pending_valid_);
+}
+
+void Recorder::landed(SessionContext& ctx, const std::vector<Sample>& samples, uint64_t added) {
+  recorded_ += added;
+  ctx.stats.recorded_samples += added;
+  markStored(samples);
+}
+
+void Recorder::refused(SessionContext& ctx, const std::string& why, std::size_t kept) const {
+  ++ctx.stats.store_errors;
+  spdlog::error("session {}: {} ({} samples kept in memory, retrying)", session_id_, why, kept);
+}
+
+void Recorder::add(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid) {
+  dropHeld(samples, valid);
+  append(pending_, pending_valid_, std::move(samples), std::move(valid));
 }
 
 void Recorder::markStored(const std::vector<Sample>& samples) {

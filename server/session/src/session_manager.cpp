@@ -848,7 +848,47 @@ void SessionManager::onFile(const telehand_msg_SessionFile& f, int64_t now_ns, c
         now_ns);
 }
 
+bool SessionManager::writeSamplesOnThread() {
+  if (writer_) return true;
+  auto connection = store_.openWriter();
+  if (!connection) return false;
+  writer_ = std::make_unique<store::BatchWriter>(std::move(connection));
+  ctx_.samples_on_writer = true;
+  return true;
+}
+
+void SessionManager::landWrites() {
+  if (!writer_->collect(jobs_)) return;
+  for (auto& j : jobs_) {
+    Session* s = find(j.session_id);
+    // A session let go meanwhile (another server of the pool has it): its new owner's
+    // record is the judge.
+    if (s && s->recorder.writing()) s->recorder.written(ctx_, j.samples, j.valid, j.result);
+  }
+}
+
 void SessionManager::flushRecords() {
+  if (writer_) {
+    // One write under way at a time: what comes meanwhile waits in the recorders and goes
+    // in the next, so that a slow record makes the writes larger, not the loop slower.
+    if (writer_->busy()) return;
+    const int64_t t0 = SteadyClock{}.nowNs();
+    landWrites();
+    std::size_t n = 0;
+    for (auto& [id, s] : sessions_) {
+      if (!s.recorder.queued() || s.recorder.writing()) continue;
+      if (n == jobs_.size()) jobs_.emplace_back();
+      store::BatchWriter::Job& j = jobs_[n++];
+      j.session_id = id;
+      s.recorder.handOver(j.samples, j.valid);
+    }
+    if (n > 0) {
+      jobs_.resize(n);
+      writer_->submit(jobs_);
+    }
+    records_ns_ += SteadyClock{}.nowNs() - t0;
+    return;
+  }
   batches_.clear();
   batch_sessions_.clear();
   for (auto& [id, s] : sessions_) {
@@ -1055,8 +1095,12 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
 }
 
 void SessionManager::closeAll(int64_t now_ns) {
+  if (writer_) {
+    writer_->wait();
+    landWrites();
+  }
   for (auto& [id, s] : sessions_) {
-    s.recorder.flush(ctx_);
+    s.recorder.flushNow(ctx_);
     s.flushHand(now_ns);
     if (s.closing) {
       finish(s, now_ns, s.recorder.recorded() >= s.expected ? "closed" : "incomplete");
@@ -1116,14 +1160,17 @@ void SessionManager::poolTick(int64_t now_ns) {
   }
   const int64_t t1 = SteadyClock{}.nowNs();
   const uint64_t progress = progress_.load(std::memory_order_relaxed);
+  const double writer_ms = writer_ ? static_cast<double>(writer_->takeWriteNs()) * 1e-6 : 0.0;
   if (last_beat_ns_ != 0 && t1 - last_beat_ns_ > 1'000'000'000) {
     spdlog::warn(
         "pool: {:.0f} ms between two heartbeats of the serve loop ({:.0f} ms in the record's "
-        "heartbeat, {:.0f} ms writing samples, {} rounds, commands and chunks); the lease "
+        "heartbeat, {:.0f} ms writing samples{}, {} rounds, commands and chunks); the lease "
         "({:.0f} ms) is renewed on a thread of its own while the loop is held up less than "
         "{:.0f} s",
         static_cast<double>(t1 - last_beat_ns_) * 1e-6, static_cast<double>(t1 - t0) * 1e-6,
-        static_cast<double>(records_ns_) * 1e-6, progress - beat_progress_,
+        static_cast<double>(records_ns_) * 1e-6,
+        writer_ ? fmt::format(" (and {:.0f} ms on the writer thread)", writer_ms) : "",
+        progress - beat_progress_,
         static_cast<double>(kPoolLeaseNs) * 1e-6, static_cast<double>(kServeStallNs) * 1e-9);
   }
   last_beat_ns_ = t1;

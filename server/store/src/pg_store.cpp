@@ -802,6 +802,10 @@ std::optional<uint64_t> PgStore::copySamples(std::span<const SampleBatch> batche
   throw StoreError("PostgreSQL on '" + location_ + "': " + why + " (in: COPY samples)");
 }
 
+std::unique_ptr<SessionStore> PgStore::openWriter() {
+  return std::make_unique<PgStore>(uri_, Mode::kReadWrite);
+}
+
 std::vector<SessionStore::BatchResult> PgStore::appendSampleBatches(
     std::span<const SampleBatch> batches) {
   if (batches.size() < 2) return SessionStore::appendSampleBatches(batches);

@@ -6,10 +6,13 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -1593,6 +1596,194 @@ TEST(RecorderTest, WhatTheRecordHoldsIsNotWrittenAgain) {
   EXPECT_EQ(resumed.recorded(), 320u);
   EXPECT_EQ(store.session(id)->samples, 320u);
   fs::remove_all(dir);
+}
+
+// Chunks with and without validity flags queued together: each sample keeps its own (a chunk
+// without flags is all valid), and the one flagged invalid is the record's one rejected.
+TEST(RecorderTest, ChunksWithAndWithoutFlagsKeepEachSamplesOwn) {
+  const auto dir = fs::path(::testing::TempDir()) / ("recorder-flags-" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  SqliteStore store((dir / "records.db").string());
+  store::SessionInfo info;
+  info.user = "student";
+  info.mode = "mobilization";
+  info.state = "active";
+  const uint64_t id = store.createSession(info);
+  RecordingOutbox out;
+  ServerConfig config;
+  ManagerStats stats;
+  SessionContext ctx{
+      store, out, config, stats,
+      [](uint64_t, uint64_t, telehand_msg_EventKind, const std::string&, int64_t) {}};
+  Recorder r(id);
+  r.add(run(id, 0, 10), {});
+  std::vector<uint8_t> valid(10, 1);
+  valid[3] = 0;  // seq 13
+  r.add(run(id, 10, 20), std::move(valid));
+  r.add(run(id, 20, 30), {});
+  r.flush(ctx);
+  EXPECT_EQ(r.recorded(), 30u);
+  EXPECT_EQ(store.session(id)->rejected, 1u);
+  std::vector<uint64_t> invalid;
+  store.forEachSample(id, [&](const Sample& s, bool ok) {
+    if (!ok) invalid.push_back(s.seq);
+  });
+  EXPECT_EQ(invalid, std::vector<uint64_t>{13});
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace telehand::server::session
+
+namespace telehand::server::session {
+namespace {
+
+/// A writer's connection to the test's record that waits at a gate before each write, and
+/// fails the writes it is told to.
+struct WriteGate {
+  std::mutex m;
+  std::condition_variable cv;
+  bool open = false;
+  int fail_next = 0;
+  int entered = 0;  // writes that reached the store
+  int done = 0;     // writes that returned
+};
+
+class GatedWriter : public SqliteStore {
+ public:
+  GatedWriter(const std::string& path, std::shared_ptr<WriteGate> gate)
+      : SqliteStore(path), gate_(std::move(gate)) {}
+  std::vector<BatchResult> appendSampleBatches(std::span<const SampleBatch> batches) override {
+    std::unique_lock lock(gate_->m);
+    ++gate_->entered;
+    gate_->cv.notify_all();
+    gate_->cv.wait(lock, [&] { return gate_->open; });
+    std::vector<BatchResult> out;
+    if (gate_->fail_next > 0) {
+      --gate_->fail_next;
+      out.assign(batches.size(), {false, 0, "the record refused the write (test)"});
+    } else {
+      lock.unlock();
+      out = SqliteStore::appendSampleBatches(batches);
+      lock.lock();
+    }
+    ++gate_->done;
+    gate_->cv.notify_all();
+    return out;
+  }
+
+ private:
+  std::shared_ptr<WriteGate> gate_;
+};
+
+/// A record whose samples a writer thread stores through a GatedWriter.
+class GatedStore : public SqliteStore {
+ public:
+  GatedStore(const std::string& path, std::shared_ptr<WriteGate> gate)
+      : SqliteStore(path), path_(path), gate_(std::move(gate)) {}
+  std::unique_ptr<SessionStore> openWriter() override {
+    return std::make_unique<GatedWriter>(path_, gate_);
+  }
+
+ private:
+  std::string path_;
+  std::shared_ptr<WriteGate> gate_;
+};
+
+class WriterThreadTest : public RecoveryManagerTest {
+ protected:
+  void SetUp() override {
+    RecoveryManagerTest::SetUp();
+    manager_.reset();
+    store_ = std::make_unique<GatedStore>(config_.db_path, gate_);
+    manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+    ASSERT_TRUE(manager_->writeSamplesOnThread());
+  }
+  void setGate(bool open) {
+    std::lock_guard lock(gate_->m);
+    gate_->open = open;
+    gate_->cv.notify_all();
+  }
+  /// Waits (at most 10 s) until `pred` holds for the gate.
+  template <class Pred>
+  bool waitGate(Pred pred) {
+    std::unique_lock lock(gate_->m);
+    return gate_->cv.wait_for(lock, std::chrono::seconds(10), [&] { return pred(*gate_); });
+  }
+  /// Rounds of the serve loop, 10 ms of session time each, until `pred` or 10 s of wall time.
+  template <class Pred>
+  bool passUntil(Pred pred) {
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    while (!pred()) {
+      if (std::chrono::steady_clock::now() > deadline) return false;
+      pass(10);
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+    return true;
+  }
+  std::shared_ptr<WriteGate> gate_ = std::make_shared<WriteGate>();
+};
+
+// A record that takes its time (PostgreSQL shared by a pool on a busy machine): the serve loop
+// goes on while the samples wait for it, they are acknowledged only once stored, a refused
+// write is tried again with what came meanwhile, and the session closes complete.
+TEST_F(WriterThreadTest, ASlowRecordHoldsUpTheAcknowledgementNotTheLoop) {
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  pass(10);  // handed over: the writer waits at the gate
+  ASSERT_TRUE(waitGate([](const WriteGate& g) { return g.entered == 1; }));
+  chunk(100, 100);
+  const uint64_t progress = manager_->progress();
+  pass(1000);  // a second of rounds, none of them held up by the write
+  EXPECT_GE(manager_->progress(), progress + 100);
+  EXPECT_EQ(lastStoredBelow(), 0u);
+  EXPECT_EQ(store_->session(session_)->samples, 0u);
+  {
+    std::lock_guard lock(gate_->m);
+    EXPECT_EQ(gate_->entered, 1);  // one write under way at a time
+  }
+  setGate(true);
+  ASSERT_TRUE(passUntil([&] { return lastStoredBelow() == 200; }));
+  EXPECT_EQ(store_->session(session_)->samples, 200u);
+  EXPECT_EQ(manager_->stats().recorded_samples, 200u);
+
+  {
+    std::lock_guard lock(gate_->m);
+    gate_->fail_next = 1;
+  }
+  chunk(200, 100);
+  ASSERT_TRUE(passUntil([&] { return manager_->stats().store_errors == 1; }));
+  chunk(300, 100);
+  ASSERT_TRUE(passUntil([&] { return lastStoredBelow() == 400; }));
+  EXPECT_EQ(store_->session(session_)->samples, 400u);
+  EXPECT_EQ(manager_->stats().recorded_samples, 400u);
+
+  auto c = command(telehand_msg_CMD_CLOSE, session_);
+  c.samples_sent = 400;
+  manager_->onCommand(c, now_ns_, from_);
+  ASSERT_TRUE(passUntil([&] { return manager_->activeSessions() == 0; }));
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples, 400u);
+}
+
+// A server that stops while a write is under way waits for it, stores what came meanwhile,
+// and suspends the session with all of it in the record.
+TEST_F(WriterThreadTest, AServerStoppingWaitsForTheWriteUnderWay) {
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  pass(10);
+  ASSERT_TRUE(waitGate([](const WriteGate& g) { return g.entered == 1; }));
+  chunk(100, 100);  // queued behind the write
+  std::thread opener([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    setGate(true);
+  });
+  manager_->closeAll(now_ns_);
+  opener.join();
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->samples, 200u);
+  EXPECT_EQ(info->state, "suspended");
 }
 
 }  // namespace

@@ -22,9 +22,15 @@ class Recorder {
   /// go to the store together at flush(), one batch per session (one COPY, one transaction)
   /// rather than one per chunk, so that a loop that fell behind catches up in a few writes.
   void add(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid);
-  /// Store what was queued, and retry what the store refused before.
+  /// Store what was queued, and retry what the store refused before; where a writer thread
+  /// stores the samples (ctx.samples_on_writer), nothing: it takes them at the next round.
   void flush(SessionContext& ctx) {
-    if (!pending_.empty()) store(ctx, {}, {});
+    if (!ctx.samples_on_writer) flushNow(ctx);
+  }
+  /// Store what is queued now, on the caller's connection (a server stopping), unless a
+  /// write of this session's is under way on the writer thread.
+  void flushNow(SessionContext& ctx) {
+    if (!pending_.empty() && !writing_) store(ctx, {}, {});
   }
   /// What flush() would store, for a write of several sessions' together (valid until the
   /// next add or store); its outcome goes to stored().
@@ -33,7 +39,18 @@ class Recorder {
   }
   /// The outcome of writing batch(): counted and acknowledged, or kept for the next try.
   void stored(SessionContext& ctx, const store::SessionStore::BatchResult& result);
-  bool drained() const noexcept { return pending_.empty(); }
+  /// Hands what is queued to a write on another thread (store::BatchWriter): swapped into
+  /// `samples` and `valid`, which come back to written() with the write's outcome. Until
+  /// then this session has a write under way and nothing else of it is written.
+  void handOver(std::vector<Sample>& samples, std::vector<uint8_t>& valid) noexcept;
+  /// The outcome of a handOver's write: counted and acknowledged, or queued again in front
+  /// of what came meanwhile, for the next try. `samples`/`valid` are left for reuse.
+  void written(SessionContext& ctx, std::vector<Sample>& samples, std::vector<uint8_t>& valid,
+               const store::SessionStore::BatchResult& result);
+  bool writing() const noexcept { return writing_; }
+  bool queued() const noexcept { return !pending_.empty(); }
+  /// Nothing queued and no write under way.
+  bool drained() const noexcept { return pending_.empty() && !writing_; }
   uint64_t recorded() const noexcept { return recorded_; }
   /// Every sample with seq < this is in the record (what the client may forget,
   /// SessionStatus.stored_below): the stored prefix of the sequence.
@@ -62,6 +79,13 @@ class Recorder {
   uint64_t session_id_;
   uint64_t recorded_ = 0;
   void markStored(const std::vector<Sample>& samples);
+  /// `samples` stored, `added` of them new: counted, and acknowledged from now on.
+  void landed(SessionContext& ctx, const std::vector<Sample>& samples, uint64_t added);
+  void refused(SessionContext& ctx, const std::string& why, std::size_t kept) const;
+  /// Appends a chunk to a queue, its validity flags kept one per sample (a chunk without
+  /// flags is all valid).
+  static void append(std::vector<Sample>& to, std::vector<uint8_t>& to_valid,
+                     std::vector<Sample>&& samples, std::vector<uint8_t>&& valid);
   /// True when the record already holds `seq` (stored by this recorder or before it took on).
   bool holds(uint64_t seq) const noexcept;
   /// Leave out what the record already holds: a client sends again what was not acknowledged
@@ -72,6 +96,7 @@ class Recorder {
   std::map<uint64_t, uint64_t> above_;  // stored runs beyond it: first seq -> one past the last
   std::vector<Sample> pending_;         // not yet stored (store error): retried
   std::vector<uint8_t> pending_valid_;
+  bool writing_ = false;  // handed over to the writer thread, not yet written()
   uint64_t nonfinite_ = 0;
   int64_t nonfinite_reported_ns_ = INT64_MIN / 2;
 };

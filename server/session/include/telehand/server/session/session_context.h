@@ -21,6 +21,9 @@ struct SessionContext {
   std::function<void(uint64_t session_id, uint64_t client_id, telehand_msg_EventKind kind,
                      const std::string& text, int64_t now_ns)>
       event;
+  /// Samples go to the record on a writer thread of the manager's (BatchWriter), not at a
+  /// session's tick.
+  bool samples_on_writer = false;
 };
 
 }  // namespace telehand::server::session

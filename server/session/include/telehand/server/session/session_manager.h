@@ -22,6 +22,7 @@
 #include "telehand/server/session/session_context.h"
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/sim/hand_sim.h"
+#include "telehand/server/store/batch_writer.h"
 #include "telehand/server/store/store.h"
 
 namespace telehand::server::session {
@@ -143,6 +144,12 @@ class SessionManager {
   /// the other processes on the machine (a pool's servers, the database) keep their CPU.
   void setHandShare(double share);
   double handShare() const noexcept { return hand_share_; }
+  /// Samples to the record on a thread and a connection of their own, where the store offers
+  /// one (SessionStore::openWriter: PostgreSQL): a round's samples are handed over and the
+  /// loop goes on; they are acknowledged once written. False (the store has none): they
+  /// stay on the serve loop. StoreError when the connection cannot be opened.
+  bool writeSamplesOnThread();
+  bool samplesOnThread() const noexcept { return writer_ != nullptr; }
   /// How long the serve loop may sleep before the hands can step again: 0 when live samples
   /// wait for their hand and the budget has time for them; -1 when no hand waits.
   int64_t handWaitNs(int64_t now_ns) const noexcept;
@@ -198,6 +205,8 @@ class SessionManager {
   Session* find(uint64_t session_id);
   /// What this round took for every session, in one write (SessionStore::appendSampleBatches).
   void flushRecords();
+  /// The writer thread's finished write: each session's outcome to its recorder.
+  void landWrites();
   /// Pool: heartbeat, let go of sessions lost, claim orphans, checkpoint hands.
   void poolTick(int64_t now_ns);
   /// Pool: a session this server just claimed from the record (its owner's lease ran out).
@@ -255,6 +264,8 @@ class SessionManager {
   std::atomic<bool> claim_soon_{false};
   std::vector<store::SessionStore::SampleBatch> batches_;  // flushRecords', kept for reuse
   std::vector<Session*> batch_sessions_;
+  std::unique_ptr<store::BatchWriter> writer_;   // writeSamplesOnThread
+  std::vector<store::BatchWriter::Job> jobs_;    // its jobs, handed back and forth for reuse
   int64_t next_pool_ns_ = 0;
   int64_t next_checkpoint_ns_ = 0;
   SessionContext ctx_;  // for the sessions' parts: the members above

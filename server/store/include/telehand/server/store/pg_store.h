@@ -55,6 +55,8 @@ class PgStore final : public SessionStore {
   /// Every batch in one COPY (one statement: all stored or none). When some sample was
   /// stored before (a unique violation) or a batch repeats a sequence number, batch by batch.
   std::vector<BatchResult> appendSampleBatches(std::span<const SampleBatch> batches) override;
+  /// A connection of its own to the same database (the schema is already there).
+  std::unique_ptr<SessionStore> openWriter() override;
   void appendEvent(uint64_t session_id, const EventRecord& e) override;
   void appendReach(uint64_t session_id, const Reach& r) override;
   std::vector<Reach> reaches(uint64_t session_id) override;

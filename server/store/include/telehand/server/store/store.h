@@ -5,6 +5,7 @@
 /// (open_store.h) picks one from what `--db` says.
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -126,6 +127,10 @@ class SessionStore {
   /// writes what one round took of all its sessions together. By default one write per
   /// batch, each failing on its own; a store may send them as one (PostgreSQL: one COPY).
   virtual std::vector<BatchResult> appendSampleBatches(std::span<const SampleBatch> batches);
+  /// Another connection to the same record, for a thread that writes samples beside the one
+  /// using this (BatchWriter); nullptr where the store has no use for one (SQLite: one
+  /// writer at a time, so a second connection would only wait for the first).
+  virtual std::unique_ptr<SessionStore> openWriter() { return nullptr; }
   virtual void appendEvent(uint64_t session_id, const EventRecord& e) = 0;
   /// Exploration result: the angle reached in one direction of one axis and the force there.
   struct Reach {
