@@ -67,24 +67,6 @@ void SessionManager::event(uint64_t session_id, uint64_t client_id, telehand_msg
 }
 
 namespace {
-/// The stored prefix of a session's record: every seq below the result is there (found with
-/// a binary search over index counts).
-uint64_t storedPrefix(SessionStore& store, uint64_t session_id) {
-  const auto extent = store.extent(session_id);
-  if (!extent) return 0;
-  uint64_t lo = 0, hi = extent->last_seq + 1;  // prefix of length lo holds; hi is an upper bound
-  if (store.countSamples(session_id, 0, extent->last_seq) == hi) return hi;
-  --hi;  // not all of them
-  while (lo < hi) {
-    const uint64_t mid = lo + (hi - lo + 1) / 2;
-    if (store.countSamples(session_id, 0, mid - 1) == mid) {
-      lo = mid;
-    } else {
-      hi = mid - 1;
-    }
-  }
-  return lo;
-}
 
 /// Rate-limit keys of OPEN refusals: the sender's participant handle with the top bit set,
 /// apart from session ids.
@@ -418,7 +400,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     if (resumed) {
       info = *resumed;
       info.state = "active";
-      stored_below = storedPrefix(store_, info.id);
+      stored_below = store_.storedPrefix(info.id);
       extent = store_.extent(info.id);
       store_.closeSession(info.id, 0, 0, "active");
     } else {

@@ -963,6 +963,21 @@ uint64_t PgStore::countSamples(uint64_t session_id, uint64_t first_seq, uint64_t
   return r.rows() ? static_cast<uint64_t>(r.integer(0, 0)) : 0;
 }
 
+uint64_t PgStore::storedPrefix(uint64_t session_id) {
+  std::lock_guard lock(mutex_);
+  connect();
+  // Sequence numbers are distinct and from 0: the first row whose seq is not its rank is the
+  // first gap, and its rank the prefix. The scan follows the key and stops there (no gap:
+  // every row is the prefix).
+  const Result r = Db(conn_, location_)
+                       .run("SELECT coalesce((SELECT rn FROM (SELECT seq, row_number() OVER "
+                            "(ORDER BY seq) - 1 AS rn FROM samples WHERE session_id = $1) x "
+                            "WHERE seq <> rn LIMIT 1), "
+                            "(SELECT count(*) FROM samples WHERE session_id = $1))",
+                            {int8Param(static_cast<int64_t>(session_id))});
+  return r.rows() ? static_cast<uint64_t>(r.integer(0, 0)) : 0;
+}
+
 std::optional<SessionStore::Extent> PgStore::extent(uint64_t session_id) {
   std::lock_guard lock(mutex_);
   connect();

@@ -240,6 +240,31 @@ TEST_P(SessionStoreTest, AppendCountsNewSamplesAndIgnoresDuplicates) {
   EXPECT_EQ(store->session(id)->samples, 15u);
 }
 
+// What a resumed session acknowledges at once: the record's stored prefix, up to its first
+// gap, whatever the gap's place (and nothing without seq 0).
+TEST_P(SessionStoreTest, TheStoredPrefixEndsAtTheFirstGap) {
+  auto store = this->open();
+  const uint64_t empty = store->createSession(info("alice"));
+  EXPECT_EQ(store->storedPrefix(empty), 0u);
+  const uint64_t whole = store->createSession(info("bob"));
+  store->appendSamples(whole, samples(whole, 0, 250), {});
+  EXPECT_EQ(store->storedPrefix(whole), 250u);
+  const uint64_t gaps = store->createSession(info("carol"));
+  store->appendSamples(gaps, samples(gaps, 0, 137), {});
+  store->appendSamples(gaps, samples(gaps, 138, 300), {});
+  store->appendSamples(gaps, samples(gaps, 400, 420), {});
+  EXPECT_EQ(store->storedPrefix(gaps), 137u);
+  store->appendSamples(gaps, samples(gaps, 137, 138), {});
+  EXPECT_EQ(store->storedPrefix(gaps), 300u);
+  const uint64_t late = store->createSession(info("dave"));
+  store->appendSamples(late, samples(late, 5, 50), {});
+  EXPECT_EQ(store->storedPrefix(late), 0u);
+  store->appendSamples(late, samples(late, 0, 5), {});
+  EXPECT_EQ(store->storedPrefix(late), 50u);
+  // Other sessions' rows do not count.
+  EXPECT_EQ(store->storedPrefix(whole), 250u);
+}
+
 TEST_P(SessionStoreTest, DuplicateKeepsTheFirstCopy) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));

@@ -157,6 +157,10 @@ class SessionStore {
                                const std::function<void(const Sample&, bool valid)>& fn) = 0;
   /// How many samples with first_seq <= seq <= last_seq the record holds (an index look-up).
   virtual uint64_t countSamples(uint64_t session_id, uint64_t first_seq, uint64_t last_seq) = 0;
+  /// The stored prefix: every seq below it is in the record, and that seq is not (what a
+  /// resumed session acknowledges at once). By default a binary search of countSamples; a
+  /// store may answer in one query (PostgreSQL: one scan up to the first gap).
+  virtual uint64_t storedPrefix(uint64_t session_id);
   /// The first and last sample of a session's record (by sequence number), nullopt without
   /// any: where a replay starts and ends, without reading what lies between.
   struct Extent {
