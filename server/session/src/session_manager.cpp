@@ -1152,8 +1152,8 @@ void SessionManager::poolTick(int64_t now_ns) {
         static_cast<double>(t1 - last_beat_ns_) * 1e-6, static_cast<double>(t1 - t0) * 1e-6,
         static_cast<double>(records_ns_) * 1e-6,
         writer_ ? fmt::format(" (and {:.0f} ms on the writer thread)", writer_ms) : "",
-        progress - beat_progress_,
-        static_cast<double>(kPoolLeaseNs) * 1e-6, static_cast<double>(kServeStallNs) * 1e-9);
+        progress - beat_progress_, static_cast<double>(kPoolLeaseNs) * 1e-6,
+        static_cast<double>(kServeStallNs) * 1e-9);
   }
   last_beat_ns_ = t1;
   records_ns_ = 0;

@@ -970,11 +970,12 @@ uint64_t PgStore::storedPrefix(uint64_t session_id) {
   // first gap, and its rank the prefix. The scan follows the key and stops there (no gap:
   // every row is the prefix).
   const Result r = Db(conn_, location_)
-                       .run("SELECT coalesce((SELECT rn FROM (SELECT seq, row_number() OVER "
-                            "(ORDER BY seq) - 1 AS rn FROM samples WHERE session_id = $1) x "
-                            "WHERE seq <> rn LIMIT 1), "
-                            "(SELECT count(*) FROM samples WHERE session_id = $1))",
-                            {int8Param(static_cast<int64_t>(session_id))});
+                       .run(
+                           "SELECT coalesce((SELECT rn FROM (SELECT seq, row_number() OVER "
+                           "(ORDER BY seq) - 1 AS rn FROM samples WHERE session_id = $1) x "
+                           "WHERE seq <> rn LIMIT 1), "
+                           "(SELECT count(*) FROM samples WHERE session_id = $1))",
+                           {int8Param(static_cast<int64_t>(session_id))});
   return r.rows() ? static_cast<uint64_t>(r.integer(0, 0)) : 0;
 }
 

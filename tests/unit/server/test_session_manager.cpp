@@ -1544,23 +1544,43 @@ std::vector<Sample> run(uint64_t session_id, uint64_t first, uint64_t end) {
   return v;
 }
 
+/// A recorder's world: an SQLite record in a directory of the test's own, counting rows.
+class RecorderTest : public ::testing::Test {
+ protected:
+  RecorderTest()
+      : dir_(fs::path(::testing::TempDir()) /
+             ("recorder-" + std::to_string(getpid()) + "-" +
+              ::testing::UnitTest::GetInstance()->current_test_info()->name())),
+        store_((fs::create_directories(dir_), (dir_ / "records.db").string())),
+        id_(store_.createSession([] {
+          store::SessionInfo info;
+          info.user = "student";
+          info.mode = "mobilization";
+          info.state = "active";
+          return info;
+        }())),
+        ctx_{store_, out_, config_, stats_,
+             [](uint64_t, uint64_t, telehand_msg_EventKind, const std::string&, int64_t) {}} {}
+  ~RecorderTest() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+  fs::path dir_;
+  CountingStore store_;
+  uint64_t id_;
+  RecordingOutbox out_;
+  ServerConfig config_;
+  ManagerStats stats_;
+  SessionContext ctx_;
+};
+
 // A client sends again what was not acknowledged in time (its server stalled, or it resumed):
 // what the record holds is not written again, what it lacks is, and every count stays right.
-TEST(RecorderTest, WhatTheRecordHoldsIsNotWrittenAgain) {
-  const auto dir = fs::path(::testing::TempDir()) / ("recorder-" + std::to_string(getpid()));
-  fs::create_directories(dir);
-  CountingStore store((dir / "records.db").string());
-  store::SessionInfo info;
-  info.user = "student";
-  info.mode = "mobilization";
-  info.state = "active";
-  const uint64_t id = store.createSession(info);
-  RecordingOutbox out;
-  ServerConfig config;
-  ManagerStats stats;
-  SessionContext ctx{
-      store, out, config, stats,
-      [](uint64_t, uint64_t, telehand_msg_EventKind, const std::string&, int64_t) {}};
+TEST_F(RecorderTest, WhatTheRecordHoldsIsNotWrittenAgain) {
+  auto& store = store_;
+  auto& ctx = ctx_;
+  auto& stats = stats_;
+  const uint64_t id = id_;
   Recorder r(id);
   const auto add = [&](uint64_t first, uint64_t end) {
     auto s = run(id, first, end);
@@ -1595,26 +1615,14 @@ TEST(RecorderTest, WhatTheRecordHoldsIsNotWrittenAgain) {
   EXPECT_EQ(store.written, 320u);
   EXPECT_EQ(resumed.recorded(), 320u);
   EXPECT_EQ(store.session(id)->samples, 320u);
-  fs::remove_all(dir);
 }
 
 // Chunks with and without validity flags queued together: each sample keeps its own (a chunk
 // without flags is all valid), and the one flagged invalid is the record's one rejected.
-TEST(RecorderTest, ChunksWithAndWithoutFlagsKeepEachSamplesOwn) {
-  const auto dir = fs::path(::testing::TempDir()) / ("recorder-flags-" + std::to_string(getpid()));
-  fs::create_directories(dir);
-  SqliteStore store((dir / "records.db").string());
-  store::SessionInfo info;
-  info.user = "student";
-  info.mode = "mobilization";
-  info.state = "active";
-  const uint64_t id = store.createSession(info);
-  RecordingOutbox out;
-  ServerConfig config;
-  ManagerStats stats;
-  SessionContext ctx{
-      store, out, config, stats,
-      [](uint64_t, uint64_t, telehand_msg_EventKind, const std::string&, int64_t) {}};
+TEST_F(RecorderTest, ChunksWithAndWithoutFlagsKeepEachSamplesOwn) {
+  auto& store = store_;
+  auto& ctx = ctx_;
+  const uint64_t id = id_;
   Recorder r(id);
   r.add(run(id, 0, 10), {});
   std::vector<uint8_t> valid(10, 1);
@@ -1629,7 +1637,6 @@ TEST(RecorderTest, ChunksWithAndWithoutFlagsKeepEachSamplesOwn) {
     if (!ok) invalid.push_back(s.seq);
   });
   EXPECT_EQ(invalid, std::vector<uint64_t>{13});
-  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -264,8 +264,8 @@ class SessionManager {
   std::atomic<bool> claim_soon_{false};
   std::vector<store::SessionStore::SampleBatch> batches_;  // flushRecords', kept for reuse
   std::vector<Session*> batch_sessions_;
-  std::unique_ptr<store::BatchWriter> writer_;   // writeSamplesOnThread
-  std::vector<store::BatchWriter::Job> jobs_;    // its jobs, handed back and forth for reuse
+  std::unique_ptr<store::BatchWriter> writer_;  // writeSamplesOnThread
+  std::vector<store::BatchWriter::Job> jobs_;   // its jobs, handed back and forth for reuse
   int64_t next_pool_ns_ = 0;
   int64_t next_checkpoint_ns_ = 0;
   SessionContext ctx_;  // for the sessions' parts: the members above

@@ -51,10 +51,10 @@ class BatchWriter {
   std::unique_ptr<SessionStore> store_;
   std::mutex mutex_;
   std::condition_variable_any cv_;
-  std::vector<Job> jobs_;                   // the write under way, then its results
+  std::vector<Job> jobs_;                           // the write under way, then its results
   std::vector<SessionStore::SampleBatch> batches_;  // views of jobs_ (the writer thread's)
-  bool work_ = false;                       // jobs_ submitted, not yet written (under mutex_)
-  bool results_ = false;                    // jobs_ written, not yet collected (under mutex_)
+  bool work_ = false;     // jobs_ submitted, not yet written (under mutex_)
+  bool results_ = false;  // jobs_ written, not yet collected (under mutex_)
   std::atomic<bool> busy_{false};
   std::atomic<int64_t> write_ns_{0};
   std::jthread thread_;  // last: started once the members above are
