@@ -772,10 +772,21 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
       return;
     }
     try {
-      if (store_.session(c.session_id)) {
+      // A session this server holds for its client to resume (taken over, or found open in
+      // the record) is known to be in the record: no look-up (on PostgreSQL two counts of
+      // its rows) per chunk while its client, unacknowledged, sends its backlog.
+      const bool waiting = suspended_.count(c.session_id) > 0;
+      if (waiting || store_.session(c.session_id)) {
+        const int64_t t0 = SteadyClock{}.nowNs();
         const uint64_t added = store_.appendSamples(c.session_id, samples, valid);
+        records_ns_ += SteadyClock{}.nowNs() - t0;
         stats_.recorded_samples += added;
-        spdlog::info("session {}: {} late samples stored after close", c.session_id, added);
+        if (waiting) {
+          spdlog::debug("session {}: {} samples stored while it waits for its client", c.session_id,
+                        added);
+        } else {
+          spdlog::info("session {}: {} late samples stored after close", c.session_id, added);
+        }
         return;
       }
     } catch (const StoreError& e) {
@@ -929,6 +940,9 @@ void SessionManager::tick(int64_t now_ns) {
         spdlog::error("session {}: {}", id, e.what());
       }
     }
+    // A write of the session's samples under way (the writer thread) is waited for, past
+    // the close's grace too: what it stores counts, and the record's state follows it.
+    if (s.recorder.writing()) continue;
     if (s.closing && ((s.recorder.recorded() >= s.expected && s.recorder.drained()) ||
                       now_ns >= s.close_deadline_ns)) {
       done.push_back(id);

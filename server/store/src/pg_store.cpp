@@ -973,7 +973,7 @@ uint64_t PgStore::storedPrefix(uint64_t session_id) {
                        .run(
                            "SELECT coalesce((SELECT rn FROM (SELECT seq, row_number() OVER "
                            "(ORDER BY seq) - 1 AS rn FROM samples WHERE session_id = $1) x "
-                           "WHERE seq <> rn LIMIT 1), "
+                           "WHERE seq <> rn ORDER BY seq LIMIT 1), "
                            "(SELECT count(*) FROM samples WHERE session_id = $1))",
                            {int8Param(static_cast<int64_t>(session_id))});
   return r.rows() ? static_cast<uint64_t>(r.integer(0, 0)) : 0;

@@ -1774,6 +1774,25 @@ TEST_F(WriterThreadTest, ASlowRecordHoldsUpTheAcknowledgementNotTheLoop) {
   EXPECT_EQ(info->samples, 400u);
 }
 
+// A close whose grace runs out while the record is still writing the session's last samples
+// waits for that write: the session closes complete, not incomplete with samples on the way.
+TEST_F(WriterThreadTest, ACloseWaitsForTheWriteOfItsLastSamples) {
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  auto c = command(telehand_msg_CMD_CLOSE, session_);
+  c.samples_sent = 100;
+  manager_->onCommand(c, now_ns_, from_);
+  pass(10);
+  ASSERT_TRUE(waitGate([](const WriteGate& g) { return g.entered == 1; }));
+  pass(static_cast<int64_t>(config_.close_grace_s * 1000) + 1000);  // past the grace
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+  setGate(true);
+  ASSERT_TRUE(passUntil([&] { return manager_->activeSessions() == 0; }));
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples, 100u);
+}
+
 // A server that stops while a write is under way waits for it, stores what came meanwhile,
 // and suspends the session with all of it in the record.
 TEST_F(WriterThreadTest, AServerStoppingWaitsForTheWriteUnderWay) {
