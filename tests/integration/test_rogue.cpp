@@ -8,6 +8,7 @@
 #include <stdlib.h>
 
 #include <algorithm>
+#include <chrono>
 #include <fstream>
 #include <iostream>
 #include <string>
@@ -209,6 +210,27 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   Process warm(cmd(TELEHAND_INJECT_BIN, {"open-flood", "--count", "1", "--hold", "0"}),
                path("warm.log"));
   ASSERT_EQ(warm.wait(30s), std::optional<int>(0)) << warm.output();
+  // The server ends a session (and frees its place under server.max_sessions) in its own
+  // time: each step waits for the sessions before it to have ended, as the server's log says.
+  std::size_t ended = 0;
+  const auto waitEnded = [&](std::size_t more) {
+    ended += more;
+    const auto deadline = std::chrono::steady_clock::now() + 60s;
+    std::size_t seen = 0;
+    while (std::chrono::steady_clock::now() < deadline) {
+      const std::string log = server.output();
+      seen = 0;
+      for (auto at = log.find(" samples recorded"); at != std::string::npos;
+           at = log.find(" samples recorded", at + 1)) {
+        ++seen;
+      }
+      if (seen >= ended) return true;
+      std::this_thread::sleep_for(100ms);
+    }
+    ADD_FAILURE() << seen << " sessions ended in 60 s, not " << ended;
+    return false;
+  };
+  ASSERT_TRUE(waitEnded(1));
   std::this_thread::sleep_for(3s);
   const uint64_t baseline = rssKb(server.pid());
   ASSERT_GT(baseline, 0u);
@@ -222,6 +244,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   ASSERT_EQ(four.wait(0ms), std::optional<int>(0)) << four.output();
   ASSERT_EQ(matchNumber(four.output(), R"(opened=(\d+))"), 4u) << four.output();
   const double per_session_kb = static_cast<double>(four_peak - baseline) / 4.0;
+  ASSERT_TRUE(waitEnded(4));
   std::this_thread::sleep_for(3s);
 
   Process flood(cmd(TELEHAND_INJECT_BIN,
@@ -236,6 +259,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   const std::string out = flood.output();
   EXPECT_EQ(matchNumber(out, R"(opened=(\d+))"), 64u) << out;
   EXPECT_EQ(matchNumber(out, R"(closed=(\d+))"), 64u) << out;
+  ASSERT_TRUE(waitEnded(64));
   std::this_thread::sleep_for(3s);  // past status_keep_s: the sessions are retired
   const uint64_t after = rssKb(server.pid());
   // The same flood twice more: what the first one left (caches grown toward their size:
@@ -248,6 +272,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
                   path("again-" + std::to_string(round) + ".log"));
     EXPECT_EQ(again.wait(60s), std::optional<int>(0)) << again.output();
     EXPECT_EQ(matchNumber(again.output(), R"(opened=(\d+))"), 64u) << again.output();
+    ASSERT_TRUE(waitEnded(64));
     std::this_thread::sleep_for(3s);
     after_floods.push_back(rssKb(server.pid()));
   }
