@@ -147,8 +147,11 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
       std::string all, current;
       int64_t resumed_ns = 0, from_victim_ns = 0;
       int takeovers = 0;
+      // Taken over when the owner's lease ran out, or (PostgreSQL) when its connection to the
+      // record had closed: its process was gone, and no write of its could land any more.
       const std::regex took(R"(owner: server (s\d) took the session over from server (s\d), )"
-                            R"(whose lease ran out at (\d+) .*record clock (\d+)\))");
+                            R"(whose (lease ran out|connection to the record had closed) )"
+                            R"(.*at (\d+).*record clock (\d+)\))");
       for (const auto& e : store->events(id)) {
         all += e.kind + ": " + e.text + "\n";
         if (e.text.rfind("resumed: ", 0) == 0 && from_victim_ns != 0 && resumed_ns == 0) {
@@ -164,8 +167,15 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
         ASSERT_TRUE(std::regex_search(e.text, m, took)) << all;
         EXPECT_EQ(m[2].str(), current) << "a take-over names the owner before it\n" << all;
         EXPECT_NE(m[1].str(), current) << all;
-        const int64_t lease_end = std::stoll(m[3]), claimed = std::stoll(m[4]);
-        EXPECT_GE(claimed, lease_end) << "one owner at every moment\n" << all;
+        const int64_t lease_end = std::stoll(m[4]), claimed = std::stoll(m[5]);
+        if (m[3].str() == "lease ran out") {
+          EXPECT_GE(claimed, lease_end) << "one owner at every moment\n" << all;
+        } else {
+          // Before its lease ran out: only from the server this test killed, after the kill.
+          EXPECT_EQ(m[2].str(), victim) << "a live server's connection seen closed\n" << all;
+          EXPECT_GE(claimed, killed_ns) << "one owner at every moment\n" << all;
+          EXPECT_EQ(GetParam(), std::string("postgresql")) << all;
+        }
         if (m[2].str() == victim && from_victim_ns == 0) {
           from_victim_ns = claimed;
           worst_claim_s = std::max(worst_claim_s, static_cast<double>(claimed - killed_ns) * 1e-9);
@@ -189,9 +199,12 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
               << worst_resume_s << " s of the kill; " << spurious
               << " take-over(s) of live servers' sessions (leases run out in stalls)\n";
     // How fast is a benchmark's question (tests/bench/bench_pool.sh runs this test and
-    // reports the figures); here only that the take-over came from the pool's lease (1 s)
-    // and not from a client's own 4 s without acknowledgement, with room for a loaded machine.
-    EXPECT_GT(worst_claim_s, 0.5) << "no claim before the dead server's lease ran out";
+    // reports the figures); here only that on SQLite the take-over came from the pool's lease
+    // (1 s) and not from a client's own 4 s without acknowledgement, with room for a loaded
+    // machine. On PostgreSQL the record also sees the dead server's connection close, sooner.
+    if (GetParam() == "sqlite") {
+      EXPECT_GT(worst_claim_s, 0.5) << "no claim before the dead server's lease ran out";
+    }
     EXPECT_LE(worst_resume_s, 15.0);
   }
 };

@@ -1225,6 +1225,16 @@ void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim
     const std::string why =
         claim.previous.empty()
             ? "owner: server " + pool_id_ + " took the session on (it had no owner in the pool)"
+        : claim.previous_lease_until_ns >= claim.now_ns && !claim.previous_connected
+            // Its process is gone (its connection to the record closed, and with it every
+            // write it could make): no need to wait out its lease.
+            ? fmt::format(
+                  "owner: server {} took the session over from server {}, whose connection to "
+                  "the record had closed (its lease would have run out at {}, {:.0f} ms later; "
+                  "record clock {})",
+                  pool_id_, claim.previous, claim.previous_lease_until_ns,
+                  static_cast<double>(claim.previous_lease_until_ns - claim.now_ns) * 1e-6,
+                  claim.now_ns)
             : fmt::format(
                   "owner: server {} took the session over from server {}, whose lease ran out "
                   "at {} ({:.0f} ms before; record clock {})",

@@ -578,6 +578,10 @@ void PgStore::connect() {
     throw StoreError("cannot connect to record database '" + location_ + "': " + why);
   }
   prepared_ = false;
+  // A new connection holds no member lock yet (poolHeartbeat takes them again), and trusts
+  // the others' connections only once it has held its own for a lease.
+  member_locks_.clear();
+  trust_connections_at_ = std::chrono::steady_clock::time_point::max();
   if (mode_ == Mode::kReadOnly)
     Db(conn_, location_).script("SET default_transaction_read_only = on");
 }
@@ -1207,26 +1211,45 @@ std::vector<TrialRecord> PgStore::trials(uint64_t session_id) {
 // ---- Pool (docs/pool.md) --------------------------------------------------------------------
 
 namespace {
-/// Orphans: sessions still open whose owner's lease ran out, or which have had no owner for
-/// 5 s (a session is created a moment before its creator claims it).
-const std::string kOrphansSql =
-    std::string(
-        "SELECT s.id FROM sessions s LEFT JOIN session_owners o ON o.session_id = s.id "
-        "LEFT JOIN pool_servers p ON p.server = o.server, (SELECT ") +
-    kNowSql +
-    " AS t) now WHERE s.state IN ('active', 'suspended') AND "
-    "((o.server IS NULL AND s.started_ns < now.t - 5000000000) OR "
-    "(o.server IS NOT NULL AND (p.lease_until_ns IS NULL OR p.lease_until_ns < now.t))) "
-    "ORDER BY s.id";
-const std::string kMembersSql =
-    std::string(
-        "SELECT p.server, p.lease_until_ns, "
-        "(SELECT count(*) FROM session_owners o JOIN sessions s ON s.id = o.session_id "
-        " WHERE o.server = p.server AND s.state IN ('active', 'suspended')) + "
-        "(SELECT count(*) FROM pool_opens q WHERE q.server = p.server AND q.session_id = "
-        "0 AND q.at_ns > now.t - 60000000000) AS load FROM pool_servers p, (SELECT ") +
-    kNowSql + " AS t) now WHERE p.lease_until_ns >= now.t ORDER BY load, p.server";
+/// A pool member's advisory lock: (this space, hashtext(its name)); the space is the record's
+/// schema, so that records in several schemas of one database keep their pools apart.
+const std::string kMemberSpaceSql = "hashtext('telehand-pool:' || current_schema())";
+
+/// Orphans: sessions still open whose owner's lease ran out or whose owner's connection is
+/// gone (`connected`: PgStore::connectedSql of o.server), or which have had no owner for 5 s
+/// (a session is created a moment before its creator claims it).
+std::string orphansSql(const std::string& connected) {
+  return std::string(
+             "SELECT s.id FROM sessions s LEFT JOIN session_owners o ON o.session_id = s.id "
+             "LEFT JOIN pool_servers p ON p.server = o.server, (SELECT ") +
+         kNowSql +
+         " AS t) now WHERE s.state IN ('active', 'suspended') AND "
+         "((o.server IS NULL AND s.started_ns < now.t - 5000000000) OR "
+         "(o.server IS NOT NULL AND (p.lease_until_ns IS NULL OR p.lease_until_ns < now.t OR "
+         "NOT " +
+         connected + "))) ORDER BY s.id";
+}
+/// The members whose lease runs and whose connection is there (`connected`: of p.server).
+std::string membersSql(const std::string& connected) {
+  return std::string(
+             "SELECT p.server, p.lease_until_ns, "
+             "(SELECT count(*) FROM session_owners o JOIN sessions s ON s.id = o.session_id "
+             " WHERE o.server = p.server AND s.state IN ('active', 'suspended')) + "
+             "(SELECT count(*) FROM pool_opens q WHERE q.server = p.server AND q.session_id = "
+             "0 AND q.at_ns > now.t - 60000000000) AS load FROM pool_servers p, (SELECT ") +
+         kNowSql + " AS t) now WHERE p.lease_until_ns >= now.t AND " + connected +
+         " ORDER BY load, p.server";
+}
 }  // namespace
+
+std::string PgStore::connectedSql(const std::string& server) const {
+  if (std::chrono::steady_clock::now() < trust_connections_at_) return "true";
+  return "((hashtext(" + server +
+         ")::bigint & 4294967295) IN (SELECT l.objid::bigint FROM pg_locks l WHERE l.locktype = "
+         "'advisory' AND l.granted AND l.objsubid = 2 AND l.database = (SELECT oid FROM "
+         "pg_database WHERE datname = current_database()) AND l.classid::bigint = (" +
+         kMemberSpaceSql + "::bigint & 4294967295)))";
+}
 
 std::vector<uint64_t> PgStore::poolHeartbeat(const std::string& server, uint64_t sessions,
                                              int64_t lease_ns) {
@@ -1234,6 +1257,26 @@ std::vector<uint64_t> PgStore::poolHeartbeat(const std::string& server, uint64_t
   std::lock_guard lock(mutex_);
   connect();
   Db db(conn_, location_);
+  if (!member_locks_.count(server)) {
+    // Held as long as this connection lives: a process that dies lets go of it at once.
+    const Result r =
+        db.run(("SELECT pg_try_advisory_lock(" + kMemberSpaceSql + ", hashtext($1))::int").c_str(),
+               {textParam(server)});
+    if (r.integer(0, 0) == 1) {
+      member_locks_.insert(server);
+      if (trust_connections_at_ == std::chrono::steady_clock::time_point::max()) {
+        trust_connections_at_ =
+            std::chrono::steady_clock::now() + std::chrono::nanoseconds(lease_ns);
+      }
+    } else {
+      // Another connection holds it: a server of the same name, or one whose name hashes
+      // alike. Then the others see this one by its lease alone.
+      spdlog::warn(
+          "pool: another connection to {} holds the lock of pool member '{}' (a server of the "
+          "same name?); a take-over of this server's sessions waits for its lease to run out",
+          location_, server);
+    }
+  }
   db.run((std::string("INSERT INTO pool_servers (server, lease_until_ns, started_ns) SELECT $1, "
                       "t + $2, t FROM (SELECT ") +
           kNowSql +
@@ -1253,14 +1296,19 @@ std::vector<uint64_t> PgStore::poolHeartbeat(const std::string& server, uint64_t
 void PgStore::poolLeave(const std::string& server) {
   std::lock_guard lock(mutex_);
   connect();
-  Db(conn_, location_).run("DELETE FROM pool_servers WHERE server = $1", {textParam(server)});
+  const Db db(conn_, location_);
+  db.run("DELETE FROM pool_servers WHERE server = $1", {textParam(server)});
+  if (member_locks_.erase(server)) {
+    db.run(("SELECT pg_advisory_unlock(" + kMemberSpaceSql + ", hashtext($1))").c_str(),
+           {textParam(server)});
+  }
 }
 
 std::vector<PoolMember> PgStore::poolMembers() {
   if (!pool_tables_) return {};  // a read-only record of schema 5
   std::lock_guard lock(mutex_);
   connect();
-  const Result r = Db(conn_, location_).run(kMembersSql.c_str());
+  const Result r = Db(conn_, location_).run(membersSql(connectedSql("p.server")).c_str());
   std::vector<PoolMember> out;
   for (int i = 0; i < r.rows(); ++i) {
     out.push_back({r.text(i, 0), static_cast<uint64_t>(r.integer(i, 2)), r.integer(i, 1)});
@@ -1292,7 +1340,7 @@ std::string PgStore::poolAssign(const std::string& open_key) {
   const Db db(conn_, location_);
   return inPoolTransaction(conn_, db, [&] {
     std::string server;
-    const Result m = db.run(kMembersSql.c_str());
+    const Result m = db.run(membersSql(connectedSql("p.server")).c_str());
     const Result had = db.run("SELECT server, session_id FROM pool_opens WHERE open_key = $1",
                               {textParam(open_key)});
     bool keep = false;
@@ -1330,16 +1378,19 @@ PoolClaim PgStore::poolClaim(uint64_t session_id, const std::string& server,
     PoolClaim c;
     c.now_ns = db.run((std::string("SELECT ") + kNowSql).c_str()).integer(0, 0);
     const Param id = int8Param(static_cast<int64_t>(session_id));
-    const Result o = db.run(
-        "SELECT o.server, p.lease_until_ns FROM session_owners o LEFT JOIN pool_servers p ON "
-        "p.server = o.server WHERE o.session_id = $1",
-        {id});
+    const Result o = db.run(("SELECT o.server, p.lease_until_ns, (" + connectedSql("o.server") +
+                             ")::int FROM session_owners o LEFT JOIN pool_servers p ON p.server = "
+                             "o.server WHERE o.session_id = $1")
+                                .c_str(),
+                            {id});
     const bool owned = o.rows() > 0;
     if (owned) {
       c.previous = o.text(0, 0);
       c.previous_lease_until_ns = o.integer(0, 1);
+      c.previous_connected = o.integer(0, 2) == 1;
     }
-    if (!(owned && c.previous != server && c.previous_lease_until_ns >= c.now_ns)) {
+    const bool owner_lives = c.previous_lease_until_ns >= c.now_ns && c.previous_connected;
+    if (!(owned && c.previous != server && owner_lives)) {
       if (!owned || c.previous != server) {
         db.run(
             "INSERT INTO session_owners (session_id, server, since_ns) VALUES ($1, $2, $3) "
@@ -1360,7 +1411,7 @@ PoolClaim PgStore::poolClaim(uint64_t session_id, const std::string& server,
 std::vector<uint64_t> PgStore::poolOrphans() {
   std::lock_guard lock(mutex_);
   connect();
-  const Result r = Db(conn_, location_).run(kOrphansSql.c_str());
+  const Result r = Db(conn_, location_).run(orphansSql(connectedSql("o.server")).c_str());
   std::vector<uint64_t> out;
   for (int i = 0; i < r.rows(); ++i) out.push_back(static_cast<uint64_t>(r.integer(i, 0)));
   return out;

@@ -154,6 +154,61 @@ TEST_F(PgStoreTest, ASchema5RecordGainsThePoolTables) {
   EXPECT_EQ(store.poolOwner(id), "a");
 }
 
+// A pool member whose process died: its connection closes, and with it its member lock; the
+// others take its sessions over at once, not when its lease runs out. A member alive keeps
+// them, and a store trusts the others' connections only once its own has lasted a lease.
+TEST_F(PgStoreTest, APoolMemberWhoseConnectionClosedIsGoneBeforeItsLeaseRunsOut) {
+  using namespace std::chrono_literals;
+  constexpr int64_t kMinute = 60'000'000'000;
+  constexpr int64_t kShort = 300'000'000;
+  auto a = std::make_unique<PgStore>(uri());
+  PgStore b(uri());
+  // Short leases first (the trust in connections starts a lease after the lock), then long.
+  a->poolHeartbeat("a", 0, kShort);
+  b.poolHeartbeat("b", 0, kShort);
+  std::this_thread::sleep_for(350ms);
+  a->poolHeartbeat("a", 0, kMinute);
+  b.poolHeartbeat("b", 0, kMinute);
+  const uint64_t id = a->createSession({});
+  ASSERT_TRUE(a->poolClaim(id, "a").won);
+  EXPECT_TRUE(b.poolOrphans().empty());
+  EXPECT_FALSE(b.poolClaim(id, "b").won) << "a's lease runs and its connection is there";
+  EXPECT_EQ(b.poolMembers().size(), 2u);
+  // A third store, still new: it trusts nobody's connection yet, only leases.
+  PgStore c(uri());
+  c.poolHeartbeat("c", 0, kMinute);
+
+  a.reset();  // the process dies: its connection closes (the lease would run a minute more)
+  std::vector<uint64_t> orphans;
+  for (int i = 0; i < 100 && orphans.empty(); ++i) {  // the backend ends within moments
+    orphans = b.poolOrphans();
+    if (orphans.empty()) std::this_thread::sleep_for(20ms);
+  }
+  EXPECT_EQ(orphans, std::vector<uint64_t>{id});
+  EXPECT_TRUE(c.poolOrphans().empty()) << "c's own connection has not lasted a lease";
+  EXPECT_FALSE(c.poolClaim(id, "c").won);
+  const auto members = b.poolMembers();
+  ASSERT_EQ(members.size(), 2u) << "a is not assigned OPENs any more";
+  EXPECT_NE(members[0].server, "a");
+  EXPECT_NE(members[1].server, "a");
+  const PoolClaim taken = b.poolClaim(id, "b");
+  EXPECT_TRUE(taken.won);
+  EXPECT_EQ(taken.previous, "a");
+  EXPECT_FALSE(taken.previous_connected);
+  EXPECT_GT(taken.previous_lease_until_ns, taken.now_ns) << "before a's lease ran out";
+  EXPECT_EQ(b.poolOwner(id), "b");
+
+  // A member that leaves lets go of its lock: another process may take the name.
+  b.poolLeave("b");
+  PgStore b2(uri());
+  b2.poolHeartbeat("b", 0, kMinute);
+  EXPECT_EQ(value("SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND objsubid = 2 "
+                  "AND granted AND objid::bigint = (hashtext('b')::bigint & 4294967295) AND "
+                  "classid::bigint = (hashtext('telehand-pool:" +
+                  schema_ + "')::bigint & 4294967295)"),
+            "1");
+}
+
 // Schema 6 (before the massage's web columns): a reader reads the web as 0, a writer adds them.
 TEST_F(PgStoreTest, ASchema6RecordGainsTheWebColumns) {
   uint64_t id = 0;

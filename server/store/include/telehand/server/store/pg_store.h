@@ -28,6 +28,7 @@
 #include <chrono>
 #include <cstdint>
 #include <mutex>
+#include <set>
 #include <string>
 
 #include "telehand/server/store/store.h"
@@ -81,6 +82,9 @@ class PgStore final : public SessionStore {
   uint64_t sessionLesson(uint64_t session_id) override;
   void appendTrial(const TrialRecord& t) override;
   std::vector<TrialRecord> trials(uint64_t session_id) override;
+  /// Also holds, on this connection, the pool member's advisory lock (its name's): the
+  /// record sees at once that a server whose process died is gone (its connection closed),
+  /// without waiting for its lease to run out (docs/pool.md, "A member's connection").
   std::vector<uint64_t> poolHeartbeat(const std::string& server, uint64_t sessions,
                                       int64_t lease_ns) override;
   void poolLeave(const std::string& server) override;
@@ -107,6 +111,12 @@ class PgStore final : public SessionStore {
   uint64_t insertSamples(uint64_t session_id, std::span<const Sample> samples,
                          std::span<const uint8_t> valid);
 
+  /// The condition "the pool member named by the SQL expression `server` holds its lock on a
+  /// connection of its own": '' (always true) until this store's own connection has held
+  /// its lock for a lease, so that after the database restarted, the servers reconnecting
+  /// one after another do not take each other's sessions.
+  std::string connectedSql(const std::string& server) const;
+
   std::string uri_;  ///< as given, password and all: never shown
   std::string location_;
   Mode mode_;
@@ -116,6 +126,11 @@ class PgStore final : public SessionStore {
   static constexpr std::chrono::seconds kRetryPause{5};
   std::chrono::steady_clock::time_point retry_at_{};
   std::string last_error_;
+  /// The members whose lock this connection holds (reset with the connection), and from
+  /// when the others' connections count.
+  std::set<std::string> member_locks_;
+  std::chrono::steady_clock::time_point trust_connections_at_ =
+      std::chrono::steady_clock::time_point::max();
   bool prepared_ = false;
   bool web_columns_ = true;  ///< false: a read-only record of schema 5 or 6 (web reads 0)
   bool pool_tables_ = true;  ///< false: a read-only record of schema 5 (no pool tables)  ///< the

@@ -87,7 +87,10 @@ struct PoolClaim {
   bool won = false;
   std::string previous;                 ///< its owner before ('' : none)
   int64_t previous_lease_until_ns = 0;  ///< when that owner's lease ran out (0: no lease)
-  int64_t now_ns = 0;                   ///< the record's clock at the claim
+  /// false: that owner's lease still ran, but its connection to the record had closed (its
+  /// process is gone; PostgreSQL only, PgStore::poolHeartbeat)
+  bool previous_connected = true;
+  int64_t now_ns = 0;  ///< the record's clock at the claim
 };
 
 /// The last saved state of a session's hand (the server's checkpoint).
