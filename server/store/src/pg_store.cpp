@@ -581,6 +581,7 @@ void PgStore::connect() {
   // A new connection holds no member lock yet (poolHeartbeat takes them again), and trusts
   // the others' connections only once it has held its own for a lease.
   member_locks_.clear();
+  member_lock_retry_at_ = {};
   trust_connections_at_ = std::chrono::steady_clock::time_point::max();
   if (mode_ == Mode::kReadOnly)
     Db(conn_, location_).script("SET default_transaction_read_only = on");
@@ -1257,24 +1258,22 @@ std::vector<uint64_t> PgStore::poolHeartbeat(const std::string& server, uint64_t
   std::lock_guard lock(mutex_);
   connect();
   Db db(conn_, location_);
-  if (!member_locks_.count(server)) {
-    // Held as long as this connection lives: a process that dies lets go of it at once.
+  const auto now = std::chrono::steady_clock::now();
+  if (trust_connections_at_ == std::chrono::steady_clock::time_point::max()) {
+    trust_connections_at_ = now + std::chrono::nanoseconds(lease_ns);
+  }
+  if (!member_locks_.count(server) && now >= member_lock_retry_at_) {
+    // Held as long as this connection lives: a process that dies lets go of it at once. A
+    // server renews its lease on two connections (its serve loop's and its lease thread's):
+    // one of them holds the lock, the other tries again now and then (in case the holder's
+    // connection was replaced), and so does a server whose name another one uses.
     const Result r =
         db.run(("SELECT pg_try_advisory_lock(" + kMemberSpaceSql + ", hashtext($1))::int").c_str(),
                {textParam(server)});
     if (r.integer(0, 0) == 1) {
       member_locks_.insert(server);
-      if (trust_connections_at_ == std::chrono::steady_clock::time_point::max()) {
-        trust_connections_at_ =
-            std::chrono::steady_clock::now() + std::chrono::nanoseconds(lease_ns);
-      }
     } else {
-      // Another connection holds it: a server of the same name, or one whose name hashes
-      // alike. Then the others see this one by its lease alone.
-      spdlog::warn(
-          "pool: another connection to {} holds the lock of pool member '{}' (a server of the "
-          "same name?); a take-over of this server's sessions waits for its lease to run out",
-          location_, server);
+      member_lock_retry_at_ = now + std::chrono::seconds(1);
     }
   }
   db.run((std::string("INSERT INTO pool_servers (server, lease_until_ns, started_ns) SELECT $1, "

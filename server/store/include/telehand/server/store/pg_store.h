@@ -112,9 +112,9 @@ class PgStore final : public SessionStore {
                          std::span<const uint8_t> valid);
 
   /// The condition "the pool member named by the SQL expression `server` holds its lock on a
-  /// connection of its own": '' (always true) until this store's own connection has held
-  /// its lock for a lease, so that after the database restarted, the servers reconnecting
-  /// one after another do not take each other's sessions.
+  /// connection of its own": "true" until this store's connection has lasted a lease after
+  /// its first heartbeat, so that after the database restarted, the servers reconnecting one
+  /// after another do not take each other's sessions.
   std::string connectedSql(const std::string& server) const;
 
   std::string uri_;  ///< as given, password and all: never shown
@@ -126,9 +126,11 @@ class PgStore final : public SessionStore {
   static constexpr std::chrono::seconds kRetryPause{5};
   std::chrono::steady_clock::time_point retry_at_{};
   std::string last_error_;
-  /// The members whose lock this connection holds (reset with the connection), and from
-  /// when the others' connections count.
+  /// The members whose lock this connection holds (reset with the connection), when to try
+  /// again for one another connection held, and from when the others' connections count (a
+  /// lease after this connection's first heartbeat).
   std::set<std::string> member_locks_;
+  std::chrono::steady_clock::time_point member_lock_retry_at_{};
   std::chrono::steady_clock::time_point trust_connections_at_ =
       std::chrono::steady_clock::time_point::max();
   bool prepared_ = false;
