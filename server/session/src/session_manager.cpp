@@ -1254,8 +1254,12 @@ void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim
   suspended_[session_id] = now_ns + static_cast<int64_t>(config_.resume_wait_s * 1e9);
   // Its client hears SUSPENDED from a server that is not its own and asks to resume at once.
   publishRecordStatus(*info, telehand_msg_SESSION_SUSPENDED, 0, 0);
-  spdlog::info("session {}: taken over from {} ({} samples in the record)", session_id,
-               claim.previous.empty() ? "nobody" : claim.previous, info->samples);
+  spdlog::info("session {}: taken over from {} ({}; {} samples in the record)", session_id,
+               claim.previous.empty() ? "nobody" : claim.previous,
+               claim.previous.empty()     ? "it had no owner"
+               : claim.previous_connected ? "its lease ran out"
+                                          : "its connection to the record had closed",
+               info->samples);
 }
 
 }  // namespace telehand::server::session
