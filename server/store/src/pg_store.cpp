@@ -579,7 +579,7 @@ void PgStore::connect() {
   }
   prepared_ = false;
   // A new connection holds no member lock yet (poolHeartbeat takes them again), and trusts
-  // the others' connections only once it has held its own for a lease.
+  // the others' connections only a lease after its first heartbeat.
   member_locks_.clear();
   member_lock_retry_at_ = {};
   trust_connections_at_ = std::chrono::steady_clock::time_point::max();
