@@ -130,7 +130,7 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
 
     const auto store = server::store::openStore(db, server::store::SessionStore::Mode::kReadOnly);
     double worst_claim_s = 0.0, worst_resume_s = 0.0;
-    int spurious = 0;
+    int spurious = 0, by_connection = 0, by_lease = 0;
     for (uint64_t id : ids) {
       const auto info = store->session(id);
       ASSERT_TRUE(info.has_value());
@@ -177,6 +177,7 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
           EXPECT_EQ(GetParam(), std::string("postgresql")) << all;
         }
         if (m[2].str() == victim && from_victim_ns == 0) {
+          ++(m[3].str() == "lease ran out" ? by_lease : by_connection);
           from_victim_ns = claimed;
           worst_claim_s = std::max(worst_claim_s, static_cast<double>(claimed - killed_ns) * 1e-9);
         }
@@ -195,8 +196,10 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
     }
     std::cout << "pool on " << GetParam() << ": killed " << victim << " (sessions";
     for (uint64_t id : victims) std::cout << " " << id;
-    std::cout << "); taken over within " << worst_claim_s << " s, resumed by their clients within "
-              << worst_resume_s << " s of the kill; " << spurious
+    std::cout << "); taken over within " << worst_claim_s << " s (" << by_connection
+              << " seen gone by its closed connection, " << by_lease
+              << " by its lease), resumed by their clients within " << worst_resume_s
+              << " s of the kill; " << spurious
               << " take-over(s) of live servers' sessions (leases run out in stalls)\n";
     // How fast is a benchmark's question (tests/bench/bench_pool.sh runs this test and
     // reports the figures); here only that on SQLite the take-over came from the pool's lease
