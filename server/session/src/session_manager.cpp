@@ -1218,6 +1218,12 @@ void SessionManager::poolTick(int64_t now_ns) {
 }
 
 void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim, int64_t now_ns) {
+  // Why the session was free to take, said once for the record's event and the log: its
+  // owner's process gone (its connection to the record closed, and with it every write it
+  // could make) before its lease ran out, or its lease run out.
+  const bool by_connection = !claim.previous.empty() &&
+                             claim.previous_lease_until_ns >= claim.now_ns &&
+                             !claim.previous_connected;
   std::optional<SessionInfo> info;
   try {
     info = store_.session(session_id);
@@ -1225,9 +1231,7 @@ void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim
     const std::string why =
         claim.previous.empty()
             ? "owner: server " + pool_id_ + " took the session on (it had no owner in the pool)"
-        : claim.previous_lease_until_ns >= claim.now_ns && !claim.previous_connected
-            // Its process is gone (its connection to the record closed, and with it every
-            // write it could make): no need to wait out its lease.
+        : by_connection
             ? fmt::format(
                   "owner: server {} took the session over from server {}, whose connection to "
                   "the record had closed (its lease would have run out at {}, {:.0f} ms later; "
@@ -1256,9 +1260,9 @@ void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim
   publishRecordStatus(*info, telehand_msg_SESSION_SUSPENDED, 0, 0);
   spdlog::info("session {}: taken over from {} ({}; {} samples in the record)", session_id,
                claim.previous.empty() ? "nobody" : claim.previous,
-               claim.previous.empty()     ? "it had no owner"
-               : claim.previous_connected ? "its lease ran out"
-                                          : "its connection to the record had closed",
+               claim.previous.empty() ? "it had no owner"
+               : by_connection        ? "its connection to the record had closed"
+                                      : "its lease ran out",
                info->samples);
 }
 
