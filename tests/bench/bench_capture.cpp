@@ -15,10 +15,12 @@
 //  4. (--probe CASE_FILE|random-SEED HZ SEED) one capture fitted, per axis: the range
 //     planned, reached and fitted, walls, zone, residual, hysteresis, errors, speed gain
 //     with its standard error; PROBE_CURVE=1 prints the curves against the truth,
-//     PROBE_TRUTH=1 the truth's own residual at lags of 0-2 samples against the fit's
-//     (a fit worse than the truth: a search problem; better: the model misses something),
-//     PROBE_NOSPASM=1 fits without the spasm term, PROBE_RHW=H fits (and rates the truth)
-//     with rates over ±H samples (FitOptions::rate_half_window), PROBE_DUMP=FILE the points.
+//     PROBE_TRUTH=1 the truth's own residual at lags of 0-2 samples (PROBE_LAGS=L1,L2,...:
+//     at those, fractions interpolated) against the fit's (a fit worse than the truth: a
+//     search problem; better: the model misses something), PROBE_BINS=L with it the mean
+//     residual per 5 deg bin, stretching and returning, at lag L; PROBE_NOSPASM=1 fits
+//     without the spasm term, PROBE_RHW=H fits (and rates the truth) with rates over ±H
+//     samples (FitOptions::rate_half_window), PROBE_DUMP=FILE the points.
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
 //     captures (server/estimate/synthetic_massage.h: 60 s, 10 ± 2 N, the paper's 1.43 N
 //     thimble noise), the shipped webs' [tissue] (healthy, oedema, scar, hypertonic) or
@@ -279,7 +281,8 @@ int fitTable(const TableOptions& t) {
         o.frequency_hz = hz;
         o.seed = seed;
         const auto cap = server::estimate::synthesizeCapture(o);
-        server::estimate::CaptureFitter fitter(cap.geometry);
+        server::estimate::FitOptions fo;
+        server::estimate::CaptureFitter fitter(cap.geometry, fo);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
         all_ok = all_ok && fit.ok();
@@ -370,15 +373,33 @@ int probe(const std::string& file, double hz, uint64_t seed) {
     const auto& pts = fitter.points();
     const JointModel full(pc.model);
     const double L = pc.model.lever_arm_m, dcap = full.maxDampingNmsPerRad();
-    for (int delay = 0; delay <= 2; ++delay) {
+    const char* lags = std::getenv("PROBE_LAGS");
+    std::vector<double> delays{0.0, 1.0, 2.0};
+    if (lags) {
+      delays.clear();
+      for (const char* c = lags; *c;) {
+        char* end = nullptr;
+        delays.push_back(std::strtod(c, &end));
+        c = *end == ',' ? end + 1 : end;
+        if (end == c && *c) break;
+      }
+    }
+    for (const double delay : delays) {
+      const auto kd = static_cast<std::size_t>(std::floor(delay));
+      const double fd = delay - static_cast<double>(kd);
       for (int i = 0; i < kAxes; ++i) {
         double ss = 0, ssf = 0;
         std::size_t cnt = 0;
-        // mean residual per 10-deg bin, stretching vs returning
+        // mean residual per 5-deg bin, stretching vs returning
         double bs[40] = {}, bn[40] = {}, cs[40] = {}, cn[40] = {};
-        for (std::size_t k = 2 + static_cast<std::size_t>(delay); k + 2 < pts.size(); ++k) {
-          const std::size_t q = k - static_cast<std::size_t>(delay);
-          const double ang = pts[q].angles_rad[i], v = rate[q][i], w = acc[q][i];
+        for (std::size_t k = 3 + kd; k + 2 < pts.size(); ++k) {
+          const std::size_t q = k - kd, qb = q - 1;
+          if (pts[k].seq - pts[qb].seq != kd + 1) continue;
+          auto mix = [&](double later, double earlier) {
+            return (1.0 - fd) * later + fd * earlier;
+          };
+          const double ang = mix(pts[q].angles_rad[i], pts[qb].angles_rad[i]),
+                       v = mix(rate[q][i], rate[qb][i]), w = mix(acc[q][i], acc[qb][i]);
           const double fel = tm.holdingForceN(i, ang);
           const double el = -fel * L;
           const bool str = el * v < 0.0;
@@ -404,11 +425,12 @@ int probe(const std::string& file, double hz, uint64_t seed) {
             }
           }
         }
-        std::printf("delay %d %-9s truth rms %.3f fit rms %.3f\n", delay,
+        std::printf("delay %.2f %-9s truth rms %.3f fit rms %.3f\n", delay,
                     kAxisNames[static_cast<std::size_t>(i)].data(),
                     std::sqrt(ss / static_cast<double>(cnt)),
                     std::sqrt(ssf / static_cast<double>(cnt)));
-        if (delay == 0 && std::getenv("PROBE_BINS"))
+        if (std::getenv("PROBE_BINS") &&
+            std::abs(delay - std::atof(std::getenv("PROBE_BINS"))) < 1e-9)
           for (int b = 0; b < 40; ++b)
             if (cs[b] > 50 || cn[b] > 50)
               std::printf("   %5.0f stretch %6.2f (%4.0f) return %6.2f (%4.0f)\n", b * 5.0 - 60.0,
