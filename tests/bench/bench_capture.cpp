@@ -281,8 +281,7 @@ int fitTable(const TableOptions& t) {
         o.frequency_hz = hz;
         o.seed = seed;
         const auto cap = server::estimate::synthesizeCapture(o);
-        server::estimate::FitOptions fo;
-        server::estimate::CaptureFitter fitter(cap.geometry, fo);
+        server::estimate::CaptureFitter fitter(cap.geometry);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
         all_ok = all_ok && fit.ok();
@@ -373,16 +372,10 @@ int probe(const std::string& file, double hz, uint64_t seed) {
     const auto& pts = fitter.points();
     const JointModel full(pc.model);
     const double L = pc.model.lever_arm_m, dcap = full.maxDampingNmsPerRad();
-    const char* lags = std::getenv("PROBE_LAGS");
     std::vector<double> delays{0.0, 1.0, 2.0};
-    if (lags) {
+    if (const char* lags = std::getenv("PROBE_LAGS")) {
       delays.clear();
-      for (const char* c = lags; *c;) {
-        char* end = nullptr;
-        delays.push_back(std::strtod(c, &end));
-        c = *end == ',' ? end + 1 : end;
-        if (end == c && *c) break;
-      }
+      for (const auto& l : splitList(lags)) delays.push_back(std::stod(l));
     }
     for (const double delay : delays) {
       const auto kd = static_cast<std::size_t>(std::floor(delay));
