@@ -354,7 +354,7 @@ int probe(const std::string& file, double hz, uint64_t seed) {
     const std::pair<double, double> e{fe.inner, fe.edges};
     std::printf(
         "%-9s plan %.1f..%.1f reached %.1f..%.1f truth %.1f..%.1f fit %.1f..%.1f walls %d%d "
-        "zone %.1f (%.1f) rms %.2f hyst %.2f err %.2f/%.2f gain %.3f±%.3f %d b %.5f\n",
+        "zone %.1f (%.1f) rms %.2f hyst %.2f err %.3f/%.3f gain %.3f±%.3f %d b %.5f\n",
         kAxisNames[ax].data(), cap.plan.lo_deg[ax], cap.plan.hi_deg[ax], a.reached_min_deg,
         a.reached_max_deg, st.axes[ax].min_deg, st.axes[ax].max_deg, a.curve.min_deg,
         a.curve.max_deg, a.wall_min, a.wall_max, a.zone_deg, st.neutral_zone_deg[ax], a.rms_n,
@@ -448,7 +448,21 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   return 0;
 }
 
-int main(int argc, char** argv) {
+int run(int argc, char** argv) {
+  if (argc > 1 && (std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0)) {
+    std::printf(
+        "usage: telehand_bench_capture [--quick]\n"
+        "         kNN query cost per tick and live refit latency\n"
+        "       telehand_bench_capture --fit-table [CASES_DIR (deploy/cases)] [--cases a,b]\n"
+        "         [--hz 0.5,3,6] [--seeds FIRST,COUNT] [--random S1,S2,...]\n"
+        "         fitted holding force against the truth (docs/capture.md)\n"
+        "       telehand_bench_capture --fit-table --technique massage [--seconds S] "
+        "[--noise N]\n"
+        "       telehand_bench_capture --probe CASE_FILE|random-SEED HZ SEED\n"
+        "         one capture fitted; PROBE_CURVE, PROBE_TRUTH, PROBE_LAGS, PROBE_BINS,\n"
+        "         PROBE_NOSPASM, PROBE_RHW, PROBE_DUMP (see the source's header)\n");
+    return 0;
+  }
   if (argc > 4 && std::strcmp(argv[1], "--probe") == 0)
     return probe(argv[2], std::stod(argv[3]), std::stoull(argv[4]));
   if (argc > 1 && std::strcmp(argv[1], "--fit-table") == 0) {
@@ -631,4 +645,14 @@ int main(int argc, char** argv) {
   }
   fs::remove_all(dir);
   return sink == 12345.678 ? 1 : 0;
+}
+
+int main(int argc, char** argv) {
+  // A case file that cannot be read, a number that does not parse: said, not a crash.
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "telehand_bench_capture: %s (--help: usage)\n", e.what());
+    return 2;
+  }
 }
