@@ -388,6 +388,13 @@ double rssOf(const PiecewiseFitResult& r) {
 
 constexpr double kMaxGain = 20.0;  // the case files' bound
 
+/// Whether a shape search ended where it began: the walls, the zone and its centre within
+/// 0.05°.
+bool sameShape(const PiecewiseCubic& a, const PiecewiseCubic& b) {
+  return std::abs(a.min_deg - b.min_deg) < 0.05 && std::abs(a.max_deg - b.max_deg) < 0.05 &&
+         std::abs(a.zone_deg - b.zone_deg) < 0.05 && std::abs(a.rest_deg - b.rest_deg) < 0.05;
+}
+
 /// The fit at a gain with `shape` held (the linear parts solved), the stretch and the cap
 /// judged by `fel`.
 DynamicFit fitAtGain(const AxisData& d, double known_j, const PiecewiseCubic& shape,
@@ -479,12 +486,8 @@ SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, do
       const DynamicFit next =
           fitWithSpasm(d, known_j, inner, SpasmTerm{gf.gain, gf.fit.b, cap}, fel);
       if (!next.r.ok) break;
-      const PiecewiseCubic& a = next.r.curve;
-      const bool same = std::abs(a.min_deg - shape.min_deg) < 0.05 &&
-                        std::abs(a.max_deg - shape.max_deg) < 0.05 &&
-                        std::abs(a.zone_deg - shape.zone_deg) < 0.05 &&
-                        std::abs(a.rest_deg - shape.rest_deg) < 0.05;
-      shape = a;
+      const bool same = sameShape(next.r.curve, shape);
+      shape = next.r.curve;
       const double before = gf.gain;
       gf = convergeGain(d, known_j, shape, gf.gain, next.b, cap);
       if (gf.fit.r.ok && (!kept.fit.r.ok || rssOf(gf.fit.r) < rssOf(kept.fit.r))) kept = gf;
@@ -516,12 +519,8 @@ SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, do
       for (std::size_t i = 0; i < n; ++i) fel[i] = f.r.curve.eval(d.x[i]);
       const DynamicFit next = fitWithSpasm(d, known_j, inner, SpasmTerm{gain, f.b, cap}, fel);
       if (!next.r.ok) break;
-      const PiecewiseCubic& a = next.r.curve;
-      const bool same = std::abs(a.min_deg - shape.min_deg) < 0.05 &&
-                        std::abs(a.max_deg - shape.max_deg) < 0.05 &&
-                        std::abs(a.zone_deg - shape.zone_deg) < 0.05 &&
-                        std::abs(a.rest_deg - shape.rest_deg) < 0.05;
-      shape = a;
+      const bool same = sameShape(next.r.curve, shape);
+      shape = next.r.curve;
       for (std::size_t i = 0; i < n; ++i) fel[i] = shape.eval(d.x[i]);
       f = fitAtGain(d, known_j, shape, SpasmTerm{gain, next.b, cap}, fel);
       if (f.r.ok && rssOf(f.r) < rssOf(kept.r)) kept = f;
