@@ -399,7 +399,8 @@ int probe(const std::string& file, double hz, uint64_t seed) {
           const double c = std::min(pc.model.damping_nms_per_rad +
                                         (str ? pc.model.speed_gain_s_per_rad * std::abs(el) : 0.0),
                                     dcap);
-          const double model = fel + c * v / L + 2.6e-5 * w / L;
+          const double model =
+              fel + c * v / L + server::estimate::FitOptions{}.inertia_kgm2 * w / L;
           const double r = pts[k].axis_force_n[i] - model;
           ss += r * r;
           const double rf =
