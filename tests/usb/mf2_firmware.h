@@ -53,6 +53,13 @@ class Mf2Firmware {
   // The operator and the hardware.
   void setFsrForces(const std::array<double, proto::kFsrs>& n) { fsr_n_ = n; }
   void setExternalTorque(int actuator, double nm) { external_nm_[actuator] = nm; }
+  /// A hand that holds a position as well as pushing: a spring of `nm_per_rad` toward the
+  /// actuator's present angle adds to the external torque, so that a loop that stops
+  /// rendering lets the thimbles drift to where the push and the spring balance, not away.
+  void holdHere(int actuator, double nm_per_rad) {
+    hold_nm_per_rad_[actuator] = nm_per_rad;
+    hold_rad_[actuator] = q_[actuator];
+  }
   void pressEstopButton(bool pressed) { estop_button_ = pressed; }
 
   // What happened (tests check content against these).
@@ -74,6 +81,7 @@ class Mf2Firmware {
   FirmwareParams p_;
   uint64_t tick_ = 0;
   std::array<double, proto::kActuators> q_{}, v_{}, applied_a_{}, external_nm_{};
+  std::array<double, proto::kActuators> hold_nm_per_rad_{}, hold_rad_{};
   std::array<double, proto::kFsrs> fsr_n_{};
   proto::CommandPacket last_{};
   bool have_command_ = false;

@@ -319,7 +319,11 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
   options_.pace_ns = 1'000'000;
   options_.firmware.damping_nm_s_per_rad = 0.03;
   emu_ = std::make_unique<Mf2Emulator>(options_);
-  // The operator pushes both thimbles: the loop renders a real force against the push.
+  // The operator pushes both thimbles: the loop renders a real force against the push. The
+  // hand holds its place as well (a spring of 2 N*m/rad per actuator, about 0.2 N per mm at the
+  // thimble): when a busy machine stalls this thread and the loop misses ticks, the thimbles
+  // settle where push and hand balance instead of running past the joint's range (a
+  // range-runaway fault, which zeroes the force before the unplug this test is about).
   const JointModel joint(healthyIndexMcp());
   const auto a = joint.gripFromAngles(Vec3(degToRad(20.0), 0, 0), 0.008);
   const auto b = joint.gripFromAngles(Vec3(degToRad(21.0), 0, 0), 0.008);
@@ -333,7 +337,10 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
       kin.actuatorTorques(kin.anglesFromCounts(Mf2ModelCalibration::encoderCounts(start)).actuators,
                           {flex, flex}, tau));
   emu_->withFirmware([&](Mf2Firmware& fw) {
-    for (int i = 0; i < proto::kActuators; ++i) fw.setExternalTorque(i, tau[i]);
+    for (int i = 0; i < proto::kActuators; ++i) {
+      fw.setExternalTorque(i, tau[i]);
+      fw.holdHere(i, 2.0);
+    }
   });
   UsbMf2& dev = startDevice();
   ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
