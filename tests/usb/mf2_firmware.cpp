@@ -106,9 +106,8 @@ proto::StatePacket Mf2Firmware::tick() {
   }
   const double t_s = static_cast<double>(tick_) * kDt;
   for (int i = 0; i < proto::kActuators; ++i) {
-    double tau =
-        p_.nm_per_amp[i] * applied_a_[i] + external_nm_[i] - p_.damping_nm_s_per_rad * v_[i] +
-        hold_nm_per_rad_[i] * (hold_rad_[i] - q_[i]);
+    double tau = p_.nm_per_amp[i] * applied_a_[i] + external_nm_[i] -
+                 p_.damping_nm_s_per_rad * v_[i] + hold_nm_per_rad_[i] * (hold_rad_[i] - q_[i]);
     if (i == p_.operator_actuator) {
       tau += p_.operator_amplitude_nm * std::sin(2.0 * M_PI * p_.operator_hz * t_s);
     }
