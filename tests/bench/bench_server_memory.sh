@@ -8,7 +8,8 @@
 #     sessions opening or open, every OPEN taken);
 # and the server's RSS once each has ended and been retired (status_keep_s = 2 s).
 # With BENCH_SMAPS=1, the server's largest resident mappings at the end (/proc/PID/smaps:
-# [heap] is the main malloc arena, anonymous 64 MB-aligned ones the threads' arenas).
+# [heap] is the main malloc arena, anonymous 64 MB-aligned ones the threads' arenas); with
+# BENCH_WALK=1, what holds the main arena (tests/bench/heap_walk.py).
 # Usage: tests/bench/bench_server_memory.sh [ROUNDS (3)] [SESSIONS per churn (9000)] [--secure]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -70,4 +71,7 @@ if [ "${BENCH_SMAPS:-}" = 1 ]; then
   echo "largest resident mappings (kB):"
   awk '/^[0-9a-f]+-[0-9a-f]+ /{m=$1" "$6} /^Rss:/{if ($2 > 0) print $2, m}' "/proc/$server/smaps" |
     sort -rn | head -12
+fi
+if [ "${BENCH_WALK:-}" = 1 ]; then
+  tests/bench/heap_walk.py "$server" --top 12
 fi

@@ -1,5 +1,8 @@
 #include "telehand/protocol/dds.h"
 
+#include <dds/version.h>
+#include <unistd.h>
+
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -172,6 +175,48 @@ void releaseUnregistered(dds_instance_handle_t instance) noexcept {
 }
 
 int releasePooledSamples() noexcept { return telehand_dds_release_pooled_samples(); }
+
+int releaseWriterHistoryNodes(const Participant& participant,
+                              const Topic<telehand_msg_DirectForce>& topic) noexcept {
+#if DDS_VERSION_MAJOR == 0 && DDS_VERSION_MINOR == 10
+  // The list (dds_whc.c, whc_node_freelist, MAX_FREELIST_SIZE) is static to the library: it
+  // is reached through a writer. Transient-local with no reader, its history keeps every
+  // sample up to its depth, each in a node taken from the list (or new once it is empty);
+  // deleting the writer frees its history's nodes to the heap, not to the list. The
+  // partition is this process's own, so no reader anywhere matches the writer.
+  constexpr int32_t kNodes = 8192;
+  dds_qos_t* pq = dds_create_qos();
+  char name[64];
+  std::snprintf(name, sizeof name, "telehand-whc-release-%d", static_cast<int>(getpid()));
+  const char* parts[] = {name};
+  dds_qset_partition(pq, 1, parts);
+  const dds_entity_t pub = dds_create_publisher(participant.handle(), pq, nullptr);
+  dds_delete_qos(pq);
+  if (pub < 0) return 0;
+  dds_qos_t* wq = dds_create_qos();
+  dds_qset_reliability(wq, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_durability(wq, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(wq, DDS_HISTORY_KEEP_LAST, kNodes);
+  dds_qset_durability_service(wq, 0, DDS_HISTORY_KEEP_LAST, kNodes, DDS_LENGTH_UNLIMITED,
+                              DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+  const dds_entity_t wr = dds_create_writer(pub, topic.handle(), wq, nullptr);
+  dds_delete_qos(wq);
+  int n = 0;
+  if (wr >= 0) {
+    telehand_msg_DirectForce sample{};
+    for (; n < kNodes; ++n) {
+      sample.device_seq = static_cast<uint64_t>(n);
+      if (dds_write(wr, &sample) < 0) break;
+    }
+  }
+  dds_delete(pub);
+  return n;
+#else
+  (void)participant;
+  (void)topic;
+  return 0;
+#endif
+}
 
 std::string participantConfig(const Options& options) {
   std::string uri = configUri(options.config);

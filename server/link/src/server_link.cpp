@@ -106,7 +106,12 @@ void ServerLink::retire(uint64_t session_id) {
   unregisterSession(direct_writer_, session_id);
 }
 
-void ServerLink::idle() { dds::releasePooledSamples(); }
+void ServerLink::idle() {
+  dds::releaseWriterHistoryNodes(participant_, topics_.direct_force);
+  dds::releasePooledSamples();
+}
+
+void ServerLink::settle() { dds::releasePooledSamples(); }
 
 const session::Origin& ServerLink::origin(dds_entity_t reader, const dds_sample_info_t& info) {
   // Per sample (1 kHz per client): the last writer's origin, or one lookup; built once per

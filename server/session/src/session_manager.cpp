@@ -970,8 +970,17 @@ void SessionManager::tick(int64_t now_ns) {
   // sessions free their samples in Cyclone: trimmed too, and once none is left, the samples
   // Cyclone pooled for reuse (a burst fills its pool) are given back first.
   if (!done.empty() || due > 0) {
-    if (sessions_.empty() && retiring_.empty()) out_.idle();
+    if (sessions_.empty() && retiring_.empty()) {
+      out_.idle();
+      settle_ns_ = now_ns + kSettleNs;
+    }
     malloc_trim(0);
+  } else if (settle_ns_ != 0 && now_ns >= settle_ns_) {
+    settle_ns_ = 0;
+    if (sessions_.empty() && retiring_.empty()) {
+      out_.settle();
+      malloc_trim(0);
+    }
   }
 #endif
 }

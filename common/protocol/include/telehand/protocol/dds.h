@@ -240,6 +240,15 @@ struct Topics {
   Topic<telehand_msg_DirectForce> direct_force;
 };
 
+/// Frees the nodes of writer histories that Cyclone DDS 0.10 keeps on a process-wide list for
+/// reuse (up to 8,192 of about 150 bytes, dds_whc.c, never given back while any writer lives;
+/// a no-op with other versions): a writer made for it, in a partition of its own, takes them
+/// all into its history and, deleted, frees them (on Cyclone's garbage-collector thread, soon
+/// after: their samples then land on the pool releasePooledSamples empties). Returns the
+/// samples it wrote. A server calls it when its sessions have ended, before the trim.
+int releaseWriterHistoryNodes(const Participant& participant,
+                              const Topic<telehand_msg_DirectForce>& topic) noexcept;
+
 template <typename T>
 class Writer {
  public:

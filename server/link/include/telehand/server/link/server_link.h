@@ -33,7 +33,11 @@ class ServerLink final : public session::Outbox {
   void publish(const telehand_msg_KnnModel& k) override;
   void publish(const telehand_msg_DirectForce& f) override;
   void retire(uint64_t session_id) override;
-  void idle() override;  // frees Cyclone's pooled samples (dds::releasePooledSamples)
+  // Frees the spare nodes of Cyclone's writer histories and its pooled samples
+  // (dds::releaseWriterHistoryNodes, dds::releasePooledSamples); settle: the samples that
+  // came back to the pool since.
+  void idle() override;
+  void settle() override;
 
   /// Serve until `stop` becomes true; ticks the manager at least every `tick`.
   void serve(session::SessionManager& manager, const std::atomic<bool>& stop,

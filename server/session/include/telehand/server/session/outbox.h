@@ -23,8 +23,11 @@ class Outbox {
   /// writers free its instances.
   virtual void retire(uint64_t session_id) { (void)session_id; }
   /// No session is open or waiting to be retired: what the link keeps for reuse (Cyclone's
-  /// pool of freed samples) can be given back.
+  /// pool of freed samples, its writer histories' spare nodes) can be given back.
   virtual void idle() {}
+  /// Half a second after idle(), still with no session: what came back for reuse since (what
+  /// idle() freed through Cyclone's garbage collector) is given back too.
+  virtual void settle() {}
 };
 
 struct ManagerStats {

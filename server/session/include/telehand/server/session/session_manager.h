@@ -231,6 +231,10 @@ class SessionManager {
   std::vector<EndedOwner> ended_owners_;
   std::size_t ended_next_ = 0;  // where the next one goes (the oldest, once full)
   std::vector<std::pair<int64_t, uint64_t>> retiring_;  // (when, session id), in time order
+  // When the link's idle() freed what Cyclone frees later, on its garbage collector's thread:
+  // settle() and a trim once that has run (0: none due).
+  static constexpr int64_t kSettleNs = 500'000'000;
+  int64_t settle_ns_ = 0;
   std::map<uint64_t, int64_t> suspended_;  // sessions of the record awaiting their client: deadline
   uint64_t event_seq_ = 0;
   ManagerStats stats_;
