@@ -46,6 +46,8 @@ class RecordingOutbox : public Outbox {
   void publish(const telehand_msg_HandState& h) override { hands.push_back(h); }
   void publish(const telehand_msg_SessionEvent& e) override { events.push_back(e); }
   void retire(uint64_t session_id) override { retired.push_back(session_id); }
+  void idle() override { ++idles; }
+  void settle() override { ++settles; }
 
   std::vector<const telehand_msg_SessionEvent*> eventsOf(telehand_msg_EventKind kind) const {
     std::vector<const telehand_msg_SessionEvent*> out;
@@ -60,6 +62,7 @@ class RecordingOutbox : public Outbox {
   std::vector<telehand_msg_HandState> hands;
   std::vector<telehand_msg_SessionEvent> events;
   std::vector<uint64_t> retired;
+  int idles = 0, settles = 0;
 };
 
 /// The 24-DoF hand, loaded once for the whole program.
@@ -1267,6 +1270,39 @@ TEST_F(OwnershipTest, EndedSessionsAreRetiredAfterStatusKeep) {
   tickFor(5'000'000'000);
   EXPECT_EQ(out_.retired.size(), 2u) << "each once";
 }
+
+#if defined(__GLIBC__)
+// When the last session has been retired, what the link keeps for reuse (Cyclone's pooled
+// samples and spare history nodes) is given back, and half a second later, once Cyclone's
+// collector has freed what that let go, what came back since: not while a session is open
+// or waiting to be retired, and once.
+TEST_F(OwnershipTest, WhatTheLinkKeepsForReuseIsGivenBackOnceTheLastSessionIsRetired) {
+  config_.status_keep_s = 2.0;
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  const uint64_t first = open("healthy");
+  ASSERT_NE(first, 0u);
+  const uint64_t second = open("stiff");
+  ASSERT_NE(second, 0u);
+  session_ = first;
+  close();
+  tickFor(2'100'000'000);
+  ASSERT_EQ(out_.retired, std::vector<uint64_t>{first});
+  EXPECT_EQ(out_.idles, 0) << "a session is still open";
+  session_ = second;
+  close();
+  for (int i = 0; i < 1000 && out_.retired.size() < 2; ++i) tickFor(10'000'000);
+  ASSERT_EQ(out_.retired, (std::vector<uint64_t>{first, second}));
+  EXPECT_EQ(out_.idles, 1);
+  EXPECT_EQ(out_.settles, 0);
+  tickFor(400'000'000);
+  EXPECT_EQ(out_.settles, 0) << "the collector's half second has not passed";
+  tickFor(200'000'000);
+  EXPECT_EQ(out_.settles, 1);
+  tickFor(5'000'000'000);
+  EXPECT_EQ(out_.idles, 1) << "once";
+  EXPECT_EQ(out_.settles, 1) << "once";
+}
+#endif
 
 TEST_F(OwnershipTest, LateChunksOfAnEndedSessionAreTakenFromItsOwnerOnly) {
   ASSERT_NE(open("healthy"), 0u);
