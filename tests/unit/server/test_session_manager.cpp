@@ -15,6 +15,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "../../support/grip_sample.h"
@@ -831,6 +832,18 @@ class OwnershipTest : public SessionManagerTest {
     from_ = kA;
   }
 
+  /// With ended sessions kept 2 s for late joiners: opens a "healthy" and a "stiff" session
+  /// and closes the first; their ids (0 where an OPEN failed).
+  std::pair<uint64_t, uint64_t> twoOpenedTheFirstClosed() {
+    config_.status_keep_s = 2.0;
+    manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+    const uint64_t first = open("healthy");
+    const uint64_t second = open("stiff");
+    session_ = first;
+    if (first != 0) close();
+    return {first, second};
+  }
+
   /// A plausible sample of `session` (thimbles 16 mm apart, unit quaternions).
   static telehand_msg_DeviceState wireSample(uint64_t session, uint64_t seq,
                                              uint32_t model_version = 1) {
@@ -1246,14 +1259,9 @@ TEST_F(OwnershipTest, ImplausibleSamplesAreStoredFlaggedAndKeptFromTheHand) {
 }
 
 TEST_F(OwnershipTest, EndedSessionsAreRetiredAfterStatusKeep) {
-  config_.status_keep_s = 2.0;
-  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
-  const uint64_t first = open("healthy");
+  const auto [first, second] = twoOpenedTheFirstClosed();
   ASSERT_NE(first, 0u);
-  const uint64_t second = open("stiff");
   ASSERT_NE(second, 0u);
-  session_ = first;
-  close();
   EXPECT_EQ(manager_->activeSessions(), 1u);
   tickFor(1'900'000'000);
   EXPECT_TRUE(out_.retired.empty()) << "late joiners still see how it ended";
@@ -1277,14 +1285,9 @@ TEST_F(OwnershipTest, EndedSessionsAreRetiredAfterStatusKeep) {
 // collector has freed what that let go, what came back since: not while a session is open
 // or waiting to be retired, and once.
 TEST_F(OwnershipTest, WhatTheLinkKeepsForReuseIsGivenBackOnceTheLastSessionIsRetired) {
-  config_.status_keep_s = 2.0;
-  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
-  const uint64_t first = open("healthy");
+  const auto [first, second] = twoOpenedTheFirstClosed();
   ASSERT_NE(first, 0u);
-  const uint64_t second = open("stiff");
   ASSERT_NE(second, 0u);
-  session_ = first;
-  close();
   tickFor(2'100'000'000);
   ASSERT_EQ(out_.retired, std::vector<uint64_t>{first});
   EXPECT_EQ(out_.idles, 0) << "a session is still open";
