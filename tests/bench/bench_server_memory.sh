@@ -6,7 +6,9 @@
 #     server.max_sessions = 64 and refuses the rest), RSS sampled every 50 ms (the peak);
 #   - a churn: SESSIONS sessions opened and closed (16 participants, each keeping 4
 #     sessions opening or open, every OPEN taken);
-# and the server's RSS once each has ended and been retired (status_keep_s = 2 s).
+# and the server's RSS once each has ended and been retired (status_keep_s = 2 s) and the
+# server has made its DDS participant again (server.renew_when_idle, half a second later):
+# 5 s after the last one ended. RENEW=false: without the renewal.
 # With BENCH_SMAPS=1, the server's largest resident mappings at the end (/proc/PID/smaps:
 # [heap] is the main malloc arena, anonymous 64 MB-aligned ones the threads' arenas); with
 # BENCH_WALK=1, what holds the main arena (tests/bench/heap_walk.py).
@@ -26,18 +28,23 @@ if [ "$mode" = --secure ]; then
 else
   net+=(--insecure)
 fi
-printf '[server]\nstatus_keep_s = 2.0\n' >"$work/server.toml"
+printf '[server]\nstatus_keep_s = 2.0\nrenew_when_idle = %s\n' "${RENEW:-true}" >"$work/server.toml"
 "$bin/server/telehand-server" --config "$work/server.toml" --db "$work/records.db" \
   --log-level error "${net[@]}" >"$work/server.log" 2>&1 &
 server=$!
 inject() { "$bin/tests/integration/telehand-test-inject" "$@" "${net[@]}" 2>/dev/null; }
 rss() { awk '/^VmRSS/{print $2}' "/proc/$server/status"; }
+# The anonymous part (the heap, the threads' arenas and stacks): the rest of the RSS is the
+# program's and libraries' pages, read from their files as code paths are first taken.
+anon() { awk '/^RssAnon/{print $2}' "/proc/$server/status"; }
+pct() { awk -v a="$1" -v b="$2" 'BEGIN{printf "%+.1f%%", 100 * (a - b) / b}'; }
 mb() { awk -v k="$1" 'BEGIN{printf "%.1f", k / 1024}'; }
 inject open-flood --count 1 --hold 0 >/dev/null
-sleep 3
+sleep 5
 base=$(rss)
-printf 'baseline (one session served): %s MB\n' "$(mb "$base")"
-printf '%-6s %-22s %12s %14s %10s\n' round what "peak MB" "after MB" "vs base"
+base_anon=$(anon)
+printf 'baseline (one session served): %s MB (anonymous %s MB)\n' "$(mb "$base")" "$(mb "$base_anon")"
+printf '%-6s %-22s %10s %10s %9s %10s %9s\n' round what "peak MB" "after MB" "vs base" "anon MB" "vs base"
 for r in $(seq "$rounds"); do
   inject open-flood --count 10000 --participants 16 --hold 3 >"$work/flood.log" &
   flood=$!
@@ -48,10 +55,11 @@ for r in $(seq "$rounds"); do
     sleep 0.05
   done
   wait "$flood" || echo "flood: $(cat "$work/flood.log")"
-  sleep 3
+  sleep 5
   after=$(rss)
-  printf '%-6s %-22s %12s %14s %9s%%\n' "$r" "burst 10000 OPENs" "$(mb "$peak")" "$(mb "$after")" \
-    "$(awk -v a="$after" -v b="$base" 'BEGIN{printf "%+.1f", 100 * (a - b) / b}')"
+  after_anon=$(anon)
+  printf '%-6s %-22s %10s %10s %9s %10s %9s\n' "$r" "burst 10000 OPENs" "$(mb "$peak")" \
+    "$(mb "$after")" "$(pct "$after" "$base")" "$(mb "$after_anon")" "$(pct "$after_anon" "$base_anon")"
   peak=0
   inject open-churn --count "$sessions" --participants 16 >"$work/churn.log" &
   churn=$!
@@ -61,11 +69,12 @@ for r in $(seq "$rounds"); do
     sleep 0.2
   done
   wait "$churn" || true
-  sleep 3
+  sleep 5
   after=$(rss)
-  printf '%-6s %-22s %12s %14s %9s%%   (%s)\n' "$r" "churn $sessions sessions" "$(mb "$peak")" \
-    "$(mb "$after")" "$(awk -v a="$after" -v b="$base" 'BEGIN{printf "%+.1f", 100 * (a - b) / b}')" \
-    "$(tr '\n' ' ' <"$work/churn.log")"
+  after_anon=$(anon)
+  printf '%-6s %-22s %10s %10s %9s %10s %9s   (%s)\n' "$r" "churn $sessions sessions" \
+    "$(mb "$peak")" "$(mb "$after")" "$(pct "$after" "$base")" "$(mb "$after_anon")" \
+    "$(pct "$after_anon" "$base_anon")" "$(tr '\n' ' ' <"$work/churn.log")"
 done
 if [ "${BENCH_SMAPS:-}" = 1 ]; then
   echo "largest resident mappings (kB):"

@@ -41,8 +41,11 @@ struct Peer {
 
   bool awaitServer(std::chrono::seconds timeout) {
     const auto deadline = std::chrono::steady_clock::now() + timeout;
+    // As ClientLink::open: the server's status writer as well, or its answers to the first
+    // OPENs can come before this reader is matched (a server that has just made its
+    // participant again is still discovering the flood's participants).
     while (command.matchedReaders() == 0 || chunk.matchedReaders() == 0 ||
-           device.matchedReaders() == 0) {
+           device.matchedReaders() == 0 || status.matchedWriters() == 0) {
       if (std::chrono::steady_clock::now() > deadline) return false;
       std::this_thread::sleep_for(10ms);
     }

@@ -4,6 +4,8 @@
 #include <stdlib.h>
 
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <regex>
 #include <set>
 
@@ -68,6 +70,68 @@ TEST_F(SessionTest, ServerClientWatcherRecordEverySample) {
   });
   EXPECT_EQ(gaps, 0u);
   EXPECT_EQ(expect_seq, sent);
+}
+
+TEST_F(SessionTest, AnIdleServerMakesItsParticipantAgainAndServesWhoComesNext) {
+  // Once its last session has ended and been retired, the server deletes its DDS participant
+  // (and with it Cyclone's domain) and makes it again (server.renew_when_idle): the next
+  // client finds it, is recorded in full, and the latency echo answers.
+  const std::string db = path("records.db");
+  {
+    std::ofstream cfg(path("server.toml"));
+    cfg << "[server]\nstatus_keep_s = 0.5\n";
+  }
+  Process server(
+      cmd(TELEHAND_SERVER_BIN, {"--config", path("server.toml"), "--db", db, "--seconds", "90"}),
+      path("server.log"));
+  const auto runClient = [&](const std::string& name) {
+    Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "2", "-q"}), path(name + ".log"));
+    const auto rc = client.wait(60s);
+    EXPECT_EQ(rc, std::optional<int>(0)) << client.output();
+    return std::pair{matchNumber(client.output(), R"(session (\d+) open)"),
+                     matchNumber(client.output(), R"((\d+) samples sent)")};
+  };
+  const auto renewals = [&] {
+    const std::string log = server.output();
+    std::size_t n = 0;
+    for (auto at = log.find("DDS participant made again"); at != std::string::npos;
+         at = log.find("DDS participant made again", at + 1)) {
+      ++n;
+    }
+    return n;
+  };
+  const auto awaitRenewals = [&](std::size_t n) {
+    const auto deadline = std::chrono::steady_clock::now() + 30s;
+    while (renewals() < n && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(100ms);
+    }
+    return renewals();
+  };
+  const auto first = runClient("first");
+  ASSERT_EQ(awaitRenewals(1), 1u) << server.output();
+  const auto second = runClient("second");
+  ASSERT_EQ(awaitRenewals(2), 2u) << server.output();
+  Process latency(
+      cmd(TELEHAND_LATENCY_BIN, {"--echo", "server", "--seconds", "1", "--rate", "200", "--warmup",
+                                 "0.2", "-q", "--json", path("latency.json")}),
+      path("latency.log"));
+  EXPECT_EQ(latency.wait(60s), std::optional<int>(0)) << latency.output();
+  EXPECT_EQ(server.stop(), 0) << server.output();
+  std::ifstream json_in(path("latency.json"));
+  const std::string json((std::istreambuf_iterator<char>(json_in)), {});
+  EXPECT_GT(matchNumber(json, "\"received\": (\\d+)"), 100u) << json;
+  EXPECT_NE(json.find("\"echo\": \"external"), std::string::npos) << json;
+
+  server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
+  for (const auto& [session, sent] : {first, second}) {
+    ASSERT_GT(session, 0u);
+    ASSERT_GT(sent, 1500u);
+    const auto info = store.session(session);
+    ASSERT_TRUE(info.has_value());
+    EXPECT_EQ(info->state, "closed");
+    EXPECT_EQ(info->samples, sent);
+  }
+  EXPECT_NE(first.first, second.first);
 }
 
 TEST_F(SessionTest, MalformedConfigIsNamed) {

@@ -108,6 +108,7 @@ ServerConfig parseServerConfig(const std::string& text, const std::string& origi
   sv.read("max_files_per_session", c.max_files_per_session);
   sv.read("status_keep_s", c.status_keep_s);
   sv.read("resume_wait_s", c.resume_wait_s);
+  sv.read("renew_when_idle", c.renew_when_idle);
   sv.rejectUnknown();
   validateServerConfig(c, origin);
   return c;

@@ -118,7 +118,7 @@ int main(int argc, char** argv) {
     // A pool's server announces a 3 s lease (Cyclone's is 10 s): after one dies, the clients'
     // reliable writers stop waiting for its readers that much sooner (docs/pool.md).
     if (pool) dds_opts.lease_s = 3.0;
-    server::link::ServerLink link(dds_opts);
+    server::link::ServerLink link(dds_opts, cfg.renew_when_idle);
     server::session::SessionManager manager(*store, link, cfg, hand_model ? &*hand_model : nullptr);
     // With a slice, the hands step between rounds of taking and recording, at most a slice
     // at a time (docs/performance.md "Capacity").

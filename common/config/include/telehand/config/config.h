@@ -65,6 +65,10 @@ struct ServerConfig {
   /// that stopped, waits this long for its client to resume it (docs/recovery.md), then is
   /// closed as interrupted with what the record holds, seconds.
   double resume_wait_s = 120.0;
+  /// Once the last session has ended and been retired, the server makes its DDS participant
+  /// again, which gives back what Cyclone's domain grew to while serving (docs/security.md
+  /// "Memory"); a client asking for a session meanwhile is answered a moment later.
+  bool renew_when_idle = true;
 };
 
 /// The ranges server config keys and their command-line flags must lie in (one table for

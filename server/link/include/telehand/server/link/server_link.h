@@ -4,6 +4,8 @@
 /// Cyclone's receive thread (a DATA_AVAILABLE listener, as ddsperf answers its pings), so
 /// that neither recording nor a thread wake-up delays an echo.
 #include <atomic>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <unordered_map>
 
@@ -23,7 +25,8 @@ struct LinkCounters {
 
 class ServerLink final : public session::Outbox {
  public:
-  explicit ServerLink(const dds::Options& options);
+  /// `renew_when_idle`: settle() also replaces the DDS participant (see settle).
+  explicit ServerLink(const dds::Options& options, bool renew_when_idle = false);
   ~ServerLink() override;
 
   void publish(const telehand_msg_SessionStatus& s) override;
@@ -35,7 +38,10 @@ class ServerLink final : public session::Outbox {
   void retire(uint64_t session_id) override;
   // Frees the spare nodes of Cyclone's writer histories and its pooled samples
   // (dds::releaseWriterHistoryNodes, dds::releasePooledSamples); settle: the samples that
-  // came back to the pool since.
+  // came back to the pool since, and with renew_when_idle the participant itself: deleted
+  // (and with it Cyclone's domain, whose tables and buffers a flood of sessions grew and
+  // never shrinks) and made again. A client asking for a session in between asks again
+  // (ClientLink::open repeats its OPEN every second).
   void idle() override;
   void settle() override;
 
@@ -43,40 +49,61 @@ class ServerLink final : public session::Outbox {
   void serve(session::SessionManager& manager, const std::atomic<bool>& stop,
              std::chrono::nanoseconds tick);
   /// Wake serve() (from a signal-safe context use the stop flag and wait one tick).
-  void wake() noexcept { wake_.trigger(); }
+  void wake() noexcept;
 
   const LinkCounters& counters() const noexcept { return counters_; }
+  /// How many times the participant was made again (settle with renew_when_idle).
+  uint64_t renewals() const noexcept { return renewals_.load(std::memory_order_relaxed); }
 
  private:
-  /// Answers the pings waiting in ping_reader_ (the echo listener's call).
-  void echo() noexcept;
+  struct Entities;
+  /// Answers the pings waiting in `e`'s ping reader (the echo listener's call).
+  void echo(Entities& e) noexcept;
   struct Echo {
     ServerLink* link;
-    void operator()() const noexcept { link->echo(); }
+    Entities* e;
+    void operator()() const noexcept { link->echo(*e); }
   };
   /// The manager's view of who wrote a sample a reader took (valid until the next call).
   const session::Origin& origin(dds_entity_t reader, const dds_sample_info_t& info);
+  /// Deletes the participant and everything in it, then makes them again; false (logged)
+  /// when that failed: serve() tries again every tick.
+  bool renew() noexcept;
 
+  /// Everything of the link that lives in the DDS participant.
+  struct Entities {
+    Entities(const dds::Options& options, ServerLink* link);
+    ~Entities();
+    dds::Participant participant;
+    dds::Topics topics;
+    dds::Reader<telehand_msg_DeviceState> device_reader;
+    dds::Reader<telehand_msg_RecordChunk> chunk_reader;
+    dds::Reader<telehand_msg_SessionCommand> command_reader;
+    dds::Writer<telehand_msg_JointModel> model_writer;
+    dds::Writer<telehand_msg_HandState> hand_writer;
+    dds::Writer<telehand_msg_SessionStatus> status_writer;
+    dds::Writer<telehand_msg_SessionEvent> event_writer;
+    dds::Writer<telehand_msg_DirectForce> direct_writer;
+    dds::Reader<telehand_msg_DeviceState> ping_reader;
+    dds::Writer<telehand_msg_DeviceState> pong_writer;
+    dds::GuardCondition wake;
+    dds::WaitSet waitset;
+    dds::CaptureTopics capture_topics;
+    dds::Reader<telehand_msg_SessionFile> file_reader;
+    dds::Writer<telehand_msg_KnnModel> knn_writer;
+    dds::SenderCache senders;
+    // Last member: attached when everything it uses exists, detached first.
+    std::optional<dds::DataListener<Echo>> echo;
+  };
+
+  const dds::Options options_;
+  const bool renew_when_idle_;
   bool secured_;  // DDS Security: senders carry their identity (Origin::identity)
-  dds::Participant participant_;
-  dds::Topics topics_;
-  dds::Reader<telehand_msg_DeviceState> device_reader_;
-  dds::Reader<telehand_msg_RecordChunk> chunk_reader_;
-  dds::Reader<telehand_msg_SessionCommand> command_reader_;
-  dds::Writer<telehand_msg_JointModel> model_writer_;
-  dds::Writer<telehand_msg_HandState> hand_writer_;
-  dds::Writer<telehand_msg_SessionStatus> status_writer_;
-  dds::Writer<telehand_msg_SessionEvent> event_writer_;
-  dds::Writer<telehand_msg_DirectForce> direct_writer_;
-  dds::Reader<telehand_msg_DeviceState> ping_reader_;
-  dds::Writer<telehand_msg_DeviceState> pong_writer_;
-  dds::GuardCondition wake_;
-  dds::WaitSet waitset_;
   LinkCounters counters_;
-  dds::CaptureTopics capture_topics_;
-  dds::Reader<telehand_msg_SessionFile> file_reader_;
-  dds::Writer<telehand_msg_KnnModel> knn_writer_;
-  dds::SenderCache senders_;
+  std::atomic<uint64_t> renewals_{0};
+  // Held by wake() (other threads) and while the entities are replaced.
+  std::mutex entities_mu_;
+  std::unique_ptr<Entities> e_;
   // Origins by publication handle (at most kMaxOrigins writers, then starting over), and the
   // last one looked up.
   static constexpr std::size_t kMaxOrigins = 4096;
@@ -88,8 +115,6 @@ class ServerLink final : public session::Outbox {
   // what retire() must hand back to Cyclone (dds::Writer::unregister).
   enum : unsigned { kStatus = 1, kModel = 2, kEvent = 4, kKnn = 8 };
   std::unordered_map<uint64_t, unsigned> written_;
-  // Last member: attached when everything it uses exists, detached first.
-  std::optional<dds::DataListener<Echo>> echo_;
 };
 
 }  // namespace telehand::server::link
