@@ -191,6 +191,9 @@ TEST(ServerConfig, ValidFileParses) {
   EXPECT_TRUE(parseServerConfig("", "server.toml").drift_correction);
   EXPECT_FALSE(
       parseServerConfig("[server]\ndrift_correction = false\n", "server.toml").drift_correction);
+  EXPECT_TRUE(parseServerConfig("", "server.toml").renew_when_idle);
+  EXPECT_FALSE(
+      parseServerConfig("[server]\nrenew_when_idle = false\n", "server.toml").renew_when_idle);
 }
 
 TEST(ServerConfig, ErrorsNameOriginAndKey) {
@@ -206,6 +209,8 @@ TEST(ServerConfig, ErrorsNameOriginAndKey) {
   EXPECT_THAT(
       serverError("[server]\ndrift_correction = 0\n"),
       AllOf(HasSubstr("line 2"), HasSubstr("server.drift_correction"), HasSubstr("true or false")));
+  EXPECT_THAT(serverError("[server]\nrenew_when_idle = \"yes\"\n"),
+              AllOf(HasSubstr("line 2"), HasSubstr("server.renew_when_idle")));
   EXPECT_THAT(serverError("[server\n"), AllOf(HasSubstr("server.toml"), HasSubstr("line 1")));
 }
 
