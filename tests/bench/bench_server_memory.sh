@@ -8,7 +8,7 @@
 #     sessions opening or open, every OPEN taken);
 # and the server's RSS once each has ended and been retired (status_keep_s = 2 s) and the
 # server has made its DDS participant again (server.renew_when_idle, half a second later):
-# 5 s after the last one ended. RENEW=false: without the renewal.
+# SETTLE seconds (5) after the last one ended. RENEW=false: without the renewal.
 # With BENCH_SMAPS=1, the server's largest resident mappings at the end (/proc/PID/smaps:
 # [heap] is the main malloc arena, anonymous 64 MB-aligned ones the threads' arenas); with
 # BENCH_WALK=1, what holds the main arena (tests/bench/heap_walk.py).
@@ -30,7 +30,7 @@ else
 fi
 printf '[server]\nstatus_keep_s = 2.0\nrenew_when_idle = %s\n' "${RENEW:-true}" >"$work/server.toml"
 "$bin/server/telehand-server" --config "$work/server.toml" --db "$work/records.db" \
-  --log-level error "${net[@]}" >"$work/server.log" 2>&1 &
+  --log-level info "${net[@]}" >"$work/server.log" 2>&1 &
 server=$!
 inject() { "$bin/tests/integration/telehand-test-inject" "$@" "${net[@]}" 2>/dev/null; }
 rss() { awk '/^VmRSS/{print $2}' "/proc/$server/status"; }
@@ -40,7 +40,8 @@ anon() { awk '/^RssAnon/{print $2}' "/proc/$server/status"; }
 pct() { awk -v a="$1" -v b="$2" 'BEGIN{printf "%+.1f%%", 100 * (a - b) / b}'; }
 mb() { awk -v k="$1" 'BEGIN{printf "%.1f", k / 1024}'; }
 inject open-flood --count 1 --hold 0 >/dev/null
-sleep 5
+settle=${SETTLE:-5}
+sleep "$settle"
 base=$(rss)
 base_anon=$(anon)
 printf 'baseline (one session served): %s MB (anonymous %s MB)\n' "$(mb "$base")" "$(mb "$base_anon")"
@@ -55,7 +56,7 @@ for r in $(seq "$rounds"); do
     sleep 0.05
   done
   wait "$flood" || echo "flood: $(cat "$work/flood.log")"
-  sleep 5
+  sleep "$settle"
   after=$(rss)
   after_anon=$(anon)
   printf '%-6s %-22s %10s %10s %9s %10s %9s\n' "$r" "burst 10000 OPENs" "$(mb "$peak")" \
@@ -69,13 +70,15 @@ for r in $(seq "$rounds"); do
     sleep 0.2
   done
   wait "$churn" || true
-  sleep 5
+  sleep "$settle"
   after=$(rss)
   after_anon=$(anon)
   printf '%-6s %-22s %10s %10s %9s %10s %9s   (%s)\n' "$r" "churn $sessions sessions" \
     "$(mb "$peak")" "$(mb "$after")" "$(pct "$after" "$base")" "$(mb "$after_anon")" \
     "$(pct "$after_anon" "$base_anon")" "$(tr '\n' ' ' <"$work/churn.log")"
 done
+printf 'the server made its DDS participant again %s times\n' \
+  "$(grep -c 'DDS participant made again' "$work/server.log" || true)"
 if [ "${BENCH_SMAPS:-}" = 1 ]; then
   echo "largest resident mappings (kB):"
   awk '/^[0-9a-f]+-[0-9a-f]+ /{m=$1" "$6} /^Rss:/{if ($2 > 0) print $2, m}' "/proc/$server/smaps" |
