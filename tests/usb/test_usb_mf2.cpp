@@ -373,9 +373,10 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
   }
   ASSERT_GT(force, 0.2) << "the loop renders a force before the unplug; flags " << rec.flags
                         << " angles " << rec.mcp_angles_rad[0] << " " << rec.mcp_angles_rad[1]
-                        << " torque " << rec.mcp_torque_nm[0] << " status " << dev.statusText()
-                        << " read failures " << loop.health().device_read_failures.load()
-                        << " fault " << client::loop::faultName(loop.fault()) << " at "
+                        << " " << rec.mcp_angles_rad[2] << " torque " << rec.mcp_torque_nm[0]
+                        << " status " << dev.statusText() << " read failures "
+                        << loop.health().device_read_failures.load() << " fault "
+                        << client::loop::faultName(loop.fault()) << " at "
                         << loop.health().fault_time_ns.load() << " excess "
                         << loop.health().range_excess_max_deg.load();
 
