@@ -6,11 +6,13 @@
 #include <stdlib.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <iostream>
 #include <regex>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace telehand::test {
@@ -20,6 +22,27 @@ inline uint64_t matchNumber(const std::string& text, const std::string& pattern)
   std::smatch m;
   if (!std::regex_search(text, m, std::regex(pattern))) return 0;
   return std::stoull(m[1]);
+}
+
+/// How many times `needle` stands in `text`.
+inline std::size_t occurrences(const std::string& text, const std::string& needle) {
+  std::size_t n = 0;
+  for (auto at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
+  return n;
+}
+
+/// Waits (polling every 100 ms) until the text `read()` returns holds `needle` at least `n`
+/// times, or `timeout` has passed; returns how many times it held it last.
+template <typename Read>
+std::size_t awaitOccurrences(Read read, const std::string& needle, std::size_t n,
+                             std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  std::size_t seen = occurrences(read(), needle);
+  while (seen < n && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    seen = occurrences(read(), needle);
+  }
+  return seen;
 }
 
 class ProcessTest : public ::testing::Test {

@@ -212,42 +212,21 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   ASSERT_EQ(warm.wait(30s), std::optional<int>(0)) << warm.output();
   // The server ends a session (and frees its place under server.max_sessions) in its own
   // time: each step waits for the sessions before it to have ended, as the server's log says.
+  const auto log = [&] { return server.output(); };
   std::size_t ended = 0;
   const auto waitEnded = [&](std::size_t more) {
     ended += more;
-    const auto deadline = std::chrono::steady_clock::now() + 60s;
-    std::size_t seen = 0;
-    while (std::chrono::steady_clock::now() < deadline) {
-      const std::string log = server.output();
-      seen = 0;
-      for (auto at = log.find(" samples recorded"); at != std::string::npos;
-           at = log.find(" samples recorded", at + 1)) {
-        ++seen;
-      }
-      if (seen >= ended) return true;
-      std::this_thread::sleep_for(100ms);
-    }
-    ADD_FAILURE() << seen << " sessions ended in 60 s, not " << ended;
-    return false;
+    const std::size_t seen = awaitOccurrences(log, " samples recorded", ended, 60s);
+    if (seen < ended) ADD_FAILURE() << seen << " sessions ended in 60 s, not " << ended;
+    return seen >= ended;
   };
   // Once no session is left (retired after status_keep_s), the server makes its DDS
   // participant again (server.renew_when_idle): what it then holds is what is measured.
   std::size_t renewed = 0;
   const auto awaitRenewal = [&] {
     ++renewed;
-    const auto deadline = std::chrono::steady_clock::now() + 60s;
-    std::size_t seen = 0;
-    while (std::chrono::steady_clock::now() < deadline) {
-      const std::string log = server.output();
-      seen = 0;
-      for (auto at = log.find("DDS participant made again"); at != std::string::npos;
-           at = log.find("DDS participant made again", at + 1)) {
-        ++seen;
-      }
-      if (seen >= renewed) break;
-      std::this_thread::sleep_for(100ms);
-    }
-    EXPECT_GE(seen, renewed) << "the server did not make its participant again";
+    EXPECT_GE(awaitOccurrences(log, "DDS participant made again", renewed, 60s), renewed)
+        << "the server did not make its participant again";
     std::this_thread::sleep_for(500ms);  // the trim that follows
   };
   ASSERT_TRUE(waitEnded(1));

@@ -91,21 +91,8 @@ TEST_F(SessionTest, AnIdleServerMakesItsParticipantAgainAndServesWhoComesNext) {
     return std::pair{matchNumber(client.output(), R"(session (\d+) open)"),
                      matchNumber(client.output(), R"((\d+) samples sent)")};
   };
-  const auto renewals = [&] {
-    const std::string log = server.output();
-    std::size_t n = 0;
-    for (auto at = log.find("DDS participant made again"); at != std::string::npos;
-         at = log.find("DDS participant made again", at + 1)) {
-      ++n;
-    }
-    return n;
-  };
   const auto awaitRenewals = [&](std::size_t n) {
-    const auto deadline = std::chrono::steady_clock::now() + 30s;
-    while (renewals() < n && std::chrono::steady_clock::now() < deadline) {
-      std::this_thread::sleep_for(100ms);
-    }
-    return renewals();
+    return awaitOccurrences([&] { return server.output(); }, "DDS participant made again", n, 30s);
   };
   const auto first = runClient("first");
   ASSERT_EQ(awaitRenewals(1), 1u) << server.output();
