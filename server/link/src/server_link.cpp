@@ -77,10 +77,17 @@ bool ServerLink::renew() noexcept {
   try {
     e_ = std::make_unique<Entities>(options_, this);
   } catch (const std::exception& err) {
-    spdlog::error("cannot make the DDS participant again (tried again every tick): {}", err.what());
+    if (failed_renewals_++ == 0) {
+      spdlog::error("cannot make the DDS participant again (tried again every second): {}",
+                    err.what());
+    }
     return false;
   }
-  renewals_.fetch_add(1, std::memory_order_relaxed);
+  if (failed_renewals_ > 0) {
+    spdlog::info("DDS participant made again after {} failed attempts", failed_renewals_);
+    failed_renewals_ = 0;
+    return true;
+  }
   spdlog::info(
       "no session left: DDS participant made again in {:.0f} ms",
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
@@ -148,13 +155,21 @@ void ServerLink::retire(uint64_t session_id) {
   unregisterSession(e_->direct_writer, session_id);
 }
 
+// The pool's and the histories' release read the domain this thread last called into
+// (common/protocol/src/cyclone_instance_fix.c): never without a participant, whose domain
+// may be gone.
 void ServerLink::idle() {
-  if (e_) dds::releaseWriterHistoryNodes(e_->participant, e_->topics.direct_force);
+  if (!e_) return;
+  dds::releaseWriterHistoryNodes(e_->participant, e_->topics.direct_force);
   dds::releasePooledSamples();
 }
 
 void ServerLink::settle() {
-  if (renew_when_idle_) renew();
+  if (!e_) return;
+  if (renew_when_idle_) {
+    renew();  // the pool goes with the domain
+    return;
+  }
   dds::releasePooledSamples();
 }
 
@@ -188,13 +203,18 @@ const session::Origin& ServerLink::origin(dds_entity_t reader, const dds_sample_
 void ServerLink::serve(session::SessionManager& manager, const std::atomic<bool>& stop,
                        std::chrono::nanoseconds tick) {
   SteadyClock clock;
+  int64_t next_renew_ns = 0;
   while (!stop.load(std::memory_order_acquire)) {
-    if (!e_ && !renew()) {
+    if (!e_) {
       // No participant (it could not be made again): nothing arrives, the manager still
-      // ticks (the pool's lease, the record).
-      std::this_thread::sleep_for(tick);
-      manager.tick(clock.nowNs());
-      continue;
+      // ticks (the pool's lease, the record), and the participant is tried once a second.
+      const int64_t now = clock.nowNs();
+      if (now < next_renew_ns || !renew()) {
+        if (now >= next_renew_ns) next_renew_ns = now + 1'000'000'000;
+        std::this_thread::sleep_for(tick);
+        manager.tick(clock.nowNs());
+        continue;
+      }
     }
     // Valid until the manager's tick (which may make the participant again: settle).
     Entities& e = *e_;

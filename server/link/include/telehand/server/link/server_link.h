@@ -52,8 +52,6 @@ class ServerLink final : public session::Outbox {
   void wake() noexcept;
 
   const LinkCounters& counters() const noexcept { return counters_; }
-  /// How many times the participant was made again (settle with renew_when_idle).
-  uint64_t renewals() const noexcept { return renewals_.load(std::memory_order_relaxed); }
 
  private:
   struct Entities;
@@ -66,8 +64,8 @@ class ServerLink final : public session::Outbox {
   };
   /// The manager's view of who wrote a sample a reader took (valid until the next call).
   const session::Origin& origin(dds_entity_t reader, const dds_sample_info_t& info);
-  /// Deletes the participant and everything in it, then makes them again; false (logged)
-  /// when that failed: serve() tries again every tick.
+  /// Deletes the participant and everything in it, then makes them again; false when that
+  /// failed (logged once, until it succeeds): serve() tries again every second.
   bool renew() noexcept;
 
   /// Everything of the link that lives in the DDS participant.
@@ -100,7 +98,7 @@ class ServerLink final : public session::Outbox {
   const bool renew_when_idle_;
   bool secured_;  // DDS Security: senders carry their identity (Origin::identity)
   LinkCounters counters_;
-  std::atomic<uint64_t> renewals_{0};
+  int failed_renewals_ = 0;  // attempts since the participant could last be made
   // Held by wake() (other threads) and while the entities are replaced.
   std::mutex entities_mu_;
   std::unique_ptr<Entities> e_;
