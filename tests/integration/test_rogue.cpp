@@ -212,25 +212,26 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   ASSERT_EQ(warm.wait(30s), std::optional<int>(0)) << warm.output();
   // The server ends a session (and frees its place under server.max_sessions) in its own
   // time: each step waits for the sessions before it to have ended, as the server's log says.
-  const auto log = [&] { return server.output(); };
   std::size_t ended = 0;
   const auto waitEnded = [&](std::size_t more) {
     ended += more;
-    const std::size_t seen = awaitOccurrences(log, " samples recorded", ended, 60s);
-    if (seen < ended) ADD_FAILURE() << seen << " sessions ended in 60 s, not " << ended;
-    return seen >= ended;
-  };
-  // Once no session is left (retired after status_keep_s), the server makes its DDS
-  // participant again (server.renew_when_idle): what it then holds is what is measured.
-  std::size_t renewed = 0;
-  const auto awaitRenewal = [&] {
-    ++renewed;
-    EXPECT_GE(awaitOccurrences(log, "DDS participant made again", renewed, 60s), renewed)
-        << "the server did not make its participant again";
-    std::this_thread::sleep_for(500ms);  // the trim that follows
+    const auto deadline = std::chrono::steady_clock::now() + 60s;
+    std::size_t seen = 0;
+    while (std::chrono::steady_clock::now() < deadline) {
+      const std::string log = server.output();
+      seen = 0;
+      for (auto at = log.find(" samples recorded"); at != std::string::npos;
+           at = log.find(" samples recorded", at + 1)) {
+        ++seen;
+      }
+      if (seen >= ended) return true;
+      std::this_thread::sleep_for(100ms);
+    }
+    ADD_FAILURE() << seen << " sessions ended in 60 s, not " << ended;
+    return false;
   };
   ASSERT_TRUE(waitEnded(1));
-  awaitRenewal();
+  std::this_thread::sleep_for(3s);
   const uint64_t baseline = rssKb(server.pid());
   ASSERT_GT(baseline, 0u);
   Process four(cmd(TELEHAND_INJECT_BIN, {"open-flood", "--count", "4", "--hold", "3"}),
@@ -244,7 +245,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   ASSERT_EQ(matchNumber(four.output(), R"(opened=(\d+))"), 4u) << four.output();
   const double per_session_kb = static_cast<double>(four_peak - baseline) / 4.0;
   ASSERT_TRUE(waitEnded(4));
-  awaitRenewal();
+  std::this_thread::sleep_for(3s);
 
   Process flood(cmd(TELEHAND_INJECT_BIN,
                     {"open-flood", "--count", "10000", "--participants", "16", "--hold", "3"}),
@@ -259,7 +260,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   EXPECT_EQ(matchNumber(out, R"(opened=(\d+))"), 64u) << out;
   EXPECT_EQ(matchNumber(out, R"(closed=(\d+))"), 64u) << out;
   ASSERT_TRUE(waitEnded(64));
-  awaitRenewal();  // past status_keep_s: the sessions are retired
+  std::this_thread::sleep_for(3s);  // past status_keep_s: the sessions are retired
   const uint64_t after = rssKb(server.pid());
   // The same flood twice more: what the first one left (caches grown toward their size:
   // SQLite's pages, Cyclone's buffers, the allocator's arenas) must stop growing, or
@@ -272,7 +273,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
     EXPECT_EQ(again.wait(60s), std::optional<int>(0)) << again.output();
     EXPECT_EQ(matchNumber(again.output(), R"(opened=(\d+))"), 64u) << again.output();
     ASSERT_TRUE(waitEnded(64));
-    awaitRenewal();
+    std::this_thread::sleep_for(3s);
     after_floods.push_back(rssKb(server.pid()));
   }
   const uint64_t after_again = after_floods.back();
@@ -284,7 +285,7 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   // An OPEN the server refused (its limits count a session until its CLOSED is out) is given
   // up after 5 s; nearly all are taken.
   EXPECT_GE(matchNumber(churn.output(), R"(closed=(\d+))"), 600u) << churn.output();
-  awaitRenewal();
+  std::this_thread::sleep_for(3s);
   const uint64_t after_churn = rssKb(server.pid());
   EXPECT_EQ(server.stop(), 0) << server.output();
   EXPECT_NE(server.output().find("security: refused an OPEN from participant"), std::string::npos);
@@ -313,13 +314,14 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   EXPECT_LT(peak, 1024u * 1024u);
   // Once the sessions ended the server is back near its baseline (docs/security.md, Memory;
   // tests/bench/bench_server_memory.sh measures 9,000 sessions a round). A flood left +30 %
-  // and 1,000 sessions one after another +70 % when the hands' pages stayed resident: here,
-  // with the participant made again once no session is left (which gives back what Cyclone's
-  // domain grew to), within 25 % after the floods and after the churn (measured +3–15 %).
+  // and 1,000 sessions one after another +70 % when the hands' pages stayed resident: here
+  // within 25 % after the floods, and within 50 % after the churn, whose first run fills
+  // caches a flood does not (Cyclone's pool of freed samples, SQLite's pages) but not in
+  // proportion to the sessions.
   const double base_kb = static_cast<double>(baseline);
   EXPECT_LT(static_cast<double>(after), 1.25 * base_kb) << "the first flood's memory went back";
   EXPECT_LT(static_cast<double>(after_again), 1.25 * base_kb) << "three floods";
-  EXPECT_LT(static_cast<double>(after_churn), 1.25 * base_kb) << "640 sessions one after another";
+  EXPECT_LT(static_cast<double>(after_churn), 1.5 * base_kb) << "640 sessions one after another";
   // And it levels off: a further flood adds less than 1 MB.
   EXPECT_LT(static_cast<double>(after_again), static_cast<double>(after_floods[0]) + 1024.0)
       << "the third flood left more behind than the second: something grows per session";

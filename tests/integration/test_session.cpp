@@ -79,7 +79,7 @@ TEST_F(SessionTest, AnIdleServerMakesItsParticipantAgainAndServesWhoComesNext) {
   const std::string db = path("records.db");
   {
     std::ofstream cfg(path("server.toml"));
-    cfg << "[server]\nstatus_keep_s = 0.5\n";
+    cfg << "[server]\nstatus_keep_s = 0.5\nrenew_when_idle = true\n";
   }
   Process server(
       cmd(TELEHAND_SERVER_BIN, {"--config", path("server.toml"), "--db", db, "--seconds", "90"}),

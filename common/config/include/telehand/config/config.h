@@ -67,8 +67,9 @@ struct ServerConfig {
   double resume_wait_s = 120.0;
   /// Once the last session has ended and been retired, the server makes its DDS participant
   /// again, which gives back what Cyclone's domain grew to while serving (docs/security.md
-  /// "Memory"); a client asking for a session meanwhile is answered a moment later.
-  bool renew_when_idle = true;
+  /// "Memory"); a client asking for a session meanwhile is answered a moment later. Off by
+  /// default: a participant only just made missed some answers to a flood of OPENs.
+  bool renew_when_idle = false;
 };
 
 /// The ranges server config keys and their command-line flags must lie in (one table for
