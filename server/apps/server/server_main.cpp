@@ -38,12 +38,13 @@ int main(int argc, char** argv) {
          "--hand-deadband", hand_deadband,
          "HandState perceptual deadband for remote viewers, Weber fraction (e.g. 0.05; 0 = off)")
       ->check(CLI::Range(0.0, 0.5));
-  double hand_slice_ms = 0.0;
+  double hand_slice_ms = static_cast<double>(server::session::SessionManager::kHandSliceNs) / 1e6;
   app.add_option("--hand-slice-ms", hand_slice_ms,
                  "the Bullet hands step between rounds of taking and recording samples, at most "
-                 "this long at a time (2: 64 sessions on one core record every sample, "
-                 "docs/performance.md \"Capacity\"); 0: each live sample steps its hand as it "
-                 "is taken")
+                 "this long at a time, within --hand-share of the serving thread (64 sessions "
+                 "on one core record every sample, docs/performance.md \"Capacity\"); 0: each "
+                 "live sample steps its hand as it is taken, and hands short of CPU hold up the "
+                 "intake")
       ->check(CLI::Range(0.0, 100.0))
       ->capture_default_str();
   double hand_share = server::session::SessionManager::kHandShare;
