@@ -129,13 +129,15 @@ class SessionManager {
   /// How the hand of sessions opened later is simulated.
   void setHandConfig(const sim::HandSimConfig& c) { hand_config_ = c; }
   /// Where the Bullet hands step (docs/design.md "Threads", docs/performance.md "Capacity").
-  /// 0 (the default): each live sample steps its session's hand as it is taken. Otherwise
+  /// 0 (the manager's default, for callers in simulated time such as the teleoperation
+  /// harness): each live sample steps its session's hand as it is taken. Otherwise
   /// the live samples wait in their session's queue and tick() steps the hands, session
   /// after session in turn, for at most `slice_ns` (steady clock) per call: taking and
   /// recording what arrives never waits for more than one slice of the hands, and hands
   /// short of CPU fall behind the live stream and then step over samples (every other one
   /// of a queue of kMaxHandQueue, counted in ManagerStats::hand_samples_skipped) while the
-  /// record keeps every sample. `telehand-server --hand-slice-ms 2` uses kHandSliceNs.
+  /// record keeps every sample. telehand-server uses kHandSliceNs unless told otherwise
+  /// (`--hand-slice-ms`).
   void setHandSlice(int64_t slice_ns);
   int64_t handSlice() const noexcept { return hand_slice_ns_; }
   /// The hands' budget with a slice: at most this share of the serving thread's wall time
