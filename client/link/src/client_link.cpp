@@ -273,7 +273,7 @@ void ClientLink::pollStatus() {
     const auto now = std::chrono::steady_clock::now();
     const uint64_t sender =
         senders_.of(status_reader_.handle(), info.publication_handle).participant;
-    if (resuming_ && st.client_id == client_id_ && st.request_seq == resume_request_ &&
+    if (resuming_ && st.client_id == client_id_ && resume_requests_.answers(st.request_seq) &&
         st.state == telehand_msg_SESSION_ACTIVE) {
       // A server took the session on: from now on it is the session's server. Its models
       // start again from version 1; what its record lacks is sent again.
@@ -326,6 +326,7 @@ void ClientLink::pollStatus() {
 
 void ClientLink::beginResume(const std::string& why) {
   resuming_ = true;
+  resume_requests_.begin();
   next_resume_ = std::chrono::steady_clock::now();
   message(why + ": the session goes on here and keeps every sample until a server resumes it");
 }
@@ -346,7 +347,7 @@ void ClientLink::watchServer() {
   copyString(cmd.case_name, opened_case_);
   copyString(cmd.user, "");
   copyString(cmd.text, "");
-  resume_request_ = cmd.request_seq;
+  resume_requests_.sent(cmd.request_seq);
   command_writer_.write(cmd);  // no server yet: asked again in a second
 }
 

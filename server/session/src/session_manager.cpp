@@ -676,9 +676,12 @@ void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_
           "CLOSE for unknown session " + std::to_string(cmd.session_id), now_ns);
     return;
   }
+  const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
+  if (!s->closing) s->close_cap_ns = now_ns + grace * kMaxCloseGraces;
   s->closing = true;
   s->expected = cmd.samples_sent;
-  s->close_deadline_ns = now_ns + static_cast<int64_t>(config_.close_grace_s * 1e9);
+  s->close_grace_ns = grace;
+  s->close_deadline_ns = std::min(now_ns + grace, s->close_cap_ns);
   s->publishStatus(telehand_msg_SESSION_CLOSING);
 }
 

@@ -1307,6 +1307,72 @@ TEST_F(OwnershipTest, WhatTheLinkKeepsForReuseIsGivenBackOnceTheLastSessionIsRet
 }
 #endif
 
+// A client's backlog that comes after its CLOSE a chunk at a time, each within a grace of
+// the one before (a resume on a loaded server), is waited for past the first grace.
+TEST_F(OwnershipTest, AClosingSessionWaitsWhileItsBacklogKeepsComing) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  ASSERT_GT(sent, 300u);
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
+  int64_t waited = 0;
+  for (uint64_t next = 1; next <= sent; next += 100) {
+    now_ns_ += grace * 4 / 5;
+    waited += grace * 4 / 5;
+    manager_->tick(now_ns_);
+    ASSERT_EQ(manager_->activeSessions(), 1u)
+        << "closed after " << static_cast<double>(waited) * 1e-9 << " s";
+    sendRange(session_, next, std::min<uint64_t>(100, sent - next + 1), kA);
+  }
+  ASSERT_GT(waited, 2 * grace);
+  manager_->tick(now_ns_);
+  ASSERT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->session(session_)->state, "closed");
+  EXPECT_EQ(stored(session_).rows, sent);
+}
+
+// A client that keeps sending (the same samples over and over) cannot hold its session open
+// for ever: it closes kMaxCloseGraces graces after the CLOSE, incomplete.
+TEST_F(OwnershipTest, AClosingSessionsWaitForItsBacklogIsBounded) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
+  int64_t waited = 0;
+  while (manager_->activeSessions() > 0 && waited < 100 * grace) {
+    sendRange(session_, 1, 1, kA);
+    now_ns_ += grace / 2;
+    waited += grace / 2;
+    manager_->tick(now_ns_);
+  }
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_GT(waited, grace);
+  EXPECT_LE(waited, SessionManager::kMaxCloseGraces * grace + grace / 2);
+  EXPECT_EQ(store_->session(session_)->state, "incomplete");
+}
+
+// Chunks from someone else do not put a closing session's end off.
+TEST_F(OwnershipTest, ARoguesChunksDoNotHoldAClosingSessionOpen) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
+  int64_t waited = 0;
+  while (manager_->activeSessions() > 0 && waited < 4 * grace) {
+    sendRange(session_, 1, 100, kB, kRogueVersion);
+    now_ns_ += grace / 4;
+    waited += grace / 4;
+    manager_->tick(now_ns_);
+  }
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_LE(waited, grace + grace / 4);
+  EXPECT_EQ(store_->session(session_)->state, "incomplete");
+  EXPECT_EQ(stored(session_).from_rogue, 0u);
+}
+
 TEST_F(OwnershipTest, LateChunksOfAnEndedSessionAreTakenFromItsOwnerOnly) {
   ASSERT_NE(open("healthy"), 0u);
   moveToDeg(5.0);

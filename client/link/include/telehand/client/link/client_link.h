@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "telehand/client/link/resume_requests.h"
 #include "telehand/client/link/spill_queue.h"
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/knn_model.h"
@@ -167,7 +168,7 @@ class ClientLink {
   std::size_t resend_left_ = 0;  // retained chunks still to send again after a resume
   bool resuming_ = false;
   bool resume_refused_ = false;
-  uint32_t resume_request_ = 0;
+  ResumeRequests resume_requests_;
   std::chrono::steady_clock::time_point last_ack_{}, next_resume_{};
   uint64_t stored_below_ = 0;
   uint64_t close_to_ = 0;  // the server the CLOSE went to (0: not sent)

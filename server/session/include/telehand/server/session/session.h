@@ -100,6 +100,10 @@ class Session {
   uint64_t expected = 0;
   int64_t recount_ns = 0;  // pool: when the record's own count is read next while closing
   int64_t close_deadline_ns = 0;
+  // Samples still arriving put the deadline off by a grace each (onRecord), up to this:
+  // a client's backlog sent after a resume can outlast one grace on a loaded server.
+  int64_t close_grace_ns = 0;
+  int64_t close_cap_ns = 0;
 
   /// The hand steps in SessionManager::tick, within its slice, rather than with each live
   /// sample (SessionManager::setHandSlice).

@@ -121,6 +121,10 @@ class SessionManager {
 
   /// Idle sessions (no data at all for this long) are closed as abandoned.
   static constexpr int64_t kIdleTimeoutNs = 30'000'000'000;
+  /// A closing session waits server.close_grace_s for the samples its record lacks; each
+  /// chunk that comes meanwhile puts that off by another grace, up to this many graces after
+  /// the first CLOSE (a client's backlog after a resume, on a loaded server).
+  static constexpr int64_t kMaxCloseGraces = 12;
   /// A recovering joint's range is republished when it has grown by this much.
   static constexpr double kRecoveryStepDeg = 0.5;
   /// Simulation steps one live sample may trigger (itself plus lost predecessors): 50 ms of
