@@ -189,9 +189,9 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
   }
   if (!closed.confirmed) {
     std::printf(
-        "  record: no server confirmed the close within 15 s; %llu samples were not "
-        "acknowledged as stored\n",
-        static_cast<unsigned long long>(ls.retained_samples.load()));
+        "  record: no server confirmed the close (waited %.1f s, the last of them without "
+        "progress); %llu samples were not acknowledged as stored\n",
+        closed.waited_s, static_cast<unsigned long long>(ls.retained_samples.load()));
     return 3;
   }
   std::printf("  record: %llu samples recorded, %llu missing, in %s; sent %s\n",

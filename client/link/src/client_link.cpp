@@ -493,9 +493,18 @@ void ClientLink::mark(const std::string& text) {
 CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
   // The CLOSE goes to the session's server once everything it lacks was sent; a server
   // that goes away meanwhile is replaced as during the session (docs/recovery.md).
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  const auto start = std::chrono::steady_clock::now();
+  const auto last = start + timeout * kCloseWaits;
+  auto deadline = start + timeout;
+  uint64_t below = stored_below_, resumes = stats_.resumes.load();
   closed_.reset();
   while (!closed_ && std::chrono::steady_clock::now() < deadline) {
+    // A close that progresses (a backlog being stored on a loaded server) is waited for.
+    if (stored_below_ > below || stats_.resumes.load() > resumes) {
+      below = stored_below_;
+      resumes = stats_.resumes.load();
+      deadline = std::min(last, std::chrono::steady_clock::now() + timeout);
+    }
     pollStatus();
     pollEvents();  // the scores of a lesson's last trials come with the close
     watchServer();
@@ -510,7 +519,9 @@ CloseResult ClientLink::close(std::chrono::milliseconds timeout) {
     }
     if (!closed_) std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
-  return closed_.value_or(CloseResult{});
+  CloseResult r = closed_.value_or(CloseResult{});
+  r.waited_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return r;
 }
 
 }  // namespace telehand::client::link

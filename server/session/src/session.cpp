@@ -211,13 +211,15 @@ void Session::tick(int64_t now_ns) {
   // The record's acknowledgement (what the client may forget) when it has grown, and at
   // least every kHeartbeatNs: a client that hears nothing for longer knows its server went
   // away (docs/recovery.md), even while its chunks are held up on the way.
-  if (!closing && now_ns >= next_ack_ns_ &&
-      (recorder.storedBelow() != acked_below_ ||
-       now_ns >= std::max(last_status_ns_, opened_ns) + kHeartbeatNs)) {
+  // A closing session goes on acknowledging (as CLOSING) while it waits for what its record
+  // lacks: its client, with a backlog still on the way, must neither think its server went
+  // away nor give up on a close that progresses.
+  if (now_ns >= next_ack_ns_ && (recorder.storedBelow() != acked_below_ ||
+                                 now_ns >= std::max(last_status_ns_, opened_ns) + kHeartbeatNs)) {
     acked_below_ = recorder.storedBelow();
     last_status_ns_ = now_ns;
     next_ack_ns_ = now_ns + kAckPeriodNs;
-    publishStatus(telehand_msg_SESSION_ACTIVE);
+    publishStatus(closing ? telehand_msg_SESSION_CLOSING : telehand_msg_SESSION_ACTIVE);
   }
   if (replay) {
     // A replay is this session's HandState while it lasts (a lesson's watch phase ends

@@ -1332,6 +1332,39 @@ TEST_F(OwnershipTest, AClosingSessionWaitsWhileItsBacklogKeepsComing) {
   EXPECT_EQ(stored(session_).rows, sent);
 }
 
+// While it waits, a closing session goes on acknowledging what its record holds (as
+// CLOSING), at least once a second: its client neither takes the silence for a server that
+// went away nor gives up on a close that progresses.
+TEST_F(OwnershipTest, AClosingSessionAcknowledgesItsBacklogAsItComes) {
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  const auto closing = [&] {
+    std::vector<telehand_msg_SessionStatus> v;
+    for (const auto& st : out_.statuses) {
+      if (st.session_id == session_ && st.state == telehand_msg_SESSION_CLOSING) v.push_back(st);
+    }
+    return v;
+  };
+  ASSERT_EQ(closing().size(), 1u) << "the CLOSE's own";
+  for (int i = 0; i < 30; ++i) {  // 3 s of nothing: heartbeats
+    now_ns_ += 100'000'000;
+    manager_->tick(now_ns_);
+  }
+  ASSERT_EQ(manager_->activeSessions(), 1u);
+  EXPECT_GE(closing().size(), 3u);
+  EXPECT_LE(closing().size(), 5u);
+  EXPECT_EQ(closing().back().stored_below, 0u);
+  sendRange(session_, 1, 100, kA);  // sequence numbers from 1: 0 was never sent
+  sendRange(session_, 0, 1, kA);
+  now_ns_ += 600'000'000;
+  manager_->tick(now_ns_);
+  ASSERT_EQ(manager_->activeSessions(), 1u);
+  EXPECT_EQ(closing().back().stored_below, 101u);
+  EXPECT_EQ(closing().back().samples_recorded, 101u);
+}
+
 // A client that keeps sending (the same samples over and over) cannot hold its session open
 // for ever: it closes kMaxCloseGraces graces after the CLOSE, incomplete.
 TEST_F(OwnershipTest, AClosingSessionsWaitForItsBacklogIsBounded) {

@@ -65,7 +65,8 @@ struct CloseResult {
   bool confirmed = false;  ///< the server reported the session closed
   uint64_t samples_recorded = 0;
   uint64_t samples_missing = 0;
-  std::string record;  ///< where the server keeps it
+  std::string record;     ///< where the server keeps it
+  double waited_s = 0.0;  ///< how long the close took, or was waited for in vain
 };
 
 class ClientLink {
@@ -85,7 +86,11 @@ class ClientLink {
   void start();
   /// Drain every remaining sample and chunk (the loop must be stopped first).
   void stop();
+  /// Sends what the record lacks and the CLOSE, and waits for the server's CLOSED: up to
+  /// `timeout` without progress, a wait that starts again whenever the record acknowledges
+  /// more of the session or a server resumes it, and at most kCloseWaits timeouts in all.
   CloseResult close(std::chrono::milliseconds timeout);
+  static constexpr int kCloseWaits = 8;
 
   /// Send a mark/feedback event into the session.
   void mark(const std::string& text);
