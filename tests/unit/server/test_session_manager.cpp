@@ -11,6 +11,7 @@
 #include <condition_variable>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -917,6 +918,23 @@ class OwnershipTest : public SessionManagerTest {
   struct Stored {
     uint64_t rows = 0, invalid = 0, from_rogue = 0, lowest = UINT64_MAX, highest = 0;
   };
+  int64_t closeGraceNs() const { return static_cast<int64_t>(config_.close_grace_s * 1e9); }
+  /// Opens a session, moves, CLOSEs it with every sample sent, then calls send() and ticks
+  /// `step` later until the session has ended or `limit` has passed: how long it stayed open.
+  int64_t closeWhileSending(const std::function<void()>& send, int64_t step, int64_t limit) {
+    EXPECT_NE(open("healthy"), 0u);
+    moveToDeg(5.0);
+    command(telehand_msg_CMD_CLOSE, kA, seq_ - 1);
+    int64_t waited = 0;
+    while (manager_->activeSessions() > 0 && waited < limit) {
+      send();
+      now_ns_ += step;
+      waited += step;
+      manager_->tick(now_ns_);
+    }
+    return waited;
+  }
+
   Stored stored(uint64_t session) {
     Stored r;
     store_->forEachSample(session, [&](const Sample& s, bool valid) {
@@ -1368,18 +1386,9 @@ TEST_F(OwnershipTest, AClosingSessionAcknowledgesItsBacklogAsItComes) {
 // A client that keeps sending (the same samples over and over) cannot hold its session open
 // for ever: it closes kMaxCloseGraces graces after the CLOSE, incomplete.
 TEST_F(OwnershipTest, AClosingSessionsWaitForItsBacklogIsBounded) {
-  ASSERT_NE(open("healthy"), 0u);
-  moveToDeg(5.0);
-  const uint64_t sent = seq_ - 1;
-  command(telehand_msg_CMD_CLOSE, kA, sent);
-  const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
-  int64_t waited = 0;
-  while (manager_->activeSessions() > 0 && waited < 100 * grace) {
-    sendRange(session_, 1, 1, kA);
-    now_ns_ += grace / 2;
-    waited += grace / 2;
-    manager_->tick(now_ns_);
-  }
+  const int64_t grace = closeGraceNs();
+  const int64_t waited =
+      closeWhileSending([&] { sendRange(session_, 1, 1, kA); }, grace / 2, 100 * grace);
   EXPECT_EQ(manager_->activeSessions(), 0u);
   EXPECT_GT(waited, grace);
   EXPECT_LE(waited, SessionManager::kMaxCloseGraces * grace + grace / 2);
@@ -1388,18 +1397,9 @@ TEST_F(OwnershipTest, AClosingSessionsWaitForItsBacklogIsBounded) {
 
 // Chunks from someone else do not put a closing session's end off.
 TEST_F(OwnershipTest, ARoguesChunksDoNotHoldAClosingSessionOpen) {
-  ASSERT_NE(open("healthy"), 0u);
-  moveToDeg(5.0);
-  const uint64_t sent = seq_ - 1;
-  command(telehand_msg_CMD_CLOSE, kA, sent);
-  const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
-  int64_t waited = 0;
-  while (manager_->activeSessions() > 0 && waited < 4 * grace) {
-    sendRange(session_, 1, 100, kB, kRogueVersion);
-    now_ns_ += grace / 4;
-    waited += grace / 4;
-    manager_->tick(now_ns_);
-  }
+  const int64_t grace = closeGraceNs();
+  const int64_t waited = closeWhileSending([&] { sendRange(session_, 1, 100, kB, kRogueVersion); },
+                                           grace / 4, 4 * grace);
   EXPECT_EQ(manager_->activeSessions(), 0u);
   EXPECT_LE(waited, grace + grace / 4);
   EXPECT_EQ(store_->session(session_)->state, "incomplete");
