@@ -10,9 +10,11 @@
 # The server runs on the client's machine here, so its restart (a Bullet hand, the record
 # read back, the client's backlog stored) competes with the loop for the same cores, where a
 # real server is elsewhere; RT_PRIORITY=N runs the client's loop at SCHED_FIFO N (needs
-# CAP_SYS_NICE), as a device PC would, which tells that apart from the loop's own work.
+# CAP_SYS_NICE), as a device PC would; PIN=1 keeps the server on the last CPU and the client
+# on the others (taskset), as a server on another machine would be. Together they tell the
+# server's work apart from what the outage costs the client itself.
 # Usage: tests/bench/bench_recovery.sh [ROUNDS (default 3)] [SECONDS per session (default 20)]
-#        KILL_AT (default 5), RESTART_AT (default 10) and RT_PRIORITY from the environment.
+#        KILL_AT (default 5), RESTART_AT (default 10), RT_PRIORITY and PIN from the environment.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 rounds=${1:-3}
@@ -33,9 +35,16 @@ trap '[ -n "$server" ] && kill "$server" 2>/dev/null; wait 2>/dev/null || true; 
 net=(--dds-config deploy/cyclonedds/loopback.xml --insecure)
 rt=()
 [ -n "${RT_PRIORITY:-}" ] && rt=(--rt-priority "$RT_PRIORITY")
+on_server=() on_client=()
+if [ "${PIN:-0}" = 1 ]; then
+  cpus=$(nproc)
+  [ "$cpus" -ge 2 ] || { echo "bench_recovery: PIN=1 needs 2 CPUs or more" >&2; exit 2; }
+  on_server=(taskset -c "$((cpus - 1))")
+  on_client=(taskset -c "0-$((cpus - 2))")
+fi
 
 start_server() {  # partition db -> sets $server
-  "$bin/server/telehand-server" "${net[@]}" --partition "$1" --db "$2" --log-level warn \
+  "${on_server[@]}" "$bin/server/telehand-server" "${net[@]}" --partition "$1" --db "$2" --log-level warn \
     >>"$work/server.log" 2>&1 &
   server=$!
 }
@@ -44,7 +53,7 @@ session() {  # mode -> "overruns worst_us sent missing rc"
   local mode=$1 part="br-$$-$1-$RANDOM" db="$work/r-$1-$RANDOM.db"
   start_server "$part" "$db"
   sleep 1
-  "$bin/client/telehand-client" "${net[@]}" --partition "$part" --seconds "$seconds" -q \
+  "${on_client[@]}" "$bin/client/telehand-client" "${net[@]}" --partition "$part" --seconds "$seconds" -q \
     "${rt[@]}" >"$work/client.log" 2>&1 &
   local client=$! rc=0
   if [ "$mode" != none ]; then
