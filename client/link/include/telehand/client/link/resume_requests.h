@@ -10,7 +10,7 @@ namespace telehand::client::link {
 class ResumeRequests {
  public:
   /// A resume begins: no request of it sent yet.
-  void begin() noexcept { first_ = last_ = 0, any_ = false; }
+  void begin() noexcept { any_ = false; }
   /// A request of this resume went out with `request_seq`.
   void sent(uint32_t request_seq) noexcept {
     if (!any_) first_ = request_seq;
