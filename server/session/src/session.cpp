@@ -196,10 +196,7 @@ bool Session::stepHand(int64_t deadline_ns, int64_t now_ns) {
 void Session::onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid,
                        int64_t now_ns) {
   live.touch(now_ns);
-  if (closing && !samples.empty() && close_cap_ns > close_deadline_ns) {
-    close_deadline_ns =
-        std::max(close_deadline_ns, std::min(now_ns + close_grace_ns, close_cap_ns));
-  }
+  if (closing && !samples.empty()) close_wait.samplesCame(now_ns);
   capture.add(samples, valid, now_ns);
   recorder.add(std::move(samples), std::move(valid));  // stored at the round's tick
 }
@@ -238,7 +235,7 @@ void Session::tick(int64_t now_ns) {
                 now_ns);
       closing = true;
       expected = 0;
-      close_deadline_ns = now_ns;
+      close_wait = {.deadline_ns = now_ns};
     }
   } else {
     hand.publishDue(ctx, live, model, now_ns);

@@ -676,12 +676,10 @@ void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_
           "CLOSE for unknown session " + std::to_string(cmd.session_id), now_ns);
     return;
   }
-  const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
-  if (!s->closing) s->close_cap_ns = now_ns + grace * kMaxCloseGraces;
+  s->close_wait.closeAsked(now_ns, static_cast<int64_t>(config_.close_grace_s * 1e9),
+                           kMaxCloseGraces, !s->closing);
   s->closing = true;
   s->expected = cmd.samples_sent;
-  s->close_grace_ns = grace;
-  s->close_deadline_ns = std::min(now_ns + grace, s->close_cap_ns);
   s->publishStatus(telehand_msg_SESSION_CLOSING);
 }
 
@@ -947,7 +945,7 @@ void SessionManager::tick(int64_t now_ns) {
     // the close's grace too: what it stores counts, and the record's state follows it.
     if (s.recorder.writing()) continue;
     if (s.closing && ((s.recorder.recorded() >= s.expected && s.recorder.drained()) ||
-                      now_ns >= s.close_deadline_ns)) {
+                      s.close_wait.due(now_ns))) {
       done.push_back(id);
     } else if (!s.closing && s.live.idleNs(now_ns) > kIdleTimeoutNs) {
       s.expected = s.live.sentOr(0);

@@ -2,6 +2,7 @@
 /// One open session: who opened it and on what case, the joint model it renders (and the
 /// k-nearest-neighbour models that model may use), and its parts: the live stream, the
 /// record, the hand and, for captures and their followers, the live fit's fan-out.
+#include <algorithm>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -99,11 +100,26 @@ class Session {
   bool closing = false;
   uint64_t expected = 0;
   int64_t recount_ns = 0;  // pool: when the record's own count is read next while closing
-  int64_t close_deadline_ns = 0;
-  // Samples still arriving put the deadline off by a grace each (onRecord), up to this:
-  // a client's backlog sent after a resume can outlast one grace on a loaded server.
-  int64_t close_grace_ns = 0;
-  int64_t close_cap_ns = 0;
+  /// How long a closing session waits for the samples its record lacks: a grace after the
+  /// CLOSE, put off by another grace whenever samples still arrive (a client's backlog sent
+  /// after a resume can outlast one grace on a loaded server), up to a cap.
+  struct CloseWait {
+    int64_t deadline_ns = 0;
+    int64_t grace_ns = 0;
+    int64_t cap_ns = 0;  // 0: never put off
+    /// A CLOSE (the first sets the cap, `graces` graces from now; a repeated one waits anew).
+    void closeAsked(int64_t now_ns, int64_t grace, int64_t graces, bool first) noexcept {
+      if (first) cap_ns = now_ns + grace * graces;
+      grace_ns = grace;
+      deadline_ns = std::min(now_ns + grace, cap_ns);
+    }
+    /// Samples arrived while closing.
+    void samplesCame(int64_t now_ns) noexcept {
+      if (cap_ns > deadline_ns)
+        deadline_ns = std::max(deadline_ns, std::min(now_ns + grace_ns, cap_ns));
+    }
+    bool due(int64_t now_ns) const noexcept { return now_ns >= deadline_ns; }
+  } close_wait;
 
   /// The hand steps in SessionManager::tick, within its slice, rather than with each live
   /// sample (SessionManager::setHandSlice).
