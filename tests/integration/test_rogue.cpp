@@ -12,6 +12,7 @@
 #include <fstream>
 #include <iostream>
 #include <string>
+#include <string_view>
 #include <thread>
 
 #include "process.h"
@@ -325,6 +326,58 @@ TEST_F(RogueTest, AFloodOfOpensIsBoundedByMaxSessions) {
   // And it levels off: a further flood adds less than 1 MB.
   EXPECT_LT(static_cast<double>(after_again), static_cast<double>(after_floods[0]) + 1024.0)
       << "the third flood left more behind than the second: something grows per session";
+}
+
+/// The environment of a running process, NUL-separated entries as /proc shows them.
+std::string environOf(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/environ", std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+TEST_F(RogueTest, TheServerRunsWithoutMallocThreadCachesUnlessTold) {
+  // glibc's per-thread caches kept ~1 MB of a churn's blocks resident (malloc_tuning.h): the
+  // server runs itself again with them off, same PID; an operator's own setting stands.
+  const auto serve = [&](const std::string& name, const char* tunables) {
+    std::vector<std::string> env;
+    for (char** e = environ; *e != nullptr; ++e) {
+      if (!std::string_view(*e).starts_with("GLIBC_TUNABLES=")) env.emplace_back(*e);
+    }
+    if (tunables) env.push_back(std::string("GLIBC_TUNABLES=") + tunables);
+    app::Process server(app::ProcessOptions{
+        .argv = cmd(TELEHAND_SERVER_BIN, {"--db", path(name + ".db"), "--seconds", "30"}),
+        .env = env,
+        .out_path = path(name + ".log")});
+    const auto log = [&] {
+      std::ifstream in(path(name + ".log"));
+      return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    };
+    EXPECT_EQ(awaitOccurrences(log, "serving on DDS domain", 1, 20s), 1u) << log();
+    // glibc, parsing GLIBC_TUNABLES at start, ends each of its tunables with a NUL in
+    // place: in /proc the value's further tunables follow as entries of their own.
+    std::string seen;
+    bool in_tunables = false;
+    const std::string all = environOf(server.pid());
+    for (std::size_t at = 0; at < all.size();) {
+      const std::size_t end = std::min(all.find('\0', at), all.size());
+      const std::string_view entry(all.data() + at, end - at);
+      if (entry.starts_with("GLIBC_TUNABLES=")) {
+        seen = entry.substr(15);
+        in_tunables = true;
+      } else if (in_tunables && entry.starts_with("glibc.")) {
+        seen += ":" + std::string(entry);
+      } else {
+        in_tunables = false;
+      }
+      at = end + 1;
+    }
+    EXPECT_EQ(server.stop(10s), 0) << log();
+    return seen;
+  };
+  EXPECT_EQ(serve("plain", nullptr), "glibc.malloc.tcache_count=0");
+  EXPECT_EQ(serve("other", "glibc.malloc.arena_max=2"),
+            "glibc.malloc.arena_max=2:glibc.malloc.tcache_count=0");
+  EXPECT_EQ(serve("told", "glibc.malloc.arena_max=2:glibc.malloc.tcache_count=3"),
+            "glibc.malloc.arena_max=2:glibc.malloc.tcache_count=3");
 }
 
 }  // namespace

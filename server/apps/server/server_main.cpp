@@ -8,6 +8,7 @@
 
 #include "telehand/app/cli.h"
 #include "telehand/app/dds_cli.h"
+#include "telehand/app/malloc_tuning.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/log.h"
 #include "telehand/server/link/server_link.h"
@@ -17,6 +18,9 @@
 
 int main(int argc, char** argv) {
   using namespace telehand;
+  // First, before any thread: a server that has served a burst of sessions gives their
+  // memory back only without glibc's per-thread caches (malloc_tuning.h).
+  app::runWithoutMallocThreadCache(argv);
   CLI::App app{
       "telehand-server: authoritative session host. Opens and closes sessions on "
       "request, records every DeviceState sample (SQLite, or a PostgreSQL database shared with "

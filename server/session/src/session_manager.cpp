@@ -980,10 +980,21 @@ void SessionManager::tick(int64_t now_ns) {
     settle_ns_ = 0;
     if (sessions_.empty() && retiring_.empty()) {
       out_.settle();
+      releaseRecordMemory();
       malloc_trim(0);
     }
   }
 #endif
+}
+
+void SessionManager::releaseRecordMemory() {
+  // With no session left, what the record's side kept for speed goes: the sample buffers
+  // sized by the busiest write, the connections' page caches (SessionStore::releaseMemory).
+  jobs_ = {};
+  batches_ = {};
+  batch_sessions_ = {};
+  if (writer_) writer_->releaseMemory();
+  store_.releaseMemory();
 }
 
 void SessionManager::setHandSlice(int64_t slice_ns) {

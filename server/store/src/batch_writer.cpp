@@ -45,6 +45,14 @@ void BatchWriter::wait() {
   cv_.wait(lock, [this] { return !work_; });
 }
 
+void BatchWriter::releaseMemory() {
+  const std::lock_guard lock(mutex_);
+  if (work_ || results_) return;
+  jobs_ = {};
+  batches_ = {};
+  store_->releaseMemory();  // not busy: the writer thread does not touch it
+}
+
 void BatchWriter::run(std::stop_token stop) {
   std::unique_lock lock(mutex_);
   for (;;) {

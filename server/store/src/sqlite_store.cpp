@@ -557,6 +557,16 @@ SqliteStore::~SqliteStore() {
   sqlite3_close(db_);
 }
 
+void SqliteStore::releaseMemory() { sqlite3_db_release_memory(db_); }
+
+std::size_t SqliteStore::cacheBytes() const {
+  int current = 0, highest = 0;
+  if (sqlite3_db_status(db_, SQLITE_DBSTATUS_CACHE_USED, &current, &highest, 0) != SQLITE_OK) {
+    return 0;
+  }
+  return static_cast<std::size_t>(std::max(current, 0));
+}
+
 void SqliteStore::exec(const char* sql) {
   char* err = nullptr;
   if (sqlite3_exec(db_, sql, nullptr, nullptr, &err) != SQLITE_OK) {

@@ -70,6 +70,24 @@ TEST_F(SqliteStoreTest, CreatesTheFileAndItsDirectoryInWalMode) {
   sqlite3_close(db);
 }
 
+TEST_F(SqliteStoreTest, ReleasingMemoryEmptiesThePageCacheAndKeepsTheRecord) {
+  // A server with no session left gives back the pages its connection cached meanwhile
+  // (SessionManager, docs/security.md "Memory"); what was stored stays readable.
+  SqliteStore store(dbPath());
+  std::vector<uint64_t> ids;
+  for (int k = 0; k < 8; ++k) {
+    ids.push_back(store.createSession(info("s" + std::to_string(k))));
+    const auto batch = samples(ids.back(), 1, 2001);
+    const std::vector<uint8_t> valid(batch.size(), 1);
+    ASSERT_EQ(store.appendSamples(ids.back(), batch, valid), batch.size());
+  }
+  const std::size_t before = store.cacheBytes();
+  EXPECT_GT(before, 64u * 1024u) << "the writes cached pages";
+  store.releaseMemory();
+  EXPECT_LT(store.cacheBytes(), before / 4);
+  for (const uint64_t id : ids) EXPECT_EQ(seqsOf(store, id).size(), 2000u);
+}
+
 TEST_F(SqliteStoreTest, ReadOnlyOpenOfAMissingFileNamesThePath) {
   const std::string missing = (dir_ / "nope" / "missing.db").string();
   try {

@@ -211,6 +211,8 @@ class SessionManager {
   Session* find(uint64_t session_id);
   /// What this round took for every session, in one write (SessionStore::appendSampleBatches).
   void flushRecords();
+  /// With no session left: frees the record side's reusable buffers and caches.
+  void releaseRecordMemory();
   /// The writer thread's finished write: each session's outcome to its recorder.
   void landWrites();
   /// Pool: heartbeat, let go of sessions lost, claim orphans, checkpoint hands.

@@ -42,6 +42,10 @@ class BatchWriter {
   bool collect(std::vector<Job>& out);
   /// Blocks until no write is under way.
   void wait();
+  /// When not busy and no results wait to be collected: frees the jobs' sample buffers kept
+  /// for reuse (sized by the busiest write) and the connection's cache
+  /// (SessionStore::releaseMemory). For a server with no session left.
+  void releaseMemory();
   /// Wall time the writes took since the last call, ns.
   int64_t takeWriteNs() noexcept { return write_ns_.exchange(0, std::memory_order_relaxed); }
 

@@ -22,6 +22,9 @@ class SqliteStore : public SessionStore {
   /// StoreError naming the path on failure or refusal.
   explicit SqliteStore(const std::string& path, Mode mode = Mode::kReadWrite);
   ~SqliteStore() override;
+  void releaseMemory() override;
+  /// Bytes the connection's page cache holds now (what releaseMemory gives back).
+  std::size_t cacheBytes() const;
 
   uint64_t createSession(const SessionInfo& info) override;
   uint64_t appendSamples(uint64_t session_id, std::span<const Sample> samples,

@@ -134,6 +134,10 @@ class SessionStore {
   /// using this (BatchWriter); nullptr where the store has no use for one (SQLite: one
   /// writer at a time, so a second connection would only wait for the first).
   virtual std::unique_ptr<SessionStore> openWriter() { return nullptr; }
+  /// Gives back what the connection keeps in memory for speed (SQLite: its page cache),
+  /// once the server has no session left: pages cached while sessions came and went sit
+  /// among the blocks those sessions freed and keep them resident. Nothing stored changes.
+  virtual void releaseMemory() {}
   virtual void appendEvent(uint64_t session_id, const EventRecord& e) = 0;
   /// Exploration result: the angle reached in one direction of one axis and the force there.
   struct Reach {
