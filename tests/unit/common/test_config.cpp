@@ -191,9 +191,9 @@ TEST(ServerConfig, ValidFileParses) {
   EXPECT_TRUE(parseServerConfig("", "server.toml").drift_correction);
   EXPECT_FALSE(
       parseServerConfig("[server]\ndrift_correction = false\n", "server.toml").drift_correction);
-  EXPECT_FALSE(parseServerConfig("", "server.toml").renew_when_idle);
-  EXPECT_TRUE(
-      parseServerConfig("[server]\nrenew_when_idle = true\n", "server.toml").renew_when_idle);
+  EXPECT_TRUE(parseServerConfig("", "server.toml").renew_when_idle);
+  EXPECT_FALSE(
+      parseServerConfig("[server]\nrenew_when_idle = false\n", "server.toml").renew_when_idle);
 }
 
 TEST(ServerConfig, ErrorsNameOriginAndKey) {
