@@ -8,7 +8,8 @@
 #     sessions opening or open, every OPEN taken);
 # and the server's RSS once each has ended and been retired (status_keep_s = 2 s) and the
 # server has made its DDS participant again (server.renew_when_idle, half a second later):
-# SETTLE seconds (5) after the last one ended. RENEW=false: without the renewal.
+# SETTLE seconds (5) after the last one ended, and not before that renewal (waited for up to
+# 60 s more). RENEW=false: without the renewal.
 # With BENCH_SMAPS=1, the server's largest resident mappings at the end (/proc/PID/smaps:
 # [heap] is the main malloc arena, anonymous 64 MB-aligned ones the threads' arenas); with
 # BENCH_WALK=1, what holds the main arena (tests/bench/heap_walk.py).
@@ -39,9 +40,26 @@ rss() { awk '/^VmRSS/{print $2}' "/proc/$server/status"; }
 anon() { awk '/^RssAnon/{print $2}' "/proc/$server/status"; }
 pct() { awk -v a="$1" -v b="$2" 'BEGIN{printf "%+.1f%%", 100 * (a - b) / b}'; }
 mb() { awk -v k="$1" 'BEGIN{printf "%.1f", k / 1024}'; }
-inject open-flood --count 1 --hold 0 >/dev/null
 settle=${SETTLE:-5}
-sleep "$settle"
+renewals() { grep -c 'DDS participant made again' "$work/server.log" || true; }
+# Once a phase's injector has ended: SETTLE seconds, and (with the renewal) until the server
+# has made its participant again since, at most 60 s more: on a busy machine the sessions
+# end and are retired later, and an RSS read before the renewal is the one without it.
+settled() {
+  local before
+  before=$(renewals)
+  sleep "$settle"
+  [ "${RENEW:-true}" = true ] || return 0
+  local waited=0
+  while [ "$(renewals)" -le "$before" ] && [ "$waited" -lt 600 ]; do
+    sleep 0.1
+    waited=$((waited + 1))
+  done
+  [ "$waited" -lt 600 ] || echo "the server did not make its participant again within 60 s"
+  [ "$waited" -eq 0 ] || sleep 1
+}
+inject open-flood --count 1 --hold 0 >/dev/null
+settled
 base=$(rss)
 base_anon=$(anon)
 printf 'baseline (one session served): %s MB (anonymous %s MB)\n' "$(mb "$base")" "$(mb "$base_anon")"
@@ -56,7 +74,7 @@ for r in $(seq "$rounds"); do
     sleep 0.05
   done
   wait "$flood" || echo "flood: $(cat "$work/flood.log")"
-  sleep "$settle"
+  settled
   after=$(rss)
   after_anon=$(anon)
   printf '%-6s %-22s %10s %10s %9s %10s %9s\n' "$r" "burst 10000 OPENs" "$(mb "$peak")" \
@@ -70,7 +88,7 @@ for r in $(seq "$rounds"); do
     sleep 0.2
   done
   wait "$churn" || true
-  sleep "$settle"
+  settled
   after=$(rss)
   after_anon=$(anon)
   printf '%-6s %-22s %10s %10s %9s %10s %9s   (%s)\n' "$r" "churn $sessions sessions" \
@@ -78,7 +96,7 @@ for r in $(seq "$rounds"); do
     "$(pct "$after_anon" "$base_anon")" "$(tr '\n' ' ' <"$work/churn.log")"
 done
 printf 'the server made its DDS participant again %s times\n' \
-  "$(grep -c 'DDS participant made again' "$work/server.log" || true)"
+  "$(renewals)"
 if [ "${BENCH_SMAPS:-}" = 1 ]; then
   echo "largest resident mappings (kB):"
   awk '/^[0-9a-f]+-[0-9a-f]+ /{m=$1" "$6} /^Rss:/{if ($2 > 0) print $2, m}' "/proc/$server/smaps" |
