@@ -2,6 +2,7 @@
 // Child processes for integration tests: telehand::app::Process with stdout and stderr to a
 // log file, stopped by PID (never by name), always reaped.
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -12,10 +13,12 @@ namespace telehand::test {
 
 class Process : public app::Process {
  public:
-  /// Starts argv[0] with stdout and stderr to `log_path`, its niceness raised by `nice`.
-  Process(std::vector<std::string> argv, std::string log_path, int nice = 0)
-      : app::Process(
-            app::ProcessOptions{.argv = std::move(argv), .out_path = log_path, .nice = nice}),
+  /// Starts argv[0] with stdout and stderr to `log_path`, its niceness raised by `nice`, in
+  /// `env` (unset: this process's environment).
+  Process(std::vector<std::string> argv, std::string log_path, int nice = 0,
+          std::optional<std::vector<std::string>> env = std::nullopt)
+      : app::Process(app::ProcessOptions{
+            .argv = std::move(argv), .env = std::move(env), .out_path = log_path, .nice = nice}),
         log_(std::move(log_path)) {}
 
   std::string output() const {

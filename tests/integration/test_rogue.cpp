@@ -345,14 +345,9 @@ TEST_F(RogueTest, TheServerRunsWithoutMallocThreadCachesUnlessTold) {
       if (!std::string_view(*e).starts_with("GLIBC_TUNABLES=")) env.emplace_back(*e);
     }
     if (tunables) env.push_back(std::string("GLIBC_TUNABLES=") + tunables);
-    app::Process server(app::ProcessOptions{
-        .argv = cmd(TELEHAND_SERVER_BIN, {"--db", path(name + ".db"), "--seconds", "30"}),
-        .env = env,
-        .out_path = path(name + ".log")});
-    const auto log = [&] {
-      std::ifstream in(path(name + ".log"));
-      return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-    };
+    Process server(cmd(TELEHAND_SERVER_BIN, {"--db", path(name + ".db"), "--seconds", "30"}),
+                   path(name + ".log"), 0, env);
+    const auto log = [&] { return server.output(); };
     EXPECT_EQ(awaitOccurrences(log, "serving on DDS domain", 1, 20s), 1u) << log();
     // glibc, parsing GLIBC_TUNABLES at start, ends each of its tunables with a NUL in
     // place: in /proc the value's further tunables follow as entries of their own.
