@@ -9,7 +9,7 @@ packages=(
   g++ cmake ninja-build pkg-config
   # DDS (C API, idlc, ddsperf; the security plugins come with libddsc0debian) and the
   # DDS Security PKI (deploy/pki/make-pki.sh)
-  cyclonedds-dev cyclonedds-tools openssl
+  cyclonedds-dev cyclonedds-tools openssl libssl-dev
   # maths, physics, USB, nearest neighbours
   libeigen3-dev libbullet-dev libusb-1.0-0-dev libflann-dev liblz4-dev
   # hand model (URDF parser, check_urdf)

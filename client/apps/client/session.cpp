@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "telehand/app/signals.h"
+#include "telehand/protocol/dds.h"
 
 namespace telehand::client::app {
 
@@ -158,6 +159,9 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
       static_cast<unsigned long long>(h.passivity_activations.load()),
       static_cast<unsigned long long>(h.models_applied.load()), h.update_step_max_n.load(),
       h.update_step_max_ratio.load());
+  if (const auto crypto = dds::cryptoCounts()) {
+    std::printf("  security: %s\n", dds::cryptoSummary(*crypto).c_str());
+  }
   if (usb != nullptr) {
     const auto& u = usb->stats();
     const uint64_t rtts = u.rtt_count.load();

@@ -1,6 +1,7 @@
 #include "telehand/protocol/dds.h"
 
 #include <dds/version.h>
+#include <dlfcn.h>
 #include <unistd.h>
 
 #include <cstdio>
@@ -8,6 +9,7 @@
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <string_view>
 
 #include "cyclone_instance_fix.h"
 
@@ -252,9 +254,57 @@ std::string participantConfig(const Options& options) {
   ::setenv("TELEHAND_PKI", pki.c_str(), 1);
   ::setenv("TELEHAND_IDENTITY", options.identity.c_str(), 1);
   ::setenv("TELEHAND_DDS_SECURITY_LIBDIR", TELEHAND_DDS_SECURITY_LIBDIR, 1);
+  // The cryptography plugin: telehand's (docs/security.md "Cost") unless the environment asks
+  // for Cyclone's own (TELEHAND_DDS_CRYPTO=cyclone; the two read each other).
+  const char* crypto = std::getenv("TELEHAND_DDS_CRYPTO");
+  const std::string_view choice = crypto == nullptr ? "telehand" : crypto;
+  if (choice == "cyclone") {
+    ::setenv("TELEHAND_DDS_CRYPTO_PLUGIN",
+             TELEHAND_DDS_SECURITY_LIBDIR "/libdds_security_crypto.so", 1);
+    ::setenv("TELEHAND_DDS_CRYPTO_INIT", "init_crypto", 1);
+    ::setenv("TELEHAND_DDS_CRYPTO_FINALIZE", "finalize_crypto", 1);
+  } else if (choice == "telehand") {
+    ::setenv("TELEHAND_DDS_CRYPTO_PLUGIN", TELEHAND_DDS_CRYPTO_PLUGIN, 1);
+    ::setenv("TELEHAND_DDS_CRYPTO_INIT", "telehand_init_crypto", 1);
+    ::setenv("TELEHAND_DDS_CRYPTO_FINALIZE", "telehand_finalize_crypto", 1);
+  } else {
+    throw ConfigError("TELEHAND_DDS_CRYPTO is '" + std::string(choice) +
+                      "'; it must be 'telehand' (the default) or 'cyclone'");
+  }
   const std::string secure = configUri(TELEHAND_SECURE_XML);
   return uri.empty() ? secure : uri + "," + secure;
 #endif
+}
+
+std::optional<CryptoCounts> cryptoCounts() {
+#ifdef TELEHAND_DDS_CRYPTO_PLUGIN
+  // Only when Cyclone loaded it: RTLD_NOLOAD does not load it here.
+  void* lib = ::dlopen(TELEHAND_DDS_CRYPTO_PLUGIN, RTLD_NOW | RTLD_NOLOAD);
+  if (lib == nullptr) return std::nullopt;
+  using Fn = void (*)(uint64_t*, uint64_t*, uint64_t*, uint64_t*);
+  const auto fn = reinterpret_cast<Fn>(::dlsym(lib, "telehand_crypto_counts"));
+  std::optional<CryptoCounts> out;
+  if (fn != nullptr) {
+    CryptoCounts c;
+    fn(&c.encrypted, &c.decrypted, &c.refused, &c.passed_on);
+    out = c;
+  }
+  ::dlclose(lib);
+  return out;
+#else
+  return std::nullopt;
+#endif
+}
+
+std::string cryptoSummary(const CryptoCounts& c) {
+  char line[256];
+  std::snprintf(
+      line, sizeof line,
+      "telehand's cryptography: %llu data submessages encrypted, %llu decrypted, "
+      "%llu refused, %llu calls passed to Cyclone's",
+      static_cast<unsigned long long>(c.encrypted), static_cast<unsigned long long>(c.decrypted),
+      static_cast<unsigned long long>(c.refused), static_cast<unsigned long long>(c.passed_on));
+  return line;
 }
 
 namespace {

@@ -11,6 +11,7 @@
 #include "telehand/app/malloc_tuning.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/log.h"
+#include "telehand/protocol/dds.h"
 #include "telehand/server/link/server_link.h"
 #include "telehand/server/session/serve_watch.h"
 #include "telehand/server/store/open_store.h"
@@ -223,6 +224,9 @@ int main(int argc, char** argv) {
         st.recorded_samples, st.live_samples, st.nonfinite_samples, st.unknown_session_samples,
         st.bad_commands, st.refused, st.store_errors, lc.echoes.load(), st.hand_steps,
         st.hand_samples_skipped);
+    if (const auto crypto = telehand::dds::cryptoCounts()) {
+      spdlog::info("security: {}", telehand::dds::cryptoSummary(*crypto));
+    }
     return 0;
   } catch (const telehand::Error& e) {
     std::cerr << "telehand-server: " << e.what() << "\n";

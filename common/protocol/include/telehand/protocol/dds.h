@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <utility>
@@ -174,6 +175,22 @@ struct Options {
 /// the environment. Throws ConfigError naming the first missing PKI file, or when Cyclone's
 /// security plugins were not found at build time.
 std::string participantConfig(const Options& options);
+
+/// What telehand's DDS Security cryptography plugin (common/protocol/crypto/) did in this
+/// process: data submessages it encrypted and decrypted itself, received ones it refused
+/// (bad tag or form: Cyclone's plugin then refuses them too), and calls it passed on to
+/// Cyclone's plugin (key exchange, the first message of each writer, other transforms).
+struct CryptoCounts {
+  uint64_t encrypted = 0;
+  uint64_t decrypted = 0;
+  uint64_t refused = 0;
+  uint64_t passed_on = 0;
+};
+/// The counts, or nothing when the plugin is not loaded in this process (no security, or
+/// TELEHAND_DDS_CRYPTO=cyclone).
+std::optional<CryptoCounts> cryptoCounts();
+/// One line for a program's summary: which cryptography ran and what it did.
+std::string cryptoSummary(const CryptoCounts& c);
 
 /// A participant with one publisher and one subscriber in the configured partition.
 class Participant {

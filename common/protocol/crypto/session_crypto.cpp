@@ -1,0 +1,732 @@
+// telehand's DDS Security cryptography plugin (docs/security.md "Cost"): Cyclone's own
+// (libdds_security_crypto.so, Debian's) does everything, the key exchange included; this
+// plugin takes over only the AES-GCM transform of the data submessages of writers whose
+// submessages are encrypted without receiver-specific MACs, which Cyclone 0.10.2's does in a
+// way that costs more than the cipher: a new OpenSSL cipher context (with its provider
+// look-up) for every message, and on receipt the session key derived again (HMAC-SHA256) for
+// every message. Here each writer keeps its cipher context and its session key, and each
+// remote writer the last session key it derived, so a message costs one AES-GCM pass.
+//
+// The wire format is the one DDS Security 1.1 (section 9.5.3.3) defines and Cyclone's plugin
+// writes and reads: SEC_PREFIX (transformation kind and key id, session id, IV suffix),
+// SEC_BODY (the encrypted submessage), SEC_POSTFIX (the GCM tag, no receiver-specific MAC).
+// The keys are the ones Cyclone's plugin made and exchanged (its writers' crypto tokens);
+// the session key is HMAC-SHA256(master key, "SessionKey" | master salt | session id), the
+// IV the session id and a counter. So a participant with this plugin and one with Cyclone's
+// read each other (tested: DdsCryptoTest in tests/integration/test_security.cpp).
+//
+// Anything else (the volatile key-exchange endpoints, signed-only or origin-authenticated
+// submessages, payload and RTPS-message protection, data readers' submessages) and any
+// message this plugin cannot encode or decode (a bad tag, an unknown key) goes to Cyclone's
+// plugin, which then also writes the error.
+#include <dlfcn.h>
+#include <openssl/evp.h>
+#include <openssl/hmac.h>
+#include <openssl/rand.h>
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+#include <mutex>
+#include <shared_mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+// Not dds_security_api.h: its ddsi_domaingv.h does not compile as C++, and the plugin needs
+// only the cryptography interface and the plugin entry points' types.
+#include "dds/security/dds_security_api_cryptography.h"
+#include "dds/security/dds_security_api_defs.h"
+
+extern "C" {
+struct ddsi_domaingv;
+typedef int (*plugin_init)(const char* argument, void** context, struct ddsi_domaingv* gv);
+typedef int (*plugin_finalize)(void* context);
+}
+
+namespace {
+
+constexpr uint8_t kSmidSecBody = 0x30;
+constexpr uint8_t kSmidSecPrefix = 0x31;
+constexpr uint8_t kSmidSecPostfix = 0x32;
+constexpr uint8_t kFlagLittleEndian = 0x01;
+constexpr uint32_t kKindAes128Gcm = 2;
+constexpr uint32_t kKindAes256Gcm = 4;
+constexpr size_t kTagBytes = 16;
+constexpr size_t kPrefixBytes = 20;  // kind, key id, session id, IV suffix
+constexpr size_t kIvBytes = 12;
+/// A new session (key) after this many messages; the IV's counter never repeats within one.
+constexpr uint64_t kMessagesPerSession = uint64_t{1} << 32;
+
+uint32_t readBe32(const uint8_t* p) {
+  return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | p[3];
+}
+void writeBe32(uint8_t* p, uint32_t v) {
+  p[0] = static_cast<uint8_t>(v >> 24);
+  p[1] = static_cast<uint8_t>(v >> 16);
+  p[2] = static_cast<uint8_t>(v >> 8);
+  p[3] = static_cast<uint8_t>(v);
+}
+void writeBe64(uint8_t* p, uint64_t v) {
+  writeBe32(p, static_cast<uint32_t>(v >> 32));
+  writeBe32(p + 4, static_cast<uint32_t>(v));
+}
+
+bool isGcm(uint32_t kind) { return kind == kKindAes128Gcm || kind == kKindAes256Gcm; }
+size_t keyBytes(uint32_t kind) { return kind == kKindAes256Gcm ? 32 : 16; }
+
+/// One writer's key material, as Cyclone's plugin puts it in the writer's crypto token.
+struct KeyMaterial {
+  uint32_t kind = 0;
+  uint32_t sender_key_id = 0;
+  std::array<uint8_t, 32> salt{};
+  std::array<uint8_t, 32> key{};
+};
+
+/// Parses a crypto token's "dds.cryp.keymat": kind, salt, sender key id, key, receiver key id
+/// (each length-prefixed, big-endian). Only GCM key material without a receiver-specific key
+/// is taken; anything else stays with Cyclone's plugin.
+bool parseKeyMaterial(const DDS_Security_DataHolder& token, KeyMaterial& out) {
+  if (token.binary_properties._length < 1 || token.binary_properties._buffer == nullptr) {
+    return false;
+  }
+  const DDS_Security_BinaryProperty_t& prop = token.binary_properties._buffer[0];
+  if (prop.name == nullptr || std::strcmp(prop.name, "dds.cryp.keymat") != 0) return false;
+  const uint8_t* p = prop.value._buffer;
+  size_t left = prop.value._length;
+  if (p == nullptr) return false;
+  auto u32 = [&](uint32_t& v) {
+    if (left < 4) return false;
+    v = readBe32(p);
+    p += 4;
+    left -= 4;
+    return true;
+  };
+  auto bytes = [&](std::array<uint8_t, 32>& dst, size_t n) {
+    uint32_t len = 0;
+    if (!u32(len) || len != n || left < n) return false;
+    std::memcpy(dst.data(), p, n);
+    p += n;
+    left -= n;
+    return true;
+  };
+  uint32_t receiver_key_id = 0;
+  if (!u32(out.kind) || !isGcm(out.kind)) return false;
+  const size_t n = keyBytes(out.kind);
+  return bytes(out.salt, n) && u32(out.sender_key_id) && bytes(out.key, n) &&
+         u32(receiver_key_id) && receiver_key_id == 0;
+}
+
+bool sameKey(const KeyMaterial& a, const KeyMaterial& b) {
+  return a.kind == b.kind && a.sender_key_id == b.sender_key_id && a.salt == b.salt &&
+         a.key == b.key;
+}
+
+/// HMAC-SHA256(master key, "SessionKey" | master salt | session id), cut to the key's size.
+bool sessionKey(const KeyMaterial& km, uint32_t session_id, std::array<uint8_t, 32>& out) {
+  const size_t n = keyBytes(km.kind);
+  uint8_t msg[10 + 32 + 4];
+  std::memcpy(msg, "SessionKey", 10);
+  std::memcpy(msg + 10, km.salt.data(), n);
+  writeBe32(msg + 10 + n, session_id);
+  uint8_t md[EVP_MAX_MD_SIZE];
+  unsigned int md_len = 0;
+  if (HMAC(EVP_sha256(), km.key.data(), static_cast<int>(n), msg, 10 + n + 4, md, &md_len) ==
+          nullptr ||
+      md_len < n) {
+    return false;
+  }
+  std::memcpy(out.data(), md, n);
+  OPENSSL_cleanse(md, sizeof md);
+  return true;
+}
+
+struct CipherCtx {
+  EVP_CIPHER_CTX* ctx = EVP_CIPHER_CTX_new();
+  CipherCtx() = default;
+  CipherCtx(const CipherCtx&) = delete;
+  CipherCtx& operator=(const CipherCtx&) = delete;
+  ~CipherCtx() { EVP_CIPHER_CTX_free(ctx); }
+};
+
+/// A local writer's transform: its key (learnt from its tokens), its session, its context.
+struct LocalWriter {
+  std::mutex mu;
+  bool eligible = false;  ///< encrypted submessages, no receiver-specific MACs
+  bool disabled = false;  ///< its tokens disagreed: Cyclone's plugin keeps it
+  std::vector<KeyMaterial> tokens;
+  bool active = false;
+  KeyMaterial km;
+  uint32_t session_id = 0;
+  uint64_t iv_suffix = 0;
+  uint64_t session_messages = 0;
+  CipherCtx cipher;
+};
+
+/// A remote writer as one local reader sees it: the keys it sent, the last session key.
+struct RemoteWriter {
+  std::mutex mu;
+  std::vector<KeyMaterial> keys;
+  bool have_session = false;
+  uint32_t session_key_id = 0;
+  uint32_t session_id = 0;
+  CipherCtx cipher;
+};
+
+struct Plugin;
+struct BaseBox {
+  dds_security_cryptography api;  // what Cyclone holds
+  Plugin* self;
+};
+struct FactoryBox {
+  dds_security_crypto_key_factory api;
+  Plugin* self;
+};
+struct ExchangeBox {
+  dds_security_crypto_key_exchange api;
+  Plugin* self;
+};
+struct TransformBox {
+  dds_security_crypto_transform api;
+  Plugin* self;
+};
+
+struct Plugin {
+  BaseBox base{};  // what Cyclone holds; its members point at the boxes below
+  FactoryBox factory{};
+  ExchangeBox exchange{};
+  TransformBox transform{};
+  void* library = nullptr;
+  plugin_finalize inner_finalize = nullptr;
+  void* inner_context = nullptr;
+  dds_security_cryptography* inner = nullptr;
+  const EVP_CIPHER* aes128 = nullptr;
+  const EVP_CIPHER* aes256 = nullptr;
+
+  std::shared_mutex map_mu;
+  std::unordered_map<int64_t, bool> reader_encrypted;  // local reader -> submessages encrypted
+  std::unordered_map<int64_t, std::shared_ptr<LocalWriter>> local_writers;
+  std::unordered_map<int64_t, std::shared_ptr<RemoteWriter>> remote_writers;
+
+  std::atomic<uint64_t> fast_encodes{0};
+  std::atomic<uint64_t> fast_decodes{0};
+  std::atomic<uint64_t> refused{0};
+  std::atomic<uint64_t> passed_on{0};
+
+  const EVP_CIPHER* cipherFor(uint32_t kind) const {
+    return kind == kKindAes256Gcm ? aes256 : aes128;
+  }
+  template <class T>
+  std::shared_ptr<T> find(std::unordered_map<int64_t, std::shared_ptr<T>>& map, int64_t h) {
+    const std::shared_lock lock(map_mu);
+    const auto it = map.find(h);
+    return it == map.end() ? nullptr : it->second;
+  }
+  bool readerEncrypted(int64_t h) {
+    const std::shared_lock lock(map_mu);
+    const auto it = reader_encrypted.find(h);
+    return it != reader_encrypted.end() && it->second;
+  }
+};
+
+std::atomic<Plugin*> g_last_plugin{nullptr};
+
+Plugin* self(dds_security_crypto_key_factory* i) { return reinterpret_cast<FactoryBox*>(i)->self; }
+Plugin* self(dds_security_crypto_key_exchange* i) {
+  return reinterpret_cast<ExchangeBox*>(i)->self;
+}
+Plugin* self(dds_security_crypto_transform* i) { return reinterpret_cast<TransformBox*>(i)->self; }
+
+bool endpointEncrypted(const DDS_Security_EndpointSecurityAttributes* a) {
+  return a != nullptr && a->is_submessage_protected &&
+         (a->plugin_endpoint_attributes &
+          DDS_SECURITY_PLUGIN_ENDPOINT_ATTRIBUTES_FLAG_IS_SUBMESSAGE_ENCRYPTED) != 0 &&
+         (a->plugin_endpoint_attributes &
+          DDS_SECURITY_PLUGIN_ENDPOINT_ATTRIBUTES_FLAG_IS_SUBMESSAGE_ORIGIN_AUTHENTICATED) == 0;
+}
+
+// ---- key factory: note which endpoints qualify, forget them when they go ----
+
+DDS_Security_DatawriterCryptoHandle registerLocalWriter(
+    dds_security_crypto_key_factory* instance, const DDS_Security_ParticipantCryptoHandle pp,
+    const DDS_Security_PropertySeq* props, const DDS_Security_EndpointSecurityAttributes* attr,
+    DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  const auto h = p->inner->crypto_key_factory->register_local_datawriter(
+      p->inner->crypto_key_factory, pp, props, attr, ex);
+  if (h != DDS_SECURITY_HANDLE_NIL) {
+    auto w = std::make_shared<LocalWriter>();
+    w->eligible = endpointEncrypted(attr) && w->cipher.ctx != nullptr;
+    const std::unique_lock lock(p->map_mu);
+    p->local_writers[h] = std::move(w);  // a handle reused after an unregister starts afresh
+  }
+  return h;
+}
+
+DDS_Security_DatareaderCryptoHandle registerLocalReader(
+    dds_security_crypto_key_factory* instance, const DDS_Security_ParticipantCryptoHandle pp,
+    const DDS_Security_PropertySeq* props, const DDS_Security_EndpointSecurityAttributes* attr,
+    DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  const auto h = p->inner->crypto_key_factory->register_local_datareader(
+      p->inner->crypto_key_factory, pp, props, attr, ex);
+  if (h != DDS_SECURITY_HANDLE_NIL) {
+    const std::unique_lock lock(p->map_mu);
+    p->reader_encrypted[h] = endpointEncrypted(attr);
+  }
+  return h;
+}
+
+DDS_Security_DatawriterCryptoHandle registerRemoteWriter(
+    dds_security_crypto_key_factory* instance, const DDS_Security_DatareaderCryptoHandle reader,
+    const DDS_Security_ParticipantCryptoHandle remote_pp, const DDS_Security_SharedSecretHandle s,
+    DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  const auto h = p->inner->crypto_key_factory->register_matched_remote_datawriter(
+      p->inner->crypto_key_factory, reader, remote_pp, s, ex);
+  if (h != DDS_SECURITY_HANDLE_NIL) {
+    const std::unique_lock lock(p->map_mu);
+    p->remote_writers.erase(h);
+  }
+  return h;
+}
+
+DDS_Security_boolean unregisterWriter(dds_security_crypto_key_factory* instance,
+                                      const DDS_Security_DatawriterCryptoHandle h,
+                                      DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  {
+    const std::unique_lock lock(p->map_mu);
+    p->local_writers.erase(h);
+    p->remote_writers.erase(h);
+  }
+  return p->inner->crypto_key_factory->unregister_datawriter(p->inner->crypto_key_factory, h, ex);
+}
+
+DDS_Security_boolean unregisterReader(dds_security_crypto_key_factory* instance,
+                                      const DDS_Security_DatareaderCryptoHandle h,
+                                      DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  {
+    const std::unique_lock lock(p->map_mu);
+    p->reader_encrypted.erase(h);
+  }
+  return p->inner->crypto_key_factory->unregister_datareader(p->inner->crypto_key_factory, h, ex);
+}
+
+// ---- key exchange: learn the writers' keys from their tokens ----
+
+DDS_Security_boolean createLocalWriterTokens(dds_security_crypto_key_exchange* instance,
+                                             DDS_Security_DatawriterCryptoTokenSeq* tokens,
+                                             const DDS_Security_DatawriterCryptoHandle writer,
+                                             const DDS_Security_DatareaderCryptoHandle reader,
+                                             DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  const DDS_Security_boolean ok =
+      p->inner->crypto_key_exchange->create_local_datawriter_crypto_tokens(
+          p->inner->crypto_key_exchange, tokens, writer, reader, ex);
+  if (!ok || tokens == nullptr) return ok;
+  if (const auto w = p->find(p->local_writers, writer)) {
+    const std::lock_guard lock(w->mu);
+    for (uint32_t i = 0; i < tokens->_length; ++i) {
+      KeyMaterial km;
+      if (!parseKeyMaterial(tokens->_buffer[i], km)) continue;
+      bool known = false;
+      for (const KeyMaterial& t : w->tokens) {
+        if (t.sender_key_id == km.sender_key_id) {
+          known = true;
+          if (!sameKey(t, km)) w->disabled = true;  // a key changed under the same id
+        }
+      }
+      if (!known) w->tokens.push_back(km);
+      // A reader matched later must get the key this writer encrypts with.
+      if (w->active && km.sender_key_id == w->km.sender_key_id && !sameKey(km, w->km)) {
+        w->disabled = true;
+      }
+    }
+    if (w->disabled) w->active = false;
+  }
+  return ok;
+}
+
+DDS_Security_boolean setRemoteWriterTokens(dds_security_crypto_key_exchange* instance,
+                                           const DDS_Security_DatareaderCryptoHandle reader,
+                                           const DDS_Security_DatawriterCryptoHandle writer,
+                                           const DDS_Security_DatawriterCryptoTokenSeq* tokens,
+                                           DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  const DDS_Security_boolean ok =
+      p->inner->crypto_key_exchange->set_remote_datawriter_crypto_tokens(
+          p->inner->crypto_key_exchange, reader, writer, tokens, ex);
+  if (!ok || tokens == nullptr) return ok;
+  auto rw = std::make_shared<RemoteWriter>();
+  for (uint32_t i = 0; i < tokens->_length && i < 2; ++i) {
+    KeyMaterial km;
+    if (parseKeyMaterial(tokens->_buffer[i], km)) rw->keys.push_back(km);
+  }
+  const std::unique_lock lock(p->map_mu);
+  if (rw->keys.empty() || rw->cipher.ctx == nullptr) {
+    p->remote_writers.erase(writer);
+  } else {
+    p->remote_writers[writer] = std::move(rw);
+  }
+  return ok;
+}
+
+// ---- transform ----
+
+/// Reads the submessage header at `p` (bounded by `end`): id, and its body's [begin, end).
+bool submessage(const uint8_t*& p, const uint8_t* end, uint8_t id, const uint8_t*& body,
+                size_t& len) {
+  if (end - p < 4 || p[0] != id) return false;
+  len = (p[1] & kFlagLittleEndian) ? (size_t{p[2]} | (size_t{p[3]} << 8))
+                                   : ((size_t{p[2]} << 8) | size_t{p[3]});
+  if (len % 4 != 0 || static_cast<size_t>(end - p - 4) < len) return false;
+  body = p + 4;
+  p = body + len;
+  return true;
+}
+
+uint8_t* putHeader(uint8_t* p, uint8_t id, size_t len) {
+  p[0] = id;
+  p[1] = kFlagLittleEndian;
+  p[2] = static_cast<uint8_t>(len);
+  p[3] = static_cast<uint8_t>(len >> 8);
+  return p + 4;
+}
+
+/// Learns which of the writer's keys Cyclone's plugin encrypts with from the first message it
+/// encoded, and starts this writer's own session with it (a session id other than that one).
+void activate(Plugin* p, LocalWriter& w, const DDS_Security_OctetSeq& encoded) {
+  const uint8_t* q = encoded._buffer;
+  const uint8_t* body = nullptr;
+  size_t len = 0;
+  if (q == nullptr || !submessage(q, q + encoded._length, kSmidSecPrefix, body, len) ||
+      len < kPrefixBytes) {
+    return;
+  }
+  const uint32_t kind = readBe32(body);
+  const uint32_t key_id = readBe32(body + 4);
+  const uint32_t their_session = readBe32(body + 8);
+  for (const KeyMaterial& km : w.tokens) {
+    if (km.sender_key_id != key_id || km.kind != kind) continue;
+    uint32_t sid = 0;
+    uint64_t iv = 0;
+    do {
+      if (RAND_bytes(reinterpret_cast<unsigned char*>(&sid), sizeof sid) != 1 ||
+          RAND_bytes(reinterpret_cast<unsigned char*>(&iv), sizeof iv) != 1) {
+        return;
+      }
+    } while (sid == their_session);
+    std::array<uint8_t, 32> key{};
+    const bool keyed =
+        sessionKey(km, sid, key) &&
+        EVP_EncryptInit_ex(w.cipher.ctx, p->cipherFor(kind), nullptr, key.data(), nullptr) == 1;
+    OPENSSL_cleanse(key.data(), key.size());
+    if (!keyed) return;
+    w.km = km;
+    w.session_id = sid;
+    w.iv_suffix = iv;
+    w.session_messages = 0;
+    w.active = true;
+    return;
+  }
+}
+
+bool newSession(Plugin* p, LocalWriter& w) {
+  std::array<uint8_t, 32> key{};
+  ++w.session_id;
+  const bool keyed =
+      sessionKey(w.km, w.session_id, key) &&
+      EVP_EncryptInit_ex(w.cipher.ctx, p->cipherFor(w.km.kind), nullptr, key.data(), nullptr) == 1;
+  OPENSSL_cleanse(key.data(), key.size());
+  w.session_messages = 0;
+  return keyed;
+}
+
+/// SEC_PREFIX | SEC_BODY(length, AES-GCM(plain)) | SEC_POSTFIX(tag, 0 receiver MACs).
+bool encodeFast(Plugin* p, LocalWriter& w, const DDS_Security_OctetSeq& plain,
+                DDS_Security_OctetSeq& out) {
+  if (plain._length == 0 || plain._length % 4 != 0 || plain._length > 0xffff - 8) return false;
+  if (w.session_messages >= kMessagesPerSession && !newSession(p, w)) return false;
+  const size_t n = plain._length;
+  const size_t total = 4 + kPrefixBytes + 4 + 4 + n + 4 + kTagBytes + 4;
+  auto* buf = static_cast<uint8_t*>(std::malloc(total));
+  if (buf == nullptr) return false;
+  ++w.iv_suffix;
+  ++w.session_messages;
+  uint8_t* q = putHeader(buf, kSmidSecPrefix, kPrefixBytes);
+  writeBe32(q, w.km.kind);
+  writeBe32(q + 4, w.km.sender_key_id);
+  uint8_t* iv = q + 8;
+  writeBe32(iv, w.session_id);
+  writeBe64(iv + 4, w.iv_suffix);
+  q = putHeader(q + kPrefixBytes, kSmidSecBody, 4 + n);
+  writeBe32(q, static_cast<uint32_t>(n));
+  uint8_t* cipher = q + 4;
+  uint8_t* post = putHeader(cipher + n, kSmidSecPostfix, kTagBytes + 4);
+  int len = 0;
+  int fin = 0;
+  const bool ok =
+      EVP_EncryptInit_ex(w.cipher.ctx, nullptr, nullptr, nullptr, iv) == 1 &&
+      EVP_EncryptUpdate(w.cipher.ctx, cipher, &len, plain._buffer, static_cast<int>(n)) == 1 &&
+      static_cast<size_t>(len) == n && EVP_EncryptFinal_ex(w.cipher.ctx, cipher + len, &fin) == 1 &&
+      fin == 0 &&
+      EVP_CIPHER_CTX_ctrl(w.cipher.ctx, EVP_CTRL_GCM_GET_TAG, static_cast<int>(kTagBytes), post) ==
+          1;
+  if (!ok) {
+    std::free(buf);
+    return false;
+  }
+  writeBe32(post + kTagBytes, 0);
+  out._buffer = buf;
+  out._length = static_cast<uint32_t>(total);
+  out._maximum = static_cast<uint32_t>(total);
+  return true;
+}
+
+DDS_Security_boolean encodeWriterSubmessage(dds_security_crypto_transform* instance,
+                                            DDS_Security_OctetSeq* encoded,
+                                            const DDS_Security_OctetSeq* plain,
+                                            const DDS_Security_DatawriterCryptoHandle writer,
+                                            const DDS_Security_DatareaderCryptoHandleSeq* readers,
+                                            DDS_Security_long* index,
+                                            DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  auto* inner = p->inner->crypto_transform;
+  std::shared_ptr<LocalWriter> w;
+  if (index != nullptr && *index == 0 && plain != nullptr && encoded != nullptr &&
+      readers != nullptr && readers->_length > 0) {
+    w = p->find(p->local_writers, writer);
+  }
+  if (w == nullptr || !w->eligible) {
+    p->passed_on.fetch_add(1, std::memory_order_relaxed);
+    return inner->encode_datawriter_submessage(inner, encoded, plain, writer, readers, index, ex);
+  }
+  const std::lock_guard lock(w->mu);
+  if (w->active && !w->disabled && encodeFast(p, *w, *plain, *encoded)) {
+    *index = static_cast<DDS_Security_long>(readers->_length);
+    p->fast_encodes.fetch_add(1, std::memory_order_relaxed);
+    return true;
+  }
+  p->passed_on.fetch_add(1, std::memory_order_relaxed);
+  const DDS_Security_boolean ok =
+      inner->encode_datawriter_submessage(inner, encoded, plain, writer, readers, index, ex);
+  // Cyclone's plugin wrote this one: its prefix names the key; take over from the next.
+  if (ok && !w->active && !w->disabled &&
+      *index == static_cast<DDS_Security_long>(readers->_length)) {
+    activate(p, *w, *encoded);
+  }
+  return ok;
+}
+
+bool decodeFast(Plugin* p, RemoteWriter& rw, const DDS_Security_OctetSeq& encoded,
+                DDS_Security_OctetSeq& plain) {
+  const uint8_t* q = encoded._buffer;
+  if (q == nullptr) return false;
+  const uint8_t* end = q + encoded._length;
+  const uint8_t* prefix = nullptr;
+  const uint8_t* body = nullptr;
+  const uint8_t* post = nullptr;
+  size_t prefix_len = 0;
+  size_t body_len = 0;
+  size_t post_len = 0;
+  if (!submessage(q, end, kSmidSecPrefix, prefix, prefix_len) || prefix_len < kPrefixBytes ||
+      !submessage(q, end, kSmidSecBody, body, body_len) || body_len < 4 ||
+      !submessage(q, end, kSmidSecPostfix, post, post_len) || post_len < kTagBytes + 4) {
+    return false;
+  }
+  const uint32_t kind = readBe32(prefix);
+  const uint32_t key_id = readBe32(prefix + 4);
+  const uint32_t session_id = readBe32(prefix + 8);
+  const uint8_t* iv = prefix + 8;
+  const size_t n = readBe32(body);
+  if (n == 0 || n > body_len - 4) return false;
+  const KeyMaterial* km = nullptr;
+  for (const KeyMaterial& k : rw.keys) {
+    if (k.sender_key_id == key_id && k.kind == kind) km = &k;
+  }
+  if (km == nullptr) return false;
+  if (!rw.have_session || rw.session_id != session_id || rw.session_key_id != key_id) {
+    std::array<uint8_t, 32> key{};
+    rw.have_session =
+        sessionKey(*km, session_id, key) &&
+        EVP_DecryptInit_ex(rw.cipher.ctx, p->cipherFor(kind), nullptr, key.data(), nullptr) == 1;
+    OPENSSL_cleanse(key.data(), key.size());
+    if (!rw.have_session) return false;
+    rw.session_id = session_id;
+    rw.session_key_id = key_id;
+  }
+  auto* out = static_cast<uint8_t*>(std::malloc(n));
+  if (out == nullptr) return false;
+  int len = 0;
+  int fin = 0;
+  uint8_t tag[kTagBytes];
+  std::memcpy(tag, post, kTagBytes);
+  const bool ok = EVP_DecryptInit_ex(rw.cipher.ctx, nullptr, nullptr, nullptr, iv) == 1 &&
+                  EVP_CIPHER_CTX_ctrl(rw.cipher.ctx, EVP_CTRL_GCM_SET_TAG,
+                                      static_cast<int>(kTagBytes), tag) == 1 &&
+                  EVP_DecryptUpdate(rw.cipher.ctx, out, &len, body + 4, static_cast<int>(n)) == 1 &&
+                  static_cast<size_t>(len) == n &&
+                  EVP_DecryptFinal_ex(rw.cipher.ctx, out + len, &fin) == 1;
+  if (!ok) {
+    std::free(out);
+    return false;
+  }
+  plain._buffer = out;
+  plain._length = static_cast<uint32_t>(n);
+  plain._maximum = static_cast<uint32_t>(n);
+  return true;
+}
+
+DDS_Security_boolean decodeWriterSubmessage(dds_security_crypto_transform* instance,
+                                            DDS_Security_OctetSeq* plain,
+                                            const DDS_Security_OctetSeq* encoded,
+                                            const DDS_Security_DatareaderCryptoHandle reader,
+                                            const DDS_Security_DatawriterCryptoHandle writer,
+                                            DDS_Security_SecurityException* ex) {
+  Plugin* p = self(instance);
+  auto* inner = p->inner->crypto_transform;
+  if (plain != nullptr && encoded != nullptr && p->readerEncrypted(reader)) {
+    if (const auto rw = p->find(p->remote_writers, writer)) {
+      const std::lock_guard lock(rw->mu);
+      if (decodeFast(p, *rw, *encoded, *plain)) {
+        p->fast_decodes.fetch_add(1, std::memory_order_relaxed);
+        return true;
+      }
+      p->refused.fetch_add(1, std::memory_order_relaxed);
+    }
+  }
+  p->passed_on.fetch_add(1, std::memory_order_relaxed);
+  return inner->decode_datawriter_submessage(inner, plain, encoded, reader, writer, ex);
+}
+
+// Everything else is Cyclone's plugin's, called on its own instance.
+#define TELEHAND_FORWARD(iface, member)                                                 \
+  [](auto* instance, auto... args) {                                                    \
+    return self(instance)->inner->iface->member(self(instance)->inner->iface, args...); \
+  }
+
+}  // namespace
+
+extern "C" {
+
+/// What this process's plugin did: data submessages it encrypted and decrypted itself,
+/// received ones it refused (Cyclone's plugin, called next, refuses them too), and calls passed
+/// on to Cyclone's plugin. Zeros when none is loaded. Read by telehand::dds::cryptoCounts.
+__attribute__((visibility("default"))) void telehand_crypto_counts(uint64_t* encrypted,
+                                                                   uint64_t* decrypted,
+                                                                   uint64_t* refused,
+                                                                   uint64_t* passed_on) {
+  Plugin* p = g_last_plugin.load();
+  *encrypted = p ? p->fast_encodes.load() : 0;
+  *decrypted = p ? p->fast_decodes.load() : 0;
+  *refused = p ? p->refused.load() : 0;
+  *passed_on = p ? p->passed_on.load() : 0;
+}
+
+__attribute__((visibility("default"))) int telehand_init_crypto(const char* argument,
+                                                                void** context,
+                                                                struct ddsi_domaingv* gv) {
+  *context = nullptr;
+  const char* dir = std::getenv("TELEHAND_DDS_SECURITY_LIBDIR");
+  const std::string path =
+      std::string(dir ? dir : TELEHAND_DDS_SECURITY_LIBDIR_DEFAULT) + "/libdds_security_crypto.so";
+  void* lib = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+  if (lib == nullptr) return DDS_SECURITY_FAILED;
+  auto init = reinterpret_cast<plugin_init>(dlsym(lib, "init_crypto"));
+  auto fini = reinterpret_cast<plugin_finalize>(dlsym(lib, "finalize_crypto"));
+  void* inner_context = nullptr;
+  if (init == nullptr || fini == nullptr ||
+      init(argument, &inner_context, gv) != DDS_SECURITY_SUCCESS || inner_context == nullptr) {
+    dlclose(lib);
+    return DDS_SECURITY_FAILED;
+  }
+  auto* p = new Plugin;
+  p->library = lib;
+  p->inner_finalize = fini;
+  p->inner_context = inner_context;
+  p->inner = static_cast<dds_security_cryptography*>(inner_context);
+  p->aes128 = EVP_CIPHER_fetch(nullptr, "AES-128-GCM", nullptr);
+  p->aes256 = EVP_CIPHER_fetch(nullptr, "AES-256-GCM", nullptr);
+
+  p->factory.self = p;
+  p->factory.api = *p->inner->crypto_key_factory;
+  p->factory.api.register_local_participant =
+      TELEHAND_FORWARD(crypto_key_factory, register_local_participant);
+  p->factory.api.register_matched_remote_participant =
+      TELEHAND_FORWARD(crypto_key_factory, register_matched_remote_participant);
+  p->factory.api.register_local_datawriter = registerLocalWriter;
+  p->factory.api.register_matched_remote_datareader =
+      TELEHAND_FORWARD(crypto_key_factory, register_matched_remote_datareader);
+  p->factory.api.register_local_datareader = registerLocalReader;
+  p->factory.api.register_matched_remote_datawriter = registerRemoteWriter;
+  p->factory.api.unregister_participant =
+      TELEHAND_FORWARD(crypto_key_factory, unregister_participant);
+  p->factory.api.unregister_datawriter = unregisterWriter;
+  p->factory.api.unregister_datareader = unregisterReader;
+
+  p->exchange.self = p;
+  p->exchange.api.create_local_participant_crypto_tokens =
+      TELEHAND_FORWARD(crypto_key_exchange, create_local_participant_crypto_tokens);
+  p->exchange.api.set_remote_participant_crypto_tokens =
+      TELEHAND_FORWARD(crypto_key_exchange, set_remote_participant_crypto_tokens);
+  p->exchange.api.create_local_datawriter_crypto_tokens = createLocalWriterTokens;
+  p->exchange.api.set_remote_datawriter_crypto_tokens = setRemoteWriterTokens;
+  p->exchange.api.create_local_datareader_crypto_tokens =
+      TELEHAND_FORWARD(crypto_key_exchange, create_local_datareader_crypto_tokens);
+  p->exchange.api.set_remote_datareader_crypto_tokens =
+      TELEHAND_FORWARD(crypto_key_exchange, set_remote_datareader_crypto_tokens);
+  p->exchange.api.return_crypto_tokens =
+      TELEHAND_FORWARD(crypto_key_exchange, return_crypto_tokens);
+
+  p->transform.self = p;
+  p->transform.api.encode_serialized_payload =
+      TELEHAND_FORWARD(crypto_transform, encode_serialized_payload);
+  p->transform.api.encode_datawriter_submessage = encodeWriterSubmessage;
+  p->transform.api.encode_datareader_submessage =
+      TELEHAND_FORWARD(crypto_transform, encode_datareader_submessage);
+  p->transform.api.encode_rtps_message = TELEHAND_FORWARD(crypto_transform, encode_rtps_message);
+  p->transform.api.decode_rtps_message = TELEHAND_FORWARD(crypto_transform, decode_rtps_message);
+  p->transform.api.preprocess_secure_submsg =
+      TELEHAND_FORWARD(crypto_transform, preprocess_secure_submsg);
+  p->transform.api.decode_datawriter_submessage = decodeWriterSubmessage;
+  p->transform.api.decode_datareader_submessage =
+      TELEHAND_FORWARD(crypto_transform, decode_datareader_submessage);
+  p->transform.api.decode_serialized_payload =
+      TELEHAND_FORWARD(crypto_transform, decode_serialized_payload);
+
+  p->base.self = p;
+  p->base.api.gv = gv;
+  p->base.api.crypto_key_factory = &p->factory.api;
+  p->base.api.crypto_key_exchange = &p->exchange.api;
+  p->base.api.crypto_transform = &p->transform.api;
+  if (p->aes128 == nullptr || p->aes256 == nullptr) {
+    fini(inner_context);
+    dlclose(lib);
+    delete p;
+    return DDS_SECURITY_FAILED;
+  }
+  g_last_plugin.store(p);
+  *context = &p->base.api;
+  return DDS_SECURITY_SUCCESS;
+}
+
+__attribute__((visibility("default"))) int telehand_finalize_crypto(void* context) {
+  if (context == nullptr) return DDS_SECURITY_SUCCESS;
+  Plugin* p = static_cast<BaseBox*>(context)->self;
+  Plugin* expected = p;
+  g_last_plugin.compare_exchange_strong(expected, nullptr);
+  const int rc = p->inner_finalize(p->inner_context);
+  EVP_CIPHER_free(const_cast<EVP_CIPHER*>(p->aes128));
+  EVP_CIPHER_free(const_cast<EVP_CIPHER*>(p->aes256));
+  void* lib = p->library;
+  delete p;
+  dlclose(lib);
+  return rc;
+}
+
+}  // extern "C"
