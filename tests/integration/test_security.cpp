@@ -6,14 +6,20 @@
 #include <gtest/gtest.h>
 #include <linux/if_ether.h>
 #include <net/if.h>
+#include <netinet/in.h>
 #include <netpacket/packet.h>
 #include <stdlib.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <array>
 #include <atomic>
+#include <cstring>
 #include <filesystem>
+#include <iostream>
 #include <memory>
+#include <optional>
+#include <regex>
 #include <string_view>
 #include <thread>
 #include <vector>
@@ -281,6 +287,200 @@ TEST_F(SecurityTest, ProgramsRefuseToRunUnsecuredUnlessTold) {
                  path("client.log"));
   EXPECT_EQ(client.wait(20s), std::optional<int>(2)) << client.output();
   EXPECT_NE(client.output().find("nobody"), std::string::npos) << client.output();
+}
+
+/// The environment of this process with TELEHAND_DDS_CRYPTO set to `which`, and without the
+/// PKI variables this process's own secured participants left (the children take --pki).
+std::vector<std::string> cryptoEnv(const std::string& which) {
+  std::vector<std::string> env;
+  for (char** e = environ; *e != nullptr; ++e) {
+    const std::string_view v(*e);
+    if (!v.starts_with("TELEHAND_DDS_CRYPTO") && !v.starts_with("TELEHAND_PKI=") &&
+        !v.starts_with("TELEHAND_IDENTITY=")) {
+      env.emplace_back(*e);
+    }
+  }
+  env.push_back("TELEHAND_DDS_CRYPTO=" + which);
+  return env;
+}
+
+/// The four counts of a "telehand's cryptography: ..." line in `out` (nothing: no such line).
+std::optional<std::array<uint64_t, 4>> cryptoLine(const std::string& out) {
+  std::smatch m;
+  static const std::regex re(
+      R"(telehand's cryptography: (\d+) data submessages encrypted, (\d+) decrypted, (\d+) )"
+      R"(refused, (\d+) calls)");
+  if (!std::regex_search(out, m, re)) return std::nullopt;
+  return std::array<uint64_t, 4>{std::stoull(m[1]), std::stoull(m[2]), std::stoull(m[3]),
+                                 std::stoull(m[4])};
+}
+
+TEST_F(SecurityTest, TelehandAndCycloneCryptographyReadEachOther) {
+  // telehand's cryptography plugin writes and reads the wire format Cyclone's does, with
+  // Cyclone's keys: a server with one and a client with the other hold a complete session,
+  // both ways round; the side with telehand's did the data submessages' AES-GCM itself.
+  for (const bool server_cyclone : {true, false}) {
+    const std::string tag = server_cyclone ? "cyclone-server" : "cyclone-client";
+    const std::string db = path(tag + ".db");
+    Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "60", "--log-level", "info"}),
+                   path(tag + "-server.log"), 0,
+                   cryptoEnv(server_cyclone ? "cyclone" : "telehand"));
+    Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "3"}), path(tag + "-client.log"), 0,
+                   cryptoEnv(server_cyclone ? "telehand" : "cyclone"));
+    const auto rc = client.wait(30s);
+    EXPECT_EQ(server.stop(), 0) << server.output();
+    ASSERT_EQ(rc, std::optional<int>(0)) << client.output();  // 0: recorded = sent, 0 missing
+    const std::string out = client.output();
+    const uint64_t session = matchNumber(out, R"(session (\d+) open)");
+    const uint64_t sent = matchNumber(out, R"((\d+) samples sent)");
+    ASSERT_GT(sent, 2500u) << out;
+    server::store::SqliteStore store(db, server::store::SqliteStore::Mode::kReadOnly);
+    const auto info = store.session(session);
+    ASSERT_TRUE(info.has_value());
+    EXPECT_EQ(info->state, "closed");
+    EXPECT_EQ(info->samples, sent);
+    const auto mine = cryptoLine(server_cyclone ? out : server.output());
+    const auto theirs = cryptoLine(server_cyclone ? server.output() : out);
+    ASSERT_TRUE(mine.has_value()) << (server_cyclone ? out : server.output());
+    EXPECT_FALSE(theirs.has_value()) << "Cyclone's plugin was asked for, telehand's ran";
+    if (server_cyclone) {
+      EXPECT_GE((*mine)[0], sent) << out;  // every DeviceState sample it sent, encrypted by it
+    } else {
+      EXPECT_GE((*mine)[1], sent) << server.output();  // ... decrypted by it
+    }
+    EXPECT_EQ((*mine)[2], 0u) << "nothing was tampered with";
+  }
+}
+
+/// Sends, for each secured submessage that crosses the loopback interface, a copy with one
+/// byte of its encrypted body changed to where the original went (AF_PACKET and a UDP socket;
+/// needs CAP_NET_RAW).
+class Tamperer {
+ public:
+  explicit Tamperer(uint64_t limit) : limit_(limit) {
+    rx_ = ::socket(AF_PACKET, SOCK_RAW, htons(ETH_P_ALL));
+    tx_ = ::socket(AF_INET, SOCK_DGRAM, 0);
+    if (rx_ < 0 || tx_ < 0) return;
+    sockaddr_ll a{};
+    a.sll_family = AF_PACKET;
+    a.sll_protocol = htons(ETH_P_ALL);
+    a.sll_ifindex = static_cast<int>(if_nametoindex("lo"));
+    sockaddr_in me{};
+    me.sin_family = AF_INET;
+    me.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    socklen_t len = sizeof me;
+    if (::bind(rx_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 ||
+        ::bind(tx_, reinterpret_cast<sockaddr*>(&me), sizeof me) != 0 ||
+        ::getsockname(tx_, reinterpret_cast<sockaddr*>(&me), &len) != 0) {
+      close();
+      return;
+    }
+    own_port_ = ntohs(me.sin_port);
+    timeval tv{0, 100'000};
+    ::setsockopt(rx_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+    thread_ = std::thread([this] { run(); });
+  }
+  ~Tamperer() { stopNow(); }
+  bool ok() const { return rx_ >= 0 && tx_ >= 0; }
+  void stopNow() {
+    stop_.store(true);
+    if (thread_.joinable()) thread_.join();
+    close();
+  }
+  uint64_t sent() const { return sent_.load(); }
+
+ private:
+  void close() {
+    if (rx_ >= 0) ::close(rx_);
+    if (tx_ >= 0) ::close(tx_);
+    rx_ = tx_ = -1;
+  }
+  void run() {
+    std::vector<uint8_t> buf(65536);
+    while (!stop_.load()) {
+      sockaddr_ll from{};
+      socklen_t fl = sizeof from;
+      const ssize_t n =
+          ::recvfrom(rx_, buf.data(), buf.size(), 0, reinterpret_cast<sockaddr*>(&from), &fl);
+      if (n <= 0 || from.sll_pkttype == PACKET_OUTGOING || sent_.load() >= limit_) continue;
+      tamper(buf.data(), static_cast<size_t>(n));
+    }
+  }
+  void tamper(uint8_t* f, size_t n) {
+    // Ethernet (14), IPv4, UDP (8), RTPS header (20), then the submessages.
+    if (n < 14 + 20 + 8 + 20 || f[12] != 0x08 || f[13] != 0x00) return;
+    const uint8_t* ip = f + 14;
+    const size_t ihl = size_t{ip[0] & 0x0fu} * 4;
+    if ((ip[0] >> 4) != 4 || ip[9] != 17 || n < 14 + ihl + 8 + 20) return;
+    uint8_t* udp = f + 14 + ihl;
+    const uint16_t src_port = static_cast<uint16_t>((udp[0] << 8) | udp[1]);
+    if (src_port == own_port_) return;
+    uint8_t* rtps = udp + 8;
+    const size_t rtps_len = n - 14 - ihl - 8;
+    if (std::memcmp(rtps, "RTPS", 4) != 0) return;
+    size_t at = 20;
+    while (at + 4 <= rtps_len) {
+      const uint8_t id = rtps[at];
+      const bool le = rtps[at + 1] & 1;
+      const size_t len = le ? size_t{rtps[at + 2]} | size_t{rtps[at + 3]} << 8
+                            : size_t{rtps[at + 2]} << 8 | size_t{rtps[at + 3]};
+      const size_t next = at + 4 + len;
+      if (len == 0 || next > rtps_len) return;
+      if (id == 0x31 && next + 4 + 8 <= rtps_len && rtps[next] == 0x30) {  // SEC_PREFIX, SEC_BODY
+        const bool ble = rtps[next + 1] & 1;
+        const size_t blen = ble ? size_t{rtps[next + 2]} | size_t{rtps[next + 3]} << 8
+                                : size_t{rtps[next + 2]} << 8 | size_t{rtps[next + 3]};
+        if (blen < 8 || next + 4 + blen > rtps_len) return;
+        rtps[next + 4 + 4 + (blen - 4) / 2] ^= 0x5a;  // a byte inside the ciphertext
+        sockaddr_in to{};
+        to.sin_family = AF_INET;
+        std::memcpy(&to.sin_addr.s_addr, ip + 16, 4);
+        std::memcpy(&to.sin_port, udp + 2, 2);
+        if (::sendto(tx_, rtps, rtps_len, 0, reinterpret_cast<sockaddr*>(&to), sizeof to) ==
+            static_cast<ssize_t>(rtps_len)) {
+          sent_.fetch_add(1);
+        }
+        return;
+      }
+      at = next;
+    }
+  }
+
+  uint64_t limit_;
+  int rx_ = -1;
+  int tx_ = -1;
+  uint16_t own_port_ = 0;
+  std::atomic<bool> stop_{false};
+  std::atomic<uint64_t> sent_{0};
+  std::thread thread_;
+};
+
+TEST_F(SecurityTest, ATamperedSubmessageIsRefused) {
+  // Copies of the session's secured submessages with one encrypted byte changed, sent to where
+  // the originals went: telehand's cryptography refuses each (its GCM tag does not hold) and
+  // so does Cyclone's after it; the record is the client's samples, complete and unchanged.
+  Tamperer tamper(400);
+  if (!tamper.ok()) GTEST_SKIP() << "no raw socket on lo (needs CAP_NET_RAW)";
+  const std::string db = path("tamper.db");
+  Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "60", "--log-level", "info"}),
+                 path("server.log"), 0, cryptoEnv("telehand"));
+  Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "4"}), path("client.log"), 0,
+                 cryptoEnv("telehand"));
+  const auto rc = client.wait(30s);
+  tamper.stopNow();
+  EXPECT_EQ(server.stop(), 0) << server.output();
+  ASSERT_EQ(rc, std::optional<int>(0)) << client.output();  // recorded = sent, 0 missing
+  EXPECT_NE(server.output().find(" 0 invalid"), std::string::npos) << server.output();
+  const auto c = cryptoLine(client.output());
+  const auto s = cryptoLine(server.output());
+  ASSERT_TRUE(c.has_value()) << client.output();
+  ASSERT_TRUE(s.has_value()) << server.output();
+  const uint64_t refused = (*c)[2] + (*s)[2];
+  std::cout << "tampered copies sent " << tamper.sent() << ", refused " << refused << "\n";
+  EXPECT_GE(tamper.sent(), 100u);
+  // Every copy that reached a reader was refused, and nothing else was.
+  EXPECT_GE(refused, tamper.sent() / 2) << "sent " << tamper.sent();
+  EXPECT_LE(refused, tamper.sent());
 }
 
 }  // namespace
