@@ -13,7 +13,8 @@ build=${BUILD:-$root/build/release}
 work=${WORK:-/tmp/telehand-fuzz}
 targets="fuzz_mf2_decoder fuzz_wire_joint_model fuzz_wire_knn_model fuzz_wire_device_state
 fuzz_wire_record_chunk fuzz_wire_hand_state fuzz_wire_direct_force fuzz_config_client
-fuzz_config_server fuzz_config_patient_case fuzz_mf2_device_file fuzz_link_profile"
+fuzz_config_server fuzz_config_patient_case fuzz_mf2_device_file fuzz_link_profile
+fuzz_secured_submessage"
 status=0
 printf '%-26s %10s %8s %8s  %s\n' target runs seconds exec/s outcome
 for t in $targets; do

@@ -21,7 +21,6 @@
 // plugin, which then also writes the error.
 #include <dlfcn.h>
 #include <openssl/evp.h>
-#include <openssl/hmac.h>
 #include <openssl/rand.h>
 
 #include <array>
@@ -40,6 +39,7 @@
 // only the cryptography interface and the plugin entry points' types.
 #include "dds/security/dds_security_api_cryptography.h"
 #include "dds/security/dds_security_api_defs.h"
+#include "secured_submessage.h"
 
 extern "C" {
 struct ddsi_domaingv;
@@ -49,99 +49,19 @@ typedef int (*plugin_finalize)(void* context);
 
 namespace {
 
-constexpr uint8_t kSmidSecBody = 0x30;
-constexpr uint8_t kSmidSecPrefix = 0x31;
-constexpr uint8_t kSmidSecPostfix = 0x32;
-constexpr uint8_t kFlagLittleEndian = 0x01;
-constexpr uint32_t kKindAes128Gcm = 2;
-constexpr uint32_t kKindAes256Gcm = 4;
-constexpr size_t kTagBytes = 16;
-constexpr size_t kPrefixBytes = 20;  // kind, key id, session id, IV suffix
-constexpr size_t kIvBytes = 12;
+using namespace telehand::dds::crypto;
+
 /// A new session (key) after this many messages; the IV's counter never repeats within one.
 constexpr uint64_t kMessagesPerSession = uint64_t{1} << 32;
 
-uint32_t readBe32(const uint8_t* p) {
-  return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | p[3];
-}
-void writeBe32(uint8_t* p, uint32_t v) {
-  p[0] = static_cast<uint8_t>(v >> 24);
-  p[1] = static_cast<uint8_t>(v >> 16);
-  p[2] = static_cast<uint8_t>(v >> 8);
-  p[3] = static_cast<uint8_t>(v);
-}
-void writeBe64(uint8_t* p, uint64_t v) {
-  writeBe32(p, static_cast<uint32_t>(v >> 32));
-  writeBe32(p + 4, static_cast<uint32_t>(v));
-}
-
-bool isGcm(uint32_t kind) { return kind == kKindAes128Gcm || kind == kKindAes256Gcm; }
-size_t keyBytes(uint32_t kind) { return kind == kKindAes256Gcm ? 32 : 16; }
-
-/// One writer's key material, as Cyclone's plugin puts it in the writer's crypto token.
-struct KeyMaterial {
-  uint32_t kind = 0;
-  uint32_t sender_key_id = 0;
-  std::array<uint8_t, 32> salt{};
-  std::array<uint8_t, 32> key{};
-};
-
-/// Parses a crypto token's "dds.cryp.keymat": kind, salt, sender key id, key, receiver key id
-/// (each length-prefixed, big-endian). Only GCM key material without a receiver-specific key
-/// is taken; anything else stays with Cyclone's plugin.
-bool parseKeyMaterial(const DDS_Security_DataHolder& token, KeyMaterial& out) {
+/// The key material of a writer's crypto token (its first binary property).
+bool tokenKeyMaterial(const DDS_Security_DataHolder& token, KeyMaterial& out) {
   if (token.binary_properties._length < 1 || token.binary_properties._buffer == nullptr) {
     return false;
   }
   const DDS_Security_BinaryProperty_t& prop = token.binary_properties._buffer[0];
-  if (prop.name == nullptr || std::strcmp(prop.name, "dds.cryp.keymat") != 0) return false;
-  const uint8_t* p = prop.value._buffer;
-  size_t left = prop.value._length;
-  if (p == nullptr) return false;
-  auto u32 = [&](uint32_t& v) {
-    if (left < 4) return false;
-    v = readBe32(p);
-    p += 4;
-    left -= 4;
-    return true;
-  };
-  auto bytes = [&](std::array<uint8_t, 32>& dst, size_t n) {
-    uint32_t len = 0;
-    if (!u32(len) || len != n || left < n) return false;
-    std::memcpy(dst.data(), p, n);
-    p += n;
-    left -= n;
-    return true;
-  };
-  uint32_t receiver_key_id = 0;
-  if (!u32(out.kind) || !isGcm(out.kind)) return false;
-  const size_t n = keyBytes(out.kind);
-  return bytes(out.salt, n) && u32(out.sender_key_id) && bytes(out.key, n) &&
-         u32(receiver_key_id) && receiver_key_id == 0;
-}
-
-bool sameKey(const KeyMaterial& a, const KeyMaterial& b) {
-  return a.kind == b.kind && a.sender_key_id == b.sender_key_id && a.salt == b.salt &&
-         a.key == b.key;
-}
-
-/// HMAC-SHA256(master key, "SessionKey" | master salt | session id), cut to the key's size.
-bool sessionKey(const KeyMaterial& km, uint32_t session_id, std::array<uint8_t, 32>& out) {
-  const size_t n = keyBytes(km.kind);
-  uint8_t msg[10 + 32 + 4];
-  std::memcpy(msg, "SessionKey", 10);
-  std::memcpy(msg + 10, km.salt.data(), n);
-  writeBe32(msg + 10 + n, session_id);
-  uint8_t md[EVP_MAX_MD_SIZE];
-  unsigned int md_len = 0;
-  if (HMAC(EVP_sha256(), km.key.data(), static_cast<int>(n), msg, 10 + n + 4, md, &md_len) ==
-          nullptr ||
-      md_len < n) {
-    return false;
-  }
-  std::memcpy(out.data(), md, n);
-  OPENSSL_cleanse(md, sizeof md);
-  return true;
+  return prop.name != nullptr && std::strcmp(prop.name, "dds.cryp.keymat") == 0 &&
+         parseKeyMaterial(prop.value._buffer, prop.value._length, out);
 }
 
 struct CipherCtx {
@@ -216,9 +136,7 @@ struct Plugin {
   std::atomic<uint64_t> refused{0};
   std::atomic<uint64_t> passed_on{0};
 
-  const EVP_CIPHER* cipherFor(uint32_t kind) const {
-    return kind == kKindAes256Gcm ? aes256 : aes128;
-  }
+  const EVP_CIPHER* cipherFor(uint32_t kind) const { return kind == kAes256Gcm ? aes256 : aes128; }
   template <class T>
   std::shared_ptr<T> find(std::unordered_map<int64_t, std::shared_ptr<T>>& map, int64_t h) {
     const std::shared_lock lock(map_mu);
@@ -333,7 +251,7 @@ DDS_Security_boolean createLocalWriterTokens(dds_security_crypto_key_exchange* i
     const std::lock_guard lock(w->mu);
     for (uint32_t i = 0; i < tokens->_length; ++i) {
       KeyMaterial km;
-      if (!parseKeyMaterial(tokens->_buffer[i], km)) continue;
+      if (!tokenKeyMaterial(tokens->_buffer[i], km)) continue;
       bool known = false;
       for (const KeyMaterial& t : w->tokens) {
         if (t.sender_key_id == km.sender_key_id) {
@@ -365,7 +283,7 @@ DDS_Security_boolean setRemoteWriterTokens(dds_security_crypto_key_exchange* ins
   auto rw = std::make_shared<RemoteWriter>();
   for (uint32_t i = 0; i < tokens->_length && i < 2; ++i) {
     KeyMaterial km;
-    if (parseKeyMaterial(tokens->_buffer[i], km)) rw->keys.push_back(km);
+    if (tokenKeyMaterial(tokens->_buffer[i], km)) rw->keys.push_back(km);
   }
   const std::unique_lock lock(p->map_mu);
   if (rw->keys.empty() || rw->cipher.ctx == nullptr) {
@@ -378,39 +296,14 @@ DDS_Security_boolean setRemoteWriterTokens(dds_security_crypto_key_exchange* ins
 
 // ---- transform ----
 
-/// Reads the submessage header at `p` (bounded by `end`): id, and its body's [begin, end).
-bool submessage(const uint8_t*& p, const uint8_t* end, uint8_t id, const uint8_t*& body,
-                size_t& len) {
-  if (end - p < 4 || p[0] != id) return false;
-  len = (p[1] & kFlagLittleEndian) ? (size_t{p[2]} | (size_t{p[3]} << 8))
-                                   : ((size_t{p[2]} << 8) | size_t{p[3]});
-  if (len % 4 != 0 || static_cast<size_t>(end - p - 4) < len) return false;
-  body = p + 4;
-  p = body + len;
-  return true;
-}
-
-uint8_t* putHeader(uint8_t* p, uint8_t id, size_t len) {
-  p[0] = id;
-  p[1] = kFlagLittleEndian;
-  p[2] = static_cast<uint8_t>(len);
-  p[3] = static_cast<uint8_t>(len >> 8);
-  return p + 4;
-}
-
 /// Learns which of the writer's keys Cyclone's plugin encrypts with from the first message it
 /// encoded, and starts this writer's own session with it (a session id other than that one).
 void activate(Plugin* p, LocalWriter& w, const DDS_Security_OctetSeq& encoded) {
-  const uint8_t* q = encoded._buffer;
-  const uint8_t* body = nullptr;
-  size_t len = 0;
-  if (q == nullptr || !submessage(q, q + encoded._length, kSmidSecPrefix, body, len) ||
-      len < kPrefixBytes) {
-    return;
-  }
-  const uint32_t kind = readBe32(body);
-  const uint32_t key_id = readBe32(body + 4);
-  const uint32_t their_session = readBe32(body + 8);
+  Secured theirs;
+  if (!parseSecured(encoded._buffer, encoded._length, theirs)) return;
+  const uint32_t kind = theirs.kind;
+  const uint32_t key_id = theirs.key_id;
+  const uint32_t their_session = theirs.session_id;
   for (const KeyMaterial& km : w.tokens) {
     if (km.sender_key_id != key_id || km.kind != kind) continue;
     uint32_t sid = 0;
@@ -447,41 +340,23 @@ bool newSession(Plugin* p, LocalWriter& w) {
   return keyed;
 }
 
-/// SEC_PREFIX | SEC_BODY(length, AES-GCM(plain)) | SEC_POSTFIX(tag, 0 receiver MACs).
+/// The secured form (secured_submessage.h) of one plain submessage, with the writer's session.
 bool encodeFast(Plugin* p, LocalWriter& w, const DDS_Security_OctetSeq& plain,
                 DDS_Security_OctetSeq& out) {
   if (plain._length == 0 || plain._length % 4 != 0 || plain._length > 0xffff - 8) return false;
   if (w.session_messages >= kMessagesPerSession && !newSession(p, w)) return false;
   const size_t n = plain._length;
-  const size_t total = 4 + kPrefixBytes + 4 + 4 + n + 4 + kTagBytes + 4;
+  const size_t total = securedSize(n);
   auto* buf = static_cast<uint8_t*>(std::malloc(total));
   if (buf == nullptr) return false;
   ++w.iv_suffix;
   ++w.session_messages;
-  uint8_t* q = putHeader(buf, kSmidSecPrefix, kPrefixBytes);
-  writeBe32(q, w.km.kind);
-  writeBe32(q + 4, w.km.sender_key_id);
-  uint8_t* iv = q + 8;
-  writeBe32(iv, w.session_id);
-  writeBe64(iv + 4, w.iv_suffix);
-  q = putHeader(q + kPrefixBytes, kSmidSecBody, 4 + n);
-  writeBe32(q, static_cast<uint32_t>(n));
-  uint8_t* cipher = q + 4;
-  uint8_t* post = putHeader(cipher + n, kSmidSecPostfix, kTagBytes + 4);
-  int len = 0;
-  int fin = 0;
-  const bool ok =
-      EVP_EncryptInit_ex(w.cipher.ctx, nullptr, nullptr, nullptr, iv) == 1 &&
-      EVP_EncryptUpdate(w.cipher.ctx, cipher, &len, plain._buffer, static_cast<int>(n)) == 1 &&
-      static_cast<size_t>(len) == n && EVP_EncryptFinal_ex(w.cipher.ctx, cipher + len, &fin) == 1 &&
-      fin == 0 &&
-      EVP_CIPHER_CTX_ctrl(w.cipher.ctx, EVP_CTRL_GCM_GET_TAG, static_cast<int>(kTagBytes), post) ==
-          1;
+  const Frame f = writeFrame(buf, n, w.km.kind, w.km.sender_key_id, w.session_id, w.iv_suffix);
+  const bool ok = seal(w.cipher.ctx, plain._buffer, n, f);
   if (!ok) {
     std::free(buf);
     return false;
   }
-  writeBe32(post + kTagBytes, 0);
   out._buffer = buf;
   out._length = static_cast<uint32_t>(total);
   out._maximum = static_cast<uint32_t>(total);
@@ -525,60 +400,33 @@ DDS_Security_boolean encodeWriterSubmessage(dds_security_crypto_transform* insta
 
 bool decodeFast(Plugin* p, RemoteWriter& rw, const DDS_Security_OctetSeq& encoded,
                 DDS_Security_OctetSeq& plain) {
-  const uint8_t* q = encoded._buffer;
-  if (q == nullptr) return false;
-  const uint8_t* end = q + encoded._length;
-  const uint8_t* prefix = nullptr;
-  const uint8_t* body = nullptr;
-  const uint8_t* post = nullptr;
-  size_t prefix_len = 0;
-  size_t body_len = 0;
-  size_t post_len = 0;
-  if (!submessage(q, end, kSmidSecPrefix, prefix, prefix_len) || prefix_len < kPrefixBytes ||
-      !submessage(q, end, kSmidSecBody, body, body_len) || body_len < 4 ||
-      !submessage(q, end, kSmidSecPostfix, post, post_len) || post_len < kTagBytes + 4) {
-    return false;
-  }
-  const uint32_t kind = readBe32(prefix);
-  const uint32_t key_id = readBe32(prefix + 4);
-  const uint32_t session_id = readBe32(prefix + 8);
-  const uint8_t* iv = prefix + 8;
-  const size_t n = readBe32(body);
-  if (n == 0 || n > body_len - 4) return false;
+  Secured m;
+  if (!parseSecured(encoded._buffer, encoded._length, m)) return false;
   const KeyMaterial* km = nullptr;
   for (const KeyMaterial& k : rw.keys) {
-    if (k.sender_key_id == key_id && k.kind == kind) km = &k;
+    if (k.sender_key_id == m.key_id && k.kind == m.kind) km = &k;
   }
   if (km == nullptr) return false;
-  if (!rw.have_session || rw.session_id != session_id || rw.session_key_id != key_id) {
+  if (!rw.have_session || rw.session_id != m.session_id || rw.session_key_id != m.key_id) {
     std::array<uint8_t, 32> key{};
     rw.have_session =
-        sessionKey(*km, session_id, key) &&
-        EVP_DecryptInit_ex(rw.cipher.ctx, p->cipherFor(kind), nullptr, key.data(), nullptr) == 1;
+        sessionKey(*km, m.session_id, key) &&
+        EVP_DecryptInit_ex(rw.cipher.ctx, p->cipherFor(m.kind), nullptr, key.data(), nullptr) == 1;
     OPENSSL_cleanse(key.data(), key.size());
     if (!rw.have_session) return false;
-    rw.session_id = session_id;
-    rw.session_key_id = key_id;
+    rw.session_id = m.session_id;
+    rw.session_key_id = m.key_id;
   }
-  auto* out = static_cast<uint8_t*>(std::malloc(n));
+  auto* out = static_cast<uint8_t*>(std::malloc(m.n));
   if (out == nullptr) return false;
-  int len = 0;
-  int fin = 0;
-  uint8_t tag[kTagBytes];
-  std::memcpy(tag, post, kTagBytes);
-  const bool ok = EVP_DecryptInit_ex(rw.cipher.ctx, nullptr, nullptr, nullptr, iv) == 1 &&
-                  EVP_CIPHER_CTX_ctrl(rw.cipher.ctx, EVP_CTRL_GCM_SET_TAG,
-                                      static_cast<int>(kTagBytes), tag) == 1 &&
-                  EVP_DecryptUpdate(rw.cipher.ctx, out, &len, body + 4, static_cast<int>(n)) == 1 &&
-                  static_cast<size_t>(len) == n &&
-                  EVP_DecryptFinal_ex(rw.cipher.ctx, out + len, &fin) == 1;
+  const bool ok = unseal(rw.cipher.ctx, m, out);
   if (!ok) {
     std::free(out);
     return false;
   }
   plain._buffer = out;
-  plain._length = static_cast<uint32_t>(n);
-  plain._maximum = static_cast<uint32_t>(n);
+  plain._length = static_cast<uint32_t>(m.n);
+  plain._maximum = static_cast<uint32_t>(m.n);
   return true;
 }
 
