@@ -13,7 +13,7 @@
 // The keys are the ones Cyclone's plugin made and exchanged (its writers' crypto tokens);
 // the session key is HMAC-SHA256(master key, "SessionKey" | master salt | session id), the
 // IV the session id and a counter. So a participant with this plugin and one with Cyclone's
-// read each other (tested: DdsCryptoTest in tests/integration/test_security.cpp).
+// read each other (SecurityTest.TelehandAndCycloneCryptographyReadEachOther).
 //
 // Anything else (the volatile key-exchange endpoints, signed-only or origin-authenticated
 // submessages, payload and RTPS-message protection, data readers' submessages) and any
@@ -81,6 +81,7 @@ struct LocalWriter {
   bool active = false;
   KeyMaterial km;
   uint32_t session_id = 0;
+  uint32_t cyclone_session_id = 0;  ///< the session Cyclone's plugin used: never this one's
   uint64_t iv_suffix = 0;
   uint64_t session_messages = 0;
   CipherCtx cipher;
@@ -322,6 +323,7 @@ void activate(Plugin* p, LocalWriter& w, const DDS_Security_OctetSeq& encoded) {
     if (!keyed) return;
     w.km = km;
     w.session_id = sid;
+    w.cyclone_session_id = their_session;
     w.iv_suffix = iv;
     w.session_messages = 0;
     w.active = true;
@@ -331,7 +333,7 @@ void activate(Plugin* p, LocalWriter& w, const DDS_Security_OctetSeq& encoded) {
 
 bool newSession(Plugin* p, LocalWriter& w) {
   std::array<uint8_t, 32> key{};
-  ++w.session_id;
+  if (++w.session_id == w.cyclone_session_id) ++w.session_id;
   const bool keyed =
       sessionKey(w.km, w.session_id, key) &&
       EVP_EncryptInit_ex(w.cipher.ctx, p->cipherFor(w.km.kind), nullptr, key.data(), nullptr) == 1;
