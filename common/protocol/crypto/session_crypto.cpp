@@ -132,10 +132,12 @@ struct Plugin {
   std::unordered_map<int64_t, std::shared_ptr<LocalWriter>> local_writers;
   std::unordered_map<int64_t, std::shared_ptr<RemoteWriter>> remote_writers;
 
-  std::atomic<uint64_t> fast_encodes{0};
-  std::atomic<uint64_t> fast_decodes{0};
-  std::atomic<uint64_t> refused{0};
-  std::atomic<uint64_t> passed_on{0};
+  // What this process's plugins did, over all of them (a participant made again makes the
+  // domain, and so the plugin, again).
+  static inline std::atomic<uint64_t> fast_encodes{0};
+  static inline std::atomic<uint64_t> fast_decodes{0};
+  static inline std::atomic<uint64_t> refused{0};
+  static inline std::atomic<uint64_t> passed_on{0};
 
   const EVP_CIPHER* cipherFor(uint32_t kind) const { return kind == kAes256Gcm ? aes256 : aes128; }
   template <class T>
@@ -150,8 +152,6 @@ struct Plugin {
     return it != reader_encrypted.end() && it->second;
   }
 };
-
-std::atomic<Plugin*> g_last_plugin{nullptr};
 
 Plugin* self(dds_security_crypto_key_factory* i) { return reinterpret_cast<FactoryBox*>(i)->self; }
 Plugin* self(dds_security_crypto_key_exchange* i) {
@@ -464,18 +464,18 @@ DDS_Security_boolean decodeWriterSubmessage(dds_security_crypto_transform* insta
 
 extern "C" {
 
-/// What this process's plugin did: data submessages it encrypted and decrypted itself,
-/// received ones it refused (Cyclone's plugin, called next, refuses them too), and calls passed
-/// on to Cyclone's plugin. Zeros when none is loaded. Read by telehand::dds::cryptoCounts.
+/// What this process's plugins did (all of them, made again with the domain or not): data
+/// submessages encrypted and decrypted here, received ones refused (Cyclone's plugin, called
+/// next, refuses them too), and calls passed on to Cyclone's plugin. Read by
+/// telehand::dds::cryptoCounts.
 __attribute__((visibility("default"))) void telehand_crypto_counts(uint64_t* encrypted,
                                                                    uint64_t* decrypted,
                                                                    uint64_t* refused,
                                                                    uint64_t* passed_on) {
-  Plugin* p = g_last_plugin.load();
-  *encrypted = p ? p->fast_encodes.load() : 0;
-  *decrypted = p ? p->fast_decodes.load() : 0;
-  *refused = p ? p->refused.load() : 0;
-  *passed_on = p ? p->passed_on.load() : 0;
+  *encrypted = Plugin::fast_encodes.load();
+  *decrypted = Plugin::fast_decodes.load();
+  *refused = Plugin::refused.load();
+  *passed_on = Plugin::passed_on.load();
 }
 
 __attribute__((visibility("default"))) int telehand_init_crypto(const char* argument,
@@ -560,7 +560,6 @@ __attribute__((visibility("default"))) int telehand_init_crypto(const char* argu
     delete p;
     return DDS_SECURITY_FAILED;
   }
-  g_last_plugin.store(p);
   *context = &p->base.api;
   return DDS_SECURITY_SUCCESS;
 }
@@ -568,8 +567,6 @@ __attribute__((visibility("default"))) int telehand_init_crypto(const char* argu
 __attribute__((visibility("default"))) int telehand_finalize_crypto(void* context) {
   if (context == nullptr) return DDS_SECURITY_SUCCESS;
   Plugin* p = static_cast<BaseBox*>(context)->self;
-  Plugin* expected = p;
-  g_last_plugin.compare_exchange_strong(expected, nullptr);
   const int rc = p->inner_finalize(p->inner_context);
   EVP_CIPHER_free(const_cast<EVP_CIPHER*>(p->aes128));
   EVP_CIPHER_free(const_cast<EVP_CIPHER*>(p->aes256));
