@@ -1,5 +1,6 @@
 #include "telehand/app/malloc_tuning.h"
 
+#include <malloc.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -10,15 +11,34 @@
 
 namespace telehand::app {
 
-std::optional<std::string> tunablesWithoutThreadCache(const char* current) {
-  const std::string_view now = current ? current : "";
-  // GLIBC_TUNABLES is name=value pairs separated by colons.
+namespace {
+/// Whether GLIBC_TUNABLES (name=value pairs separated by colons) sets `name`.
+bool sets(std::string_view tunables, std::string_view name) {
   std::size_t at = 0;
-  while (at <= now.size()) {
-    const std::size_t end = std::min(now.find(':', at), now.size());
-    if (now.substr(at, end - at).starts_with("glibc.malloc.tcache_count=")) return std::nullopt;
+  while (at <= tunables.size()) {
+    const std::size_t end = std::min(tunables.find(':', at), tunables.size());
+    const std::string_view pair = tunables.substr(at, end - at);
+    if (pair.size() > name.size() && pair.starts_with(name) && pair[name.size()] == '=') {
+      return true;
+    }
     at = end + 1;
   }
+  return false;
+}
+}  // namespace
+
+bool tunablesSetMmapThreshold(const char* current) {
+  return sets(current ? current : "", "glibc.malloc.mmap_threshold");
+}
+
+bool holdMmapThreshold() {
+  if (tunablesSetMmapThreshold(getenv("GLIBC_TUNABLES"))) return false;
+  return mallopt(M_MMAP_THRESHOLD, static_cast<int>(kMmapThresholdBytes)) == 1;
+}
+
+std::optional<std::string> tunablesWithoutThreadCache(const char* current) {
+  const std::string_view now = current ? current : "";
+  if (sets(now, "glibc.malloc.tcache_count")) return std::nullopt;
   if (now.empty()) return std::string(kNoThreadCacheTunable);
   return std::string(now) + ":" + kNoThreadCacheTunable;
 }

@@ -22,6 +22,8 @@ int main(int argc, char** argv) {
   // First, before any thread: a server that has served a burst of sessions gives their
   // memory back only without glibc's per-thread caches (malloc_tuning.h).
   app::runWithoutMallocThreadCache(argv);
+  // And its large blocks mapped apart from the heap, so that they leave no holes in it.
+  app::holdMmapThreshold();
   CLI::App app{
       "telehand-server: authoritative session host. Opens and closes sessions on "
       "request, records every DeviceState sample (SQLite, or a PostgreSQL database shared with "
