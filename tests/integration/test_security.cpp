@@ -14,6 +14,7 @@
 
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <iostream>
@@ -352,12 +353,16 @@ TEST_F(SecurityTest, TelehandAndCycloneCryptographyReadEachOther) {
   }
 }
 
-/// Sends, for each secured submessage that crosses the loopback interface, a copy with one
-/// byte of its encrypted body changed to where the original went (AF_PACKET and a UDP socket;
-/// needs CAP_NET_RAW).
+/// Sends, for each secured submessage that crosses the loopback interface from `after` on, a
+/// copy with one byte of its encrypted body changed to where the original went, at most
+/// `limit` copies (AF_PACKET and a UDP socket; needs CAP_NET_RAW). From `after`: once the
+/// session is running, every reader has its writers' keys, so each copy reaching one is
+/// decrypted (and refused) by telehand's plugin rather than passed to Cyclone's before the
+/// keys came.
 class Tamperer {
  public:
-  explicit Tamperer(uint64_t limit) : limit_(limit) {
+  Tamperer(uint64_t limit, std::chrono::milliseconds after)
+      : limit_(limit), start_(std::chrono::steady_clock::now() + after) {
     rx_ = ::socket(AF_PACKET, SOCK_RAW, htons(ETH_P_ALL));
     tx_ = ::socket(AF_INET, SOCK_DGRAM, 0);
     if (rx_ < 0 || tx_ < 0) return;
@@ -402,7 +407,10 @@ class Tamperer {
       socklen_t fl = sizeof from;
       const ssize_t n =
           ::recvfrom(rx_, buf.data(), buf.size(), 0, reinterpret_cast<sockaddr*>(&from), &fl);
-      if (n <= 0 || from.sll_pkttype == PACKET_OUTGOING || sent_.load() >= limit_) continue;
+      if (n <= 0 || from.sll_pkttype == PACKET_OUTGOING || sent_.load() >= limit_ ||
+          std::chrono::steady_clock::now() < start_) {
+        continue;
+      }
       tamper(buf.data(), static_cast<size_t>(n));
     }
   }
@@ -447,6 +455,7 @@ class Tamperer {
   }
 
   uint64_t limit_;
+  std::chrono::steady_clock::time_point start_;
   int rx_ = -1;
   int tx_ = -1;
   uint16_t own_port_ = 0;
@@ -459,12 +468,12 @@ TEST_F(SecurityTest, ATamperedSubmessageIsRefused) {
   // Copies of the session's secured submessages with one encrypted byte changed, sent to where
   // the originals went: telehand's cryptography refuses each (its GCM tag does not hold) and
   // so does Cyclone's after it; the record is the client's samples, complete and unchanged.
-  Tamperer tamper(400);
+  Tamperer tamper(400, 2000ms);
   if (!tamper.ok()) GTEST_SKIP() << "no raw socket on lo (needs CAP_NET_RAW)";
   const std::string db = path("tamper.db");
   Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "60", "--log-level", "info"}),
                  path("server.log"), 0, cryptoEnv("telehand"));
-  Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "4"}), path("client.log"), 0,
+  Process client(cmd(TELEHAND_CLIENT_BIN, {"--seconds", "5"}), path("client.log"), 0,
                  cryptoEnv("telehand"));
   const auto rc = client.wait(30s);
   tamper.stopNow();
@@ -478,8 +487,9 @@ TEST_F(SecurityTest, ATamperedSubmessageIsRefused) {
   const uint64_t refused = (*c)[2] + (*s)[2];
   std::cout << "tampered copies sent " << tamper.sent() << ", refused " << refused << "\n";
   EXPECT_GE(tamper.sent(), 100u);
-  // Every copy that reached a reader was refused, and nothing else was.
-  EXPECT_GE(refused, tamper.sent() / 2) << "sent " << tamper.sent();
+  // The copies that reached a reader were refused by telehand's plugin (the few others were
+  // data readers' submessages, which Cyclone's refuses), and nothing else was.
+  EXPECT_GE(refused, tamper.sent() * 3 / 4) << "sent " << tamper.sent();
   EXPECT_LE(refused, tamper.sent());
 }
 
