@@ -20,7 +20,9 @@
 //     search problem; better: the model misses something), PROBE_BINS=L with it the mean
 //     residual per 5 deg bin, stretching and returning, at lag L; PROBE_NOSPASM=1 fits
 //     without the spasm term, PROBE_RHW=H fits (and rates the truth) with rates over ±H
-//     samples (FitOptions::rate_half_window), PROBE_DUMP=FILE the points.
+//     samples (FitOptions::rate_half_window), PROBE_NOISE=N captures with N newtons of
+//     thimble noise (default the paper's 1.43), PROBE_SECONDS=S with S seconds per axis,
+//     PROBE_DUMP=FILE the points.
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
 //     captures (server/estimate/synthetic_massage.h: 60 s, 10 ± 2 N, the paper's 1.43 N
 //     thimble noise), the shipped webs' [tissue] (healthy, oedema, scar, hypertonic) or
@@ -328,6 +330,8 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   o.truth = pc.model;
   o.frequency_hz = hz;
   o.seed = seed;
+  if (const char* h = std::getenv("PROBE_NOISE")) o.noise_n = std::atof(h);
+  if (const char* h = std::getenv("PROBE_SECONDS")) o.seconds_per_axis = std::atof(h);
   const auto cap = server::estimate::synthesizeCapture(o);
   server::estimate::FitOptions fo;
   fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
@@ -461,7 +465,8 @@ int run(int argc, char** argv) {
         "[--noise N]\n"
         "       telehand_bench_capture --probe CASE_FILE|random-SEED HZ SEED\n"
         "         one capture fitted; PROBE_CURVE, PROBE_TRUTH, PROBE_LAGS, PROBE_BINS,\n"
-        "         PROBE_NOSPASM, PROBE_RHW, PROBE_DUMP (see the source's header)\n");
+        "         PROBE_NOSPASM, PROBE_RHW, PROBE_NOISE, PROBE_SECONDS, PROBE_DUMP\n"
+        "         (see the source's header)\n");
     return 0;
   }
   if (argc > 4 && std::strcmp(argv[1], "--probe") == 0)
