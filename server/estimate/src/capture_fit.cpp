@@ -166,15 +166,6 @@ std::vector<Vec3> CaptureFitter::accelerations() const {
   return out;
 }
 
-std::vector<std::array<uint8_t, kAxes>> CaptureFitter::turnMarks(double outlier) const {
-  const int h = options_.turn_half_window;
-  if (!(outlier > 0.0) || h <= 0 || h >= options_.acc_half_window) {
-    return std::vector<std::array<uint8_t, kAxes>>(points_.size(), {0, 0, 0});
-  }
-  return turnsWhereApart(accelerationsOver(options_.acc_half_window), accelerationsOver(h),
-                         outlier);
-}
-
 std::vector<Vec3> CaptureFitter::accelerationsOver(int half_window) const {
   const std::size_t n = points_.size();
   std::vector<Vec3> out(n, Vec3::Zero());
@@ -278,22 +269,8 @@ struct AxisData {
   std::vector<double> x, y, v, w;
 };
 
-/// With `drop` (per point and axis, FitOptions::turn_drop_radius), the samples within
-/// `drop_radius` of a marked turn are left out.
 AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>& rate,
-                  const std::vector<Vec3>& acc, int axis, double delay,
-                  const std::vector<std::array<uint8_t, kAxes>>* drop = nullptr,
-                  int drop_radius = 0) {
-  std::vector<uint8_t> near;
-  if (drop) {
-    const std::size_t n = pts.size();
-    near.assign(n, 0);
-    const auto r = static_cast<std::size_t>(std::max(drop_radius, 0));
-    for (std::size_t i = 0; i < n; ++i) {
-      if (!(*drop)[i][static_cast<std::size_t>(axis)]) continue;
-      for (std::size_t j = i >= r ? i - r : 0; j <= std::min(n - 1, i + r); ++j) near[j] = 1;
-    }
-  }
+                  const std::vector<Vec3>& acc, int axis, double delay) {
   AxisData d;
   const std::size_t n = pts.size();
   const auto k = static_cast<std::size_t>(std::floor(delay));
@@ -305,7 +282,6 @@ AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>&
   for (std::size_t i = k + 1; i < n; ++i) {
     const std::size_t a = i - k, b = i - k - 1;      // interpolate between a (later) and b
     if (pts[i].seq - pts[b].seq != k + 1) continue;  // samples left out in between
-    if (drop && (near[a] || near[b])) continue;
     auto mix = [&](double later, double earlier) { return (1.0 - f) * later + f * earlier; };
     d.x.push_back(radToDeg(mix(pts[a].angles_rad[axis], pts[b].angles_rad[axis])));
     d.y.push_back(pts[i].axis_force_n[axis]);
@@ -705,12 +681,6 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   const std::vector<Vec3> acc = accelerations();
   const std::size_t n = points_.size();
   const double lever = geometry_.params().lever_arm_m;
-  // The turns (FitOptions::turn_drop_radius) are left out of the curve's fit at the chosen
-  // lag, not out of the lag's search.
-  const std::vector<std::array<uint8_t, kAxes>> marks =
-      options_.turn_drop_radius >= 0 ? turnMarks(options_.turn_outlier)
-                                     : std::vector<std::array<uint8_t, kAxes>>{};
-  const auto* drop = options_.turn_drop_radius >= 0 ? &marks : nullptr;
   std::array<std::array<double, 3>, kAxes> inertia_info{};
   const std::array<double, kAxes> known_j = inertiaChoice(rate, acc, &inertia_info);
   out.delay_samples = delaySamples(rate, acc, known_j);
@@ -732,7 +702,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       const SpasmFit before = wk.sp;
       wk = Work{};
       if (n < options_.min_samples) continue;
-      wk.d = axisData(points_, rate, acc, axis, delay, drop, options_.turn_drop_radius);
+      wk.d = axisData(points_, rate, acc, axis, delay);
       const auto& x = wk.d.x;
       if (x.size() < options_.min_samples) continue;
       const auto [lo, hi] = std::minmax_element(x.begin(), x.end());

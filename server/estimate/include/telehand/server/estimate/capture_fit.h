@@ -132,17 +132,6 @@ struct FitOptions {
   /// turn_outlier 0: the wide window everywhere.
   int turn_half_window = 2;
   double turn_outlier = 5.0;
-  /// With turn_drop_radius >= 0, the samples so marked as turns, and those within
-  /// turn_drop_radius of them, are left out of the curve's fit at the chosen lag (the lag is
-  /// searched with all samples). Where the clinician's servo is at its torque bound the
-  /// phalanx turns within 2-3 ms, which neither window reads: 5-10 samples a turn are 2-6 N
-  /// off, and the damping, the speed gain and the curve trade against them. Left out (radius
-  /// 1), random patient 25 at 6 Hz, seeds 1-12, is within 0.27 N inner (0.35 N with them);
-  /// but the range ends lose the samples that hold them, and the shipped spasm case at 6 Hz,
-  /// seed 3, goes from 0.11 to 0.35 N, random patient 11 from 0.12 to 0.38 N (radius 0: 0.31
-  /// and 0.38 N). So it is off by default (-1: all samples fitted); docs/capture.md "Known
-  /// limits".
-  int turn_drop_radius = -1;
   /// Samples an axis needs spread over at least this many degrees to be fitted.
   double min_span_deg = 5.0;
   std::size_t min_samples = 200;
@@ -217,9 +206,6 @@ class CaptureFitter {
   std::vector<Vec3> accelerations() const;
   /// Second central differences over ±half_window samples, rad/s².
   std::vector<Vec3> accelerationsOver(int half_window) const;
-  /// Per point and axis, 1 where the narrow and wide second differences disagree by more
-  /// than `outlier` times their robust spread (the turns), else 0.
-  std::vector<std::array<uint8_t, kAxes>> turnMarks(double outlier) const;
   /// The force channel's lag behind the position channel, in samples (fractional).
   double delaySamples() const;
   /// `progress(axis, fraction)` is called as the fit advances (long captures).
