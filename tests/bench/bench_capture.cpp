@@ -20,7 +20,8 @@
 //     search problem; better: the model misses something), PROBE_BINS=L with it the mean
 //     residual per 5 deg bin, stretching and returning, at lag L; PROBE_NOSPASM=1 fits
 //     without the spasm term, PROBE_RHW=H fits (and rates the truth) with rates over ±H
-//     samples (FitOptions::rate_half_window), PROBE_NOISE=N captures with N newtons of
+//     samples (FitOptions::rate_half_window), PROBE_THW=H reads the turns' accelerations
+//     over ±H samples (FitOptions::turn_half_window), PROBE_NOISE=N captures with N newtons of
 //     thimble noise (default the paper's 1.43), PROBE_SECONDS=S with S seconds per axis,
 //     PROBE_DUMP=FILE the points.
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
@@ -336,6 +337,7 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   server::estimate::FitOptions fo;
   fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
   if (const char* h = std::getenv("PROBE_RHW")) fo.rate_half_window = std::atoi(h);
+  if (const char* h = std::getenv("PROBE_THW")) fo.turn_half_window = std::atoi(h);
   server::estimate::CaptureFitter fitter(cap.geometry, fo);
   for (const auto& smp : cap.samples) fitter.add(smp, true);
   const int64_t t0 = now();
@@ -465,7 +467,7 @@ int run(int argc, char** argv) {
         "[--noise N]\n"
         "       telehand_bench_capture --probe CASE_FILE|random-SEED HZ SEED\n"
         "         one capture fitted; PROBE_CURVE, PROBE_TRUTH, PROBE_LAGS, PROBE_BINS,\n"
-        "         PROBE_NOSPASM, PROBE_RHW, PROBE_NOISE, PROBE_SECONDS, PROBE_DUMP\n"
+        "         PROBE_NOSPASM, PROBE_RHW, PROBE_THW, PROBE_NOISE, PROBE_SECONDS, PROBE_DUMP\n"
         "         (see the source's header)\n");
     return 0;
   }
