@@ -32,6 +32,7 @@
 //     (N), and the fit's time.
 // Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]
 //          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]
+//          [--turn-window H (FitOptions::turn_half_window)]
 //          [--technique massage [--seconds S] [--noise N]] | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
@@ -145,6 +146,7 @@ struct TableOptions {
   double noise_n = 1.43;
   bool cases_given = false;
   bool each = false;  ///< massage (--each 1): the web's values and a line per fit, signed %
+  int turn_half_window = server::estimate::FitOptions{}.turn_half_window;  ///< --turn-window
 };
 
 /// The web's largest static normal force error at the same thimble positions (fitted
@@ -284,7 +286,9 @@ int fitTable(const TableOptions& t) {
         o.frequency_hz = hz;
         o.seed = seed;
         const auto cap = server::estimate::synthesizeCapture(o);
-        server::estimate::CaptureFitter fitter(cap.geometry);
+        server::estimate::FitOptions fo;
+        fo.turn_half_window = t.turn_half_window;
+        server::estimate::CaptureFitter fitter(cap.geometry, fo);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
         all_ok = all_ok && fit.ok();
@@ -462,6 +466,7 @@ int run(int argc, char** argv) {
         "         kNN query cost per tick and live refit latency\n"
         "       telehand_bench_capture --fit-table [CASES_DIR (deploy/cases)] [--cases a,b]\n"
         "         [--hz 0.5,3,6] [--seeds FIRST,COUNT] [--random S1,S2,...]\n"
+        "         [--turn-window H (the turns' accelerations over +-H samples)]\n"
         "         fitted holding force against the truth (docs/capture.md)\n"
         "       telehand_bench_capture --fit-table --technique massage [--seconds S] "
         "[--noise N]\n"
@@ -502,6 +507,8 @@ int run(int argc, char** argv) {
         t.noise_n = std::stod(val);
       } else if (key == "--each") {
         t.each = val != "0";
+      } else if (key == "--turn-window") {  // FitOptions::turn_half_window, samples
+        t.turn_half_window = std::stoi(val);
       } else {
         std::fprintf(stderr, "unknown option %s\n", key.c_str());
         return 2;
