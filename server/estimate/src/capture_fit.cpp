@@ -131,38 +131,24 @@ std::vector<Vec3> CaptureFitter::rates() const {
   return out;
 }
 
-namespace {
-/// Per point and axis, 1 where the narrow window reads the acceleration apart from the wide
-/// one by more than `outlier` times their robust spread (1.4826 × the median absolute
-/// difference, per axis): there the motion turned faster than the wide window follows.
-std::vector<std::array<uint8_t, kAxes>> turnsWhereApart(const std::vector<Vec3>& wide,
-                                                        const std::vector<Vec3>& narrow,
-                                                        double outlier) {
-  std::vector<std::array<uint8_t, kAxes>> marks(wide.size(), {0, 0, 0});
-  std::vector<double> d(wide.size()), m;
-  for (int axis = 0; axis < kAxes; ++axis) {
-    for (std::size_t i = 0; i < wide.size(); ++i) d[i] = std::abs(narrow[i][axis] - wide[i][axis]);
-    m = d;
-    if (m.empty()) break;
-    std::nth_element(m.begin(), m.begin() + static_cast<std::ptrdiff_t>(m.size() / 2), m.end());
-    const double spread = 1.4826 * m[m.size() / 2];
-    for (std::size_t i = 0; i < wide.size(); ++i)
-      if (d[i] > outlier * spread) marks[i][static_cast<std::size_t>(axis)] = 1;
-  }
-  return marks;
-}
-}  // namespace
-
 std::vector<Vec3> CaptureFitter::accelerations() const {
   std::vector<Vec3> out = accelerationsOver(options_.acc_half_window);
   const int h = options_.turn_half_window;
   if (!(options_.turn_outlier > 0.0) || h <= 0 || h >= options_.acc_half_window) return out;
-  // At the turns the narrow window's reading is taken.
+  // Where the narrow window reads the acceleration apart from the wide one by more than
+  // its noise explains (a robust spread per axis: 1.4826 × the median absolute
+  // difference), the motion turned faster than the wide window follows: take the narrow.
   const std::vector<Vec3> narrow = accelerationsOver(h);
-  const auto marks = turnsWhereApart(out, narrow, options_.turn_outlier);
-  for (std::size_t i = 0; i < out.size(); ++i)
-    for (std::size_t axis = 0; axis < kAxes; ++axis)
-      if (marks[i][axis]) out[i][static_cast<int>(axis)] = narrow[i][static_cast<int>(axis)];
+  std::vector<double> d(out.size()), m;
+  for (int axis = 0; axis < kAxes; ++axis) {
+    for (std::size_t i = 0; i < out.size(); ++i) d[i] = std::abs(narrow[i][axis] - out[i][axis]);
+    m = d;
+    if (m.empty()) break;
+    std::nth_element(m.begin(), m.begin() + static_cast<std::ptrdiff_t>(m.size() / 2), m.end());
+    const double spread = 1.4826 * m[m.size() / 2];
+    for (std::size_t i = 0; i < out.size(); ++i)
+      if (d[i] > options_.turn_outlier * spread) out[i][axis] = narrow[i][axis];
+  }
   return out;
 }
 
