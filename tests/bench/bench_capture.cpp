@@ -21,7 +21,8 @@
 //     residual per 5 deg bin, stretching and returning, at lag L; PROBE_NOSPASM=1 fits
 //     without the spasm term, PROBE_RHW=H fits (and rates the truth) with rates over ±H
 //     samples (FitOptions::rate_half_window), PROBE_THW=H reads the turns' accelerations
-//     over ±H samples (FitOptions::turn_half_window), PROBE_NOISE=N captures with N newtons of
+//     over ±H samples (FitOptions::turn_half_window), PROBE_TRHW=H their rates
+//     (FitOptions::turn_rate_half_window), PROBE_NOISE=N captures with N newtons of
 //     thimble noise (default the paper's 1.43), PROBE_SECONDS=S with S seconds per axis,
 //     PROBE_DUMP=FILE the points.
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
@@ -33,6 +34,7 @@
 // Usage: telehand_bench_capture [--quick | --fit-table [CASES_DIR, default deploy/cases]
 //          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]
 //          [--turn-window H (FitOptions::turn_half_window)]
+//          [--turn-rate-window H (FitOptions::turn_rate_half_window)]
 //          [--technique massage [--seconds S] [--noise N]] | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
@@ -147,6 +149,8 @@ struct TableOptions {
   bool cases_given = false;
   bool each = false;  ///< massage (--each 1): the web's values and a line per fit, signed %
   int turn_half_window = server::estimate::FitOptions{}.turn_half_window;  ///< --turn-window
+  /// --turn-rate-window
+  int turn_rate_half_window = server::estimate::FitOptions{}.turn_rate_half_window;
 };
 
 /// The web's largest static normal force error at the same thimble positions (fitted
@@ -288,6 +292,7 @@ int fitTable(const TableOptions& t) {
         const auto cap = server::estimate::synthesizeCapture(o);
         server::estimate::FitOptions fo;
         fo.turn_half_window = t.turn_half_window;
+        fo.turn_rate_half_window = t.turn_rate_half_window;
         server::estimate::CaptureFitter fitter(cap.geometry, fo);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
@@ -342,6 +347,7 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
   if (const char* h = std::getenv("PROBE_RHW")) fo.rate_half_window = std::atoi(h);
   if (const char* h = std::getenv("PROBE_THW")) fo.turn_half_window = std::atoi(h);
+  if (const char* h = std::getenv("PROBE_TRHW")) fo.turn_rate_half_window = std::atoi(h);
   server::estimate::CaptureFitter fitter(cap.geometry, fo);
   for (const auto& smp : cap.samples) fitter.add(smp, true);
   const int64_t t0 = now();
@@ -467,12 +473,14 @@ int run(int argc, char** argv) {
         "       telehand_bench_capture --fit-table [CASES_DIR (deploy/cases)] [--cases a,b]\n"
         "         [--hz 0.5,3,6] [--seeds FIRST,COUNT] [--random S1,S2,...]\n"
         "         [--turn-window H (the turns' accelerations over +-H samples)]\n"
+        "         [--turn-rate-window H (the turns' rates over +-H samples, 0: as elsewhere)]\n"
         "         fitted holding force against the truth (docs/capture.md)\n"
         "       telehand_bench_capture --fit-table --technique massage [--seconds S] "
         "[--noise N]\n"
         "       telehand_bench_capture --probe CASE_FILE|random-SEED HZ SEED\n"
         "         one capture fitted; PROBE_CURVE, PROBE_TRUTH, PROBE_LAGS, PROBE_BINS,\n"
-        "         PROBE_NOSPASM, PROBE_RHW, PROBE_THW, PROBE_NOISE, PROBE_SECONDS, PROBE_DUMP\n"
+        "         PROBE_NOSPASM, PROBE_RHW, PROBE_THW, PROBE_TRHW, PROBE_NOISE, PROBE_SECONDS, "
+        "PROBE_DUMP\n"
         "         (see the source's header)\n");
     return 0;
   }
@@ -509,6 +517,8 @@ int run(int argc, char** argv) {
         t.each = val != "0";
       } else if (key == "--turn-window") {  // FitOptions::turn_half_window, samples
         t.turn_half_window = std::stoi(val);
+      } else if (key == "--turn-rate-window") {  // FitOptions::turn_rate_half_window
+        t.turn_rate_half_window = std::stoi(val);
       } else {
         std::fprintf(stderr, "unknown option %s\n", key.c_str());
         return 2;

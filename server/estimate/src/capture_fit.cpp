@@ -123,10 +123,40 @@ std::vector<Vec3> CaptureFitter::rates() const {
   std::vector<int64_t> t(n);
   std::vector<double> x(n);
   for (std::size_t i = 0; i < n; ++i) t[i] = points_[i].t_ns;
+  const int th = options_.turn_rate_half_window;
+  const std::vector<std::array<bool, kAxes>> turn =
+      th > 0 ? turns() : std::vector<std::array<bool, kAxes>>{};
   for (int axis = 0; axis < kAxes; ++axis) {
     for (std::size_t i = 0; i < n; ++i) x[i] = points_[i].angles_rad[axis];
     const std::vector<double> r = windowedRates(t, x, options_.rate_half_window);
     for (std::size_t i = 0; i < n; ++i) out[i][axis] = r[i];
+    if (th > 0) {
+      const std::vector<double> nr = windowedRates(t, x, th);
+      for (std::size_t i = 0; i < n; ++i)
+        if (turn[i][static_cast<std::size_t>(axis)]) out[i][axis] = nr[i];
+    }
+  }
+  return out;
+}
+
+std::vector<std::array<bool, kAxes>> CaptureFitter::turns() const {
+  std::vector<std::array<bool, kAxes>> out(points_.size(), std::array<bool, kAxes>{});
+  const int h = options_.turn_half_window;
+  if (!(options_.turn_outlier > 0.0) || h <= 0 || h >= options_.acc_half_window) return out;
+  // Where the narrow window reads the acceleration apart from the wide one by more than
+  // its noise explains (a robust spread per axis: 1.4826 × the median absolute
+  // difference), the motion turned faster than the wide window follows.
+  const std::vector<Vec3> wide = accelerationsOver(options_.acc_half_window);
+  const std::vector<Vec3> narrow = accelerationsOver(h);
+  std::vector<double> d(out.size()), m;
+  for (int axis = 0; axis < kAxes; ++axis) {
+    for (std::size_t i = 0; i < out.size(); ++i) d[i] = std::abs(narrow[i][axis] - wide[i][axis]);
+    m = d;
+    if (m.empty()) break;
+    std::nth_element(m.begin(), m.begin() + static_cast<std::ptrdiff_t>(m.size() / 2), m.end());
+    const double spread = 1.4826 * m[m.size() / 2];
+    for (std::size_t i = 0; i < out.size(); ++i)
+      out[i][static_cast<std::size_t>(axis)] = d[i] > options_.turn_outlier * spread;
   }
   return out;
 }
@@ -135,20 +165,12 @@ std::vector<Vec3> CaptureFitter::accelerations() const {
   std::vector<Vec3> out = accelerationsOver(options_.acc_half_window);
   const int h = options_.turn_half_window;
   if (!(options_.turn_outlier > 0.0) || h <= 0 || h >= options_.acc_half_window) return out;
-  // Where the narrow window reads the acceleration apart from the wide one by more than
-  // its noise explains (a robust spread per axis: 1.4826 × the median absolute
-  // difference), the motion turned faster than the wide window follows: take the narrow.
+  // At the turns (turns()) the motion turned faster than the wide window follows: take the narrow.
   const std::vector<Vec3> narrow = accelerationsOver(h);
-  std::vector<double> d(out.size()), m;
-  for (int axis = 0; axis < kAxes; ++axis) {
-    for (std::size_t i = 0; i < out.size(); ++i) d[i] = std::abs(narrow[i][axis] - out[i][axis]);
-    m = d;
-    if (m.empty()) break;
-    std::nth_element(m.begin(), m.begin() + static_cast<std::ptrdiff_t>(m.size() / 2), m.end());
-    const double spread = 1.4826 * m[m.size() / 2];
-    for (std::size_t i = 0; i < out.size(); ++i)
-      if (d[i] > options_.turn_outlier * spread) out[i][axis] = narrow[i][axis];
-  }
+  const std::vector<std::array<bool, kAxes>> turn = turns();
+  for (std::size_t i = 0; i < out.size(); ++i)
+    for (int axis = 0; axis < kAxes; ++axis)
+      if (turn[i][static_cast<std::size_t>(axis)]) out[i][axis] = narrow[i][axis];
   return out;
 }
 

@@ -638,6 +638,46 @@ TEST(CaptureFitTruth, TurnsAtTheRangeEndsAreReadWithTheNarrowWindow) {
   EXPECT_LT(changed, acc.size() / 20) << "only the turns";
 }
 
+/// The turns' rates are read narrow too (FitOptions::turn_rate_half_window): the shipped
+/// spasm case at 6 Hz, seed 45, reaches 72.4° of flexion; the ±4 ms quadratic reads the
+/// upper turn's rate low where the damping sits at the cap, and the fit took the missing
+/// damping force for a wall one degree inside the end reached, 0.92 N off. Over ±2 ms at
+/// the turns it is within, and only the turns' rates change.
+TEST(CaptureFitTruth, TurnsRatesAreReadWithTheNarrowWindow) {
+  const JointModelParams truth = shippedCase("spasm");
+  FitOptions wide_rates;
+  wide_rates.turn_rate_half_window = 0;
+  const CaseRun with = runCase(truth, 6.0, 45, kPaperNoiseN, true);
+  const CaseRun without = runCase(truth, 6.0, 45, kPaperNoiseN, true, wide_rates);
+  expectWithin(truth, with, "spasm 6 Hz seed 45, turns' rates narrow", 0.3, 0.5);
+  EXPECT_GT(without.check[kFlexion].inner_n, 0.5)
+      << "the wide window alone: a false wall inside the range reached";
+
+  SyntheticCaptureOptions o;
+  o.truth = truth;
+  o.frequency_hz = 6.0;
+  o.seed = 45;
+  const SyntheticCapture cap = synthesizeCapture(o);
+  CaptureFitter a(cap.geometry), b(cap.geometry, wide_rates);
+  for (const auto& s : cap.samples) {
+    a.add(s, true);
+    b.add(s, true);
+  }
+  const auto rate = a.rates(), wide = b.rates();
+  const auto turn = a.turns();
+  ASSERT_EQ(rate.size(), wide.size());
+  ASSERT_EQ(turn.size(), rate.size());
+  std::size_t changed = 0, off_turn = 0;
+  for (std::size_t i = 0; i < rate.size(); ++i) {
+    const bool differs = rate[i][kFlexion] != wide[i][kFlexion];
+    changed += differs;
+    off_turn += differs && !turn[i][kFlexion];
+  }
+  EXPECT_GT(changed, 0u);
+  EXPECT_EQ(off_turn, 0u) << "only the turns";
+  EXPECT_LT(changed, rate.size() / 20);
+}
+
 /// A reflex can hide a zone the plain fit does not see: random patient 7 at 6 Hz (an 8.9°
 /// flexion zone, a soft curve beyond it, 3.0 s/rad) ended with no zone at 7.9-9.5 s/rad and
 /// the curve 0.6 N low over its middle. The profiled start settles the shape at each gain of

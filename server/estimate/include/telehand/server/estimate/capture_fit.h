@@ -132,6 +132,12 @@ struct FitOptions {
   /// turn_outlier 0: the wide window everywhere.
   int turn_half_window = 2;
   double turn_outlier = 5.0;
+  /// The rates at the turns (the samples the test above marks), over ±turn_rate_half_window
+  /// samples (0: the wide window there too). The ±4 ms quadratic does not follow a turn
+  /// either: the shipped spasm case at 6 Hz, seed 45, read a turn's rate low where its
+  /// damping sits at the cap (1 N per rad/s at 1 cm), and the fit put a false wall one
+  /// degree inside the range reached (flexion 0.92 N off; over ±2 ms, 0.05 N).
+  int turn_rate_half_window = 2;
   /// Samples an axis needs spread over at least this many degrees to be fitted.
   double min_span_deg = 5.0;
   std::size_t min_samples = 200;
@@ -199,11 +205,16 @@ class CaptureFitter {
   std::size_t size() const noexcept { return points_.size(); }
   const CaptureCounts& counts() const noexcept { return counts_; }
   const std::vector<CapturePoint>& points() const noexcept { return points_; }
-  /// Angular rates of every point (windowedRates over FitOptions::rate_half_window), rad/s.
+  /// Angular rates of every point (windowedRates over FitOptions::rate_half_window, over
+  /// ±turn_rate_half_window at the turns), rad/s.
   std::vector<Vec3> rates() const;
   /// Angular accelerations of every point (second central differences over
   /// ±FitOptions::acc_half_window, over ±turn_half_window at the turns), rad/s².
   std::vector<Vec3> accelerations() const;
+  /// Per point and axis, whether it is at a turn: where the second difference over
+  /// ±FitOptions::turn_half_window differs from the one over ±acc_half_window by more than
+  /// turn_outlier times its robust spread (all false with turn_outlier 0).
+  std::vector<std::array<bool, kAxes>> turns() const;
   /// Second central differences over ±half_window samples, rad/s².
   std::vector<Vec3> accelerationsOver(int half_window) const;
   /// The force channel's lag behind the position channel, in samples (fractional).
