@@ -605,6 +605,24 @@ TEST(CaptureFitTruth, PerturbedJoints) {
   }
 }
 
+/// One synthetic capture (the default length, the paper's noise) added to two fitters: one
+/// with the default options, one with `other`.
+std::pair<CaptureFitter, CaptureFitter> twoFitters(const JointModelParams& truth, double hz,
+                                                   uint64_t seed, const FitOptions& other) {
+  SyntheticCaptureOptions o;
+  o.truth = truth;
+  o.frequency_hz = hz;
+  o.seed = seed;
+  const SyntheticCapture cap = synthesizeCapture(o);
+  std::pair<CaptureFitter, CaptureFitter> f{CaptureFitter(cap.geometry),
+                                            CaptureFitter(cap.geometry, other)};
+  for (const auto& s : cap.samples) {
+    f.first.add(s, true);
+    f.second.add(s, true);
+  }
+  return f;
+}
+
 /// The turns at the range ends are read with the narrow window (FitOptions::turn_outlier):
 /// random patient 10 at 6 Hz (seed 1; no spasm, a 6.1° flexion zone) bounces off its flexion
 /// walls at 1,000-5,000 rad/s² within 5-10 ms, which the ±5 ms second difference smears;
@@ -620,16 +638,7 @@ TEST(CaptureFitTruth, TurnsAtTheRangeEndsAreReadWithTheNarrowWindow) {
   EXPECT_GT(without.check[kFlexion].inner_n, with.check[kFlexion].inner_n + 0.1)
       << "the wide window alone: the turns' inertial force bends the curve";
 
-  SyntheticCaptureOptions o;
-  o.truth = pc.model;
-  o.frequency_hz = 6.0;
-  o.seed = 1;
-  const SyntheticCapture cap = synthesizeCapture(o);
-  CaptureFitter a(cap.geometry), b(cap.geometry, wide_only);
-  for (const auto& s : cap.samples) {
-    a.add(s, true);
-    b.add(s, true);
-  }
+  const auto [a, b] = twoFitters(pc.model, 6.0, 1, wide_only);
   const auto acc = a.accelerations(), wide = b.accelerations();
   ASSERT_EQ(acc.size(), wide.size());
   std::size_t changed = 0;
@@ -653,16 +662,7 @@ TEST(CaptureFitTruth, TurnsRatesAreReadWithTheNarrowWindow) {
   EXPECT_GT(without.check[kFlexion].inner_n, 0.5)
       << "the wide window alone: a false wall inside the range reached";
 
-  SyntheticCaptureOptions o;
-  o.truth = truth;
-  o.frequency_hz = 6.0;
-  o.seed = 45;
-  const SyntheticCapture cap = synthesizeCapture(o);
-  CaptureFitter a(cap.geometry), b(cap.geometry, wide_rates);
-  for (const auto& s : cap.samples) {
-    a.add(s, true);
-    b.add(s, true);
-  }
+  const auto [a, b] = twoFitters(truth, 6.0, 45, wide_rates);
   const auto rate = a.rates(), wide = b.rates();
   const auto turn = a.turns();
   ASSERT_EQ(rate.size(), wide.size());
