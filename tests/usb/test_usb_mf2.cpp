@@ -314,10 +314,10 @@ TEST_F(UsbMf2Test, UnplugZeroesForceWithinOneTickAndReconnectsWithoutRestart) {
   // The device runs in real time, as the real one does (a state packet per millisecond), with a
   // finger in each thimble: the hand's damping (0.1 N*m*s/rad at a 10 cm crank, 10 N*s/m at the
   // fingertip, a firm grip). With a light one (0.03, 3 N*s/m) the rendered joint limit-cycles
-  // in abduction against this device (±9°, the force clamped on most ticks), and a busy machine
-  // turns that into a clamp-storm fault (docs/usb.md). A test thread that a busy machine stalls
-  // for milliseconds misses ticks (the loop then sends zero, flagged kWatchdog), so forces are
-  // judged over a window of ticks.
+  // in abduction against this device (±10-18°, the requests over the clamp on most ticks), and a
+  // busy machine turns that into a clamp-storm fault (docs/usb.md). A test thread that a busy
+  // machine stalls for milliseconds misses ticks (the loop then sends zero, flagged kWatchdog), so
+  // forces are judged over a window of ticks.
   emu_.reset();
   options_.pace_ns = 1'000'000;
   options_.firmware.damping_nm_s_per_rad = 0.1;

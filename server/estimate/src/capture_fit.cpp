@@ -117,6 +117,32 @@ std::vector<double> windowedRates(std::span<const int64_t> t_ns, std::span<const
   return out;
 }
 
+namespace {
+/// Whether the options read the turns apart (FitOptions::turn_half_window, turn_outlier).
+bool readsTurns(const FitOptions& o) {
+  return o.turn_outlier > 0.0 && o.turn_half_window > 0 && o.turn_half_window < o.acc_half_window;
+}
+
+/// Per point and axis, true where the narrow window reads the acceleration apart from the
+/// wide one by more than `outlier` times their robust spread (1.4826 × the median absolute
+/// difference, per axis): there the motion turned faster than the wide window follows.
+std::vector<std::array<bool, kAxes>> turnsApart(const std::vector<Vec3>& wide,
+                                                const std::vector<Vec3>& narrow, double outlier) {
+  std::vector<std::array<bool, kAxes>> out(wide.size(), std::array<bool, kAxes>{});
+  std::vector<double> d(wide.size()), m;
+  for (int axis = 0; axis < kAxes; ++axis) {
+    for (std::size_t i = 0; i < wide.size(); ++i) d[i] = std::abs(narrow[i][axis] - wide[i][axis]);
+    m = d;
+    if (m.empty()) break;
+    std::nth_element(m.begin(), m.begin() + static_cast<std::ptrdiff_t>(m.size() / 2), m.end());
+    const double spread = 1.4826 * m[m.size() / 2];
+    for (std::size_t i = 0; i < wide.size(); ++i)
+      out[i][static_cast<std::size_t>(axis)] = d[i] > outlier * spread;
+  }
+  return out;
+}
+}  // namespace
+
 std::vector<Vec3> CaptureFitter::rates() const {
   const std::size_t n = points_.size();
   std::vector<Vec3> out(n, Vec3::Zero());
@@ -124,50 +150,35 @@ std::vector<Vec3> CaptureFitter::rates() const {
   std::vector<double> x(n);
   for (std::size_t i = 0; i < n; ++i) t[i] = points_[i].t_ns;
   const int th = options_.turn_rate_half_window;
+  const bool narrow_turns = th > 0 && readsTurns(options_);
   const std::vector<std::array<bool, kAxes>> turn =
-      th > 0 ? turns() : std::vector<std::array<bool, kAxes>>{};
+      narrow_turns ? turns() : std::vector<std::array<bool, kAxes>>{};
   for (int axis = 0; axis < kAxes; ++axis) {
     for (std::size_t i = 0; i < n; ++i) x[i] = points_[i].angles_rad[axis];
     const std::vector<double> r = windowedRates(t, x, options_.rate_half_window);
     for (std::size_t i = 0; i < n; ++i) out[i][axis] = r[i];
-    if (th > 0) {
-      const std::vector<double> nr = windowedRates(t, x, th);
-      for (std::size_t i = 0; i < n; ++i)
-        if (turn[i][static_cast<std::size_t>(axis)]) out[i][axis] = nr[i];
-    }
+    if (!narrow_turns) continue;
+    // At the turns the ±rate_half_window quadratic does not follow the motion either.
+    const std::vector<double> nr = windowedRates(t, x, th);
+    for (std::size_t i = 0; i < n; ++i)
+      if (turn[i][static_cast<std::size_t>(axis)]) out[i][axis] = nr[i];
   }
   return out;
 }
 
 std::vector<std::array<bool, kAxes>> CaptureFitter::turns() const {
-  std::vector<std::array<bool, kAxes>> out(points_.size(), std::array<bool, kAxes>{});
-  const int h = options_.turn_half_window;
-  if (!(options_.turn_outlier > 0.0) || h <= 0 || h >= options_.acc_half_window) return out;
-  // Where the narrow window reads the acceleration apart from the wide one by more than
-  // its noise explains (a robust spread per axis: 1.4826 × the median absolute
-  // difference), the motion turned faster than the wide window follows.
-  const std::vector<Vec3> wide = accelerationsOver(options_.acc_half_window);
-  const std::vector<Vec3> narrow = accelerationsOver(h);
-  std::vector<double> d(out.size()), m;
-  for (int axis = 0; axis < kAxes; ++axis) {
-    for (std::size_t i = 0; i < out.size(); ++i) d[i] = std::abs(narrow[i][axis] - wide[i][axis]);
-    m = d;
-    if (m.empty()) break;
-    std::nth_element(m.begin(), m.begin() + static_cast<std::ptrdiff_t>(m.size() / 2), m.end());
-    const double spread = 1.4826 * m[m.size() / 2];
-    for (std::size_t i = 0; i < out.size(); ++i)
-      out[i][static_cast<std::size_t>(axis)] = d[i] > options_.turn_outlier * spread;
-  }
-  return out;
+  if (!readsTurns(options_))
+    return std::vector<std::array<bool, kAxes>>(points_.size(), std::array<bool, kAxes>{});
+  return turnsApart(accelerationsOver(options_.acc_half_window),
+                    accelerationsOver(options_.turn_half_window), options_.turn_outlier);
 }
 
 std::vector<Vec3> CaptureFitter::accelerations() const {
   std::vector<Vec3> out = accelerationsOver(options_.acc_half_window);
-  const int h = options_.turn_half_window;
-  if (!(options_.turn_outlier > 0.0) || h <= 0 || h >= options_.acc_half_window) return out;
-  // At the turns (turns()) the motion turned faster than the wide window follows: take the narrow.
-  const std::vector<Vec3> narrow = accelerationsOver(h);
-  const std::vector<std::array<bool, kAxes>> turn = turns();
+  if (!readsTurns(options_)) return out;
+  // At the turns the narrow window's reading is taken.
+  const std::vector<Vec3> narrow = accelerationsOver(options_.turn_half_window);
+  const std::vector<std::array<bool, kAxes>> turn = turnsApart(out, narrow, options_.turn_outlier);
   for (std::size_t i = 0; i < out.size(); ++i)
     for (int axis = 0; axis < kAxes; ++axis)
       if (turn[i][static_cast<std::size_t>(axis)]) out[i][axis] = narrow[i][axis];
