@@ -23,6 +23,7 @@ FirmwareParams firmwareFor(const mf2::Mf2Description& d, const devices::Mf2Motor
     p.nm_per_amp[i] = motors.nm_per_amp[i];
   }
   p.max_current_a = motors.max_current_a;
+  p.inertia_kgm2 = motors.inertia_kgm2;
   for (int k = 0; k < 2; ++k) {
     for (int j = 0; j < 4; ++j) {
       p.fsr_zero_counts[4 * k + j] = d.thimbles[k].fsr[j].zero_counts;

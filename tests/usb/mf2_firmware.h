@@ -23,7 +23,7 @@ struct FirmwareParams {
   std::array<double, proto::kActuators> min_rad{}, max_rad{};
   std::array<double, proto::kActuators> nm_per_amp{};
   double max_current_a = 6.0;  ///< the motor driver clamps here and flags overcurrent
-  double inertia_kgm2 = 5e-4;  ///< per joint: ~50 g at a 10 cm crank
+  double inertia_kgm2 = 5e-4;  ///< per joint (firmwareFor: Mf2Motors::inertia_kgm2)
   double damping_nm_s_per_rad = 5e-3;
   std::array<double, proto::kFsrs> fsr_zero_counts{}, fsr_counts_per_n{};
   std::array<int32_t, proto::kActuators> start_counts{};

@@ -146,7 +146,8 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
   }
   std::printf(
       "  teleop: render %s; DeviceState live %.1f packets/s (%llu of %llu samples%s)%s; "
-      "passivity energy %.4f J (lowest %.4f J), controller active %llu ticks; "
+      "passivity energy %.4f J (lowest %.4f J), controller active %llu ticks (damping up to "
+      "%.1f N*s/m, the joint's %.1f); "
       "%llu model updates, largest update step %.3f N (%.2f of the bound)\n",
       render.c_str(), static_cast<double>(link.stats().live_sent.load()) / std::max(duration, 1e-3),
       static_cast<unsigned long long>(link.stats().live_sent.load()),
@@ -157,6 +158,7 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
           : "",
       h.passivity_energy_j.load(), h.passivity_min_energy_j.load(),
       static_cast<unsigned long long>(h.passivity_activations.load()),
+      h.passivity_bound_ns_per_m.load(), h.joint_damping_cap_ns_per_m.load(),
       static_cast<unsigned long long>(h.models_applied.load()), h.update_step_max_n.load(),
       h.update_step_max_ratio.load());
   if (const auto crypto = dds::cryptoCounts()) {

@@ -51,6 +51,9 @@ HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
       direct_(teleop.render == RenderMode::kDirect),
       fault_limits_(teleop.fault) {
   health_.model_version.store(initial_model.version, std::memory_order_relaxed);
+  health_.joint_damping_cap_ns_per_m.store(kMaxDeviceDampingNsPerM, std::memory_order_relaxed);
+  health_.passivity_bound_ns_per_m.store(passivity_.dampingBoundNsPerM(),
+                                         std::memory_order_relaxed);
   wall_offset_ns_ = wallNs() - clock_.nowNs();
 }
 
@@ -97,6 +100,8 @@ StepStatus HapticLoop::step() noexcept {
     bump(health_.outages);
   }
   in_outage_ = outage;
+
+  followDeviceDynamics();
 
   PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};
   // The energy the last tick's force exchanged with the operator.
@@ -245,6 +250,28 @@ StepStatus HapticLoop::step() noexcept {
   }
   bump(health_.ticks);
   return status;
+}
+
+void HapticLoop::followDeviceDynamics() noexcept {
+  const devices::DeviceDynamics d = device_.dynamics();
+  if (d.lightest_mass_kg == dynamics_.lightest_mass_kg &&
+      d.command_delay_ticks == dynamics_.command_delay_ticks) {
+    return;
+  }
+  dynamics_ = d;
+  // A damper rendered on the device acts a command delay after the velocity it is computed
+  // from, and that velocity is a tick old besides. The joint may render half of what the
+  // lightest direction takes, the passivity controller 0.4 of it (docs/teleoperation.md).
+  const double period_s = 1.0 / config_.rate_hz;
+  const double limit = stableDampingNsPerM(d.lightest_mass_kg, d.command_delay_ticks + 1, period_s);
+  const double joint_cap = limit > 0.0
+                               ? std::min(kMaxDeviceDampingNsPerM, kJointDampingShare * limit)
+                               : kMaxDeviceDampingNsPerM;
+  proxy_.setDeviceDampingCap(joint_cap);
+  passivity_.setDevice(d.lightest_mass_kg, d.command_delay_ticks, period_s);
+  health_.joint_damping_cap_ns_per_m.store(joint_cap, std::memory_order_relaxed);
+  health_.passivity_bound_ns_per_m.store(passivity_.dampingBoundNsPerM(),
+                                         std::memory_order_relaxed);
 }
 
 bool HapticLoop::detectFault(int64_t now, bool clamped, double excess_deg) noexcept {

@@ -1,6 +1,7 @@
 #include "telehand/client/loop/passivity.h"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 namespace telehand::client::loop {
@@ -18,7 +19,9 @@ Vec3 resolved(const AdaptiveVelocity& e) noexcept {
 PassivityGuard::PassivityGuard(const PassivityConfig& config)
     : config_(config),
       vel_{AdaptiveVelocity(config.position_uncertainty_m, config.velocity_window),
-           AdaptiveVelocity(config.position_uncertainty_m, config.velocity_window)} {}
+           AdaptiveVelocity(config.position_uncertainty_m, config.velocity_window)} {
+  bound_ns_per_m_ = config.max_damping_ns_per_m;
+}
 
 void PassivityGuard::observe(const PerFinger<Vec3>& p, const PerFinger<Vec3>& last_force_n,
                              int64_t now_ns) noexcept {
@@ -40,6 +43,20 @@ void PassivityGuard::observe(const PerFinger<Vec3>& p, const PerFinger<Vec3>& la
   last_p_ = p;
 }
 
+void PassivityGuard::setDevice(double lightest_mass_kg, int command_delay_ticks,
+                               double period_s) noexcept {
+  if (lightest_mass_kg == device_mass_kg_ && command_delay_ticks == device_delay_ticks_ &&
+      period_s == device_period_s_) {
+    return;
+  }
+  device_mass_kg_ = lightest_mass_kg;
+  device_delay_ticks_ = command_delay_ticks;
+  device_period_s_ = period_s;
+  bound_ns_per_m_ = config_.max_damping_ns_per_m;
+  const double device = stableDampingNsPerM(lightest_mass_kg, command_delay_ticks + 1, period_s);
+  if (device > 0.0) bound_ns_per_m_ = std::min(bound_ns_per_m_, config_.stability_margin * device);
+}
+
 void PassivityGuard::restart() noexcept {
   have_last_ = false;
   for (int k = 0; k < 2; ++k) {
@@ -56,9 +73,10 @@ PassivityOutput PassivityGuard::control(const PerFinger<Vec3>& request) noexcept
   const Vec3& v1 = vc_[1];
   const double v2 = v0.squaredNorm() + v1.squaredNorm();
   // The damping that would dissipate the whole deficit over the next tick.
+  const double bound = bound_ns_per_m_;
   double target = 0.0;
   if (config_.control && energy_j_ < 0.0 && v2 * dt_s_ > 1e-15) {
-    target = std::min(-energy_j_ / (v2 * dt_s_), config_.max_damping_ns_per_m);
+    target = std::min(-energy_j_ / (v2 * dt_s_), bound);
   }
   // Move toward it by at most what changes the added force by max_force_rate·dt at the
   // current speed (at once when nothing moves: the force is nil either way).
@@ -66,7 +84,7 @@ PassivityOutput PassivityGuard::control(const PerFinger<Vec3>& request) noexcept
   const double step = config_.max_force_rate_n_per_s * dt_s_;
   const double max_change = speed > 0.0 ? step / speed : std::numeric_limits<double>::infinity();
   alpha_ = config_.control ? std::clamp(target, alpha_ - max_change, alpha_ + max_change) : 0.0;
-  alpha_ = std::clamp(alpha_, 0.0, config_.max_damping_ns_per_m);
+  alpha_ = std::clamp(alpha_, 0.0, bound);
   if (alpha_ <= 0.0) return out;
   out.force_n[0] = request[0] - alpha_ * v0;
   out.force_n[1] = request[1] - alpha_ * v1;

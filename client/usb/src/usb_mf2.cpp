@@ -486,6 +486,13 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   }
   last_echo_ = s.last_command_seq;
 
+  if (mass_countdown_-- == 0) {
+    // The pose changes what the thimbles weigh; the loop's damping is bounded by the lightest.
+    mass_countdown_ = 63;
+    const double m = cal_.lightestMassKg(s);
+    const double seen = lightest_mass_kg_.load(std::memory_order_relaxed);
+    if (m > 0.0 && (seen == 0.0 || m < seen)) lightest_mass_kg_.store(m, std::memory_order_relaxed);
+  }
   sample.seq = s.seq;
   sample.time_ns = now;
   state_ = s;

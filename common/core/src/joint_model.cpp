@@ -64,12 +64,23 @@ double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
   return c.eval(shifted) + (c.slope(shifted) + kWallNPerDeg) * excess;
 }
 
+double stableDampingNsPerM(double mass_kg, int delay_ticks, double period_s) noexcept {
+  if (!(mass_kg > 0.0) || !(period_s > 0.0) || delay_ticks < 0) return 0.0;
+  const double d = static_cast<double>(delay_ticks);
+  return 2.0 * std::sin(kPi / (2.0 * (2.0 * d + 1.0))) * mass_kg / period_s;
+}
+
 double JointModel::maxDampingNmsPerRad() const noexcept {
   // Device damping B = force_scale · c / lever² for a joint damping c (force at the lever,
   // speed at the lever).
   const double lever = p_.lever_arm_m;
   if (!(lever > 0.0) || !(p_.force_scale > 0.0)) return 0.0;
-  return kMaxDeviceDampingNsPerM * lever * lever / p_.force_scale;
+  return device_damping_cap_ns_per_m_ * lever * lever / p_.force_scale;
+}
+
+void JointModel::setDeviceDampingCap(double ns_per_m) noexcept {
+  device_damping_cap_ns_per_m_ =
+      ns_per_m > 0.0 ? std::min(ns_per_m, kMaxDeviceDampingNsPerM) : kMaxDeviceDampingNsPerM;
 }
 
 double JointModel::viscousTorqueNm(double elastic_nm, double rate) const noexcept {
@@ -351,7 +362,16 @@ void JointProxy::setModel(const JointModelParams& next) noexcept {
   // Switching targets mid-fade would step the force: the newest version waits for the fade
   // to end. One equal to the model being faded to (or rendered) is no change.
   have_pending_ = !(next == current_.params());
-  if (have_pending_) pending_ = JointModel(next);
+  if (have_pending_) {
+    pending_ = JointModel(next);
+    pending_.setDeviceDampingCap(device_damping_cap_ns_per_m_);
+  }
+}
+
+void JointProxy::setDeviceDampingCap(double ns_per_m) noexcept {
+  if (ns_per_m == device_damping_cap_ns_per_m_) return;
+  device_damping_cap_ns_per_m_ = ns_per_m;
+  for (JointModel* m : {&current_, &previous_, &pending_}) m->setDeviceDampingCap(ns_per_m);
 }
 
 ProxyOutput JointProxy::renderWith(const JointModel& m, const PerFinger<Vec3>& p,

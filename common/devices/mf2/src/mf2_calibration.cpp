@@ -1,5 +1,6 @@
 #include "telehand/devices/mf2_calibration.h"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 
@@ -73,6 +74,20 @@ void Mf2ModelCalibration::toCurrents(const PerFinger<Vec3>& force_n, const proto
         std::clamp(tau[i] * scale / motors_.nm_per_amp[i] * 1000.0, -32767.0, 32767.0);
     out[i] = static_cast<int16_t>(std::lround(ma));
   }
+}
+
+double Mf2ModelCalibration::lightestMassKg(const proto::StatePacket& raw) const noexcept {
+  const mf2::JointAngles q = kin_.anglesFromCounts(encoderCounts(raw));
+  mf2::Jacobian j;
+  if (!(motors_.inertia_kgm2 > 0.0) || !kin_.jacobian(q.actuators, j) || !j.allFinite()) return 0.0;
+  // The thimbles' mobility (their acceleration per force): J·I⁻¹·Jᵀ; its largest eigenvalue is
+  // the inverse of the lightest mass a force at the thimbles meets.
+  const Eigen::Matrix<double, 6, 6> mobility = j * j.transpose() / motors_.inertia_kgm2;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(mobility,
+                                                                       Eigen::EigenvaluesOnly);
+  if (eig.info() != Eigen::Success) return 0.0;
+  const double largest = eig.eigenvalues().maxCoeff();
+  return largest > 0.0 && std::isfinite(largest) ? 1.0 / largest : 0.0;
 }
 
 }  // namespace telehand::devices

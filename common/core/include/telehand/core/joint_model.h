@@ -48,10 +48,24 @@ struct CubicCurve {
 /// loop renders stably (docs/facts.md "Stable wall").
 constexpr double kWallNPerDeg = 1.0;
 
+/// The damping b at which a mass `mass_kg`, damped through a loop of period `period_s` whose
+/// force acts `delay_ticks` ticks after the velocity it is computed from, stops being damped
+/// and starts ringing: v(k+1) = v(k) − (b·T/m)·v(k−d) has roots on the unit circle at
+/// b·T/m = 2·sin(π / (2(2d + 1))) (2 for d = 0, 1 for d = 1, 0.618 for d = 2; Levin & May
+/// 1976, docs/facts.md "Damping cap"). 0 when the mass or the period is not positive.
+double stableDampingNsPerM(double mass_kg, int delay_ticks, double period_s) noexcept;
+
+/// The share of a device's damping limit (stableDampingNsPerM with its lightest mass, and its
+/// command delay plus the tick the rendered velocity is old) the joint model may render; the
+/// passivity controller keeps to 0.4 of it besides (PassivityConfig::stability_margin), so
+/// that both together stay under the limit.
+constexpr double kJointDampingShare = 0.5;
+
 /// Largest damping the joint model puts on the device, N·s/m per unit lever speed: half the
 /// discrete stability limit of a damper rendered on ~50 g at 1 kHz (m / T = 50 N·s/m), so
 /// that the passivity controller's own bound (20 N·s/m) still fits under the limit on top of
 /// it (docs/facts.md "Damping cap"). With the 1 cm lever and the 1:4 scale: 0.01 N·m·s/rad.
+/// A lighter or slower device lowers it (JointModel::setDeviceDampingCap).
 constexpr double kMaxDeviceDampingNsPerM = 25.0;
 
 /// Fingertip force split (JointModel::fingertipForces): the load along the pinch line goes to
@@ -159,8 +173,13 @@ class JointModel {
   Vec3 passiveTorqueNm(const Vec3& angles_rad, const Vec3& rates_rad_s) const noexcept;
 
   /// The largest joint damping (N·m·s/rad, reference scale) this model renders: the one that
-  /// puts kMaxDeviceDampingNsPerM at the device through the lever arm and the force scale.
+  /// puts the device damping cap (kMaxDeviceDampingNsPerM unless set lower) at the device
+  /// through the lever arm and the force scale.
   double maxDampingNmsPerRad() const noexcept;
+  /// Lower the device damping cap for a device that renders less (N·s/m per unit lever speed;
+  /// kMaxDeviceDampingNsPerM at most, values that are not positive are ignored).
+  void setDeviceDampingCap(double ns_per_m) noexcept;
+  double deviceDampingCapNsPerM() const noexcept { return device_damping_cap_ns_per_m_; }
 
   /// MCP angles from the two thimble positions (device frame).
   Vec3 anglesFromGrip(const PerFinger<Vec3>& p_device_finger) const noexcept;
@@ -227,6 +246,7 @@ class JointModel {
 
   JointModelParams p_;
   std::array<double, kAxes> rest_deg_{};  // of the cubic alone, where the neutral zone centres
+  double device_damping_cap_ns_per_m_ = kMaxDeviceDampingNsPerM;
 };
 
 /// What the proxy renders on one tick.
@@ -267,6 +287,10 @@ class JointProxy {
   const JointModel& model() const noexcept { return current_; }
   bool blending() const noexcept { return blending_; }
 
+  /// The device's damping cap (JointModel::setDeviceDampingCap) for every version rendered,
+  /// the ones fading and those still to come.
+  void setDeviceDampingCap(double ns_per_m) noexcept;
+
   /// Energy (device J) a fade may add to the joint on the next render; the loop passes what
   /// its passivity observer has seen dissipated. Infinite by default (no gating).
   void setEnergyBudget(double joules) noexcept { energy_budget_j_ = joules; }
@@ -304,6 +328,7 @@ class JointProxy {
   int64_t last_ns_ = 0;
   Vec3 last_angles_ = Vec3::Zero();
   Vec3 rates_ = Vec3::Zero();
+  double device_damping_cap_ns_per_m_ = kMaxDeviceDampingNsPerM;
   int64_t guide_t0_ns_ = 0;       // when the guide's path (as rendered now) started
   int64_t prev_guide_t0_ns_ = 0;  // the same for the version being faded out
 };

@@ -45,9 +45,15 @@ struct LoopHealth {
   std::atomic<double> passivity_energy_j{0.0};      ///< observer energy now (device J)
   std::atomic<double> passivity_min_energy_j{0.0};  ///< lowest observer energy seen
   std::atomic<uint64_t> passivity_activations{0};   ///< ticks the controller added damping
-  std::atomic<double> update_step_max_n{0.0};       ///< largest force step from a model update
-  std::atomic<double> update_step_max_ratio{0.0};   ///< ... over max(5 % of the force, 0.1 N)
-  std::atomic<uint64_t> direct_forces{0};           ///< server forces taken (direct mode)
+  /// The most damping the controller may add now, N·s/m: its configured bound, or less on a
+  /// light or delayed device (PassivityGuard::setDevice).
+  std::atomic<double> passivity_bound_ns_per_m{0.0};
+  /// The most damping the joint model renders at the device, N·s/m per unit lever speed:
+  /// kMaxDeviceDampingNsPerM, or less on a light or delayed device.
+  std::atomic<double> joint_damping_cap_ns_per_m{0.0};
+  std::atomic<double> update_step_max_n{0.0};      ///< largest force step from a model update
+  std::atomic<double> update_step_max_ratio{0.0};  ///< ... over max(5 % of the force, 0.1 N)
+  std::atomic<uint64_t> direct_forces{0};          ///< server forces taken (direct mode)
   /// Energy model fades added that the passivity observer had not seen dissipated (device J):
   /// nonzero only when a stiffer model waited out JointProxy::kEnergyWaitNs.
   std::atomic<double> fade_unpaid_energy_j{0.0};
@@ -194,6 +200,9 @@ class HapticLoop {
   /// Updates the fault detector with this tick; true when a fault has latched. `excess_deg`:
   /// how far the rendering is past its range (degrees past a joint's range end, or for the
   /// web 1e9 once a pad is deeper than kWebRunawayDepthM; non-finite counts as past).
+  /// The device's lightest mass and delay bound the damping the joint model and the passivity
+  /// controller add (re-read every tick; acted on when they change).
+  void followDeviceDynamics() noexcept;
   bool detectFault(int64_t now, bool clamped, double excess_deg) noexcept;
   /// Restart the detector's windows (after a device outage).
   void restartFaultWindows() noexcept;
@@ -209,6 +218,7 @@ class HapticLoop {
   std::unique_ptr<ModelRing> models_;
   std::unique_ptr<ForceRing> forces_;
   PassivityGuard passivity_;
+  devices::DeviceDynamics dynamics_;  // as last followed
   LoopHealth health_;
   std::atomic<bool> direct_{false};
   PerFinger<Vec3> last_command_{Vec3::Zero(), Vec3::Zero()};

@@ -20,8 +20,15 @@
 /// moves toward α no faster than changes the added force by `max_force_rate` at the current
 /// speed, so that switching on and off does not step the force either. The observer is
 /// unchanged and exact: whatever the controller does is counted, and it acts while E < 0.
+///
+/// A damper is only dissipative while the loop can render it: on a mass m, with its force
+/// acting d ticks of period T after the velocity it damps, b·T/m above 2·sin(π / (2(2d + 1)))
+/// makes it ring and grow (stableDampingNsPerM), and an observer that sees the ringing as
+/// generated energy asks for more. So the damping is bounded by the device's lightest moving
+/// mass and its delay (setDevice) as well as by `max_damping`.
 #include <cstdint>
 
+#include "telehand/core/joint_model.h"
 #include "telehand/core/math.h"
 #include "telehand/core/velocity.h"
 
@@ -42,6 +49,10 @@ struct PassivityConfig {
   /// Fastest change of the added force through the damping coefficient, N/s per finger: a
   /// quarter of the safety gate's 200 N/s, so that the controller never needs the gate.
   double max_force_rate_n_per_s = 50.0;
+  /// Fraction of the device's stability bound (stableDampingNsPerM) the damping may reach:
+  /// with the joint model's kJointDampingShare (0.5) 0.9 of it at most, as 20 + 25 N·s/m are
+  /// of the 50 that 50 g take at 1 kHz.
+  double stability_margin = 0.4;
 };
 
 struct PassivityOutput {
@@ -61,6 +72,14 @@ class PassivityGuard {
   /// The controller: `request` plus the damping the energy deficit calls for. Call once per
   /// tick, after observe (the damping moves from its last value).
   PassivityOutput control(const PerFinger<Vec3>& request) noexcept;
+
+  /// The device the damping acts on: its lightest moving mass at the thimbles (kg; 0 or less:
+  /// unknown, only `max_damping` bounds the damping), the ticks its command takes beyond the
+  /// one it is held for (the damped velocity is a tick old besides: d = delay + 1), and the
+  /// loop's period. Cheap when nothing changed; real-time safe.
+  void setDevice(double lightest_mass_kg, int command_delay_ticks, double period_s) noexcept;
+  /// The most damping the controller may add, N·s/m per finger.
+  double dampingBoundNsPerM() const noexcept { return bound_ns_per_m_; }
 
   /// After a device outage: forget the positions and velocity windows (the next sample
   /// starts them afresh, so the gap's displacement is neither differenced into a speed nor
@@ -84,6 +103,10 @@ class PassivityGuard {
   PerFinger<Vec3> vc_{Vec3::Zero(), Vec3::Zero()};
   double alpha_ = 0.0;  // damping applied on the last tick
   double energy_j_ = 0.0;
+  double device_mass_kg_ = 0.0;
+  int device_delay_ticks_ = 0;
+  double device_period_s_ = 0.0;
+  double bound_ns_per_m_ = 0.0;  // max_damping, or less on the device set
 };
 
 }  // namespace telehand::client::loop

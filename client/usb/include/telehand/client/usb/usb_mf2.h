@@ -35,6 +35,7 @@ namespace telehand::client::usb {
 
 namespace proto = devices::proto;
 using devices::Device;
+using devices::DeviceDynamics;
 using devices::DeviceSample;
 using devices::DeviceStatus;
 using devices::ForceCommand;
@@ -124,6 +125,11 @@ class UsbMf2 final : public Device {
   bool write(const ForceCommand& cmd) noexcept override;
   DeviceStatus status() const noexcept override { return status_.load(std::memory_order_acquire); }
   std::string_view name() const noexcept override { return "usb"; }
+  /// The lightest mass met at the thimbles in any pose streamed so far (the calibration's
+  /// model, worked out every 64 packets on the USB thread), and one packet of command delay.
+  DeviceDynamics dynamics() const noexcept override {
+    return {lightest_mass_kg_.load(std::memory_order_relaxed), 1};
+  }
 
   // Any other thread.
   /// What the driver is doing or why it cannot: "streaming from bus 1 address 3", "no MF-2
@@ -170,6 +176,7 @@ class UsbMf2 final : public Device {
   std::atomic<bool> running_{false};
   std::atomic<bool> estop_request_{false};
   std::atomic<bool> clear_request_{false};
+  std::atomic<double> lightest_mass_kg_{0.0};
   std::thread thread_;
 
   // Hand-offs with the real-time loop and the probe.
@@ -198,6 +205,7 @@ class UsbMf2 final : public Device {
   bool disconnect_pending_ = false;
   bool closing_ = false;
   bool have_state_ = false;
+  uint32_t mass_countdown_ = 0;  // packets until the lightest mass is worked out again
   int consecutive_errors_ = 0;
   proto::SequenceTracker tracker_;
   proto::StatePacket state_{};

@@ -30,6 +30,18 @@ struct ForceCommand {
 
 enum class DeviceStatus { kOk, kNotReady, kDisconnected, kFault };
 
+/// What bounds a damping the loop may add at the thimbles (the passivity controller's): a
+/// damper b acting on a mass m through a loop of period T and a delay of d ticks is stable
+/// only while b·T/m stays under 2·sin(π / (2(2d + 1))) (docs/teleoperation.md).
+struct DeviceDynamics {
+  /// The lightest mass the device moves at the thimbles, along any direction, kg (0: unknown).
+  double lightest_mass_kg = 0.0;
+  /// Whole ticks between the loop's write of a force and the device acting on it, beyond the
+  /// tick it is held for: 0 when the next tick already feels it, 1 when it leaves with the
+  /// next USB packet.
+  int command_delay_ticks = 0;
+};
+
 /// read/write are called from the real-time thread: implementations must not allocate, lock
 /// or block.
 class Device {
@@ -41,6 +53,8 @@ class Device {
   virtual bool write(const ForceCommand& cmd) noexcept = 0;
   virtual DeviceStatus status() const noexcept = 0;
   virtual std::string_view name() const noexcept = 0;
+  /// The device's moving mass and delay as far as it knows them (real-time safe).
+  virtual DeviceDynamics dynamics() const noexcept { return {}; }
 };
 
 }  // namespace telehand::devices

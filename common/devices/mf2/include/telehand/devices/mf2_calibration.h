@@ -27,16 +27,25 @@ class Mf2Calibration {
   /// Motor currents that produce `force_n` at the thimbles in the pose of `raw`.
   virtual void toCurrents(const PerFinger<Vec3>& force_n, const proto::StatePacket& raw,
                           CurrentsMa& out) const noexcept = 0;
+  /// The lightest mass the device moves at the thimbles in the pose of `raw`, along any
+  /// direction, kg; 0 when the calibration does not know it.
+  virtual double lightestMassKg(const proto::StatePacket& raw) const noexcept {
+    (void)raw;
+    return 0.0;
+  }
   /// Forget per-stream state (a new connection).
   virtual void reset() noexcept {}
 };
 
 /// The motors behind the actuators. Not in the device file yet; the defaults are stated
 /// assumptions: a 23.4 mN·m/A DC motor through the device file's 10:1 capstan is 0.234 N·m/A
-/// at the joint, and a 6 A driver limit covers the device file's largest torque (1.2 N·m).
+/// at the joint, a 6 A driver limit covers the device file's largest torque (1.2 N·m), and
+/// each actuator moves 5·10⁻⁴ kg·m² at its joint (motor, capstan and link: about 50 g at a
+/// 10 cm crank).
 struct Mf2Motors {
   std::array<double, proto::kActuators> nm_per_amp{0.234, 0.234, 0.234, 0.234, 0.234, 0.234, 0.234};
   double max_current_a = 6.0;
+  double inertia_kgm2 = 5e-4;  ///< per actuator, joint side
 };
 
 /// Wire order = the device model's order: actuator 0 is the base joint, 1-3 the thumb's
@@ -48,6 +57,9 @@ class Mf2ModelCalibration final : public Mf2Calibration {
   bool toFingers(const proto::StatePacket& raw, PerFinger<FingerSample>& out) noexcept override;
   void toCurrents(const PerFinger<Vec3>& force_n, const proto::StatePacket& raw,
                   CurrentsMa& out) const noexcept override;
+  /// From the actuators' inertia I and the Jacobian J: 1 / λmax(J·Jᵀ / I) (the thimbles'
+  /// mobility's largest eigenvalue). Allocation-free.
+  double lightestMassKg(const proto::StatePacket& raw) const noexcept override;
   void reset() noexcept override;
 
   /// How far past a mechanical stop an angle may read (encoder zero calibration) before the

@@ -134,6 +134,8 @@ class SimulatedMassageMf2 final : public Device {
   bool write(const ForceCommand& cmd) noexcept override;
   DeviceStatus status() const noexcept override { return DeviceStatus::kOk; }
   std::string_view name() const noexcept override { return "sim-massage"; }
+  /// Each thimble's mass; a force written now acts from the next step.
+  DeviceDynamics dynamics() const noexcept override { return {dyn_.mass_kg, 0}; }
 
   // Ground truth for tests.
   bool capturing() const noexcept { return capturing_; }

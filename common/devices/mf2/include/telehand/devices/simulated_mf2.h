@@ -76,6 +76,8 @@ class SimulatedMf2 final : public Device {
   bool write(const ForceCommand& cmd) noexcept override;
   DeviceStatus status() const noexcept override { return DeviceStatus::kOk; }
   std::string_view name() const noexcept override { return "sim"; }
+  /// The grip's mass; a force written now acts from the next step.
+  DeviceDynamics dynamics() const noexcept override { return {dyn_.mass_kg, 0}; }
 
   /// Ground truth for tests.
   const Vec3& angles() const noexcept { return angles_; }
