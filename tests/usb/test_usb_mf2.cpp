@@ -481,7 +481,7 @@ void UsbMf2Test::expectHeldStill(const JointModelParams& model, double first_mas
       << client::loop::faultName(loop.fault()) << " after " << loop.health().fault_clamps.load()
       << " clamps";
   EXPECT_LE(clamped, 10) << "of " << ticks - 300 << " ticks";
-  // The limit cycle swung 20-100°; a busy machine's late ticks leave a few degrees.
+  // The limit cycles swung 15-52°; a busy machine's late ticks leave a few degrees.
   EXPECT_LT(hi - lo, 8.0) << "abduction swung " << lo << ".." << hi << " deg";
 }
 

@@ -66,8 +66,10 @@ double JointModel::holdingForceN(int axis, double angle_rad) const noexcept {
 
 double stableDampingNsPerM(double mass_kg, int delay_ticks, double period_s) noexcept {
   if (!(mass_kg > 0.0) || !(period_s > 0.0) || delay_ticks < 0) return 0.0;
+  // 2·cos(dπ/(2d + 1)), Levin & May's form of 2·sin(π/(2(2d + 1))): exactly 2 and 1 (to the
+  // last bit) for d = 0 and 1.
   const double d = static_cast<double>(delay_ticks);
-  return 2.0 * std::sin(kPi / (2.0 * (2.0 * d + 1.0))) * mass_kg / period_s;
+  return 2.0 * std::cos(d * kPi / (2.0 * d + 1.0)) * mass_kg / period_s;
 }
 
 double JointModel::maxDampingNmsPerRad() const noexcept {
