@@ -474,8 +474,11 @@ void UsbMf2Test::expectHeldStill(const JointModelParams& model, double first_mas
   EXPECT_LE(mass, first_mass_kg);
   const double margin = client::loop::PassivityConfig{}.stability_margin;
   const double limit = stableDampingNsPerM(mass, 2, 1e-3);
-  EXPECT_NEAR(loop.health().passivity_bound_ns_per_m.load(), margin * limit, 1e-9);
-  EXPECT_NEAR(loop.health().joint_damping_cap_ns_per_m.load(), kJointDampingShare * limit, 1e-9);
+  // At most what the nominal tick allows (less for a second after a late one).
+  EXPECT_LE(loop.health().passivity_bound_ns_per_m.load(), margin * limit + 1e-9);
+  EXPECT_GT(loop.health().passivity_bound_ns_per_m.load(), 0.0);
+  EXPECT_LE(loop.health().joint_damping_cap_ns_per_m.load(), kJointDampingShare * limit + 1e-9);
+  EXPECT_GT(loop.health().joint_damping_cap_ns_per_m.load(), 0.0);
   EXPECT_LE(damping, margin * stableDampingNsPerM(first_mass_kg, 2, 1e-3) + 1e-4);
   EXPECT_EQ(loop.fault(), client::loop::LoopFault::kNone)
       << client::loop::faultName(loop.fault()) << " after " << loop.health().fault_clamps.load()

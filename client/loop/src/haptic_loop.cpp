@@ -101,7 +101,7 @@ StepStatus HapticLoop::step() noexcept {
   }
   in_outage_ = outage;
 
-  followDeviceDynamics();
+  followDeviceDynamics(now);
 
   PerFinger<Vec3> p{sample_.fingers[kThumb].position_m, sample_.fingers[kIndex].position_m};
   // The energy the last tick's force exchanged with the operator.
@@ -252,21 +252,34 @@ StepStatus HapticLoop::step() noexcept {
   return status;
 }
 
-void HapticLoop::followDeviceDynamics() noexcept {
+void HapticLoop::followDeviceDynamics(int64_t now) noexcept {
+  // The longest tick of the last second, at least the nominal one: a late tick holds the
+  // force longer, and the same damper is then a larger step.
+  const auto nominal_ns = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
+  const int64_t tick_ns = last_step_ns_ != 0 ? now - last_step_ns_ : nominal_ns;
+  last_step_ns_ = now;
+  if (now - long_tick_since_ns_ > kNsPerS || tick_ns > long_tick_ns_) {
+    long_tick_ns_ = std::max(tick_ns, nominal_ns);
+    long_tick_since_ns_ = now;
+  }
+  const double period_s = static_cast<double>(long_tick_ns_) * 1e-9;
   const devices::DeviceDynamics d = device_.dynamics();
   if (d.lightest_mass_kg == dynamics_.lightest_mass_kg &&
-      d.command_delay_ticks == dynamics_.command_delay_ticks) {
+      d.command_delay_ticks == dynamics_.command_delay_ticks && period_s == dynamics_period_s_) {
     return;
   }
   dynamics_ = d;
+  dynamics_period_s_ = period_s;
   // A damper rendered on the device acts a command delay after the velocity it is computed
   // from, and that velocity is a tick old besides. The joint may render half of what the
-  // lightest direction takes, the passivity controller 0.4 of it (docs/teleoperation.md).
-  const double period_s = 1.0 / config_.rate_hz;
-  const double limit = stableDampingNsPerM(d.lightest_mass_kg, d.command_delay_ticks + 1, period_s);
-  const double joint_cap = limit > 0.0
-                               ? std::min(kMaxDeviceDampingNsPerM, kJointDampingShare * limit)
-                               : kMaxDeviceDampingNsPerM;
+  // lightest direction takes at the nominal tick and all of it at the longest recent one,
+  // the passivity controller 0.4 of the latter (docs/teleoperation.md).
+  const int delay = d.command_delay_ticks + 1;
+  const double nominal = stableDampingNsPerM(d.lightest_mass_kg, delay, 1.0 / config_.rate_hz);
+  const double late = stableDampingNsPerM(d.lightest_mass_kg, delay, period_s);
+  const double joint_cap =
+      nominal > 0.0 ? std::min({kMaxDeviceDampingNsPerM, kJointDampingShare * nominal, late})
+                    : kMaxDeviceDampingNsPerM;
   proxy_.setDeviceDampingCap(joint_cap);
   passivity_.setDevice(d.lightest_mass_kg, d.command_delay_ticks, period_s);
   health_.joint_damping_cap_ns_per_m.store(joint_cap, std::memory_order_relaxed);

@@ -158,8 +158,8 @@ TEST(PassivityController, DampingStaysWithinWhatALightDelayedDeviceRenders) {
   // A deficit the motion can pay (5 µJ of 10.6): paid, by slowing the thimble.
   const LightThimbleRun paid = lightThimble(true, 5e-6);
   // The margin of 2·sin(π/10)·m/T: the delay of one tick, and the velocity a tick old.
-  EXPECT_NEAR(paid.bound,
-              PassivityConfig{}.stability_margin * stableDampingNsPerM(0.0085, 2, 1e-3), 1e-9);
+  EXPECT_NEAR(paid.bound, PassivityConfig{}.stability_margin * stableDampingNsPerM(0.0085, 2, 1e-3),
+              1e-9);
   EXPECT_LT(paid.bound, PassivityConfig{}.max_damping_ns_per_m);
   EXPECT_GT(paid.max_damping, 0.0) << "the controller acted";
   EXPECT_LE(paid.max_damping, paid.bound + 1e-12);

@@ -170,5 +170,43 @@ TEST(PassivityInTheLoop, LateStartRateLimitsOnlyTheJointSwitchingOn) {
   EXPECT_GT(r.lowest_energy_j, -1e-3) << "J, the teleoperation benchmark's passivity bound";
 }
 
+TEST(PassivityInTheLoop, ALateTickLowersTheDampingBoundsForASecond) {
+  // The simulated MF-2 (50 g, its command acting on the next step): at 1 kHz the joint renders
+  // at most 25 N·s/m and the controller adds at most 20. A tick 8 ms late holds the force 8
+  // times longer: for the next second both follow that tick (the joint the whole limit at
+  // 8 ms, 2·cos(π/3)·m/T = 6.25 N·s/m, the controller 0.4 of it), then return.
+  ManualClock clock(kNsPerS);
+  const JointModelParams model = healthyIndexMcp();
+  devices::SimulatedMf2 dev(model, OperatorConfig{}, clock);
+  loop::HapticLoop hl(dev, clock, model, SafetyLimits{});
+  Sample s;
+  auto tick = [&](int64_t ns) {
+    clock.advance(ns);
+    hl.step();
+    while (hl.samples().tryPop(s)) {
+    }
+  };
+  const auto& h = hl.health();
+  for (int i = 0; i < 100; ++i) tick(kNsPerMs);
+  EXPECT_DOUBLE_EQ(h.joint_damping_cap_ns_per_m.load(), kMaxDeviceDampingNsPerM);
+  EXPECT_DOUBLE_EQ(h.passivity_bound_ns_per_m.load(), 20.0);
+  tick(8 * kNsPerMs);
+  const double late = stableDampingNsPerM(0.05, 1, 0.008);
+  EXPECT_NEAR(late, 6.25, 1e-9);
+  EXPECT_NEAR(h.joint_damping_cap_ns_per_m.load(), late, 1e-9);
+  EXPECT_NEAR(h.passivity_bound_ns_per_m.load(), 0.4 * late, 1e-9);
+  EXPECT_NEAR(hl.proxy().model().deviceDampingCapNsPerM(), late, 1e-9) << "the rendered cap";
+  for (int i = 0; i < 900; ++i) tick(kNsPerMs);
+  EXPECT_NEAR(h.passivity_bound_ns_per_m.load(), 0.4 * late, 1e-9) << "held within the second";
+  for (int i = 0; i < 200; ++i) tick(kNsPerMs);
+  EXPECT_DOUBLE_EQ(h.joint_damping_cap_ns_per_m.load(), kMaxDeviceDampingNsPerM);
+  EXPECT_DOUBLE_EQ(h.passivity_bound_ns_per_m.load(), 20.0);
+  // A 2 ms tick: the joint's 25 N·s/m is the whole limit there and stays; the controller
+  // gets 10.
+  tick(2 * kNsPerMs);
+  EXPECT_DOUBLE_EQ(h.joint_damping_cap_ns_per_m.load(), kMaxDeviceDampingNsPerM);
+  EXPECT_NEAR(h.passivity_bound_ns_per_m.load(), 10.0, 1e-9);
+}
+
 }  // namespace
 }  // namespace telehand::client

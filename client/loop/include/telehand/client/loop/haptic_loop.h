@@ -188,6 +188,8 @@ class HapticLoop {
     return direct_.load(std::memory_order_acquire) ? RenderMode::kDirect : RenderMode::kModel;
   }
   const LoopHealth& health() const noexcept { return health_; }
+  /// The joint as rendered (read between ticks, or from the loop's thread).
+  const JointProxy& proxy() const noexcept { return proxy_; }
   /// The latched fault (kNone while rendering normally). After a fault the loop commands zero
   /// force (through the gate's rate limit) until it is destroyed.
   LoopFault fault() const noexcept {
@@ -201,8 +203,10 @@ class HapticLoop {
   /// how far the rendering is past its range (degrees past a joint's range end, or for the
   /// web 1e9 once a pad is deeper than kWebRunawayDepthM; non-finite counts as past).
   /// The device's lightest mass and delay bound the damping the joint model and the passivity
-  /// controller add (re-read every tick; acted on when they change).
-  void followDeviceDynamics() noexcept;
+  /// controller add, over the longest tick of the last second (a late tick holds the force
+  /// longer: the same damper is then a larger step). Re-read every tick; acted on when they
+  /// change.
+  void followDeviceDynamics(int64_t now) noexcept;
   bool detectFault(int64_t now, bool clamped, double excess_deg) noexcept;
   /// Restart the detector's windows (after a device outage).
   void restartFaultWindows() noexcept;
@@ -219,6 +223,10 @@ class HapticLoop {
   std::unique_ptr<ForceRing> forces_;
   PassivityGuard passivity_;
   devices::DeviceDynamics dynamics_;  // as last followed
+  double dynamics_period_s_ = 0.0;    // the tick the bounds were worked out for
+  int64_t last_step_ns_ = 0;          // when the last tick ran (0: none yet)
+  int64_t long_tick_ns_ = 0;          // the longest tick since long_tick_since_ns_
+  int64_t long_tick_since_ns_ = 0;
   LoopHealth health_;
   std::atomic<bool> direct_{false};
   PerFinger<Vec3> last_command_{Vec3::Zero(), Vec3::Zero()};
