@@ -196,12 +196,13 @@ TEST_F(NetemTest, DirectModeRunsAcrossTheDelayLineAndTheGuardActs) {
   // The baseline renders forces computed a round trip (300 ms) ago: the passivity guard
   // acts, and where the rendering still diverges the fault detector ends the session and
   // says so (exit 4) instead of rendering on. Either way the server's forces were rendered:
-  // how long before the fault is the machine's (650-1,470 forces on an idle one, 462 once
-  // beside the whole suite), so a fault only needs a tenth of a second of them.
+  // how long before the fault is the detector's and the machine's (650-1,470 forces on an
+  // idle machine when a runaway had to stay out of range for 20 ms on end; 50-80 since its
+  // time out adds up, the rendering then 130° past the range), so a fault needs only some.
   ASSERT_TRUE(*rc == 0 || *rc == 4) << *rc << "\n" << out << "\n" << server.output();
   if (*rc == 4) {
     EXPECT_NE(out.find("rendering fault ("), std::string::npos) << out;
-    EXPECT_GT(matchNumber(out, R"((\d+) server forces received)"), 100u) << out;
+    EXPECT_GT(matchNumber(out, R"((\d+) server forces received)"), 0u) << out;
   } else {
     EXPECT_GT(matchNumber(out, R"((\d+) server forces received)"), 2000u) << out;
   }

@@ -320,10 +320,17 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, double excess_deg) noexc
   const bool outside = !finite || excess_deg > lim.range_margin_deg;
   // A finger that starts (or resumes) away from the joint, before the grip is on it, is not
   // running away: the timer arms once the rendered angles have been within the margin.
+  // Time outside adds up, time inside drains it a quarter as fast: a rendering that swings
+  // through the range and out again, out for a third of each swing or more, is a runaway too.
   if (!outside) in_range_seen_ = true;
-  if (outside && !outside_) outside_since_ns_ = now;
+  const auto tick_ns = static_cast<int64_t>(std::max(dt, 0.0) * 1e9);
+  if (outside && in_range_seen_) {
+    outside_ns_ += outside_ ? tick_ns : 0;  // the first tick out starts the count
+  } else {
+    outside_ns_ = std::max<int64_t>(outside_ns_ - tick_ns / 4, 0);
+  }
   outside_ = outside;
-  if (outside && in_range_seen_ && now - outside_since_ns_ >= lim.runaway_ns) {
+  if (outside && in_range_seen_ && outside_ns_ >= lim.runaway_ns) {
     fault = LoopFault::kRangeRunaway;
   }
   if (fault == LoopFault::kNone) return false;
@@ -342,6 +349,7 @@ void HapticLoop::restartFaultWindows() noexcept {
   onset_bucket_ = 0.0;
   bucket_ns_ = 0;
   outside_ = false;
+  outside_ns_ = 0;
   in_range_seen_ = false;
 }
 

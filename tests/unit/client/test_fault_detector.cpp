@@ -3,6 +3,8 @@
 // not trip it.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include "../../stability/stability_run.h"
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/clock.h"
@@ -169,6 +171,48 @@ TEST(FaultDetector, AJointPushedFarPastItsRangeIsARunaway) {
   const FaultRun r = mobilize(shortRange, 5.0, {}, 1e-6);
   EXPECT_EQ(r.fault, LoopFault::kRangeRunaway) << loop::faultName(r.fault);
   EXPECT_EQ(r.clamps, 0u);
+}
+
+TEST(FaultDetector, ARenderingSwingingOutOfItsRangeAndBackIsARunaway) {
+  // The phalanx swung at 40 Hz, ±60° around 0°, through a model whose flexion range is ±10°:
+  // past the 25° margin for 7-8 ms of each 12.5 ms half swing, never the 20 ms on end the
+  // old detector waited for. Next to nothing is rendered (direct mode, a micronewton).
+  // The hand swings it (its torque ramped in over 0.1 s) and holds it about 0° with a spring.
+  struct Swing final : devices::Operator {
+    Vec3 torqueNm(double t_s, const Vec3& angles, const Vec3&) noexcept override {
+      const double ramp = std::min(t_s / 0.1, 1.0);
+      return Vec3(0.28 * ramp * std::sin(2.0 * kPi * 40.0 * t_s) - 0.05 * angles[kFlexion], 0.0,
+                  0.0);
+    }
+  } swing;
+  JointModelParams narrow = healthyIndexMcp();
+  narrow.axes[kFlexion].min_deg = -10.0;
+  narrow.axes[kFlexion].max_deg = 10.0;
+  ManualClock clock(kNsPerS);
+  devices::SimulatedMf2 dev(narrow, OperatorConfig{}, clock);
+  dev.setPose(Vec3::Zero());
+  dev.setOperator(&swing);
+  loop::TeleopOptions teleop;
+  teleop.render = loop::RenderMode::kDirect;
+  HapticLoop hl(dev, clock, narrow, SafetyLimits{}, LoopConfig{}, teleop);
+  loop::DirectForceSample f;
+  f.force_n = {Vec3(0, 0, 1e-6), Vec3(0, 0, -1e-6)};
+  hl.directForces().tryPush(f);
+  Sample s;
+  double lo = 1e9, hi = -1e9;
+  for (int i = 0; i < 1000 && hl.fault() == LoopFault::kNone; ++i) {
+    clock.advance(kNsPerMs);
+    hl.step();
+    while (hl.samples().tryPop(s)) {
+    }
+    lo = std::min(lo, radToDeg(dev.angles()[kFlexion]));
+    hi = std::max(hi, radToDeg(dev.angles()[kFlexion]));
+  }
+  EXPECT_EQ(hl.fault(), LoopFault::kRangeRunaway)
+      << loop::faultName(hl.fault()) << ", swing " << lo << ".." << hi << " deg";
+  EXPECT_GT(hi, 40.0);
+  EXPECT_LT(lo, -40.0);
+  EXPECT_LT(hl.health().fault_time_ns.load(), 500 * kNsPerMs) << "a few swings";
 }
 
 TEST(FaultDetector, ANormalSessionDoesNotTripIt) {

@@ -116,7 +116,8 @@ struct FaultLimits {
   double storm_onsets = 20.0;
   /// Rendered angles this far past a range end (or not finite) for runaway_ns, once they have
   /// been within it since the start or the last outage (a finger not yet on the joint is
-  /// not a runaway). The end-of-range
+  /// not a runaway); time back inside takes a quarter of its length off, so that a swing
+  /// through the range and out again adds up as well. The end-of-range
   /// wall (1 N/deg at reference scale) asks 25 N more than the curve's end there: more than
   /// the device renders (16 N reference), so only a runaway gets there.
   double range_margin_deg = 25.0;
@@ -250,10 +251,10 @@ class HapticLoop {
   int64_t bucket_ns_ = 0;
   bool outside_ = false;
   bool in_range_seen_ = false;  // since the detector (re)started
-  int64_t outside_since_ns_ = 0;
-  bool hold_counted_ = false;  // this clamp run already counted as a clamp hold
-  bool in_outage_ = false;     // the device is not streaming (nothing rendered)
-  bool overran_ = false;       // the last tick finished late: the next sample says so
+  int64_t outside_ns_ = 0;      // time past the margin, drained a quarter as fast inside
+  bool hold_counted_ = false;   // this clamp run already counted as a clamp hold
+  bool in_outage_ = false;      // the device is not streaming (nothing rendered)
+  bool overran_ = false;        // the last tick finished late: the next sample says so
 };
 
 }  // namespace telehand::client::loop
