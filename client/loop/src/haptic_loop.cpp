@@ -321,7 +321,7 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, double excess_deg) noexc
   // A finger that starts (or resumes) away from the joint, before the grip is on it, is not
   // running away: the timer arms once the rendered angles have been within the margin.
   // Time outside adds up, time inside drains it a quarter as fast: a rendering that swings
-  // through the range and out again, out for a third of each swing or more, is a runaway too.
+  // through the range and out again, out a fifth of the time or more, is a runaway too.
   if (!outside) in_range_seen_ = true;
   const auto tick_ns = static_cast<int64_t>(std::max(dt, 0.0) * 1e9);
   if (outside && in_range_seen_) {
