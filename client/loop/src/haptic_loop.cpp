@@ -51,6 +51,7 @@ HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
       direct_(teleop.render == RenderMode::kDirect),
       fault_limits_(teleop.fault) {
   health_.model_version.store(initial_model.version, std::memory_order_relaxed);
+  nominal_tick_ns_ = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
   health_.joint_damping_cap_ns_per_m.store(kMaxDeviceDampingNsPerM, std::memory_order_relaxed);
   health_.passivity_bound_ns_per_m.store(passivity_.dampingBoundNsPerM(),
                                          std::memory_order_relaxed);
@@ -255,11 +256,10 @@ StepStatus HapticLoop::step() noexcept {
 void HapticLoop::followDeviceDynamics(int64_t now) noexcept {
   // The longest tick of the last second, at least the nominal one: a late tick holds the
   // force longer, and the same damper is then a larger step.
-  const auto nominal_ns = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
-  const int64_t tick_ns = last_step_ns_ != 0 ? now - last_step_ns_ : nominal_ns;
+  const int64_t tick_ns = last_step_ns_ != 0 ? now - last_step_ns_ : nominal_tick_ns_;
   last_step_ns_ = now;
   if (now - long_tick_since_ns_ > kNsPerS || tick_ns > long_tick_ns_) {
-    long_tick_ns_ = std::max(tick_ns, nominal_ns);
+    long_tick_ns_ = std::max(tick_ns, nominal_tick_ns_);
     long_tick_since_ns_ = now;
   }
   const double period_s = static_cast<double>(long_tick_ns_) * 1e-9;
@@ -275,13 +275,14 @@ void HapticLoop::followDeviceDynamics(int64_t now) noexcept {
   // lightest direction takes at the nominal tick and all of it at the longest recent one,
   // the passivity controller 0.4 of the latter (docs/teleoperation.md).
   const int delay = d.command_delay_ticks + 1;
-  const double nominal = stableDampingNsPerM(d.lightest_mass_kg, delay, 1.0 / config_.rate_hz);
+  const double nominal =
+      stableDampingNsPerM(d.lightest_mass_kg, delay, static_cast<double>(nominal_tick_ns_) * 1e-9);
   const double late = stableDampingNsPerM(d.lightest_mass_kg, delay, period_s);
   const double joint_cap =
       nominal > 0.0 ? std::min({kMaxDeviceDampingNsPerM, kJointDampingShare * nominal, late})
                     : kMaxDeviceDampingNsPerM;
   proxy_.setDeviceDampingCap(joint_cap);
-  passivity_.setDevice(d.lightest_mass_kg, d.command_delay_ticks, period_s);
+  passivity_.setDeviceLimit(late);
   health_.joint_damping_cap_ns_per_m.store(joint_cap, std::memory_order_relaxed);
   health_.passivity_bound_ns_per_m.store(passivity_.dampingBoundNsPerM(),
                                          std::memory_order_relaxed);

@@ -43,18 +43,11 @@ void PassivityGuard::observe(const PerFinger<Vec3>& p, const PerFinger<Vec3>& la
   last_p_ = p;
 }
 
-void PassivityGuard::setDevice(double lightest_mass_kg, int command_delay_ticks,
-                               double period_s) noexcept {
-  if (lightest_mass_kg == device_mass_kg_ && command_delay_ticks == device_delay_ticks_ &&
-      period_s == device_period_s_) {
-    return;
-  }
-  device_mass_kg_ = lightest_mass_kg;
-  device_delay_ticks_ = command_delay_ticks;
-  device_period_s_ = period_s;
+void PassivityGuard::setDeviceLimit(double limit_ns_per_m) noexcept {
   bound_ns_per_m_ = config_.max_damping_ns_per_m;
-  const double device = stableDampingNsPerM(lightest_mass_kg, command_delay_ticks + 1, period_s);
-  if (device > 0.0) bound_ns_per_m_ = std::min(bound_ns_per_m_, config_.stability_margin * device);
+  if (limit_ns_per_m > 0.0) {
+    bound_ns_per_m_ = std::min(bound_ns_per_m_, config_.stability_margin * limit_ns_per_m);
+  }
 }
 
 void PassivityGuard::restart() noexcept {

@@ -46,7 +46,7 @@ struct LoopHealth {
   std::atomic<double> passivity_min_energy_j{0.0};  ///< lowest observer energy seen
   std::atomic<uint64_t> passivity_activations{0};   ///< ticks the controller added damping
   /// The most damping the controller may add now, N·s/m: its configured bound, or less on a
-  /// light or delayed device (PassivityGuard::setDevice).
+  /// light or delayed device (PassivityGuard::setDeviceLimit).
   std::atomic<double> passivity_bound_ns_per_m{0.0};
   /// The most damping the joint model renders at the device, N·s/m per unit lever speed:
   /// kMaxDeviceDampingNsPerM, or less on a light or delayed device.
@@ -225,6 +225,7 @@ class HapticLoop {
   PassivityGuard passivity_;
   devices::DeviceDynamics dynamics_;  // as last followed
   double dynamics_period_s_ = 0.0;    // the tick the bounds were worked out for
+  int64_t nominal_tick_ns_ = 0;       // 1 / LoopConfig::rate_hz
   int64_t last_step_ns_ = 0;          // when the last tick ran (0: none yet)
   int64_t long_tick_ns_ = 0;          // the longest tick since long_tick_since_ns_
   int64_t long_tick_since_ns_ = 0;

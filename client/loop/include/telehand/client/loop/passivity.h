@@ -25,7 +25,7 @@
 /// acting d ticks of period T after the velocity it damps, b·T/m above 2·sin(π / (2(2d + 1)))
 /// makes it ring and grow (stableDampingNsPerM), and an observer that sees the ringing as
 /// generated energy asks for more. So the damping is bounded by the device's lightest moving
-/// mass and its delay (setDevice) as well as by `max_damping`.
+/// mass and its delay (setDeviceLimit) as well as by `max_damping`.
 #include <cstdint>
 
 #include "telehand/core/joint_model.h"
@@ -73,11 +73,10 @@ class PassivityGuard {
   /// tick, after observe (the damping moves from its last value).
   PassivityOutput control(const PerFinger<Vec3>& request) noexcept;
 
-  /// The device the damping acts on: its lightest moving mass at the thimbles (kg; 0 or less:
-  /// unknown, only `max_damping` bounds the damping), the ticks its command takes beyond the
-  /// one it is held for (the damped velocity is a tick old besides: d = delay + 1), and the
-  /// loop's period. Cheap when nothing changed; real-time safe.
-  void setDevice(double lightest_mass_kg, int command_delay_ticks, double period_s) noexcept;
+  /// The damping the device renders before it rings (stableDampingNsPerM with its lightest
+  /// moving mass, its delay and the loop's tick; 0 or less: unknown, only `max_damping`
+  /// bounds the damping). The controller keeps `stability_margin` of it. Real-time safe.
+  void setDeviceLimit(double limit_ns_per_m) noexcept;
   /// The most damping the controller may add, N·s/m per finger.
   double dampingBoundNsPerM() const noexcept { return bound_ns_per_m_; }
 
@@ -103,9 +102,6 @@ class PassivityGuard {
   PerFinger<Vec3> vc_{Vec3::Zero(), Vec3::Zero()};
   double alpha_ = 0.0;  // damping applied on the last tick
   double energy_j_ = 0.0;
-  double device_mass_kg_ = 0.0;
-  int device_delay_ticks_ = 0;
-  double device_period_s_ = 0.0;
   double bound_ns_per_m_ = 0.0;  // max_damping, or less on the device set
 };
 
