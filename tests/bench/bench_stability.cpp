@@ -3,7 +3,13 @@
 // exploration each, through the client's loop on the simulated MF-2, offline. Prints one
 // line per run and a summary; exits 1 if any run fails the suite's criteria.
 //
-//   telehand_bench_stability [--random N] [--seconds S] [--damping-sweep] [--late-sweep]
+//   telehand_bench_stability [--random N] [--seconds S] [--seed S] [--loop-rate HZ]
+//                            [--damping-sweep] [--late-sweep]
+//
+// --seed: the simulated clinician's seed (default 1) for every run.
+//
+// --loop-rate: the client's loop at HZ (LoopConfig::rate_hz, 100-4000) instead of 1 kHz; the
+// simulated MF-2 still streams at 1 kHz.
 //
 // --late-sweep: instead, mobilizes the healthy joint on a loop that runs late (a share of its
 // ticks 2..N ms after the one before, the device holding the last force meanwhile) without a
@@ -143,21 +149,39 @@ int lateSweep(double seconds) {
 int main(int argc, char** argv) {
   int randoms = 20;
   double seconds = 30.0;
+  uint64_t seed = 1;
+  stability::Extras extras;
+  const auto usage = [&](FILE* to) {
+    std::fprintf(to,
+                 "usage: %s [--random N] [--seconds S] [--seed S] [--loop-rate HZ (100-4000)] "
+                 "[--damping-sweep] [--late-sweep [--seconds S]]\n",
+                 argv[0]);
+  };
   for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--random") && i + 1 < argc)
+    const bool has_value = i + 1 < argc;
+    if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
+      usage(stdout);
+      return 0;
+    } else if (!std::strcmp(argv[i], "--random") && has_value) {
       randoms = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc)
+    } else if (!std::strcmp(argv[i], "--seconds") && has_value) {
       seconds = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--damping-sweep"))
+    } else if (!std::strcmp(argv[i], "--seed") && has_value) {
+      seed = std::strtoull(argv[++i], nullptr, 10);
+    } else if (!std::strcmp(argv[i], "--loop-rate") && has_value) {
+      extras.loop_rate_hz = std::atof(argv[++i]);
+      if (!(extras.loop_rate_hz >= 100.0 && extras.loop_rate_hz <= 4000.0)) {
+        std::fprintf(stderr, "%s: --loop-rate %s is outside 100-4000 Hz\n", argv[0], argv[i]);
+        return 2;
+      }
+    } else if (!std::strcmp(argv[i], "--damping-sweep")) {
       return dampingSweep();
-    else if (!std::strcmp(argv[i], "--late-sweep"))
+    } else if (!std::strcmp(argv[i], "--late-sweep")) {
       return lateSweep(
           i + 2 < argc && !std::strcmp(argv[i + 1], "--seconds") ? std::atof(argv[i + 2]) : 10.0);
-    else {
-      std::fprintf(stderr,
-                   "usage: %s [--random N] [--seconds S] [--damping-sweep] [--late-sweep "
-                   "[--seconds S]]\n",
-                   argv[0]);
+    } else {
+      std::fprintf(stderr, "%s: unknown or incomplete option '%s'\n", argv[0], argv[i]);
+      usage(stderr);
       return 2;
     }
   }
@@ -165,9 +189,11 @@ int main(int argc, char** argv) {
   for (const auto& name : listPatientCases(TELEHAND_DEPLOY_DIR "/cases")) {
     cases.push_back(loadPatientCaseByName(TELEHAND_DEPLOY_DIR "/cases", name).model);
   }
-  for (int seed = 1; seed <= randoms; ++seed) {
-    cases.push_back(randomPatientCase(static_cast<uint64_t>(seed)).model);
+  for (int k = 1; k <= randoms; ++k) {
+    cases.push_back(randomPatientCase(static_cast<uint64_t>(k)).model);
   }
+  std::printf("loop at %.0f Hz, operator seed %llu\n", extras.loop_rate_hz,
+              static_cast<unsigned long long>(seed));
   std::printf("%-12s %-6s %4s %8s %8s %8s %10s %6s %6s %6s %6s  %s\n", "case", "motion", "Hz",
               "excess", "req N", "push N", "min E J", "hold N", "clamps", "PC", "fault", "result");
   int runs = 0, failed = 0;
@@ -177,7 +203,7 @@ int main(int argc, char** argv) {
       const double hz = explore ? 0.0 : (j == 0 ? 1.0 : j == 1 ? 3.0 : 6.0);
       const auto r = stability::runStability(
           m, explore ? stability::Motion::kExploration : stability::Motion::kMobilization,
-          explore ? 3.0 : hz, seconds, 1);
+          explore ? 3.0 : hz, seconds, seed, {}, extras);
       const std::string why = stability::failures(r);
       ++runs;
       failed += why.empty() ? 0 : 1;

@@ -76,9 +76,13 @@ struct Extras {
   /// meanwhile, as a busy host's loop does.
   double late_fraction = 0.0;
   int max_stall_ms = 1;
+  /// The loop's rate (LoopConfig::rate_hz, 100-4000 Hz in a config). The simulated MF-2
+  /// streams at its own 1 kHz whatever the loop's rate: a faster loop sees each sample on
+  /// more than one tick, a slower one every second or more.
+  double loop_rate_hz = 1000.0;
 };
 
-/// `patient` is rendered and is what the clinician plans against; `seconds` of 1 kHz ticks.
+/// `patient` is rendered and is what the clinician plans against; `seconds` of loop ticks.
 inline RunResult runStability(const JointModelParams& patient, Motion motion, double freq_hz,
                               double seconds, uint64_t seed,
                               const client::loop::TeleopOptions& teleop = {},
@@ -96,7 +100,10 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
   plan.seed = seed;
   devices::ExplorationOperator explorer(plan);
   if (motion == Motion::kExploration) dev.setOperator(&explorer);
-  client::loop::HapticLoop hl(dev, clock, patient, SafetyLimits{}, LoopConfig{}, teleop);
+  LoopConfig loop_config;
+  loop_config.rate_hz = extras.loop_rate_hz;
+  client::loop::HapticLoop hl(dev, clock, patient, SafetyLimits{}, loop_config, teleop);
+  const int64_t tick_ns = std::llround(1e9 / extras.loop_rate_hz);
   if (extras.guide.active()) {
     JointModelParams guided = patient;
     guided.version = patient.version + 1;
@@ -108,15 +115,16 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
 
   RunResult r;
   Sample s;
-  const int ticks = static_cast<int>(std::lround(seconds * 1000.0));
-  for (int i = 0; i < ticks;) {
-    int ms = 1;
+  const int64_t end_ns = std::llround(seconds * 1e9);
+  for (int64_t t_ns = 0; t_ns < end_ns;) {
+    int64_t step_ns = tick_ns;
     if (extras.late_fraction > 0.0 && unit(late_rng) < extras.late_fraction) {
-      ms = 2 + static_cast<int>(unit(late_rng) * std::max(0, extras.max_stall_ms - 1));
+      int ms = 2 + static_cast<int>(unit(late_rng) * std::max(0, extras.max_stall_ms - 1));
       ms = std::min(ms, std::max(2, extras.max_stall_ms));
+      step_ns = ms * kNsPerMs;
     }
-    i += ms;
-    clock.advance(ms * kNsPerMs);
+    t_ns += step_ns;
+    clock.advance(step_ns);
     hl.step();
     while (hl.samples().tryPop(s)) {
     }
@@ -126,7 +134,7 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
       break;
     }
     r.range_excess_deg = std::max(r.range_excess_deg, model.rangeExcessDeg(a));
-    const double t = i * 1e-3;
+    const double t = static_cast<double>(t_ns) * 1e-9;
     if (motion == Motion::kMobilization && t > op.ramp_s + 0.5) {
       const double f0 = dev.renderedForce()[0].norm(), f1 = dev.renderedForce()[1].norm();
       r.pusher_max_n = std::max(r.pusher_max_n, std::max(f0, f1));

@@ -26,10 +26,16 @@ toml::table parse(const std::string& text, const std::string& origin) {
   return parseToml(text, origin);
 }
 
+std::string shortNumber(double v) {
+  std::ostringstream o;
+  o << v;  // 800, 0.1, 1e+300: as a user would write it, not 800.000000
+  return o.str();
+}
+
 void requireRange(const std::string& origin, const char* key, double v, double lo, double hi) {
   if (!(v >= lo && v <= hi)) {
-    fail(origin, std::string("'") + key + "' = " + std::to_string(v) + " is outside [" +
-                     std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    fail(origin, std::string("'") + key + "' = " + shortNumber(v) + " is outside [" +
+                     shortNumber(lo) + ", " + shortNumber(hi) + "]");
   }
 }
 
@@ -85,7 +91,8 @@ ClientConfig parseClientConfig(const std::string& text, const std::string& origi
   lp.rejectUnknown();
   validate(c.op, origin);
   validate(c.safety, origin);
-  requireRange(origin, "loop.rate_hz", c.loop.rate_hz, 100.0, 4000.0);
+  requireRange(origin, "loop.rate_hz", c.loop.rate_hz, LoopConfig::kMinRateHz,
+               LoopConfig::kMaxRateHz);
   requireRange(origin, "loop.rt_priority", c.loop.rt_priority, 0, 99);
   return c;
 }

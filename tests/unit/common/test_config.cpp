@@ -170,6 +170,8 @@ TEST(ClientConfig, OutOfRangeValueNamesTheKey) {
       {"[safety]\nwatchdog_ms = inf\n", "safety.watchdog_ms"},
       {"[safety]\nwatchdog_ms = 1e300\n", "safety.watchdog_ms"},
       {"[loop]\nrate_hz = 10.0\n", "loop.rate_hz"},
+      {"[loop]\nrate_hz = 500.0\n", "loop.rate_hz"},  // under the stable wall's rate
+      {"[loop]\nrate_hz = 5000.0\n", "loop.rate_hz"},
       {"[loop]\nrt_priority = 200\n", "loop.rt_priority"},
       // 2^32 + 1 must not wrap into a valid priority.
       {"[loop]\nrt_priority = 4294967297\n", "loop.rt_priority"},
