@@ -43,11 +43,14 @@ struct HandSimConfig {
   double grip_stiffness_n_per_m = 1.0e6;
   double grip_damping_ns_per_m = 200.0;
   /// Grip-load coupling (Johansson & Westling, Exp Brain Res 1984: people grip a safety
-  /// margin above the slip limit and raise the grip within about 0.1 s of a load change;
-  /// the figures here are assumptions in that range): squeeze = margin * load / friction,
-  /// at least the preload and at most max_pinch_n, both pads touching.
+  /// margin above the slip limit; Flanagan & Wing, Exp Brain Res 1993: in a movement of
+  /// their own the grip changes in phase with the load, not after it as it does for a load
+  /// that comes unexpectedly; the figures here are assumptions): squeeze = margin * load /
+  /// friction, at least the preload and at most max_pinch_n, both pads touching. The rise
+  /// is 10 ms: with 30 ms the pads slipped 1.5-3 deg when a supination or pronation met the
+  /// end of a neutral zone (docs/capture.md "The grip").
   double grip_safety_margin = 1.4;
-  double grip_rise_s = 0.03;
+  double grip_rise_s = 0.01;
   double grip_fall_s = 0.3;
   double max_pinch_n = 20.0;
   double min_pad_force_n = 1.0;  ///< the lighter pad keeps at least this contact
