@@ -3,10 +3,11 @@
 // exploration each, through the client's loop on the simulated MF-2, offline. Prints one
 // line per run and a summary; exits 1 if any run fails the suite's criteria.
 //
-//   telehand_bench_stability [--random N] [--seconds S] [--seed S] [--loop-rate HZ]
+//   telehand_bench_stability [--random N] [--seconds S] [--seed S] [--hz LIST] [--loop-rate HZ]
 //                            [--damping-sweep] [--late-sweep]
 //
-// --seed: the simulated clinician's seed (default 1) for every run.
+// --seed: the simulated clinician's seed (default 1) for every run. --hz: the mobilization
+// frequencies (default 1,3,6; operator.frequency_hz allows 0.1-10).
 //
 // --loop-rate: the client's loop at HZ (LoopConfig::rate_hz, 100-4000) instead of 1 kHz; the
 // simulated MF-2 still streams at 1 kHz.
@@ -26,6 +27,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <vector>
 
 #include "../stability/stability_run.h"
 
@@ -150,12 +152,14 @@ int main(int argc, char** argv) {
   int randoms = 20;
   double seconds = 30.0;
   uint64_t seed = 1;
+  std::vector<double> mobilization_hz{1.0, 3.0, 6.0};
   stability::Extras extras;
   const auto usage = [&](FILE* to) {
-    std::fprintf(to,
-                 "usage: %s [--random N] [--seconds S] [--seed S] [--loop-rate HZ (100-4000)] "
-                 "[--damping-sweep] [--late-sweep [--seconds S]]\n",
-                 argv[0]);
+    std::fprintf(
+        to,
+        "usage: %s [--random N] [--seconds S] [--seed S] [--hz 1,3,6] [--loop-rate HZ (100-4000)] "
+        "[--damping-sweep] [--late-sweep [--seconds S]]\n",
+        argv[0]);
   };
   for (int i = 1; i < argc; ++i) {
     const bool has_value = i + 1 < argc;
@@ -166,6 +170,17 @@ int main(int argc, char** argv) {
       randoms = std::atoi(argv[++i]);
     } else if (!std::strcmp(argv[i], "--seconds") && has_value) {
       seconds = std::atof(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--hz") && has_value) {
+      mobilization_hz.clear();
+      for (char* tok = std::strtok(argv[++i], ","); tok; tok = std::strtok(nullptr, ",")) {
+        const double hz = std::atof(tok);
+        if (!(hz >= 0.1 && hz <= 10.0)) {
+          std::fprintf(stderr, "%s: --hz %s is outside 0.1-10 Hz (operator.frequency_hz)\n",
+                       argv[0], tok);
+          return 2;
+        }
+        mobilization_hz.push_back(hz);
+      }
     } else if (!std::strcmp(argv[i], "--seed") && has_value) {
       seed = std::strtoull(argv[++i], nullptr, 10);
     } else if (!std::strcmp(argv[i], "--loop-rate") && has_value) {
@@ -198,9 +213,9 @@ int main(int argc, char** argv) {
               "excess", "req N", "push N", "min E J", "hold N", "clamps", "PC", "fault", "result");
   int runs = 0, failed = 0;
   for (const auto& m : cases) {
-    for (int j = 0; j < 4; ++j) {
-      const bool explore = j == 3;
-      const double hz = explore ? 0.0 : (j == 0 ? 1.0 : j == 1 ? 3.0 : 6.0);
+    for (std::size_t j = 0; j <= mobilization_hz.size(); ++j) {
+      const bool explore = j == mobilization_hz.size();
+      const double hz = explore ? 0.0 : mobilization_hz[j];
       const auto r = stability::runStability(
           m, explore ? stability::Motion::kExploration : stability::Motion::kMobilization,
           explore ? 3.0 : hz, seconds, seed, {}, extras);
