@@ -3,14 +3,16 @@
 // exploration each, through the client's loop on the simulated MF-2, offline. Prints one
 // line per run and a summary; exits 1 if any run fails the suite's criteria.
 //
-//   telehand_bench_stability [--random N] [--seconds S] [--seed S] [--hz LIST] [--loop-rate HZ]
-//                            [--damping-sweep] [--late-sweep]
+//   telehand_bench_stability [--random N] [--seconds S] [--seed N] [--hz LIST] [--loop-rate HZ]
+//   telehand_bench_stability --damping-sweep
+//   telehand_bench_stability --late-sweep [--seconds S]
 //
 // --seed: the simulated clinician's seed (default 1) for every run. --hz: the mobilization
 // frequencies (default 1,3,6; operator.frequency_hz allows 0.1-10).
 //
-// --loop-rate: the client's loop at HZ (LoopConfig::rate_hz, 100-4000) instead of 1 kHz; the
-// simulated MF-2 still streams at 1 kHz.
+// --loop-rate: the client's loop at HZ instead of 1 kHz, 100-4000 Hz (a configuration allows
+// LoopConfig::kMinRateHz-kMaxRateHz; below it shows where the rendering breaks); the simulated
+// MF-2 still streams at 1 kHz.
 //
 // --late-sweep: instead, mobilizes the healthy joint on a loop that runs late (a share of its
 // ticks 2..N ms after the one before, the device holding the last force meanwhile) without a
@@ -22,6 +24,8 @@
 // velocity low-passed at 5 ms like the proxy's) on the simulated MF-2 during a mobilization
 // and reports where it stops being stable: the measurement behind the damping cap
 // (docs/facts.md "Damping cap").
+#include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -146,69 +150,113 @@ int lateSweep(double seconds) {
   return 0;
 }
 
+/// The whole of `text` as a finite number (false for "", "3x", "abc", "inf").
+bool parseNumber(const char* text, double& out) {
+  char* end = nullptr;
+  errno = 0;
+  const double v = std::strtod(text, &end);
+  if (end == text || *end != '\0' || errno != 0 || !std::isfinite(v)) return false;
+  out = v;
+  return true;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  int randoms = 20;
+  double randoms = 20;
   double seconds = 30.0;
-  uint64_t seed = 1;
+  bool seconds_given = false;
+  double seed = 1;
   std::vector<double> mobilization_hz{1.0, 3.0, 6.0};
   stability::Extras extras;
+  enum class Mode { kSweep, kDamping, kLate } mode = Mode::kSweep;
   const auto usage = [&](FILE* to) {
-    std::fprintf(
-        to,
-        "usage: %s [--random N] [--seconds S] [--seed S] [--hz 1,3,6] [--loop-rate HZ (100-4000)] "
-        "[--damping-sweep] [--late-sweep [--seconds S]]\n",
-        argv[0]);
+    std::fprintf(to,
+                 "usage: %s [--random N] [--seconds S] [--seed N] [--hz 1,3,6] "
+                 "[--loop-rate HZ (100-4000)]\n"
+                 "       %s --damping-sweep\n"
+                 "       %s --late-sweep [--seconds S (default 10)]\n",
+                 argv[0], argv[0], argv[0]);
+  };
+  const auto bad = [&](const char* option, const char* value, const char* want) {
+    std::fprintf(stderr, "%s: %s '%s' is not %s\n", argv[0], option, value, want);
+    return 2;
   };
   for (int i = 1; i < argc; ++i) {
-    const bool has_value = i + 1 < argc;
-    if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
+    const char* opt = argv[i];
+    const char* value = i + 1 < argc ? argv[i + 1] : nullptr;
+    const bool takes_value = !std::strcmp(opt, "--random") || !std::strcmp(opt, "--seconds") ||
+                             !std::strcmp(opt, "--seed") || !std::strcmp(opt, "--hz") ||
+                             !std::strcmp(opt, "--loop-rate");
+    if (takes_value && !value) {
+      std::fprintf(stderr, "%s: %s needs a value\n", argv[0], opt);
+      return 2;
+    }
+    if (takes_value) ++i;
+    if (!std::strcmp(opt, "--help") || !std::strcmp(opt, "-h")) {
       usage(stdout);
       return 0;
-    } else if (!std::strcmp(argv[i], "--random") && has_value) {
-      randoms = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--seconds") && has_value) {
-      seconds = std::atof(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--hz") && has_value) {
+    } else if (!std::strcmp(opt, "--random")) {
+      if (!parseNumber(value, randoms) || randoms < 0 || randoms > 100000 ||
+          randoms != std::floor(randoms)) {
+        return bad(opt, value, "a count of random cases (0-100000)");
+      }
+    } else if (!std::strcmp(opt, "--seconds")) {
+      if (!parseNumber(value, seconds) || !(seconds > 0.0) || seconds > 3600.0) {
+        return bad(opt, value, "a duration in seconds (above 0, at most 3600)");
+      }
+      seconds_given = true;
+    } else if (!std::strcmp(opt, "--seed")) {
+      if (!parseNumber(value, seed) || seed < 0 || seed > 1e15 || seed != std::floor(seed)) {
+        return bad(opt, value, "a seed (a whole number, 0-1e15)");
+      }
+    } else if (!std::strcmp(opt, "--hz")) {
       mobilization_hz.clear();
-      for (char* tok = std::strtok(argv[++i], ","); tok; tok = std::strtok(nullptr, ",")) {
-        const double hz = std::atof(tok);
-        if (!(hz >= 0.1 && hz <= 10.0)) {
-          std::fprintf(stderr, "%s: --hz %s is outside 0.1-10 Hz (operator.frequency_hz)\n",
-                       argv[0], tok);
-          return 2;
+      std::string list = value;
+      for (std::size_t at = 0; at <= list.size();) {
+        const std::size_t comma = std::min(list.find(',', at), list.size());
+        const std::string tok = list.substr(at, comma - at);
+        double hz = 0.0;
+        if (!parseNumber(tok.c_str(), hz) || !(hz >= 0.1 && hz <= 10.0)) {
+          return bad(opt, value, "a list of mobilization frequencies in 0.1-10 Hz (e.g. 1,3,6)");
         }
         mobilization_hz.push_back(hz);
+        at = comma + 1;
       }
-    } else if (!std::strcmp(argv[i], "--seed") && has_value) {
-      seed = std::strtoull(argv[++i], nullptr, 10);
-    } else if (!std::strcmp(argv[i], "--loop-rate") && has_value) {
-      extras.loop_rate_hz = std::atof(argv[++i]);
-      if (!(extras.loop_rate_hz >= 100.0 && extras.loop_rate_hz <= 4000.0)) {
-        std::fprintf(stderr, "%s: --loop-rate %s is outside 100-4000 Hz\n", argv[0], argv[i]);
-        return 2;
+    } else if (!std::strcmp(opt, "--loop-rate")) {
+      if (!parseNumber(value, extras.loop_rate_hz) ||
+          !(extras.loop_rate_hz >= 100.0 && extras.loop_rate_hz <= 4000.0)) {
+        return bad(opt, value, "a loop rate in 100-4000 Hz");
       }
-    } else if (!std::strcmp(argv[i], "--damping-sweep")) {
-      return dampingSweep();
-    } else if (!std::strcmp(argv[i], "--late-sweep")) {
-      return lateSweep(
-          i + 2 < argc && !std::strcmp(argv[i + 1], "--seconds") ? std::atof(argv[i + 2]) : 10.0);
+    } else if (!std::strcmp(opt, "--damping-sweep")) {
+      mode = Mode::kDamping;
+    } else if (!std::strcmp(opt, "--late-sweep")) {
+      mode = Mode::kLate;
     } else {
-      std::fprintf(stderr, "%s: unknown or incomplete option '%s'\n", argv[0], argv[i]);
+      std::fprintf(stderr, "%s: unknown option '%s'\n", argv[0], opt);
       usage(stderr);
       return 2;
     }
   }
+  const bool sweep_options_given = randoms != 20 || seed != 1 || extras.loop_rate_hz != 1000.0 ||
+                                   mobilization_hz != std::vector<double>{1.0, 3.0, 6.0};
+  if (mode != Mode::kSweep && (sweep_options_given || (mode == Mode::kDamping && seconds_given))) {
+    std::fprintf(stderr,
+                 "%s: --damping-sweep and --late-sweep take no other options but "
+                 "--late-sweep's --seconds\n",
+                 argv[0]);
+    return 2;
+  }
+  if (mode == Mode::kDamping) return dampingSweep();
+  if (mode == Mode::kLate) return lateSweep(seconds_given ? seconds : 10.0);
   std::vector<JointModelParams> cases;
   for (const auto& name : listPatientCases(TELEHAND_DEPLOY_DIR "/cases")) {
     cases.push_back(loadPatientCaseByName(TELEHAND_DEPLOY_DIR "/cases", name).model);
   }
-  for (int k = 1; k <= randoms; ++k) {
+  for (int k = 1; k <= static_cast<int>(randoms); ++k) {
     cases.push_back(randomPatientCase(static_cast<uint64_t>(k)).model);
   }
-  std::printf("loop at %.0f Hz, operator seed %llu\n", extras.loop_rate_hz,
-              static_cast<unsigned long long>(seed));
+  std::printf("loop at %g Hz, operator seed %.0f\n", extras.loop_rate_hz, seed);
   std::printf("%-12s %-6s %4s %8s %8s %8s %10s %6s %6s %6s %6s  %s\n", "case", "motion", "Hz",
               "excess", "req N", "push N", "min E J", "hold N", "clamps", "PC", "fault", "result");
   int runs = 0, failed = 0;
@@ -218,11 +266,11 @@ int main(int argc, char** argv) {
       const double hz = explore ? 0.0 : mobilization_hz[j];
       const auto r = stability::runStability(
           m, explore ? stability::Motion::kExploration : stability::Motion::kMobilization,
-          explore ? 3.0 : hz, seconds, seed, {}, extras);
+          explore ? 3.0 : hz, seconds, static_cast<uint64_t>(seed), {}, extras);
       const std::string why = stability::failures(r);
       ++runs;
       failed += why.empty() ? 0 : 1;
-      std::printf("%-12s %-6s %4.0f %8.2f %8.3f %8.3f %10.2e %6.3f %6llu %6llu %6s  %s\n",
+      std::printf("%-12s %-6s %4g %8.2f %8.3f %8.3f %10.2e %6.3f %6llu %6llu %6s  %s\n",
                   m.case_name.data(), explore ? "explor" : "mobil", hz, r.range_excess_deg,
                   r.request_max_n, r.pusher_max_n, r.min_energy_j, r.holder_max_n,
                   static_cast<unsigned long long>(r.clamps),

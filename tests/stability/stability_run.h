@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -72,11 +73,12 @@ struct Extras {
   /// A lesson's guide rendered from the start (docs/lessons.md "Feel"); inactive by default.
   GuideParams guide{};
   /// A loop that runs late: this share of its ticks comes 2..max_stall_ms after the one
-  /// before (uniformly, seeded by the run's seed), and the device holds the last force
-  /// meanwhile, as a busy host's loop does.
+  /// before (uniformly, seeded by the run's seed; never sooner than a normal tick), and the
+  /// device holds the last force meanwhile, as a busy host's loop does.
   double late_fraction = 0.0;
   int max_stall_ms = 1;
-  /// The loop's rate (LoopConfig::rate_hz, 100-4000 Hz in a config). The simulated MF-2
+  /// The loop's rate (LoopConfig::rate_hz; a configuration allows kMinRateHz-kMaxRateHz,
+  /// runs here may go below to see where the rendering breaks). The simulated MF-2
   /// streams at its own 1 kHz whatever the loop's rate: a faster loop sees each sample on
   /// more than one tick, a slower one every second or more.
   double loop_rate_hz = 1000.0;
@@ -100,6 +102,9 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
   plan.seed = seed;
   devices::ExplorationOperator explorer(plan);
   if (motion == Motion::kExploration) dev.setOperator(&explorer);
+  if (!(extras.loop_rate_hz >= 1.0 && extras.loop_rate_hz <= 1e6)) {
+    throw std::invalid_argument("runStability: loop rate outside 1 Hz-1 MHz");
+  }
   LoopConfig loop_config;
   loop_config.rate_hz = extras.loop_rate_hz;
   client::loop::HapticLoop hl(dev, clock, patient, SafetyLimits{}, loop_config, teleop);
@@ -121,7 +126,7 @@ inline RunResult runStability(const JointModelParams& patient, Motion motion, do
     if (extras.late_fraction > 0.0 && unit(late_rng) < extras.late_fraction) {
       int ms = 2 + static_cast<int>(unit(late_rng) * std::max(0, extras.max_stall_ms - 1));
       ms = std::min(ms, std::max(2, extras.max_stall_ms));
-      step_ns = ms * kNsPerMs;
+      step_ns = std::max(tick_ns, ms * kNsPerMs);
     }
     t_ns += step_ns;
     clock.advance(step_ns);

@@ -26,16 +26,10 @@ toml::table parse(const std::string& text, const std::string& origin) {
   return parseToml(text, origin);
 }
 
-std::string shortNumber(double v) {
-  std::ostringstream o;
-  o << v;  // 800, 0.1, 1e+300: as a user would write it, not 800.000000
-  return o.str();
-}
-
 void requireRange(const std::string& origin, const char* key, double v, double lo, double hi) {
   if (!(v >= lo && v <= hi)) {
-    fail(origin, std::string("'") + key + "' = " + shortNumber(v) + " is outside [" +
-                     shortNumber(lo) + ", " + shortNumber(hi) + "]");
+    fail(origin, std::string("'") + key + "' = " + config::formatNumber(v) + " is outside [" +
+                     config::formatNumber(lo) + ", " + config::formatNumber(hi) + "]");
   }
 }
 

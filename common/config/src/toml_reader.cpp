@@ -1,11 +1,20 @@
 #include "telehand/config/toml_reader.h"
 
 #include <fstream>
+#include <iomanip>
+#include <locale>
 #include <sstream>
 
 #include "telehand/core/error.h"
 
 namespace telehand::config {
+
+std::string formatNumber(double v) {
+  std::ostringstream o;
+  o.imbue(std::locale::classic());
+  o << std::setprecision(15) << v;
+  return o.str();
+}
 
 std::string readTextFile(const std::string& path, const std::string& what) {
   std::ifstream in(path);
@@ -58,8 +67,8 @@ double TomlTable::number(const std::string& key, double fallback, double lo, dou
   if (!std::isfinite(*v)) fail(n, key, "must be a finite number");
   if (!(*v >= lo && *v <= hi)) {
     fail(n, key,
-         "= " + std::to_string(*v) + " is outside [" + std::to_string(lo) + ", " +
-             std::to_string(hi) + "]");
+         "= " + formatNumber(*v) + " is outside [" + formatNumber(lo) + ", " + formatNumber(hi) +
+             "]");
   }
   return *v;
 }

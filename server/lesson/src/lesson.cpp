@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <vector>
 
+#include "telehand/config/toml_reader.h"
 #include "telehand/core/error.h"
 
 namespace telehand::server::lesson {
@@ -44,7 +45,7 @@ double targetNumber(const std::map<std::string, std::string>& kv, const std::str
   if (it == kv.end()) throw Error("lesson targets: '" + key + "' is missing");
   if (!parseDouble(it->second, d) || d < lo || d > hi) {
     throw Error("lesson targets: '" + key + "' = '" + it->second + "' is not a number in [" +
-                std::to_string(lo) + ", " + std::to_string(hi) + "]");
+                config::formatNumber(lo) + ", " + config::formatNumber(hi) + "]");
   }
   return d;
 }

@@ -53,7 +53,7 @@ TEST(Stability, RandomCasesAreStablePassiveAndUnclamped) {
 // The same at the slowest and the fastest loop a configuration may ask for
 // (LoopConfig::kMinRateHz, kMaxRateHz), the simulated MF-2 streaming at its 1 kHz: the damping
 // bounds follow the tick (HapticLoop::followDeviceDynamics), and the walls stay passive down
-// to kMinRateHz. At 550 Hz and below exploration runs away on random cases (docs/facts.md
+// to kMinRateHz. At 550 Hz and below exploration fails on random cases (docs/facts.md
 // "Loop rate").
 void expectStableAtLoopRate(double loop_rate_hz) {
   std::vector<JointModelParams> cases;

@@ -150,6 +150,19 @@ TEST(ClientConfig, WrongTypeNamesKeyAndLine) {
   EXPECT_THAT(clientError("[safety]\nwatchdog_ms = [1, 2]\n"), HasSubstr("safety.watchdog_ms"));
 }
 
+// The loop's rate: both ends of LoopConfig's range are taken; just past them is refused with
+// the value and the range as written, not rounded onto the bound.
+TEST(ClientConfig, LoopRateRangeEndsAreTakenAndTheValueIsShownAsWritten) {
+  EXPECT_EQ(parseClientConfig("[loop]\nrate_hz = 800.0\n", kOrigin).loop.rate_hz,
+            LoopConfig::kMinRateHz);
+  EXPECT_EQ(parseClientConfig("[loop]\nrate_hz = 4000.0\n", kOrigin).loop.rate_hz,
+            LoopConfig::kMaxRateHz);
+  EXPECT_THAT(clientError("[loop]\nrate_hz = 799.9999999\n"),
+              HasSubstr("'loop.rate_hz' = 799.9999999 is outside [800, 4000]"));
+  EXPECT_THAT(clientError("[safety]\nwatchdog_ms = 0.25\n"),
+              HasSubstr("= 0.25 is outside [1, 1000]"));
+}
+
 TEST(ClientConfig, OutOfRangeValueNamesTheKey) {
   struct Case {
     const char* text;

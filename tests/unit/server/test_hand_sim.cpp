@@ -470,12 +470,14 @@ TEST(HandSim, ScriptedReachesHoldWithinOneDegreeInEveryDirection) {
   ::testing::Test::RecordProperty("worst_error_deg", std::to_string(worst));
 }
 
-/// The reach the simulated clinician's exploration makes in direction `d` (planExploration:
-/// it pushes up to the paper's 16 N band top and stops at the range end): 85 % of the way from
-/// rest to the range end, or less where the joint's holding force there would pass the band.
-/// From a flexed pose (`flexion_deg`) only while that pose is inside the range and the force
-/// holding the joint there, all axes together, is within the band: beyond that no exploration
-/// asks the pads for it, and the 20 N squeeze at μ = 1 gives out. nullopt: not asked.
+/// The reach the simulated clinician's exploration asks of the hand in direction `d`
+/// (planExploration pushes up to the paper's 16 N band top and stops at the range end): 85 %
+/// of the way from rest to the range end, or less where the joint's holding force there would
+/// pass the band. From a flexed pose (`flexion_deg`) only while that pose is inside the range
+/// and the force holding the joint there, all axes together, is within the band: the flexion
+/// load goes through one pad's face and takes that much squeeze off the other pad, whose
+/// friction then carries less of the side and twist loads, and no exploration asks the pads
+/// for more. nullopt: not asked.
 std::optional<double> reachFraction(const JointModelParams& params, const Direction& d,
                                     double flexion_deg, double band_n = 16.0) {
   const JointModel jm(params);
@@ -501,29 +503,21 @@ std::optional<double> reachFraction(const JointModelParams& params, const Direct
   return fraction;
 }
 
-/// The same ground truth on cases nobody tuned the grasp on: the other shipped cases and
-/// random patients (randomPatientCase 1-32), every direction from rest, 20 and 60 deg of
-/// flexion, carried at 30 deg/s to what an exploration asks (reachFraction), held within 1 deg
-/// on all three axes. With the squeeze rising over 30 ms the pads slipped 1.5-3.2 deg short on
-/// 4 of 826 such reaches (random 1-60: a pronation or supination from rest, the load arriving
-/// at the neutral zone's edge faster than the squeeze), with 10 ms on none (docs/capture.md
-/// "The grip").
-TEST(HandSim, ReachesAnExplorationAsksForHoldWithinOneDegreeOnCasesNotTunedTo) {
+/// Every reach reachFraction asks of `cases` (six directions from rest, the four side and
+/// twist directions from 20 and 60 deg of flexion), carried at 30 deg/s and held within 1 deg
+/// on all three axes. Returns how many were asked and how many could have been.
+std::pair<int, int> expectAskedReachesHold(const std::vector<JointModelParams>& cases) {
   const HandModel model = HandModel::load(kHand);
   const HandSimConfig config;
-  std::vector<JointModelParams> cases;
-  for (const char* name : {"hypertonic", "oedema", "recovery", "scar"}) {
-    cases.push_back(patientCase(name));
-  }
-  for (uint64_t seed = 1; seed <= 32; ++seed) cases.push_back(randomPatientCase(seed).model);
-  int reaches = 0;
+  int asked = 0, candidates = 0;
   for (const JointModelParams& params : cases) {
     for (double flexion : {std::nan(""), 20.0, 60.0}) {
       for (const Direction& d : kSixDirections) {
         if (d.axis == kFlexion && !std::isnan(flexion)) continue;
+        ++candidates;
         const std::optional<double> fraction = reachFraction(params, d, flexion);
         if (!fraction) continue;
-        ++reaches;
+        ++asked;
         const ReachResult r = scriptedReach(model, params, d, *fraction, config, flexion, 30.0);
         const Vec3 err = radToDeg(1.0) * (r.held - r.goal);
         for (int axis = 0; axis < 3; ++axis) {
@@ -532,12 +526,37 @@ TEST(HandSim, ReachesAnExplorationAsksForHoldWithinOneDegreeOnCasesNotTunedTo) {
                                            << ": " << kAxisNames[static_cast<std::size_t>(axis)]
                                            << " (squeeze " << r.peak_pinch_n << " N)";
         }
-        EXPECT_LE(r.peak_pinch_n, config.max_pinch_n + 1e-9);
       }
     }
   }
-  // Most reaches are asked for: the rule leaves out only loads past the band.
-  EXPECT_GE(reaches, 200);
+  ::testing::Test::RecordProperty("reaches_asked", std::to_string(asked));
+  ::testing::Test::RecordProperty("reaches_left_out", std::to_string(candidates - asked));
+  return {asked, candidates};
+}
+
+/// The same ground truth on the other shipped cases and on random patients
+/// (randomPatientCase 1-32), the reaches an exploration asks for. With the squeeze's time
+/// constant at 30 ms instead of 10, 4 of 826 such reaches (random 1-60 and the four shipped
+/// cases twice) slip 1.5-3.2 deg short: a pronation or supination from rest whose load comes
+/// at the end of a neutral zone faster than the squeeze (random-22, 27 and 32; docs/capture.md
+/// "The grip").
+TEST(HandSim, ReachesAnExplorationAsksHoldWithinOneDegreeOnTheOtherShippedCases) {
+  std::vector<JointModelParams> cases;
+  for (const char* name : {"hypertonic", "oedema", "recovery", "scar"}) {
+    cases.push_back(patientCase(name));
+  }
+  for (uint64_t seed = 1; seed <= 12; ++seed) cases.push_back(randomPatientCase(seed).model);
+  const auto [asked, candidates] = expectAskedReachesHold(cases);
+  // The rule leaves out only loads past the band: recovery's 60 deg is past its range, and a
+  // few stiff random patients' twists from a flexed pose.
+  EXPECT_GE(asked, 0.9 * candidates);
+}
+
+TEST(HandSim, ReachesAnExplorationAsksHoldWithinOneDegreeOnRandomPatients) {
+  std::vector<JointModelParams> cases;
+  for (uint64_t seed = 13; seed <= 32; ++seed) cases.push_back(randomPatientCase(seed).model);
+  const auto [asked, candidates] = expectAskedReachesHold(cases);
+  EXPECT_GE(asked, 0.9 * candidates);
 }
 
 /// The pads hold the phalanx by friction: the squeeze rises with the load they carry (grip
@@ -630,16 +649,25 @@ TEST(HandSim, ARestoredCheckpointGoesOnLikeTheHandItWasSavedFrom) {
   EXPECT_LT((b.mcpAngles() - at_save).norm(), 1e-9);
   EXPECT_NEAR(b.pinchForce(), a.pinchForce(), 1e-12);
 
+  // A second hand restored from the same state: the state is complete when the two go on
+  // exactly alike (neither has a solver warm start).
+  HandSim c(model, params);
+  ASSERT_TRUE(c.restoreState(saved));
+
   // Both go on for 1 s of the same mobilization: the solver's warm start is not part of the
-  // state, so they agree to within a small fraction of the 40 deg swing, not bit for bit.
-  // Saved at eight points of the swing (1.1-2.1 s) they parted by 0.18-0.54 deg (0.27-0.43
-  // deg with the squeeze rising over 30 ms instead of 10); an exploration measures to 1 deg.
-  double worst_deg = 0.0;
+  // state, so the restored hand and the original agree to within a small fraction of the
+  // 40 deg swing, not bit for bit: 0.54 deg here; saved at eight points of the swing
+  // (1.1-2.1 s) 0.18-0.54 deg (0.27-0.43 deg with the squeeze's time constant at 30 ms
+  // instead of 10); an exploration measures to 1 deg.
+  double worst_deg = 0.0, twins_deg = 0.0;
   for (int k = 0; k < 10; ++k) {
     mobilize(a, proxy, 1300 + 100 * k, 1400 + 100 * k);
     mobilize(b, proxy, 1300 + 100 * k, 1400 + 100 * k);
+    mobilize(c, proxy, 1300 + 100 * k, 1400 + 100 * k);
     worst_deg = std::max(worst_deg, radToDeg((a.mcpAngles() - b.mcpAngles()).norm()));
+    twins_deg = std::max(twins_deg, radToDeg((b.mcpAngles() - c.mcpAngles()).norm()));
   }
+  EXPECT_LT(twins_deg, 1e-9) << "two hands restored from one state went apart";
   EXPECT_LT(worst_deg, 1.0) << "the restored hand went its own way";
   std::cout << "restored hand against the original over 1 s of mobilization: " << worst_deg
             << " deg at worst\n";

@@ -35,8 +35,9 @@ struct LoopConfig {
   /// The rates a configuration may ask for. The end-of-range wall (1.4 N/mm at the device)
   /// is passive only while K·T/2 < b (Colgate): with the grip's b = 1 N·s/m the tick must be
   /// under 1.43 ms, 700 Hz. On the simulated MF-2 every shipped case and 60 random ones
-  /// stayed stable from 600 Hz to 4 kHz and exploration ran away at 550 Hz and below
-  /// (telehand_bench_stability --loop-rate; docs/facts.md "Loop rate").
+  /// stayed stable from 600 Hz to 4 kHz; exploration failed on random ones at 550 Hz and
+  /// below (not passive; from 500 Hz down some ran away), telehand_bench_stability
+  /// --loop-rate, docs/facts.md "Loop rate".
   static constexpr double kMinRateHz = 800.0;
   static constexpr double kMaxRateHz = 4000.0;
   double rate_hz = 1000.0;

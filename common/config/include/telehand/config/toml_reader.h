@@ -27,6 +27,10 @@ void rejectUnknownTables(const toml::table& root, const std::set<std::string>& k
 
 [[noreturn]] void fail(const std::string& origin, const std::string& what);
 
+/// A number in an error message as a user would write it: 800, 0.1, 67108865, 1e+300 (up to
+/// 15 significant digits, so 799.9999999 is not shown as 800; the C locale).
+std::string formatNumber(double v);
+
 /// Reads the keys of one table; rejectUnknown() then refuses every key nobody asked for.
 class TomlTable {
  public:
@@ -51,8 +55,8 @@ class TomlTable {
       auto v = (*a)[i].value<double>();
       if (!v || !std::isfinite(*v) || *v < lo || *v > hi) {
         fail(n, key,
-             "element " + std::to_string(i) + " is not a number in [" + std::to_string(lo) + ", " +
-                 std::to_string(hi) + "]");
+             "element " + std::to_string(i) + " is not a number in [" + formatNumber(lo) + ", " +
+                 formatNumber(hi) + "]");
       }
       out[i] = *v;
     }

@@ -46,9 +46,9 @@ struct HandSimConfig {
   /// margin above the slip limit; Flanagan & Wing, Exp Brain Res 1993: in a movement of
   /// their own the grip changes in phase with the load, not after it as it does for a load
   /// that comes unexpectedly; the figures here are assumptions): squeeze = margin * load /
-  /// friction, at least the preload and at most max_pinch_n, both pads touching. The rise
-  /// is 10 ms: with 30 ms the pads slipped 1.5-3 deg when a supination or pronation met the
-  /// end of a neutral zone (docs/capture.md "The grip").
+  /// friction, at least the preload and at most max_pinch_n, both pads touching. Time
+  /// constants: 10 ms rising (at 30 ms the pads slip 1.5-3 deg where a supination or
+  /// pronation meets the end of a neutral zone, docs/capture.md "The grip"), 0.3 s falling.
   double grip_safety_margin = 1.4;
   double grip_rise_s = 0.01;
   double grip_fall_s = 0.3;
