@@ -25,7 +25,6 @@
 // and reports where it stops being stable: the measurement behind the damping cap
 // (docs/facts.md "Damping cap").
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -34,6 +33,7 @@
 #include <vector>
 
 #include "../stability/stability_run.h"
+#include "telehand/core/parse.h"
 
 using namespace telehand;
 
@@ -150,16 +150,6 @@ int lateSweep(double seconds) {
   return 0;
 }
 
-/// The whole of `text` as a finite number (false for "", "3x", "abc", "inf").
-bool parseNumber(const char* text, double& out) {
-  char* end = nullptr;
-  errno = 0;
-  const double v = std::strtod(text, &end);
-  if (end == text || *end != '\0' || errno != 0 || !std::isfinite(v)) return false;
-  out = v;
-  return true;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -197,17 +187,17 @@ int main(int argc, char** argv) {
       usage(stdout);
       return 0;
     } else if (!std::strcmp(opt, "--random")) {
-      if (!parseNumber(value, randoms) || randoms < 0 || randoms > 100000 ||
+      if (!parseFiniteNumber(value, randoms) || randoms < 0 || randoms > 100000 ||
           randoms != std::floor(randoms)) {
         return bad(opt, value, "a count of random cases (0-100000)");
       }
     } else if (!std::strcmp(opt, "--seconds")) {
-      if (!parseNumber(value, seconds) || !(seconds > 0.0) || seconds > 3600.0) {
+      if (!parseFiniteNumber(value, seconds) || !(seconds > 0.0) || seconds > 3600.0) {
         return bad(opt, value, "a duration in seconds (above 0, at most 3600)");
       }
       seconds_given = true;
     } else if (!std::strcmp(opt, "--seed")) {
-      if (!parseNumber(value, seed) || seed < 0 || seed > 1e15 || seed != std::floor(seed)) {
+      if (!parseFiniteNumber(value, seed) || seed < 0 || seed > 1e15 || seed != std::floor(seed)) {
         return bad(opt, value, "a seed (a whole number, 0-1e15)");
       }
     } else if (!std::strcmp(opt, "--hz")) {
@@ -217,14 +207,14 @@ int main(int argc, char** argv) {
         const std::size_t comma = std::min(list.find(',', at), list.size());
         const std::string tok = list.substr(at, comma - at);
         double hz = 0.0;
-        if (!parseNumber(tok.c_str(), hz) || !(hz >= 0.1 && hz <= 10.0)) {
+        if (!parseFiniteNumber(tok, hz) || !(hz >= 0.1 && hz <= 10.0)) {
           return bad(opt, value, "a list of mobilization frequencies in 0.1-10 Hz (e.g. 1,3,6)");
         }
         mobilization_hz.push_back(hz);
         at = comma + 1;
       }
     } else if (!std::strcmp(opt, "--loop-rate")) {
-      if (!parseNumber(value, extras.loop_rate_hz) ||
+      if (!parseFiniteNumber(value, extras.loop_rate_hz) ||
           !(extras.loop_rate_hz >= 100.0 && extras.loop_rate_hz <= 4000.0)) {
         return bad(opt, value, "a loop rate in 100-4000 Hz");
       }

@@ -262,14 +262,14 @@ void HapticLoop::followDeviceDynamics(int64_t now) noexcept {
     long_tick_ns_ = std::max(tick_ns, nominal_tick_ns_);
     long_tick_since_ns_ = now;
   }
-  const double period_s = static_cast<double>(long_tick_ns_) * 1e-9;
   const devices::DeviceDynamics d = device_.dynamics();
   if (d.lightest_mass_kg == dynamics_.lightest_mass_kg &&
-      d.command_delay_ticks == dynamics_.command_delay_ticks && period_s == dynamics_period_s_) {
+      d.command_delay_ticks == dynamics_.command_delay_ticks &&
+      long_tick_ns_ == dynamics_tick_ns_) {
     return;
   }
   dynamics_ = d;
-  dynamics_period_s_ = period_s;
+  dynamics_tick_ns_ = long_tick_ns_;
   // A damper rendered on the device acts a command delay after the velocity it is computed
   // from, and that velocity is a tick old besides. The joint may render half of what the
   // lightest direction takes at the nominal tick and all of it at the longest recent one,
@@ -277,7 +277,8 @@ void HapticLoop::followDeviceDynamics(int64_t now) noexcept {
   const int delay = d.command_delay_ticks + 1;
   const double nominal =
       stableDampingNsPerM(d.lightest_mass_kg, delay, static_cast<double>(nominal_tick_ns_) * 1e-9);
-  const double late = stableDampingNsPerM(d.lightest_mass_kg, delay, period_s);
+  const double late =
+      stableDampingNsPerM(d.lightest_mass_kg, delay, static_cast<double>(long_tick_ns_) * 1e-9);
   const double joint_cap =
       nominal > 0.0 ? std::min({kMaxDeviceDampingNsPerM, kJointDampingShare * nominal, late})
                     : kMaxDeviceDampingNsPerM;
@@ -292,9 +293,10 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, double excess_deg) noexc
   const FaultLimits& lim = fault_limits_;
   LoopFault fault = LoopFault::kNone;
   // Clamp onsets in a leaky bucket that drains storm_onsets per second.
-  const double dt = bucket_ns_ == 0 ? 0.0 : static_cast<double>(now - bucket_ns_) * 1e-9;
+  const int64_t tick_ns = bucket_ns_ == 0 ? 0 : std::max<int64_t>(now - bucket_ns_, 0);
   bucket_ns_ = now;
-  onset_bucket_ = std::max(onset_bucket_ - lim.storm_onsets * std::max(dt, 0.0), 0.0);
+  onset_bucket_ =
+      std::max(onset_bucket_ - lim.storm_onsets * static_cast<double>(tick_ns) * 1e-9, 0.0);
   if (clamped && !was_clamped_) {
     onset_bucket_ += 1.0;
     clamped_since_ns_ = now;
@@ -324,7 +326,6 @@ bool HapticLoop::detectFault(int64_t now, bool clamped, double excess_deg) noexc
   // Time outside adds up, time inside drains it a quarter as fast: a rendering that swings
   // through the range and out again, out a fifth of the time or more, is a runaway too.
   if (!outside) in_range_seen_ = true;
-  const auto tick_ns = static_cast<int64_t>(std::max(dt, 0.0) * 1e9);
   if (outside && in_range_seen_) {
     outside_ns_ += outside_ ? tick_ns : 0;  // the first tick out starts the count
   } else {
@@ -376,19 +377,19 @@ void HapticLoop::run() {
     rt_error_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp),
                     std::memory_order_release);
   }
-  const int64_t period = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
   timespec ts{};
   clock_gettime(CLOCK_MONOTONIC, &ts);
   int64_t deadline = ts.tv_sec * kNsPerS + ts.tv_nsec;
   while (running_.load(std::memory_order_acquire)) {
     step();
-    deadline += period;
+    deadline += nominal_tick_ns_;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     const int64_t now = ts.tv_sec * kNsPerS + ts.tv_nsec;
     if (now > deadline) {
       bump(health_.overruns);
       overran_ = true;
-      if (now - deadline > 100 * period) deadline = now;  // after a long stall, resynchronize
+      if (now - deadline > 100 * nominal_tick_ns_)
+        deadline = now;  // after a long stall, resynchronize
       continue;
     }
     ts.tv_sec = deadline / kNsPerS;

@@ -1,9 +1,9 @@
 #include "telehand/protocol/lesson_plan.h"
 
-#include <charconv>
-#include <cmath>
 #include <cstdio>
 #include <map>
+
+#include "telehand/core/parse.h"
 
 namespace telehand {
 
@@ -42,12 +42,8 @@ std::optional<LessonPlan> decodePlan(const std::string& text, std::string* why) 
   auto num = [&](const char* key, double lo, double hi, double& out) -> bool {
     const auto it = kv.find(key);
     if (it == kv.end()) return false;
-    const std::string& v = it->second;
     double d = 0.0;
-    const auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), d);
-    if (ec != std::errc{} || p != v.data() + v.size() || !std::isfinite(d) || d < lo || d > hi) {
-      return false;
-    }
+    if (!parseFiniteNumber(it->second, d) || d < lo || d > hi) return false;
     out = d;
     return true;
   };

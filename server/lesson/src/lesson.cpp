@@ -1,13 +1,13 @@
 #include "telehand/server/lesson/lesson.h"
 
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <vector>
 
 #include "telehand/config/toml_reader.h"
 #include "telehand/core/error.h"
+#include "telehand/core/parse.h"
 
 namespace telehand::server::lesson {
 
@@ -17,11 +17,6 @@ void put(std::string& out, const char* key, double v) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%s=%.9g;", key, v);
   out += buf;
-}
-
-bool parseDouble(const std::string& v, double& out) {
-  const auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), out);
-  return ec == std::errc{} && p == v.data() + v.size() && std::isfinite(out);
 }
 
 std::map<std::string, std::string> splitPairs(const std::string& text) {
@@ -43,7 +38,7 @@ double targetNumber(const std::map<std::string, std::string>& kv, const std::str
   const auto it = kv.find(key);
   double d = 0.0;
   if (it == kv.end()) throw Error("lesson targets: '" + key + "' is missing");
-  if (!parseDouble(it->second, d) || d < lo || d > hi) {
+  if (!parseFiniteNumber(it->second, d) || d < lo || d > hi) {
     throw Error("lesson targets: '" + key + "' = '" + it->second + "' is not a number in [" +
                 config::formatNumber(lo) + ", " + config::formatNumber(hi) + "]");
   }
@@ -105,7 +100,7 @@ technique::Targets decodeTargets(const std::string& text) {
   while (pos <= s.size() && !s.empty()) {
     const std::size_t end = std::min(s.find(',', pos), s.size());
     double d = 0.0;
-    if (!parseDouble(s.substr(pos, end - pos), d) || std::abs(d) > M_PI) {
+    if (!parseFiniteNumber(s.substr(pos, end - pos), d) || std::abs(d) > M_PI) {
       throw Error("lesson targets: path value " + std::to_string(v.size()) +
                   " is not an angle within ±pi");
     }
@@ -223,7 +218,7 @@ std::map<std::string, double> decodeFigures(const std::string& text) {
   std::map<std::string, double> out;
   for (const auto& [k, v] : splitPairs(text)) {
     double d = 0.0;
-    if (parseDouble(v, d)) out[k] = d;
+    if (parseFiniteNumber(v, d)) out[k] = d;
   }
   return out;
 }

@@ -224,7 +224,7 @@ class HapticLoop {
   std::unique_ptr<ForceRing> forces_;
   PassivityGuard passivity_;
   devices::DeviceDynamics dynamics_;  // as last followed
-  double dynamics_period_s_ = 0.0;    // the tick the bounds were worked out for
+  int64_t dynamics_tick_ns_ = 0;      // the tick the bounds were worked out for
   int64_t nominal_tick_ns_ = 0;       // 1 / LoopConfig::rate_hz
   int64_t last_step_ns_ = 0;          // when the last tick ran (0: none yet)
   int64_t long_tick_ns_ = 0;          // the longest tick since long_tick_since_ns_
