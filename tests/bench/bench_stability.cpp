@@ -3,12 +3,14 @@
 // exploration each, through the client's loop on the simulated MF-2, offline. Prints one
 // line per run and a summary; exits 1 if any run fails the suite's criteria.
 //
-//   telehand_bench_stability [--random N] [--seconds S] [--seed N] [--hz LIST] [--loop-rate HZ]
+//   telehand_bench_stability [--random N] [--first K] [--seconds S] [--seed N] [--hz LIST]
+//                            [--loop-rate HZ]
 //   telehand_bench_stability --damping-sweep
 //   telehand_bench_stability --late-sweep [--seconds S]
 //
-// --seed: the simulated clinician's seed (default 1) for every run. --hz: the mobilization
-// frequencies (default 1,3,6; operator.frequency_hz allows 0.1-10).
+// --first: the random cases are K..K+N-1 (default 1), so that a sweep can try patients no
+// earlier one did. --seed: the simulated clinician's seed (default 1) for every run. --hz: the
+// mobilization frequencies (default 1,3,6; operator.frequency_hz allows 0.1-10).
 //
 // --loop-rate: the client's loop at HZ instead of 1 kHz, 100-4000 Hz (a configuration allows
 // LoopConfig::kMinRateHz-kMaxRateHz; below it shows where the rendering breaks); the simulated
@@ -154,6 +156,7 @@ int lateSweep(double seconds) {
 
 int main(int argc, char** argv) {
   double randoms = 20;
+  double first = 1;
   double seconds = 30.0;
   bool seconds_given = false;
   double seed = 1;
@@ -162,7 +165,7 @@ int main(int argc, char** argv) {
   enum class Mode { kSweep, kDamping, kLate } mode = Mode::kSweep;
   const auto usage = [&](FILE* to) {
     std::fprintf(to,
-                 "usage: %s [--random N] [--seconds S] [--seed N] [--hz 1,3,6] "
+                 "usage: %s [--random N] [--first K] [--seconds S] [--seed N] [--hz 1,3,6] "
                  "[--loop-rate HZ (100-4000)]\n"
                  "       %s --damping-sweep\n"
                  "       %s --late-sweep [--seconds S (default 10)]\n",
@@ -175,9 +178,9 @@ int main(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     const char* opt = argv[i];
     const char* value = i + 1 < argc ? argv[i + 1] : nullptr;
-    const bool takes_value = !std::strcmp(opt, "--random") || !std::strcmp(opt, "--seconds") ||
-                             !std::strcmp(opt, "--seed") || !std::strcmp(opt, "--hz") ||
-                             !std::strcmp(opt, "--loop-rate");
+    const bool takes_value = !std::strcmp(opt, "--random") || !std::strcmp(opt, "--first") ||
+                             !std::strcmp(opt, "--seconds") || !std::strcmp(opt, "--seed") ||
+                             !std::strcmp(opt, "--hz") || !std::strcmp(opt, "--loop-rate");
     if (takes_value && !value) {
       std::fprintf(stderr, "%s: %s needs a value\n", argv[0], opt);
       return 2;
@@ -190,6 +193,11 @@ int main(int argc, char** argv) {
       if (!parseFiniteNumber(value, randoms) || randoms < 0 || randoms > 100000 ||
           randoms != std::floor(randoms)) {
         return bad(opt, value, "a count of random cases (0-100000)");
+      }
+    } else if (!std::strcmp(opt, "--first")) {
+      if (!parseFiniteNumber(value, first) || first < 1 || first > 1e15 ||
+          first != std::floor(first)) {
+        return bad(opt, value, "the first random case (a whole number, 1-1e15)");
       }
     } else if (!std::strcmp(opt, "--seconds")) {
       if (!parseFiniteNumber(value, seconds) || !(seconds > 0.0) || seconds > 3600.0) {
@@ -228,7 +236,8 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  const bool sweep_options_given = randoms != 20 || seed != 1 || extras.loop_rate_hz != 1000.0 ||
+  const bool sweep_options_given = randoms != 20 || first != 1 || seed != 1 ||
+                                   extras.loop_rate_hz != 1000.0 ||
                                    mobilization_hz != std::vector<double>{1.0, 3.0, 6.0};
   if (mode != Mode::kSweep && (sweep_options_given || (mode == Mode::kDamping && seconds_given))) {
     std::fprintf(stderr,
@@ -243,8 +252,8 @@ int main(int argc, char** argv) {
   for (const auto& name : listPatientCases(TELEHAND_DEPLOY_DIR "/cases")) {
     cases.push_back(loadPatientCaseByName(TELEHAND_DEPLOY_DIR "/cases", name).model);
   }
-  for (int k = 1; k <= static_cast<int>(randoms); ++k) {
-    cases.push_back(randomPatientCase(static_cast<uint64_t>(k)).model);
+  for (uint64_t k = 0; k < static_cast<uint64_t>(randoms); ++k) {
+    cases.push_back(randomPatientCase(static_cast<uint64_t>(first) + k).model);
   }
   std::printf("loop at %g Hz, operator seed %.0f\n", extras.loop_rate_hz, seed);
   std::printf("%-12s %-6s %4s %8s %8s %8s %10s %6s %6s %6s %6s  %s\n", "case", "motion", "Hz",
