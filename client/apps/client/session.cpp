@@ -144,10 +144,20 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
         h.force_max_n.load(), applied_min > applied_max ? 0.0 : applied_min, applied_max,
         cfg.op.band_min_n, cfg.op.band_max_n);
   }
+  // The bounds at the nominal tick; late ticks lower them for a second after each.
+  std::string lowered;
+  if (h.passivity_bound_lowest_ns_per_m.load() < h.passivity_bound_nominal_ns_per_m.load() ||
+      h.joint_damping_cap_lowest_ns_per_m.load() < h.joint_damping_cap_nominal_ns_per_m.load()) {
+    char buf[96];
+    std::snprintf(buf, sizeof buf, "; after late ticks as low as %.1f and %.1f",
+                  h.passivity_bound_lowest_ns_per_m.load(),
+                  h.joint_damping_cap_lowest_ns_per_m.load());
+    lowered = buf;
+  }
   std::printf(
       "  teleop: render %s; DeviceState live %.1f packets/s (%llu of %llu samples%s)%s; "
       "passivity energy %.4f J (lowest %.4f J), controller active %llu ticks (damping up to "
-      "%.1f N*s/m, the joint's %.1f); "
+      "%.1f N*s/m, the joint's %.1f%s); "
       "%llu model updates, largest update step %.3f N (%.2f of the bound)\n",
       render.c_str(), static_cast<double>(link.stats().live_sent.load()) / std::max(duration, 1e-3),
       static_cast<unsigned long long>(link.stats().live_sent.load()),
@@ -158,9 +168,9 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
           : "",
       h.passivity_energy_j.load(), h.passivity_min_energy_j.load(),
       static_cast<unsigned long long>(h.passivity_activations.load()),
-      h.passivity_bound_ns_per_m.load(), h.joint_damping_cap_ns_per_m.load(),
-      static_cast<unsigned long long>(h.models_applied.load()), h.update_step_max_n.load(),
-      h.update_step_max_ratio.load());
+      h.passivity_bound_nominal_ns_per_m.load(), h.joint_damping_cap_nominal_ns_per_m.load(),
+      lowered.c_str(), static_cast<unsigned long long>(h.models_applied.load()),
+      h.update_step_max_n.load(), h.update_step_max_ratio.load());
   if (const auto crypto = dds::cryptoCounts()) {
     std::printf("  security: %s\n", dds::cryptoSummary(*crypto).c_str());
   }

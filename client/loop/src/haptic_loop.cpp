@@ -52,9 +52,15 @@ HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
       fault_limits_(teleop.fault) {
   health_.model_version.store(initial_model.version, std::memory_order_relaxed);
   nominal_tick_ns_ = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
-  health_.joint_damping_cap_ns_per_m.store(kMaxDeviceDampingNsPerM, std::memory_order_relaxed);
-  health_.passivity_bound_ns_per_m.store(passivity_.dampingBoundNsPerM(),
-                                         std::memory_order_relaxed);
+  for (auto* cap :
+       {&health_.joint_damping_cap_ns_per_m, &health_.joint_damping_cap_nominal_ns_per_m,
+        &health_.joint_damping_cap_lowest_ns_per_m}) {
+    cap->store(kMaxDeviceDampingNsPerM, std::memory_order_relaxed);
+  }
+  for (auto* bound : {&health_.passivity_bound_ns_per_m, &health_.passivity_bound_nominal_ns_per_m,
+                      &health_.passivity_bound_lowest_ns_per_m}) {
+    bound->store(passivity_.dampingBoundNsPerM(), std::memory_order_relaxed);
+  }
   wall_offset_ns_ = wallNs() - clock_.nowNs();
 }
 
@@ -279,14 +285,24 @@ void HapticLoop::followDeviceDynamics(int64_t now) noexcept {
       stableDampingNsPerM(d.lightest_mass_kg, delay, static_cast<double>(nominal_tick_ns_) * 1e-9);
   const double late =
       stableDampingNsPerM(d.lightest_mass_kg, delay, static_cast<double>(long_tick_ns_) * 1e-9);
-  const double joint_cap =
-      nominal > 0.0 ? std::min({kMaxDeviceDampingNsPerM, kJointDampingShare * nominal, late})
+  const double joint_cap_nominal =
+      nominal > 0.0 ? std::min(kMaxDeviceDampingNsPerM, kJointDampingShare * nominal)
                     : kMaxDeviceDampingNsPerM;
+  const double joint_cap = nominal > 0.0 ? std::min(joint_cap_nominal, late) : joint_cap_nominal;
   proxy_.setDeviceDampingCap(joint_cap);
   passivity_.setDeviceLimit(late);
+  const double bound = passivity_.dampingBoundNsPerM();
   health_.joint_damping_cap_ns_per_m.store(joint_cap, std::memory_order_relaxed);
-  health_.passivity_bound_ns_per_m.store(passivity_.dampingBoundNsPerM(),
-                                         std::memory_order_relaxed);
+  health_.passivity_bound_ns_per_m.store(bound, std::memory_order_relaxed);
+  health_.joint_damping_cap_nominal_ns_per_m.store(joint_cap_nominal, std::memory_order_relaxed);
+  health_.passivity_bound_nominal_ns_per_m.store(passivity_.boundFor(nominal),
+                                                 std::memory_order_relaxed);
+  if (joint_cap < health_.joint_damping_cap_lowest_ns_per_m.load(std::memory_order_relaxed)) {
+    health_.joint_damping_cap_lowest_ns_per_m.store(joint_cap, std::memory_order_relaxed);
+  }
+  if (bound < health_.passivity_bound_lowest_ns_per_m.load(std::memory_order_relaxed)) {
+    health_.passivity_bound_lowest_ns_per_m.store(bound, std::memory_order_relaxed);
+  }
 }
 
 bool HapticLoop::detectFault(int64_t now, bool clamped, double excess_deg) noexcept {

@@ -43,11 +43,14 @@ void PassivityGuard::observe(const PerFinger<Vec3>& p, const PerFinger<Vec3>& la
   last_p_ = p;
 }
 
+double PassivityGuard::boundFor(double limit_ns_per_m) const noexcept {
+  return limit_ns_per_m > 0.0
+             ? std::min(config_.max_damping_ns_per_m, config_.stability_margin * limit_ns_per_m)
+             : config_.max_damping_ns_per_m;
+}
+
 void PassivityGuard::setDeviceLimit(double limit_ns_per_m) noexcept {
-  bound_ns_per_m_ = config_.max_damping_ns_per_m;
-  if (limit_ns_per_m > 0.0) {
-    bound_ns_per_m_ = std::min(bound_ns_per_m_, config_.stability_margin * limit_ns_per_m);
-  }
+  bound_ns_per_m_ = boundFor(limit_ns_per_m);
 }
 
 void PassivityGuard::restart() noexcept {

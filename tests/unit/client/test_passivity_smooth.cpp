@@ -190,6 +190,8 @@ TEST(PassivityInTheLoop, ALateTickLowersTheDampingBoundsForASecond) {
   for (int i = 0; i < 100; ++i) tick(kNsPerMs);
   EXPECT_DOUBLE_EQ(h.joint_damping_cap_ns_per_m.load(), kMaxDeviceDampingNsPerM);
   EXPECT_DOUBLE_EQ(h.passivity_bound_ns_per_m.load(), 20.0);
+  EXPECT_DOUBLE_EQ(h.passivity_bound_lowest_ns_per_m.load(), 20.0) << "none late yet";
+  EXPECT_DOUBLE_EQ(h.joint_damping_cap_lowest_ns_per_m.load(), kMaxDeviceDampingNsPerM);
   tick(8 * kNsPerMs);
   const double late = stableDampingNsPerM(0.05, 1, 0.008);
   EXPECT_NEAR(late, 6.25, 1e-9);
@@ -201,11 +203,19 @@ TEST(PassivityInTheLoop, ALateTickLowersTheDampingBoundsForASecond) {
   for (int i = 0; i < 200; ++i) tick(kNsPerMs);
   EXPECT_DOUBLE_EQ(h.joint_damping_cap_ns_per_m.load(), kMaxDeviceDampingNsPerM);
   EXPECT_DOUBLE_EQ(h.passivity_bound_ns_per_m.load(), 20.0);
+  // What the client's summary prints: the bounds at the nominal tick all along, and the
+  // lowest they were lowered to.
+  EXPECT_DOUBLE_EQ(h.joint_damping_cap_nominal_ns_per_m.load(), kMaxDeviceDampingNsPerM);
+  EXPECT_DOUBLE_EQ(h.passivity_bound_nominal_ns_per_m.load(), 20.0);
+  EXPECT_NEAR(h.joint_damping_cap_lowest_ns_per_m.load(), late, 1e-9);
+  EXPECT_NEAR(h.passivity_bound_lowest_ns_per_m.load(), 0.4 * late, 1e-9);
   // A 2 ms tick: the joint's 25 N·s/m is the whole limit there and stays; the controller
   // gets 10.
   tick(2 * kNsPerMs);
   EXPECT_DOUBLE_EQ(h.joint_damping_cap_ns_per_m.load(), kMaxDeviceDampingNsPerM);
   EXPECT_NEAR(h.passivity_bound_ns_per_m.load(), 10.0, 1e-9);
+  EXPECT_DOUBLE_EQ(h.passivity_bound_nominal_ns_per_m.load(), 20.0);
+  EXPECT_NEAR(h.passivity_bound_lowest_ns_per_m.load(), 0.4 * late, 1e-9) << "still the lowest";
 }
 
 }  // namespace

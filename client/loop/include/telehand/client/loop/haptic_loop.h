@@ -51,6 +51,13 @@ struct LoopHealth {
   /// The most damping the joint model renders at the device, N·s/m per unit lever speed:
   /// kMaxDeviceDampingNsPerM, or less on a light or delayed device.
   std::atomic<double> joint_damping_cap_ns_per_m{0.0};
+  /// The two bounds above for the device now at the loop's nominal tick (what holds while
+  /// the loop keeps time), and the lowest each has been since the loop started (after a
+  /// late tick, or on a lighter device).
+  std::atomic<double> passivity_bound_nominal_ns_per_m{0.0};
+  std::atomic<double> joint_damping_cap_nominal_ns_per_m{0.0};
+  std::atomic<double> passivity_bound_lowest_ns_per_m{0.0};
+  std::atomic<double> joint_damping_cap_lowest_ns_per_m{0.0};
   std::atomic<double> update_step_max_n{0.0};      ///< largest force step from a model update
   std::atomic<double> update_step_max_ratio{0.0};  ///< ... over max(5 % of the force, 0.1 N)
   std::atomic<uint64_t> direct_forces{0};          ///< server forces taken (direct mode)

@@ -77,6 +77,8 @@ class PassivityGuard {
   /// moving mass, its delay and the loop's tick; 0 or less: unknown, only `max_damping`
   /// bounds the damping). The controller keeps `stability_margin` of it. Real-time safe.
   void setDeviceLimit(double limit_ns_per_m) noexcept;
+  /// The bound setDeviceLimit(limit_ns_per_m) would set, without setting it.
+  double boundFor(double limit_ns_per_m) const noexcept;
   /// The most damping the controller may add, N·s/m per finger.
   double dampingBoundNsPerM() const noexcept { return bound_ns_per_m_; }
 
