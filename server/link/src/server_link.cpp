@@ -190,8 +190,11 @@ const session::Origin& ServerLink::origin(dds_entity_t reader, const dds_sample_
   // first 12 characters.
   session::Origin o{s.participant, s.guid,
                     secured_ && s.guid.size() >= 12 ? s.guid.substr(0, 12) : ""};
-  if (s.participant == 0) {  // Cyclone no longer knows the writer: not remembered
+  if (s.participant == 0) {
+    // Cyclone no longer knows the writer (it left before its sample was read): not
+    // remembered, and nothing it sent is taken (Origin::unknown).
     unknown_origin_ = std::move(o);
+    unknown_origin_.unknown = true;
     return unknown_origin_;
   }
   if (origins_.size() >= kMaxOrigins) origins_.clear();

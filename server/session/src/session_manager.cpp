@@ -105,7 +105,17 @@ void SessionManager::refuse(uint64_t session_id, uint64_t client_id, const std::
         now_ns);
 }
 
+namespace {
+/// Who sent something, for an event.
+std::string senderOf(const Origin& from) {
+  if (from.unknown)
+    return "a participant that had left before it was read (its sender cannot be told)";
+  return "participant " + (from.guid.empty() ? std::string("?") : from.guid);
+}
+}  // namespace
+
 bool SessionManager::owns(const Session& s, const Origin& from) {
+  if (from.unknown) return false;
   return from.participant == 0 || s.owner == 0 || from.participant == s.owner;
 }
 
@@ -113,10 +123,34 @@ bool SessionManager::owns(Session& s, const Origin& from, const char* what, uint
                           int64_t now_ns) {
   if (owns(s, from)) return true;
   refuse(s.info.id, s.client_id,
-         std::string(what) + " from participant " + (from.guid.empty() ? "?" : from.guid) +
-             ": session " + std::to_string(s.info.id) + " belongs to " + s.info.owner,
+         std::string(what) + " from " + senderOf(from) + ": session " + std::to_string(s.info.id) +
+             " belongs to " + s.info.owner,
          count, now_ns);
   return false;
+}
+
+void SessionManager::rememberOwner(uint64_t session_id, const std::string& owner) {
+  EndedOwner e;
+  e.session_id = session_id;
+  owner.copy(e.guid.data(), e.guid.size() - 1);
+  for (EndedOwner& known : ended_owners_) {
+    if (known.session_id == session_id) {
+      known = e;
+      return;
+    }
+  }
+  if (ended_owners_.size() < kMaxEndedOwners) {
+    ended_owners_.push_back(e);
+  } else {
+    ended_owners_[ended_next_] = e;
+  }
+  ended_next_ = (ended_next_ + 1) % kMaxEndedOwners;
+}
+
+const SessionManager::EndedOwner* SessionManager::rememberedOwner(uint64_t session_id) const {
+  const auto it = std::find_if(ended_owners_.begin(), ended_owners_.end(),
+                               [&](const EndedOwner& e) { return e.session_id == session_id; });
+  return it == ended_owners_.end() ? nullptr : &*it;
 }
 
 void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
@@ -125,6 +159,15 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
   // In a pool every server hears every command: one for a session another server runs is
   // that server's (an OPEN goes through the record's assignment, a resume to the claimer).
   if (cmd.kind != telehand_msg_CMD_OPEN && cmd.session_id != 0 && elsewhere(cmd.session_id)) {
+    return;
+  }
+  if (from.unknown) {
+    // No OPEN (its session would belong to nobody, and so take anyone's CLOSE), no command on
+    // a session, from a sender nobody can name.
+    refuse(cmd.session_id, cmd.client_id,
+           "a command (kind " + std::to_string(static_cast<int>(cmd.kind)) + ") from " +
+               senderOf(from),
+           1, now_ns, cmd.session_id == 0 ? std::optional<uint64_t>(kOpenKey) : std::nullopt);
     return;
   }
   if (cmd.kind == telehand_msg_CMD_MARK) {
@@ -661,6 +704,7 @@ std::size_t SessionManager::recoverFromStore(int64_t now_ns, bool take_active) {
     }
     info.state = "suspended";
     suspended_[info.id] = now_ns + static_cast<int64_t>(config_.resume_wait_s * 1e9);
+    rememberOwner(info.id, info.owner);
     publishRecordStatus(info, telehand_msg_SESSION_SUSPENDED, 0, 0);
     spdlog::info("session {}: recovered from the record ({} samples), waiting for its client",
                  info.id, info.samples);
@@ -727,12 +771,14 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
                              const Origin& from) {
   progress_.fetch_add(1, std::memory_order_relaxed);
   Session* s = find(c.session_id);
-  if (!s && elsewhere(c.session_id) &&
-      std::none_of(ended_owners_.begin(), ended_owners_.end(),
-                   [&](const EndedOwner& e) { return e.session_id == c.session_id; })) {
+  if (!s && elsewhere(c.session_id) && rememberedOwner(c.session_id) == nullptr) {
     return;  // another server's of the pool (a late chunk goes to the server that closed it)
   }
   if (s && !owns(*s, from, "a RecordChunk", c.samples._length, now_ns)) return;
+  if (!s && from.unknown) {
+    refuse(c.session_id, 0, "a late RecordChunk from " + senderOf(from), c.samples._length, now_ns);
+    return;
+  }
   std::vector<Sample> samples = samplesFromWire(c);
   // A sample no device could have sent is stored flagged invalid (the record keeps what
   // arrived); one outside the sequence window is not stored at all.
@@ -759,25 +805,29 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
            now_ns);
   }
   if (!s) {
-    // A late chunk for a session that already closed still belongs in its record, if it
-    // comes from the session's owner.
-    const auto owner =
-        std::find_if(ended_owners_.begin(), ended_owners_.end(),
-                     [&](const EndedOwner& e) { return e.session_id == c.session_id; });
-    if (from.participant != 0 && owner != ended_owners_.end() &&
-        std::string_view(owner->guid.data()) != from.guid) {
-      refuse(c.session_id, 0,
-             "a late RecordChunk from participant " + from.guid + ": session " +
-                 std::to_string(c.session_id) + " belonged to " + owner->guid.data(),
-             c.samples._length, now_ns);
-      return;
-    }
+    // A late chunk for a session that is not running here (closed, or suspended awaiting its
+    // client) still belongs in its record, if it comes from the session's owner: the owner
+    // this server remembers (it ended or suspended the session, or looked it up before), else
+    // the record's, remembered from then on (one look-up, on PostgreSQL two counts of its
+    // rows, per session rather than per chunk).
     try {
-      // A session this server holds for its client to resume (taken over, or found open in
-      // the record) is known to be in the record: no look-up (on PostgreSQL two counts of
-      // its rows) per chunk while its client, unacknowledged, sends its backlog.
       const bool waiting = suspended_.count(c.session_id) > 0;
-      if (waiting || store_.session(c.session_id)) {
+      const EndedOwner* owner = rememberedOwner(c.session_id);
+      if (!owner && !waiting) {
+        if (const auto info = store_.session(c.session_id)) {
+          rememberOwner(c.session_id, info->owner);
+          owner = rememberedOwner(c.session_id);
+        }
+      }
+      if (from.participant != 0 && owner != nullptr && owner->guid[0] != '\0' &&
+          std::string_view(owner->guid.data()) != from.guid) {
+        refuse(c.session_id, 0,
+               "a late RecordChunk from participant " + from.guid + ": session " +
+                   std::to_string(c.session_id) + " belongs to " + owner->guid.data(),
+               c.samples._length, now_ns);
+        return;
+      }
+      if (waiting || owner != nullptr) {
         const int64_t t0 = SteadyClock{}.nowNs();
         const uint64_t added = store_.appendSamples(c.session_id, samples, valid);
         records_ns_ += SteadyClock{}.nowNs() - t0;
@@ -1096,17 +1146,7 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
     if (Session* f = find(id)) f->capture.unfollow();  // keeps the last model it got
   }
   s.close(state, now_ns);
-  if (!s.info.owner.empty()) {
-    EndedOwner e;
-    e.session_id = s.info.id;
-    s.info.owner.copy(e.guid.data(), e.guid.size() - 1);
-    if (ended_owners_.size() < kMaxEndedOwners) {
-      ended_owners_.push_back(e);
-    } else {
-      ended_owners_[ended_next_] = e;
-    }
-    ended_next_ = (ended_next_ + 1) % kMaxEndedOwners;
-  }
+  rememberOwner(s.info.id, s.info.owner);
   refused_reported_ns_.erase(s.info.id);
   retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), s.info.id);
 }
@@ -1277,6 +1317,7 @@ void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim
   }
   info->state = "suspended";
   suspended_[session_id] = now_ns + static_cast<int64_t>(config_.resume_wait_s * 1e9);
+  rememberOwner(session_id, info->owner);
   // Its client hears SUSPENDED from a server that is not its own and asks to resume at once.
   publishRecordStatus(*info, telehand_msg_SESSION_SUSPENDED, 0, 0);
   spdlog::info("session {}: taken over from {} ({}; {} samples in the record)", session_id,

@@ -1073,6 +1073,106 @@ TEST_F(OwnershipTest, AnUnknownSenderIsNotRefused) {
   EXPECT_EQ(stored(session_).rows, 100u);
 }
 
+TEST_F(OwnershipTest, ASenderTheLinkCouldNotNameIsRefused) {
+  // A writer deleted (or its participant gone) before the server read its sample: Cyclone no
+  // longer knows who sent it, so it could be anyone's. Nothing of it is taken: not its OPEN
+  // (a session of nobody's would take anyone's CLOSE), not its samples, chunks, files, marks
+  // or CLOSE for the owner's session.
+  ASSERT_NE(open("healthy"), 0u);
+  const uint64_t owned = session_;
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  Origin gone;
+  gone.unknown = true;
+  sendRange(session_, sent + 1, 1000, gone, kRogueVersion);  // just ahead of the owner's
+  sendRange(session_, 1, 300, gone, kRogueVersion);          // over the owner's own
+  manager_->onDeviceState(wireSample(session_, seq_), now_ns_, gone);
+  command(telehand_msg_CMD_MARK, gone, 0, "note");
+  command(telehand_msg_CMD_CLOSE, gone, 0);
+  telehand_msg_SessionFile f{};
+  f.session_id = session_;
+  copyString(f.name, "calibration.toml");
+  std::string content = "x = 1\n";
+  f.content = content.data();
+  manager_->onFile(f, now_ns_, gone);
+  tickFor(50'000'000);
+  EXPECT_EQ(manager_->activeSessions(), 1u) << "the CLOSE was not taken";
+  EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), 0u);
+  EXPECT_EQ(manager_->stats().refused, 1000u + 300u + 1u + 1u + 1u + 1u);
+  ASSERT_FALSE(securityEvents().empty());
+  EXPECT_THAT(securityEvents()[0], HasSubstr("a participant that had left before it was read"));
+  from_ = gone;
+  EXPECT_EQ(open("healthy"), 0u) << "an OPEN from nobody";
+  EXPECT_EQ(manager_->activeSessions(), 1u);
+  // The owner's record is whole and holds nothing of the stranger's.
+  session_ = owned;
+  sendRange(session_, 1, sent, kA);
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  tickFor(50'000'000);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->session(session_)->state, "closed");
+  const Stored st = stored(session_);
+  EXPECT_EQ(st.rows, sent);
+  EXPECT_EQ(st.from_rogue, 0u);
+  EXPECT_EQ(st.highest, sent);
+  // Nor does it reach the record once the session has ended.
+  const uint64_t refused = manager_->stats().refused;
+  sendRange(session_, sent + 1, 100, gone, kRogueVersion);
+  EXPECT_EQ(manager_->stats().refused, refused + 100u);
+  EXPECT_EQ(stored(session_).rows, sent);
+}
+
+TEST_F(OwnershipTest, LateChunksOfASessionThisServerNeverRanAreTakenFromItsOwnerOnly) {
+  // The session ended under a server before this one (or so long ago that this one no longer
+  // remembers it): its owner is the record's.
+  ASSERT_NE(open("healthy"), 0u);
+  moveToDeg(5.0);
+  const uint64_t sent = seq_ - 1;
+  sendRange(session_, 1, sent - 100, kA);
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  now_ns_ += static_cast<int64_t>(config_.close_grace_s * 1e9) + 10'000'000;
+  manager_->tick(now_ns_);
+  ASSERT_EQ(manager_->activeSessions(), 0u);
+  ASSERT_EQ(store_->session(session_)->state, "incomplete");
+  ASSERT_EQ(store_->session(session_)->owner, kA.guid);
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  sendRange(session_, sent - 99, 100, kB, kRogueVersion);
+  EXPECT_EQ(manager_->stats().refused, 100u);
+  ASSERT_EQ(securityEvents().size(), 1u);
+  EXPECT_THAT(securityEvents()[0],
+              AllOf(HasSubstr("a late RecordChunk from participant " + kB.guid),
+                    HasSubstr("belongs to " + kA.guid)));
+  EXPECT_EQ(stored(session_).rows, sent - 100);
+  sendRange(session_, sent - 99, 100, kA);
+  const Stored st = stored(session_);
+  EXPECT_EQ(st.rows, sent);
+  EXPECT_EQ(st.from_rogue, 0u);
+  EXPECT_EQ(manager_->stats().refused, 100u);
+}
+
+TEST_F(OwnershipTest, ASuspendedSessionTakesChunksFromItsOwnerOnly) {
+  // The server stopped; the next one holds the session for its client to resume. Meanwhile
+  // a stranger's chunks would fill the record's gaps (the store keeps the first copy of a
+  // sequence number) and its high sequence numbers would shut the owner out.
+  ASSERT_NE(open("healthy"), 0u);
+  sendRange(session_, 1, 400, kA);
+  manager_->closeAll(now_ns_);
+  ASSERT_EQ(store_->session(session_)->state, "suspended");
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  ASSERT_EQ(manager_->recoverFromStore(now_ns_), 1u);
+  ASSERT_EQ(manager_->suspendedSessions(), 1u);
+  sendRange(session_, 401, 200, kB, kRogueVersion);
+  sendRange(session_, 1u << 30, 10, kB, kRogueVersion);
+  EXPECT_EQ(manager_->stats().refused, 210u);
+  ASSERT_FALSE(securityEvents().empty());
+  EXPECT_THAT(securityEvents()[0], HasSubstr("belongs to " + kA.guid));
+  sendRange(session_, 401, 200, kA);  // the owner's backlog while it waits
+  const Stored st = stored(session_);
+  EXPECT_EQ(st.rows, 600u);
+  EXPECT_EQ(st.from_rogue, 0u);
+  EXPECT_EQ(st.highest, 600u);
+}
+
 TEST_F(OwnershipTest, UnderSecurityTheLimitCountsTheIdentityNotItsParticipants) {
   // Two participants of one certificate (their GUIDs share the subject's 48-bit hash) and
   // one of another: the limit per participant holds for the identity.
@@ -1422,7 +1522,7 @@ TEST_F(OwnershipTest, LateChunksOfAnEndedSessionAreTakenFromItsOwnerOnly) {
   ASSERT_EQ(securityEvents().size(), 1u);
   EXPECT_THAT(securityEvents()[0],
               AllOf(HasSubstr("a late RecordChunk from participant " + kB.guid),
-                    HasSubstr("belonged to " + kA.guid)));
+                    HasSubstr("belongs to " + kA.guid)));
   EXPECT_EQ(stored(session_).rows, sent - 100);
   sendRange(session_, sent - 99, 100, kA);
   const Stored s = stored(session_);

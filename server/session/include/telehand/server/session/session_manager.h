@@ -45,6 +45,11 @@ struct Origin {
   /// GUID, which the authentication plugin derives from the certificate's subject (the
   /// same for every participant of one identity). Empty without security.
   std::string identity;
+  /// A network sender the link could not name: its writer had left (deleted, or its
+  /// participant gone) before the sample was read, so Cyclone no longer knew it. Everything
+  /// from it is refused: it could be anyone's. (A default Origin, participant 0 and not
+  /// unknown, is a caller without DDS: tests and tools in this process.)
+  bool unknown = false;
 };
 
 class SessionManager {
@@ -236,6 +241,11 @@ class SessionManager {
     uint64_t session_id = 0;
     std::array<char, 40> guid{};
   };
+  /// Remembers a session's owner (ended here, suspended here awaiting its client, or looked
+  /// up in the record for a late chunk) in the ring; an empty owner is remembered too (a
+  /// session opened without DDS takes anyone's).
+  void rememberOwner(uint64_t session_id, const std::string& owner);
+  const EndedOwner* rememberedOwner(uint64_t session_id) const;
   std::vector<EndedOwner> ended_owners_;
   std::size_t ended_next_ = 0;  // where the next one goes (the oldest, once full)
   std::vector<std::pair<int64_t, uint64_t>> retiring_;  // (when, session id), in time order
