@@ -197,6 +197,21 @@ TEST_F(LessonRunTest, ClinicianDemonstratesStudentRunsItAndTheRecordHoldsTheLess
       << not_a_run.output();
   EXPECT_FALSE(std::filesystem::exists(path("report") + "/lesson-" + std::to_string(lesson) +
                                        "-session-" + std::to_string(demo) + ".html"));
+
+  // A report into something that is not a directory: refused, saying where (not aborted).
+  { std::ofstream(path("a-file")) << "kept\n"; }
+  Process into_file(
+      {TELEHAND_RECORDS_BIN, "--db", db, "report", std::to_string(run), "-o", path("a-file")},
+      path("into-file.log"));
+  const auto file_rc = into_file.wait(30s);
+  ASSERT_TRUE(file_rc.has_value());
+  EXPECT_EQ(*file_rc, 2) << into_file.output();
+  EXPECT_NE(into_file.output().find("cannot write the report into '" + path("a-file") + "'"),
+            std::string::npos)
+      << into_file.output();
+  std::ifstream kept(path("a-file"));
+  std::string kept_line;
+  EXPECT_TRUE(std::getline(kept, kept_line) && kept_line == "kept");
 }
 
 /// One concurrent-feedback bar the student's client printed during a trial.

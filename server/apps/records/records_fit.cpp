@@ -8,6 +8,7 @@
 #include <fstream>
 #include <iostream>
 
+#include "file_output.h"
 #include "records_tissue.h"
 #include "telehand/config/config.h"
 #include "telehand/core/error.h"
@@ -212,15 +213,11 @@ int runFit(const FitRequest& r) {
           kAxisNames[i].data(), a.hysteresis_n);
     }
   }
-  {
-    std::error_code ec;
-    if (!output.parent_path().empty()) fs::create_directories(output.parent_path(), ec);
-    std::ofstream out(output);
-    out << toml;
-    if (!out.flush()) {
-      std::cerr << "telehand-records: cannot write '" << output.string() << "'\n";
-      return 2;
-    }
+  try {
+    writeFileAtomically(output, toml);
+  } catch (const Error& e) {
+    std::cerr << "telehand-records: " << e.what() << "\n";
+    return 2;
   }
   std::cout << "model: " << output.string() << " (case '" << name
             << "'; copy it into the server's cases directory to use it)\n";

@@ -8,6 +8,7 @@
 #include <map>
 #include <sstream>
 
+#include "file_output.h"
 #include "lesson_history.h"
 #include "report.h"
 #include "telehand/config/config.h"
@@ -86,16 +87,6 @@ std::vector<Sample> samplesIn(SessionStore& store, uint64_t session, uint64_t fi
     if (valid) out.push_back(s);
   });
   return out;
-}
-
-/// Written to PATH.partial first and renamed: a reader never sees half a file.
-void writeAtomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".partial";
-  {
-    std::ofstream f(tmp, std::ios::binary);
-    if (!(f << text)) throw Error("cannot write '" + tmp + "'");
-  }
-  std::filesystem::rename(tmp, path);
 }
 
 std::vector<Sample> allSamples(SessionStore& store, uint64_t session) {
@@ -220,7 +211,14 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   if (!lesson) lesson = store.lesson(lesson_id);
   if (!lesson) throw Error("the lesson of session " + std::to_string(session) + " is missing");
   const double scale = forceScaleOf(r.cases_dir, lesson->case_name);
-  std::filesystem::create_directories(r.out_dir);
+  {
+    std::error_code ec;
+    std::filesystem::create_directories(r.out_dir, ec);
+    if (ec || !std::filesystem::is_directory(r.out_dir)) {
+      throw Error("cannot write the report into '" + r.out_dir +
+                  "': " + (ec ? ec.message() : std::string("it is not a directory")));
+    }
+  }
   const std::string base =
       (std::filesystem::path(r.out_dir) /
        ("lesson-" + std::to_string(lesson->id) + "-session-" + std::to_string(session)))
@@ -246,8 +244,8 @@ int runReport(SessionStore& store, const ReportRequest& r) {
       in.trials.push_back(std::move(rt));
     }
     in.history = learningHistory(store, info->user, session);
-    writeAtomically(base + ".html", renderMassageReportHtml(in));
-    writeAtomically(base + "-scores.csv", renderMassageScoresCsv(in));
+    writeFileAtomically(base + ".html", renderMassageReportHtml(in));
+    writeFileAtomically(base + "-scores.csv", renderMassageScoresCsv(in));
     std::cout << "report: " << base << ".html (massage, " << in.trials.size() << " trials, "
               << in.history.size() << " runs in the learning curve)\nscores: " << base
               << "-scores.csv\n";
@@ -283,9 +281,9 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   // The learning curve: this user's earlier runs of lessons, oldest first (this one is added
   // by the page as "this lesson").
   in.history = learningHistory(store, info->user, session);
-  writeAtomically(base + ".html", renderReportHtml(in));
-  writeAtomically(base + "-scores.csv", renderScoresCsv(in));
-  writeAtomically(base + "-oscillations.csv", renderOscillationsCsv(in));
+  writeFileAtomically(base + ".html", renderReportHtml(in));
+  writeFileAtomically(base + "-scores.csv", renderScoresCsv(in));
+  writeFileAtomically(base + "-oscillations.csv", renderOscillationsCsv(in));
   std::cout << "report: " << base << ".html (" << in.trials.size() << " trials, "
             << in.ranges.size() << " ranges, " << in.history.size() << " runs in the learning "
             << "curve)\nscores: " << base << "-scores.csv, " << base << "-oscillations.csv\n";

@@ -1,4 +1,5 @@
 // telehand-records: read session records (list, export to CSV).
+#include <exception>
 #include <iostream>
 
 #include "records_fit.h"
@@ -184,6 +185,9 @@ int main(int argc, char** argv) {
     }
     return telehand::records::runExport(store, session_id, out_path);
   } catch (const telehand::Error& e) {
+    std::cerr << "telehand-records: " << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {  // the file system's, or out of memory: said, not aborted
     std::cerr << "telehand-records: " << e.what() << "\n";
     return 2;
   }

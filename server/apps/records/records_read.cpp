@@ -178,8 +178,9 @@ int runExport(SessionStore& store, uint64_t session_id, const std::string& out_p
       ++rows;
     });
   } catch (const std::exception& e) {
-    return fail(std::string(e.what()) + " (after " + std::to_string(rows) +
-                " rows; nothing was written to '" + out_path + "')");
+    return fail(
+        std::string(e.what()) + " (after " + std::to_string(rows) + " rows" +
+        (tmp_path.empty() ? std::string(")") : "; nothing was written to '" + out_path + "')"));
   }
   out.flush();
   if (!out) {
@@ -187,7 +188,13 @@ int runExport(SessionStore& store, uint64_t session_id, const std::string& out_p
                 (tmp_path.empty() ? "" : "; nothing was written to '" + out_path + "'"));
   }
   if (!tmp_path.empty()) {
+    // The last buffered bytes reach the file only now: a close that fails (a full disk, a
+    // quota) leaves it short.
     file.close();
+    if (file.fail()) {
+      return fail("closing '" + tmp_path + "' failed after " + std::to_string(rows) +
+                  " rows; nothing was written to '" + out_path + "'");
+    }
     std::error_code ec;
     std::filesystem::rename(tmp_path, out_path, ec);
     if (ec) return fail("cannot rename '" + tmp_path + "' to '" + out_path + "': " + ec.message());

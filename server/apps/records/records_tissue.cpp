@@ -9,6 +9,7 @@
 #include <utility>
 #include <vector>
 
+#include "file_output.h"
 #include "telehand/config/config.h"
 #include "telehand/core/error.h"
 #include "telehand/server/estimate/synthetic_massage.h"
@@ -293,15 +294,11 @@ int runFitMassage(const FitRequest& r, server::store::SessionStore& store,
       fit.depth_min_m * 1e3, fit.depth_max_m * 1e3, fit.depth_rate_p5_m_s, fit.depth_rate_p95_m_s,
       fit.speed_p95_m_s, fit.normal_rms_n, fit.tangential_rms_n, fit.contact_samples,
       100.0 * fit.slip_fraction);
-  {
-    std::error_code ec;
-    if (!output.parent_path().empty()) fs::create_directories(output.parent_path(), ec);
-    std::ofstream out(output);
-    out << toml;
-    if (!out.flush()) {
-      std::cerr << "telehand-records: cannot write '" << output.string() << "'\n";
-      return 2;
-    }
+  try {
+    writeFileAtomically(output, toml);
+  } catch (const Error& e) {
+    std::cerr << "telehand-records: " << e.what() << "\n";
+    return 2;
   }
   std::cout << "model: " << output.string() << " (case '" << name
             << "'; copy it into the server's cases directory to use it)\n";

@@ -1,11 +1,16 @@
 // telehand-records report: the lesson page holds its plots (inline SVG, nothing fetched, long
 // series decimated) and the CSV one row per trial with that trial's figures.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <sstream>
 
+#include "file_output.h"
 #include "report.h"
+#include "telehand/core/error.h"
 
 namespace telehand::records {
 namespace {
@@ -190,6 +195,42 @@ TEST(RecordsReport, AnEmptyLessonStillRenders) {
   EXPECT_NE(html.find("No trials."), std::string::npos);
   EXPECT_NE(html.find("id=\"learning\""), std::string::npos);
   EXPECT_EQ(renderScoresCsv(in).find('\n'), renderScoresCsv(in).size() - 1);  // header only
+}
+
+TEST(RecordsFiles, AFileIsWrittenWholeOrNotAtAll) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("telehand-files-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  const fs::path file = dir / "sub" / "case.toml";
+  writeFileAtomically(file, "a = 1\n");  // its directory made
+  const auto read = [](const fs::path& p) {
+    std::ifstream f(p);
+    std::stringstream ss;
+    ss << f.rdbuf();
+    return ss.str();
+  };
+  EXPECT_EQ(read(file), "a = 1\n");
+  writeFileAtomically(file, "b = 2\n");  // replaced whole
+  EXPECT_EQ(read(file), "b = 2\n");
+  EXPECT_FALSE(fs::exists(file.string() + ".partial"));
+  // Where the file cannot be put (a directory of that name): an error naming it, nothing left
+  // behind.
+  fs::create_directories(dir / "taken");
+  try {
+    writeFileAtomically(dir / "taken", "c = 3\n");
+    ADD_FAILURE() << "written over a directory";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("cannot write '" + (dir / "taken").string() + "'"),
+              std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("nothing was written"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(fs::is_directory(dir / "taken"));
+  EXPECT_FALSE(fs::exists((dir / "taken").string() + ".partial"));
+  // Under a file where its directory should be: the same.
+  EXPECT_THROW(writeFileAtomically(file / "x.toml", "d = 4\n"), Error);
+  EXPECT_EQ(read(file), "b = 2\n");
+  fs::remove_all(dir);
 }
 
 }  // namespace
