@@ -86,8 +86,15 @@ void Replay::tick(int64_t now_ns) {
     // Every sample whose record time has come steps the hand, in order.
     for (;;) {
       if (page_pos_ >= page_.size()) {
-        bool more = false;
-        while (!more && loadPage()) more = !page_.empty();
+        bool more = false, read_all = false;
+        for (int pages = 0; !more && pages < kMaxPagesPerTick; ++pages) {
+          if (!loadPage()) {
+            read_all = true;
+            break;
+          }
+          more = !page_.empty();
+        }
+        if (!more && !read_all) break;  // a gap in the record: read on next tick
         if (!more) {
           if (loop_) {  // from the start, on a fresh hand: the same states again
             restart();

@@ -21,6 +21,7 @@
 #include "telehand/protocol/lesson_plan.h"
 #include "telehand/protocol/wire.h"
 #include "telehand/server/lesson/lesson.h"
+#include "telehand/server/session/replay.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/store/sqlite_store.h"
@@ -531,6 +532,43 @@ class ReplayViewer {
   int64_t& now_ns_;
   std::function<telehand_msg_SessionCommand(telehand_msg_CommandKind, uint64_t)> command_;
 };
+
+TEST_F(LessonTest, AReplayReadsThroughGapsInItsRecordAFewPagesATick) {
+  // A record whose sequence numbers lie far apart (its device's own doing: each chunk within
+  // the window of the last): 100 samples, then 10 more 600,000 apart, a millisecond apart in
+  // time. Read a page of 1,000 sequence numbers at a time, the gaps are 6,000 empty pages;
+  // read in one tick they would stall the serve loop. A few pages a tick, the replay goes
+  // through them over the next ticks and still replays every sample.
+  const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+  ASSERT_NE(live, 0u);
+  Motion m;
+  m.flex_amp_deg = 8.0;
+  stream(live, m, 0, 100);
+  close(live, 100);
+  std::vector<Sample> last;
+  store_->forEachSampleIn(live, 99, 99, [&](const Sample& s, bool) { last.push_back(s); });
+  ASSERT_EQ(last.size(), 1u);
+  std::vector<Sample> sparse;
+  for (uint64_t k = 1; k <= 10; ++k) {
+    Sample s = last[0];
+    s.seq = 99 + k * 600'000;
+    s.source_time_ns += static_cast<int64_t>(k) * 1'000'000;
+    sparse.push_back(s);
+  }
+  store_->appendSamples(live, sparse, std::vector<uint8_t>(sparse.size(), 1));
+  ReplayViewer v(*store_, config_, live, now_ns_,
+                 [this](telehand_msg_CommandKind k, uint64_t s) { return command(k, s); });
+  ASSERT_NE(v.id, 0u);
+  v.run(200);  // the record's 110 ms and more
+  EXPECT_FALSE(v.closed()) << "6,000 empty pages read within 200 ticks";
+  EXPECT_LT(v.lastDeviceSeq(), 99u + 10 * 600'000);
+  const int pages = static_cast<int>(10 * 600'000 / Replay::kPage);
+  v.run(pages / Replay::kMaxPagesPerTick + 200);
+  EXPECT_TRUE(v.closed());
+  EXPECT_EQ(v.lastDeviceSeq(), 99u + 10 * 600'000);
+  EXPECT_THAT(v.out.textsOf(telehand_msg_EVENT_INFO, v.id),
+              ::testing::Contains(HasSubstr("the end of the record (110 samples replayed)")));
+}
 
 TEST_F(LessonTest, ALoopedReplayStartsOverAtItsEndWithTheSameStates) {
   const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);

@@ -24,6 +24,9 @@ class Replay {
   static constexpr double kMinSpeed = 0.25, kMaxSpeed = 2.0;
   /// Samples read from the record at a time.
   static constexpr uint64_t kPage = 1000;
+  /// Pages read in one tick at most: a record with gaps (sequence numbers far apart) is
+  /// read through them over several ticks, never stalling the serve loop on empty pages.
+  static constexpr int kMaxPagesPerTick = 8;
   /// Replays `source` (its record in ctx.store, rendered on `model`) as session
   /// `publish_as`; starts paused at the beginning until play().
   Replay(SessionContext& ctx, uint64_t publish_as, uint64_t source, const JointModelParams& model,
