@@ -68,15 +68,8 @@ uint64_t ClientLink::open(const OpenRequest& req, std::chrono::milliseconds time
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_OPEN);
-  cmd.mode = req.mode;
-  cmd.direct_force = req.direct_force;
-  copyString(cmd.case_name, req.case_name);
-  copyString(cmd.user, req.user);
-  copyString(cmd.text, "");
-  cmd.follow_session = req.follow_session;
-  cmd.stiffness = req.stiffness;
-  cmd.lesson_id = req.lesson_id;
-  cmd.technique = req.technique;
+  describeOpen(req, cmd);
+  opened_ = req;
   dds::check(command_writer_.write(cmd), "write SessionCommand OPEN");
   // Asked again, the same request, every second until answered: a server discovered after
   // the first write (a pool whose assigned server had not matched yet) hears it then; the
@@ -343,10 +336,7 @@ void ClientLink::watchServer() {
   if (!resuming_ || now < next_resume_) return;
   next_resume_ = now + kResumeEvery;
   telehand_msg_SessionCommand cmd = command(telehand_msg_CMD_OPEN);
-  cmd.last_seq = stats_.last_seq.load(std::memory_order_relaxed);
-  copyString(cmd.case_name, opened_case_);
-  copyString(cmd.user, "");
-  copyString(cmd.text, "");
+  describeResume(opened_, opened_case_, stats_.last_seq.load(std::memory_order_relaxed), cmd);
   resume_requests_.sent(cmd.request_seq);
   command_writer_.write(cmd);  // no server yet: asked again in a second
 }

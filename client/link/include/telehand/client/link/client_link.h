@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "telehand/client/link/open_request.h"
 #include "telehand/client/link/resume_requests.h"
 #include "telehand/client/link/spill_queue.h"
 #include "telehand/client/loop/haptic_loop.h"
@@ -47,18 +48,6 @@ struct LinkStats {
   std::atomic<uint64_t> retained_on_disk_bytes{0};
   std::atomic<uint64_t> retained_dropped{0};  ///< the spill file was full: never sent again
   std::atomic<uint64_t> stored_below{0};      ///< the server's acknowledgement
-};
-
-struct OpenRequest {
-  telehand_msg_SessionMode mode = telehand_msg_MODE_MOBILIZATION;
-  std::string case_name = "healthy";
-  std::string user = "student";
-  uint64_t follow_session = 0;  ///< render this capture session's live fit
-  telehand_msg_StiffnessKind stiffness = telehand_msg_STIFFNESS_CUBIC;
-  bool direct_force = false;  ///< baseline: the server computes the force
-  uint64_t lesson_id = 0;     ///< MODE_LESSON: the lesson to run
-  /// MODE_CAPTURE: what is captured (a massage session is MODE_MASSAGE).
-  telehand_msg_Technique technique = telehand_msg_TECHNIQUE_MOBILIZATION;
 };
 
 struct CloseResult {
@@ -187,6 +176,7 @@ class ClientLink {
   std::vector<std::string> messages_;
   std::vector<std::string> scores_;  // under messages_mu_
   std::string lesson_plan_;
+  OpenRequest opened_;  // what the session was opened with (asked again on a resume)
   std::string opened_case_;
   uint32_t model_version_ = 0;
   std::optional<JointModelParams> pending_model_;  // taken but not yet in the loop's ring
