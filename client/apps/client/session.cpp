@@ -171,6 +171,18 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
       h.passivity_bound_nominal_ns_per_m.load(), h.joint_damping_cap_nominal_ns_per_m.load(),
       lowered.c_str(), static_cast<unsigned long long>(h.models_applied.load()),
       h.update_step_max_n.load(), h.update_step_max_ratio.load());
+  if (render == "direct") {
+    // A server force past its age limit is not rendered (HapticLoop: a server that stopped
+    // sending, or a failover); one for a sample not sent yet is refused.
+    std::printf(
+        "  direct: %llu server forces taken; none fresh (older than %.0f ms) on %llu ticks in "
+        "%llu gaps, nothing rendered then; %llu refused (for samples not sent yet)\n",
+        static_cast<unsigned long long>(h.direct_forces.load()),
+        static_cast<double>(loop::TeleopOptions{}.direct_max_age_ns) * 1e-6,
+        static_cast<unsigned long long>(h.direct_stale_ticks.load()),
+        static_cast<unsigned long long>(h.direct_stale_gaps.load()),
+        static_cast<unsigned long long>(h.direct_forces_ahead.load()));
+  }
   if (const auto crypto = dds::cryptoCounts()) {
     std::printf("  security: %s\n", dds::cryptoSummary(*crypto).c_str());
   }

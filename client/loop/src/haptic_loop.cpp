@@ -19,6 +19,7 @@ void bump(std::atomic<uint64_t>& c) noexcept { c.fetch_add(1, std::memory_order_
 void raise(std::atomic<double>& v, double x) noexcept {
   if (x > v.load(std::memory_order_relaxed)) v.store(x, std::memory_order_relaxed);
 }
+const PerFinger<Vec3> kNoForce{Vec3::Zero(), Vec3::Zero()};
 }  // namespace
 
 const char* faultName(LoopFault f) noexcept {
@@ -49,6 +50,7 @@ HapticLoop::HapticLoop(devices::Device& device, const Clock& clock,
       forces_(std::make_unique<ForceRing>()),
       passivity_(teleop.passivity),
       direct_(teleop.render == RenderMode::kDirect),
+      direct_max_age_ns_(teleop.direct_max_age_ns),
       fault_limits_(teleop.fault) {
   health_.model_version.store(initial_model.version, std::memory_order_relaxed);
   nominal_tick_ns_ = static_cast<int64_t>(std::llround(1e9 / config_.rate_hz));
@@ -130,11 +132,35 @@ StepStatus HapticLoop::step() noexcept {
       massage ? web_guide_.current().authority : proxy_.model().params().guide.authority,
       std::memory_order_relaxed);
   const bool direct = direct_.load(std::memory_order_relaxed);
+  // Server forces answer samples this loop produced (sequence numbers below next_seq_); one
+  // for a later sample is forged or corrupt and, kept as the newest, would hold off every
+  // real one after it.
+  const uint64_t produced = next_seq_.load(std::memory_order_relaxed);
   DirectForceSample df;
   while (forces_->tryPop(df)) {
-    if (df.device_seq >= direct_force_.device_seq) direct_force_ = df;  // reordered: keep newest
+    if (df.device_seq >= produced) {
+      bump(health_.direct_forces_ahead);
+      continue;
+    }
+    if (!have_direct_ || df.device_seq >= direct_force_.device_seq) {  // reordered: keep newest
+      direct_force_ = df;
+      direct_taken_ns_ = now;
+      have_direct_ = true;
+    }
     bump(health_.direct_forces);
   }
+  // A server that stopped sending (gone, failing over) leaves no force held: past its age
+  // limit the server force is not rendered, until a fresh one arrives.
+  const bool direct_fresh = have_direct_ && now - direct_taken_ns_ <= direct_max_age_ns_;
+  const bool direct_stale = direct && have_direct_ && !direct_fresh;
+  if (direct_stale) {
+    bump(health_.direct_stale_ticks);
+    if (!direct_stale_) {
+      bump(health_.direct_stale_gaps);
+      restartFaultWindows();  // nothing rendered meanwhile, as in a device outage
+    }
+  }
+  direct_stale_ = direct_stale;
   PerFinger<Vec3> massage_force = web.force_device_n;
   if (massage) {
     const PerFinger<Vec3> guide =
@@ -143,7 +169,7 @@ StepStatus HapticLoop::step() noexcept {
     for (int k = 0; k < 2; ++k) massage_force[k] += guide[k];
     health_.guide_web_n.store(web_guide_.lastReferenceN(), std::memory_order_relaxed);
   }
-  const PerFinger<Vec3>& request = direct    ? direct_force_.force_n
+  const PerFinger<Vec3>& request = direct    ? (direct_fresh ? direct_force_.force_n : kNoForce)
                                    : massage ? massage_force
                                              : rendered.force_device_n;
   PassivityOutput guarded = passivity_.control(request);
@@ -184,8 +210,9 @@ StepStatus HapticLoop::step() noexcept {
   if (safe.flags & (kSafetyWatchdog | kSafetyNonFinite)) status = StepStatus::kSafetyFault;
   // Only ticks that rendered a force on a fresh sample are judged: capture renders nothing,
   // a device that is not streaming has no angles to judge, and in direct mode nothing is
-  // rendered until the server's first force arrives (a round trip after the start).
-  const bool rendering = !direct || health_.direct_forces.load(std::memory_order_relaxed) > 0;
+  // rendered until the server's first force arrives (a round trip after the start) nor
+  // while the server force is too old.
+  const bool rendering = !direct || direct_fresh;
   const double depth = std::max(web.contact[0].depth_m, web.contact[1].depth_m);
   double excess = 0.0;
   if (massage) {

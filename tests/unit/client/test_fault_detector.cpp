@@ -26,21 +26,26 @@ struct FaultRun {
 
 /// Mobilizes `model` (3 Hz, 12-16 N) for up to `seconds`; `direct_n` > 0 renders that
 /// constant force per finger instead of the model (direct mode, no server).
+/// A server that answers the newest sample `hl` produced with `n` N per finger (direct mode).
+void serverAnswers(HapticLoop& hl, double n) {
+  if (hl.nextSeq() == 0) return;  // no sample to answer yet
+  loop::DirectForceSample f;
+  f.device_seq = hl.nextSeq() - 1;
+  f.force_n = {Vec3(0, 0, n), Vec3(0, 0, -n)};
+  hl.directForces().tryPush(f);
+}
+
 FaultRun mobilize(const JointModelParams& model, double seconds, loop::TeleopOptions teleop,
                   double direct_n = -1.0) {
   ManualClock clock(kNsPerS);
   devices::SimulatedMf2 dev(model, OperatorConfig{}, clock);
   if (direct_n >= 0.0) teleop.render = loop::RenderMode::kDirect;
   HapticLoop hl(dev, clock, model, SafetyLimits{}, LoopConfig{}, teleop);
-  if (direct_n > 0.0) {
-    loop::DirectForceSample f;
-    f.force_n = {Vec3(0, 0, direct_n), Vec3(0, 0, -direct_n)};
-    hl.directForces().tryPush(f);
-  }
   FaultRun r;
   Sample s;
   int after = -1;
   for (int i = 0; i < static_cast<int>(seconds * 1000); ++i) {
+    if (direct_n > 0.0) serverAnswers(hl, direct_n);
     clock.advance(kNsPerMs);
     hl.step();
     while (hl.samples().tryPop(s)) {
@@ -86,11 +91,9 @@ TEST(FaultDetector, AForceHeldAtTheClampIsAWarningThenASustainedClamp) {
     loop::TeleopOptions teleop;
     teleop.render = loop::RenderMode::kDirect;
     HapticLoop hl(dev, clock, healthyIndexMcp(), SafetyLimits{}, LoopConfig{}, teleop);
-    loop::DirectForceSample f;
-    f.force_n = {Vec3(0, 0, 10.0), Vec3(0, 0, -10.0)};
-    hl.directForces().tryPush(f);
     Sample s;
     for (int i = 0; i < 2000; ++i) {
+      serverAnswers(hl, 10.0);
       clock.advance(kNsPerMs);
       hl.step();
       while (hl.samples().tryPop(s)) {
@@ -195,12 +198,10 @@ TEST(FaultDetector, ARenderingSwingingOutOfItsRangeAndBackIsARunaway) {
   loop::TeleopOptions teleop;
   teleop.render = loop::RenderMode::kDirect;
   HapticLoop hl(dev, clock, narrow, SafetyLimits{}, LoopConfig{}, teleop);
-  loop::DirectForceSample f;
-  f.force_n = {Vec3(0, 0, 1e-6), Vec3(0, 0, -1e-6)};
-  hl.directForces().tryPush(f);
   Sample s;
   double lo = 1e9, hi = -1e9;
   for (int i = 0; i < 1000 && hl.fault() == LoopFault::kNone; ++i) {
+    serverAnswers(hl, 1e-6);
     clock.advance(kNsPerMs);
     hl.step();
     while (hl.samples().tryPop(s)) {

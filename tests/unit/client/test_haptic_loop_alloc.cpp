@@ -282,10 +282,11 @@ TEST(HapticLoopAlloc, StepAllocatesNothingWithPassivityControlDirectForcesAndQue
       ASSERT_TRUE(hl.models().tryPush(v3));  // mid-fade: queued in the proxy
     }
     if (i == 2000) hl.setRenderMode(loop::RenderMode::kModel);
-    if (i % 3 == 0) {
+    // 300 ms of silence from the server: its force goes stale, and nothing is rendered.
+    if (i % 3 == 0 && hl.nextSeq() > 0 && (i < 1000 || i >= 1300)) {
       // A server that renders an active (energy-injecting) force: the controller must act.
       loop::DirectForceSample f;
-      f.device_seq = static_cast<uint64_t>(i);
+      f.device_seq = hl.nextSeq() - 1;  // the answer to the newest sample
       f.force_n = {Vec3(0.0, 0.0, 3.5 * std::sin(i * 0.2)),
                    Vec3(0.0, 0.0, -3.5 * std::sin(i * 0.2))};
       hl.directForces().tryPush(f);
@@ -301,6 +302,7 @@ TEST(HapticLoopAlloc, StepAllocatesNothingWithPassivityControlDirectForcesAndQue
   EXPECT_EQ(allocations, 0u);
   const loop::LoopHealth& h = hl.health();
   EXPECT_GT(h.direct_forces.load(), 600u);
+  EXPECT_GT(h.direct_stale_ticks.load(), 150u);
   EXPECT_EQ(h.models_applied.load(), 2u);
   EXPECT_EQ(h.model_version.load(), 3u) << "the queued version came after the first fade";
   EXPECT_LE(h.update_step_max_ratio.load(), 1.0);

@@ -61,6 +61,14 @@ struct LoopHealth {
   std::atomic<double> update_step_max_n{0.0};      ///< largest force step from a model update
   std::atomic<double> update_step_max_ratio{0.0};  ///< ... over max(5 % of the force, 0.1 N)
   std::atomic<uint64_t> direct_forces{0};          ///< server forces taken (direct mode)
+  /// Direct mode: ticks on which the server force held was older than
+  /// TeleopOptions::direct_max_age_ns (no server force rendered: zero through the gate), and
+  /// how many times it went that old (a server that stopped sending, a failover).
+  std::atomic<uint64_t> direct_stale_ticks{0};
+  std::atomic<uint64_t> direct_stale_gaps{0};
+  /// Direct mode: server forces refused because they answer a sample this loop had not
+  /// produced yet (a forged or corrupt device_seq).
+  std::atomic<uint64_t> direct_forces_ahead{0};
   /// Energy model fades added that the passivity observer had not seen dissipated (device J):
   /// nonzero only when a stiffer model waited out JointProxy::kEnergyWaitNs.
   std::atomic<double> fade_unpaid_energy_j{0.0};
@@ -146,6 +154,11 @@ struct TeleopOptions {
   PassivityConfig passivity;
   int64_t blend_ns = 200'000'000;  ///< nominal model fade
   FaultLimits fault;
+  /// Direct mode: a server force taken longer ago than this is no longer rendered (zero,
+  /// through the gate) until a fresh one arrives. The DeviceState deadline: the server sends
+  /// a force for every DeviceState it receives, and the client sends one at least every
+  /// 50 ms even with deadband coding (docs/teleoperation.md).
+  int64_t direct_max_age_ns = 100'000'000;
 };
 
 enum class StepStatus { kOk, kNoSample, kSafetyFault };
@@ -240,6 +253,10 @@ class HapticLoop {
   std::atomic<bool> direct_{false};
   PerFinger<Vec3> last_command_{Vec3::Zero(), Vec3::Zero()};
   DirectForceSample direct_force_{};
+  int64_t direct_max_age_ns_ = 0;
+  int64_t direct_taken_ns_ = 0;   // when the loop took direct_force_
+  bool have_direct_ = false;      // a server force was taken since the start
+  bool direct_stale_ = false;     // the last tick held no fresh server force
   double stored_energy_j_ = 0.0;  // the rendered joint's potential energy last tick
   std::atomic<uint64_t> session_id_{0};
   std::atomic<bool> actuators_{true};
