@@ -228,8 +228,10 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
     t.read("max_deg", curve.max_deg);
     t.read("neutral_zone_deg", m.neutral_zone_deg[ax]);
     t.rejectUnknown();
-    requireRange(origin, (name + ".min_deg").c_str(), curve.min_deg, -90.0, 90.0);
-    requireRange(origin, (name + ".max_deg").c_str(), curve.max_deg, 0.0, 120.0);
+    requireRange(origin, (name + ".min_deg").c_str(), curve.min_deg, kRangeMinDegBounds.lo,
+                 kRangeMinDegBounds.hi);
+    requireRange(origin, (name + ".max_deg").c_str(), curve.max_deg, kRangeMaxDegBounds.lo,
+                 kRangeMaxDegBounds.hi);
     if (!(curve.min_deg < curve.max_deg)) fail(origin, "'" + name + "' range is empty");
     requireRange(origin, (name + ".neutral_zone_deg").c_str(), m.neutral_zone_deg[ax], 0.0, 30.0);
     // A joint must resist being moved: the holding force may not fall anywhere in range.
@@ -256,6 +258,12 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
     rec.rejectUnknown();
     requireRange(origin, "recovery.treatment_s", pc.recovery_treatment_s, 1.0, 36000.0);
     for (std::size_t i = 0; i < kAxes; ++i) {
+      // The model at any time lies between the starting and the final ranges.
+      const std::string axis(kAxisNames[i]);
+      requireRange(origin, ("recovery.final_min_deg (" + axis + ")").c_str(), pc.final_min_deg[i],
+                   kRangeMinDegBounds.lo, kRangeMinDegBounds.hi);
+      requireRange(origin, ("recovery.final_max_deg (" + axis + ")").c_str(), pc.final_max_deg[i],
+                   kRangeMaxDegBounds.lo, kRangeMaxDegBounds.hi);
       if (pc.final_min_deg[i] > m.axes[i].min_deg || pc.final_max_deg[i] < m.axes[i].max_deg) {
         fail(origin, "'recovery' ranges must contain the starting ranges (" +
                          std::string(kAxisNames[i]) + ")");

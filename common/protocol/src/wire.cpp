@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
@@ -100,9 +101,22 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
     }
     a.min_deg = m.axes[i].min_deg;
     a.max_deg = m.axes[i].max_deg;
-    if (!(a.min_deg < a.max_deg)) {
-      return bad(std::string(kAxisNames[static_cast<std::size_t>(i)]) + " range is empty");
+    // A patient case's bounds: beyond them (or not finite) the rest angle, the energy
+    // budget and the range-runaway check lose their meaning.
+    const std::string axis(kAxisNames[static_cast<std::size_t>(i)]);
+    auto outside = [&](const char* field, double v, DegreeBounds b) {
+      char text[96];
+      std::snprintf(text, sizeof text, " %s %g is not finite or outside [%g, %g] deg", field, v,
+                    b.lo, b.hi);
+      return bad(axis + text);
+    };
+    if (!kRangeMinDegBounds.contains(a.min_deg)) {
+      return outside("min_deg", a.min_deg, kRangeMinDegBounds);
     }
+    if (!kRangeMaxDegBounds.contains(a.max_deg)) {
+      return outside("max_deg", a.max_deg, kRangeMaxDegBounds);
+    }
+    if (!(a.min_deg < a.max_deg)) return bad(axis + " range is empty");
   }
   p.lever_arm_m = m.lever_arm_m;
   p.force_scale = m.force_scale;

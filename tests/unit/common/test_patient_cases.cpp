@@ -532,6 +532,12 @@ TEST(PatientCaseFile, RecoveryMustContainTheStartingRanges) {
               AllOf(HasSubstr("bad.toml"), HasSubstr("recovery.final_min_deg")));
   EXPECT_THAT(caseError(narrow + replaced(kRecovery, "600.0", "0.0")),
               AllOf(HasSubstr("bad.toml"), HasSubstr("recovery.treatment_s")));
+  // The final ranges are held to a case's bounds, as the starting ones: the model on the
+  // way to them goes to the client.
+  EXPECT_THAT(caseError(narrow + replaced(kRecovery, "[90.0,", "[130.0,")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("recovery.final_max_deg (flexion)")));
+  EXPECT_THAT(caseError(narrow + replaced(kRecovery, "[-45.0,", "[-95.0,")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("recovery.final_min_deg (flexion)")));
 }
 
 /// A fresh directory of case files per test, removed afterwards.
@@ -703,6 +709,47 @@ TEST(PatientCaseWire, FromWireRejectsBadNeutralZonesAndSpeedGains) {
     EXPECT_FALSE(fromWire(w, &why).has_value()) << gain;
     EXPECT_THAT(why, HasSubstr("speed_gain")) << gain;
   }
+}
+
+TEST(PatientCaseWire, FromWireRefusesRangesNoPatientCaseMayHave) {
+  telehand_msg_JointModel good{};
+  toWire(load("stiff").model, 1, good);
+  std::string why;
+  ASSERT_TRUE(fromWire(good, &why).has_value()) << why;
+  const double inf = std::numeric_limits<double>::infinity();
+  for (int axis = 0; axis < kAxes; ++axis) {
+    const std::string name(kAxisNames[static_cast<std::size_t>(axis)]);
+    for (double bad : {-inf, inf, std::nan(""), -1e6, 1e6, kRangeMinDegBounds.lo - 0.5,
+                       kRangeMinDegBounds.hi + 0.5}) {
+      telehand_msg_JointModel w = good;
+      w.axes[axis].min_deg = bad;
+      if (!(bad < w.axes[axis].max_deg)) w.axes[axis].max_deg = kRangeMaxDegBounds.hi;
+      why.clear();
+      EXPECT_FALSE(fromWire(w, &why).has_value()) << name << " min_deg " << bad;
+      EXPECT_THAT(why, AllOf(HasSubstr(name), HasSubstr("min_deg"))) << bad;
+    }
+    for (double bad : {-inf, inf, std::nan(""), -1e6, 1e6, kRangeMaxDegBounds.lo - 0.5,
+                       kRangeMaxDegBounds.hi + 0.5}) {
+      telehand_msg_JointModel w = good;
+      w.axes[axis].max_deg = bad;
+      if (!(w.axes[axis].min_deg < bad)) w.axes[axis].min_deg = kRangeMinDegBounds.lo;
+      why.clear();
+      EXPECT_FALSE(fromWire(w, &why).has_value()) << name << " max_deg " << bad;
+      EXPECT_THAT(why, AllOf(HasSubstr(name), HasSubstr("max_deg"))) << bad;
+    }
+    // The bounds themselves are a patient case's, and pass.
+    telehand_msg_JointModel edge = good;
+    edge.axes[axis].min_deg = kRangeMinDegBounds.lo;
+    edge.axes[axis].max_deg = kRangeMaxDegBounds.hi;
+    why.clear();
+    EXPECT_TRUE(fromWire(edge, &why).has_value()) << name << ": " << why;
+  }
+  // The same bounds as a case file: a case at them parses, one past them is refused.
+  EXPECT_NO_THROW(parsePatientCase(
+      replaced(validCase(), "min_deg = -45.0\nmax_deg = 90.0", "min_deg = -90.0\nmax_deg = 120.0"),
+      "edge.toml"));
+  EXPECT_THAT(caseError(replaced(validCase(), "min_deg = -45.0", "min_deg = -90.5")),
+              HasSubstr("flexion.min_deg"));
 }
 
 TEST(GuideWire, RoundTripsAndRefusesWhatIsOutOfRange) {

@@ -43,6 +43,18 @@ struct CubicCurve {
   bool operator==(const CubicCurve&) const = default;
 };
 
+/// A closed interval of angles, degrees; holds no NaN.
+struct DegreeBounds {
+  double lo = 0.0, hi = 0.0;
+  constexpr bool contains(double deg) const noexcept { return deg >= lo && deg <= hi; }
+};
+/// Where an axis's range ends may lie: CubicCurve::min_deg within kRangeMinDegBounds,
+/// max_deg within kRangeMaxDegBounds. A patient case file is held to them (config) and so is
+/// a JointModel from the network (wire): a joint past them (or not finite) is no MCP joint,
+/// and its rest angle, energy budget and range-runaway check would not be either.
+constexpr DegreeBounds kRangeMinDegBounds{-90.0, 90.0};
+constexpr DegreeBounds kRangeMaxDegBounds{0.0, 120.0};
+
 /// Stiffness of the end-of-range wall beyond [min_deg, max_deg], N/deg at reference scale:
 /// 1 N/deg at 1 cm is 1.4 N/mm after the 1:4 device scale, under the 2 N/mm that a 1 kHz
 /// loop renders stably (docs/facts.md "Stable wall").
