@@ -63,7 +63,7 @@ void Mf2Firmware::reset() {
   last_ = {};
   have_command_ = false;
   last_command_tick_ = 0;
-  enabled_ = estop_latched_ = overcurrent_ = last_rejected_ = false;
+  enabled_ = estop_latched_ = overcurrent_ = last_rejected_ = encoder_fault_ = false;
   watchdog_expired_ = true;
   rx_errors_ = 0;
 }
@@ -141,6 +141,7 @@ proto::StatePacket Mf2Firmware::tick() {
                                    (estop_latched_ ? proto::kStatusEstopLatched : 0) |
                                    (watchdog_expired_ ? proto::kStatusWatchdogExpired : 0) |
                                    (overcurrent_ ? proto::kStatusOvercurrent : 0) |
+                                   (encoder_fault_ ? proto::kStatusEncoderFault : 0) |
                                    (last_rejected_ ? proto::kStatusCommandRejected : 0));
   s.rx_errors = static_cast<uint16_t>(std::min<uint32_t>(rx_errors_, 0xffff));
   s.last_command_seq = last_.seq;

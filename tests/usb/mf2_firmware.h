@@ -61,6 +61,8 @@ class Mf2Firmware {
     hold_rad_[actuator] = q_[actuator];
   }
   void pressEstopButton(bool pressed) { estop_button_ = pressed; }
+  /// An encoder lost count (status bit 6) until cleared.
+  void setEncoderFault(bool on) { encoder_fault_ = on; }
 
   // What happened (tests check content against these).
   const std::vector<proto::CommandPacket>& commands() const { return commands_; }
@@ -88,6 +90,7 @@ class Mf2Firmware {
   uint64_t last_command_tick_ = 0;
   bool enabled_ = false, estop_latched_ = false, estop_button_ = false;
   bool watchdog_expired_ = true, overcurrent_ = false, last_rejected_ = false;
+  bool encoder_fault_ = false;
   uint32_t rx_errors_ = 0;
   bool keep_history_ = true;
   std::vector<proto::CommandPacket> commands_;

@@ -1,6 +1,6 @@
 // The USB MF-2 driver against an emulated MF-2 (umockdev): opening, streaming with content
 // checked both ways, corrupt packets, stall, timeout, overflow, unplug and reconnect, the
-// emergency stop. Runs under umockdev-wrapper (see CMakeLists.txt).
+// emergency stop, an encoder fault. Runs under umockdev-wrapper (see CMakeLists.txt).
 #include <gtest/gtest.h>
 #include <sys/prctl.h>
 
@@ -564,6 +564,55 @@ TEST_F(UsbMf2Test, DeviceGetsZeroWhenTheLoopStopsWritingAndHonoursTheEmergencySt
     return dev.status() == DeviceStatus::kFault;
   }));
   EXPECT_NE(dev.statusText().find("emergency stop button pressed"), std::string::npos);
+}
+
+TEST_F(UsbMf2Test, AnEncoderFaultIsADeviceFaultAndTheDeviceGetsNoForceUntilItClears) {
+  UsbMf2& dev = startDevice();
+  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
+  ForceCommand push;
+  push.force_n[kThumb] = Vec3(1.0, 0.0, 0.0);
+  DeviceSample s;
+  auto maxCurrent = [&] {
+    return emu_->withFirmware([](Mf2Firmware& fw) {
+      double m = 0.0;
+      for (const double a : fw.appliedCurrentA()) m = std::max(m, std::abs(a));
+      return m;
+    });
+  };
+  auto enabled = [&] { return emu_->withFirmware([](Mf2Firmware& fw) { return fw.enabled(); }); };
+  for (int i = 0; i < 30; ++i) ASSERT_TRUE(cycle(push, s));
+  ASSERT_GT(maxCurrent(), 0.05) << "the device drives the force";
+
+  // An encoder loses count (status bit 6): a device fault, as an emergency stop is.
+  emu_->withFirmware([](Mf2Firmware& fw) { fw.setEncoderFault(true); });
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return dev.status() == DeviceStatus::kFault;
+  })) << dev.statusText();
+  EXPECT_NE(dev.statusText().find("encoder fault"), std::string::npos) << dev.statusText();
+  // The loop's force still comes (a loop sees the fault a tick later): the device is sent
+  // zero, disabled, for as long as the fault stands.
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return !enabled() && maxCurrent() == 0.0;
+  }));
+  for (int i = 0; i < 100; ++i) {
+    ASSERT_TRUE(cycle(push, s));
+    ASSERT_EQ(maxCurrent(), 0.0) << i;
+    ASSERT_FALSE(enabled()) << i;
+  }
+  EXPECT_EQ(dev.status(), DeviceStatus::kFault);
+
+  // Cleared: streaming and rendering again.
+  emu_->withFirmware([](Mf2Firmware& fw) { fw.setEncoderFault(false); });
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return dev.status() == DeviceStatus::kOk;
+  })) << dev.statusText();
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return enabled() && maxCurrent() > 0.05;
+  }));
 }
 
 }  // namespace

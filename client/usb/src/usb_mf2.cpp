@@ -500,14 +500,29 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   samples_->write(sample);
   raw_->write(s);
 
-  if (s.status & (proto::kStatusEstopButton | proto::kStatusEstopLatched)) {
-    setStatus(DeviceStatus::kFault,
-              "MF-2 at " + where_ + ": emergency stop " +
-                  ((s.status & proto::kStatusEstopButton) ? "button pressed"
-                                                          : "latched (clear it to resume)"),
-              true);
-  } else if (status_.load(std::memory_order_relaxed) != DeviceStatus::kOk) {
-    // Only on the change: the text costs an allocation and a lock, once per packet otherwise.
+  // The device's own faults: an emergency stop, and an encoder that lost count (the pose,
+  // and every force worked out at it, is wrong until the device counts true again). Set and
+  // cleared only on a change: the text costs an allocation and a lock, once per packet
+  // otherwise.
+  const auto faults = static_cast<uint16_t>(s.status & kDeviceFaultBits);
+  const DeviceStatus now_status = status_.load(std::memory_order_relaxed);
+  if (faults != 0) {
+    if (now_status != DeviceStatus::kFault || faults != reported_faults_) {
+      std::string text = "MF-2 at " + where_ + ":";
+      if (faults & (proto::kStatusEstopButton | proto::kStatusEstopLatched)) {
+        text += (faults & proto::kStatusEstopButton)
+                    ? " emergency stop button pressed"
+                    : " emergency stop latched (clear it to resume)";
+      }
+      if (faults & proto::kStatusEncoderFault) {
+        if (text.back() != ':') text += ";";
+        text += " encoder fault (an encoder lost count): no force until it clears";
+      }
+      setStatus(DeviceStatus::kFault, text, true);
+      reported_faults_ = faults;
+    }
+  } else if (now_status != DeviceStatus::kOk) {
+    reported_faults_ = 0;
     setStatus(DeviceStatus::kOk, "MF-2 streaming from " + where_, true);
   }
   sendCommand();
@@ -523,15 +538,18 @@ void UsbMf2::sendCommand() {
   const int64_t now = clock_.nowNs();
   forces_->read(force_);
   const bool fresh = force_.time_ns != 0 && now - force_.time_ns <= cfg_.command_fresh_ns;
+  // An encoder that lost count: the currents would be worked out at a wrong pose. Zero, and
+  // the actuators disabled, until the device reports it cleared.
+  const bool encoder_fault = (state_.status & proto::kStatusEncoderFault) != 0;
   proto::CommandPacket c;
   c.seq = ++cmd_seq_;
-  if (fresh) {
+  if (fresh && !encoder_fault) {
     cal_.toCurrents(force_.force.force_n, state_, c.current_ma);
-  } else if (force_.time_ns != 0) {
+  } else if (!fresh && force_.time_ns != 0) {
     bump(stats_.stale_loop_output);
   }
   const bool estop = estop_request_.load(std::memory_order_acquire);
-  c.flags = static_cast<uint8_t>((fresh && !estop ? proto::kCommandEnable : 0) |
+  c.flags = static_cast<uint8_t>((fresh && !estop && !encoder_fault ? proto::kCommandEnable : 0) |
                                  (estop ? proto::kCommandEstop : 0));
   if (!estop && clear_request_.exchange(false)) c.flags |= proto::kCommandClearFault;
   c.watchdog_ms = cfg_.watchdog_ms;

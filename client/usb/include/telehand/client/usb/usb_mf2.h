@@ -209,6 +209,11 @@ class UsbMf2 final : public Device {
   int consecutive_errors_ = 0;
   proto::SequenceTracker tracker_;
   proto::StatePacket state_{};
+  /// Status bits that make the device a fault (DeviceStatus::kFault): an emergency stop, an
+  /// encoder that lost count.
+  static constexpr uint16_t kDeviceFaultBits =
+      proto::kStatusEstopButton | proto::kStatusEstopLatched | proto::kStatusEncoderFault;
+  uint16_t reported_faults_ = 0;  // the fault bits the status text tells of
   TimedForce force_{};
   uint32_t cmd_seq_ = 0;
   uint32_t last_echo_ = 0;
