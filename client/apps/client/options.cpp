@@ -57,6 +57,7 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
                      ->check(CLI::Range(0.0, 10.0));
   telehand::app::addDdsOptions(app, o.dds, o.insecure, "device");
   app.add_option("--connect-timeout", o.connect_timeout, "seconds to wait for the server")
+      ->check(CLI::Range(0.1, 3600.0))
       ->capture_default_str();
   app.add_flag("-q,--quiet", o.quiet, "no progress line");
   auto* rt =
@@ -117,6 +118,7 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
                  "student asks for feedback")
       ->delimiter(',')
       ->capture_default_str();
+  telehand::app::requireFiniteNumbers(app);
   TELEHAND_CLI_PARSE(app, argc, argv)
   o.frequency_given = static_cast<bool>(*freq);
   o.band_min_given = static_cast<bool>(*bmin);

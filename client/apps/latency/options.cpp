@@ -51,6 +51,7 @@ std::optional<int> parseOptions(int argc, char** argv, Settings& s, bool& second
   app.add_flag("-q,--quiet", s.quiet, "no progress lines on stderr");
   echo_only->excludes(compare);
   rounds->needs(compare);
+  app::requireFiniteNumbers(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -64,6 +64,7 @@ int main(int argc, char** argv) {
   app::addDdsOptions(app, o.dds, insecure, "supervisor");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")
       ->capture_default_str();
+  app::requireFiniteNumbers(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
