@@ -377,10 +377,7 @@ void ClientLink::pollModels() {
   });
   if (waiting_knn_ && knn_samples_ && knn_samples_->version == waiting_knn_->version) {
     if (knn_samples_->model) {
-      std::shared_ptr<const KnnTorqueModel> model = std::move(knn_samples_->model);
-      waiting_knn_->knn = model.get();
-      knn_alive_.push_back(std::move(model));
-      while (knn_alive_.size() > kKnnKeep) knn_alive_.pop_front();
+      waiting_knn_->knn = knn_kept_.keep(std::move(knn_samples_->model));
       pending_model_ = *waiting_knn_;
     } else {
       stats_.models_rejected.fetch_add(1);
@@ -390,7 +387,11 @@ void ClientLink::pollModels() {
     }
     waiting_knn_.reset();
   }
-  if (pending_model_ && loop_.models().tryPush(*pending_model_)) pending_model_.reset();
+  if (pending_model_ && loop_.models().tryPush(*pending_model_)) {
+    knn_kept_.pushed(*pending_model_, models_pushed_++);
+    pending_model_.reset();
+  }
+  knn_kept_.release(loop_.knnInUse(), pending_model_ ? pending_model_->knn : nullptr);
 }
 
 void ClientLink::sendFiles(const std::vector<mf2::NamedFile>& files) {

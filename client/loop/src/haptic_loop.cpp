@@ -79,6 +79,7 @@ StepStatus HapticLoop::step() noexcept {
     web_guide_.set(web_guide, last_sample_time_ns_);
     proxy_.setModel(next);
     tissue_.setParams(next.tissue, next.force_scale);
+    ++models_taken_;
     bump(health_.models_applied);
     health_.model_version.store(next.version, std::memory_order_relaxed);
   }
@@ -125,6 +126,7 @@ StepStatus HapticLoop::step() noexcept {
   // The web is stepped whatever the technique (its friction anchors follow the fingers); a
   // massage renders it instead of the joint.
   const TissueOutput web = tissue_.render(p, sample_.time_ns);
+  publishKnnInUse();  // after the render: a fade may have started or ended
   const bool massage = proxy_.model().params().technique == Technique::kMassage;
   stored_energy_j_ = massage ? web.potential_j : rendered.potential_j;
   health_.guide_nm.store(rendered.guide_ref_nm.cwiseAbs().maxCoeff(), std::memory_order_relaxed);
@@ -284,6 +286,36 @@ StepStatus HapticLoop::step() noexcept {
   }
   bump(health_.ticks);
   return status;
+}
+
+void HapticLoop::publishKnnInUse() noexcept {
+  const std::array<const KnnTorqueModel*, 3> held = proxy_.knnInUse();
+  if (held == knn_published_.held && models_taken_ == knn_published_.models_taken) return;
+  knn_published_ = {models_taken_, held};
+  // Seqlock (Boehm, "Can seqlocks get along with programming language memory models?",
+  // 2012): the generation is odd while the fields change.
+  const uint32_t gen = knn_gen_.load(std::memory_order_relaxed);
+  knn_gen_.store(gen + 1, std::memory_order_relaxed);
+  std::atomic_thread_fence(std::memory_order_release);
+  knn_taken_.store(models_taken_, std::memory_order_relaxed);
+  for (std::size_t i = 0; i < held.size(); ++i) {
+    knn_held_[i].store(held[i], std::memory_order_relaxed);
+  }
+  knn_gen_.store(gen + 2, std::memory_order_release);
+}
+
+KnnInUse HapticLoop::knnInUse() const noexcept {
+  for (;;) {
+    const uint32_t gen = knn_gen_.load(std::memory_order_acquire);
+    if (gen & 1u) continue;  // the loop is between two stores
+    KnnInUse r;
+    r.models_taken = knn_taken_.load(std::memory_order_relaxed);
+    for (std::size_t i = 0; i < r.held.size(); ++i) {
+      r.held[i] = knn_held_[i].load(std::memory_order_relaxed);
+    }
+    std::atomic_thread_fence(std::memory_order_acquire);
+    if (knn_gen_.load(std::memory_order_relaxed) == gen) return r;
+  }
 }
 
 void HapticLoop::followDeviceDynamics(int64_t now) noexcept {

@@ -298,6 +298,12 @@ class JointProxy {
   uint32_t version() const noexcept { return current_.params().version; }
   const JointModel& model() const noexcept { return current_; }
   bool blending() const noexcept { return blending_; }
+  /// The k-nearest-neighbour models this proxy may still read: the rendered version's, the
+  /// one fading out, the one waiting for the fade to end (null where there is none).
+  std::array<const KnnTorqueModel*, 3> knnInUse() const noexcept {
+    return {current_.params().knn, blending_ ? previous_.params().knn : nullptr,
+            have_pending_ ? pending_.params().knn : nullptr};
+  }
 
   /// The device's damping cap (JointModel::setDeviceDampingCap) for every version rendered,
   /// the ones fading and those still to come.

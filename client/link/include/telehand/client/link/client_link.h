@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "telehand/client/link/knn_keeper.h"
 #include "telehand/client/link/open_request.h"
 #include "telehand/client/link/resume_requests.h"
 #include "telehand/client/link/spill_queue.h"
@@ -191,10 +192,10 @@ class ClientLink {
   };
   std::optional<KnnReceived> knn_samples_;
   std::optional<JointModelParams> waiting_knn_;
-  /// Every model the loop may still render: the ring's 8, the proxy's current and previous,
-  /// and the one pending. Older ones are freed here, never on the loop's thread.
-  std::deque<std::shared_ptr<const KnnTorqueModel>> knn_alive_;
-  static constexpr std::size_t kKnnKeep = 12;
+  /// Every k-NN model the loop may still read (in its ring, held by its proxy, or pending
+  /// here); the others are freed here, never on the loop's thread.
+  KnnKeeper knn_kept_;
+  uint64_t models_pushed_ = 0;  // models handed to the loop's ring
   /// Reader history of SessionStatus and JointModel per session (the topics keep the last
   /// one per session): samples from other writers (forgeries, which fromServer() drops)
   /// share the session's instance, and with a history of 1 they could push the server's

@@ -2,6 +2,7 @@
 /// The 1 kHz haptic loop: read sample -> thimble forces (paper eqs. 1-2) -> local joint model
 /// -> safety gate -> write command. `step()` allocates nothing, locks nothing, logs nothing
 /// and throws nothing; other threads see what it does through LoopHealth and the SPSC rings.
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <memory>
@@ -163,6 +164,15 @@ struct TeleopOptions {
 
 enum class StepStatus { kOk, kNoSample, kSafetyFault };
 
+/// The k-nearest-neighbour models the loop may still read (HapticLoop::knnInUse): those it
+/// holds (JointProxy::knnInUse), and every one handed to it that it has not taken from its
+/// model ring yet (the `models_taken`-th and later). The thread that handed them in frees one
+/// only when neither holds it.
+struct KnnInUse {
+  uint64_t models_taken = 0;  ///< models taken from the model ring since the start
+  std::array<const KnnTorqueModel*, 3> held{};
+};
+
 /// A pad this deep in the web has gone through it: the massage's range runaway. The web is
 /// 12-18 mm thick and the paper's 10 N takes 3-9 mm of press (docs/massage.md).
 constexpr double kWebRunawayDepthM = 0.03;
@@ -217,6 +227,10 @@ class HapticLoop {
     return static_cast<LoopFault>(health_.fault.load(std::memory_order_acquire));
   }
   uint64_t nextSeq() const noexcept { return next_seq_.load(std::memory_order_acquire); }
+  /// Any thread: a consistent view of the k-NN models the loop may still read, as of a
+  /// recent tick (a seqlock the loop writes without waiting; a reader retries a torn read).
+  /// What it does not list, of the models taken from the ring, the loop never reads again.
+  KnnInUse knnInUse() const noexcept;
 
  private:
   void run();
@@ -228,6 +242,8 @@ class HapticLoop {
   /// longer: the same damper is then a larger step). Re-read every tick; acted on when they
   /// change.
   void followDeviceDynamics(int64_t now) noexcept;
+  /// Publish the models taken and the k-NN models the proxy holds, when they changed.
+  void publishKnnInUse() noexcept;
   bool detectFault(int64_t now, bool clamped, double excess_deg) noexcept;
   /// Restart the detector's windows (after a device outage).
   void restartFaultWindows() noexcept;
@@ -254,9 +270,15 @@ class HapticLoop {
   PerFinger<Vec3> last_command_{Vec3::Zero(), Vec3::Zero()};
   DirectForceSample direct_force_{};
   int64_t direct_max_age_ns_ = 0;
-  int64_t direct_taken_ns_ = 0;   // when the loop took direct_force_
-  bool have_direct_ = false;      // a server force was taken since the start
-  bool direct_stale_ = false;     // the last tick held no fresh server force
+  int64_t direct_taken_ns_ = 0;  // when the loop took direct_force_
+  bool have_direct_ = false;     // a server force was taken since the start
+  bool direct_stale_ = false;    // the last tick held no fresh server force
+  // k-NN models in use (knnInUse): written by the RT thread only, as a seqlock.
+  uint64_t models_taken_ = 0;
+  KnnInUse knn_published_{};
+  std::atomic<uint32_t> knn_gen_{0};  // odd while the loop writes
+  std::atomic<uint64_t> knn_taken_{0};
+  std::array<std::atomic<const KnnTorqueModel*>, 3> knn_held_{};
   double stored_energy_j_ = 0.0;  // the rendered joint's potential energy last tick
   std::atomic<uint64_t> session_id_{0};
   std::atomic<bool> actuators_{true};
