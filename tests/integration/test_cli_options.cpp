@@ -1,6 +1,6 @@
-// The client programs' command lines: every floating-point option refuses a value that is not
-// a finite number (CLI11's own ranges pass NaN), naming the option, with the "bad input" exit
-// code 2; --connect-timeout has a range. The floating-point options are read from each
+// The programs' command lines (client and server side): every floating-point option refuses a
+// value that is not a finite number (CLI11's own ranges pass NaN), naming the option, with the "bad
+// input" exit code 2; --connect-timeout has a range. The floating-point options are read from each
 // program's --help, so that one added later is held to it too.
 #include <gtest/gtest.h>
 
@@ -20,8 +20,9 @@ using namespace std::chrono_literals;
 struct Program {
   const char* name;
   const char* bin;
-  bool dds;                     ///< takes the DDS options
-  std::set<std::string> known;  ///< floating-point options it has today (at least these)
+  bool dds;                          ///< takes the DDS options
+  std::set<std::string> known;       ///< floating-point options it has today (at least these)
+  const char* subcommand = nullptr;  ///< the options are this subcommand's
 };
 
 const Program kPrograms[] = {
@@ -37,6 +38,15 @@ const Program kPrograms[] = {
      TELEHAND_WATCH_BIN,
      true,
      {"--refresh-hz", "--band-min", "--band-max", "--seconds", "--wait", "--speed"}},
+    {"server",
+     TELEHAND_SERVER_BIN,
+     true,
+     {"--hand-rate", "--hand-deadband", "--hand-slice-ms", "--hand-share", "--seconds"}},
+    {"records-synth",
+     TELEHAND_RECORDS_BIN,
+     false,
+     {"--noise", "--seconds-per-axis", "--frequency", "--max-force", "--seconds"},
+     "synth"},
 };
 
 class CliOptionsTest : public ProcessTest {
@@ -44,6 +54,7 @@ class CliOptionsTest : public ProcessTest {
   CliOptionsTest() : ProcessTest("cli", TELEHAND_LOOPBACK_XML) {}
 
   std::vector<std::string> argv(const Program& p, std::vector<std::string> args) const {
+    if (p.subcommand) args.insert(args.begin(), p.subcommand);
     if (p.dds) return cmd(p.bin, std::move(args));
     std::vector<std::string> v{p.bin};
     v.insert(v.end(), args.begin(), args.end());
@@ -52,7 +63,10 @@ class CliOptionsTest : public ProcessTest {
 
   /// The options --help lists with the type FLOAT.
   std::set<std::string> floatOptions(const Program& p) {
-    Process help({p.bin, "--help"}, path(std::string(p.name) + "-help.log"));
+    std::vector<std::string> help_argv{p.bin};
+    if (p.subcommand) help_argv.emplace_back(p.subcommand);
+    help_argv.emplace_back("--help");
+    Process help(help_argv, path(std::string(p.name) + "-help.log"));
     EXPECT_EQ(help.wait(30s), 0) << help.output();
     std::set<std::string> found;
     std::istringstream lines(help.output());

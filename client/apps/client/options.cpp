@@ -118,7 +118,6 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
                  "student asks for feedback")
       ->delimiter(',')
       ->capture_default_str();
-  telehand::app::requireFiniteNumbers(app);
   TELEHAND_CLI_PARSE(app, argc, argv)
   o.frequency_given = static_cast<bool>(*freq);
   o.band_min_given = static_cast<bool>(*bmin);

@@ -31,7 +31,6 @@ int main(int argc, char** argv) {
   app.add_option("--rate", rate_hz, "lines per second with --live")
       ->check(CLI::Range(0.5, 100.0))
       ->capture_default_str();
-  app::requireFiniteNumbers(app);
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {

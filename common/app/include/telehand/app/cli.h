@@ -23,9 +23,12 @@ void requireFiniteNumbers(CLI::App& app);
 
 }  // namespace telehand::app
 
-#define TELEHAND_CLI_PARSE(app, argc, argv)    \
-  try {                                        \
-    (app).parse((argc), (argv));               \
-  } catch (const CLI::ParseError& cli_error) { \
-    return (app).exit(cli_error) == 0 ? 0 : 2; \
+/// Parses the command line of `app`, every floating-point option held to a finite number
+/// (requireFiniteNumbers); returns from the caller with 0 after --help, 2 on a bad option.
+#define TELEHAND_CLI_PARSE(app, argc, argv)     \
+  try {                                         \
+    ::telehand::app::requireFiniteNumbers(app); \
+    (app).parse((argc), (argv));                \
+  } catch (const CLI::ParseError& cli_error) {  \
+    return (app).exit(cli_error) == 0 ? 0 : 2;  \
   }
