@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <iterator>
 #include <limits>
 #include <span>
 #include <sstream>
@@ -66,15 +67,37 @@ bool CaptureFitter::add(const Sample& s, bool valid) {
   auto c = capturePoint(geometry_, s, valid, counts_);
   if (!c) return false;
   if (!points_.empty() && c->seq <= points_.back().seq) {
-    // Out of order (a retried chunk): keep the list sorted, drop duplicates.
+    // Out of order: aside, unless its place is among the last few (an insert there is cheap;
+    // one far back would move every point after it, for every such sample).
     auto it = std::lower_bound(points_.begin(), points_.end(), c->seq,
                                [](const CapturePoint& a, uint64_t seq) { return a.seq < seq; });
     if (it != points_.end() && it->seq == c->seq) return false;
-    points_.insert(it, *c);
+    if (points_.end() - it <= 64) {
+      points_.insert(it, *c);
+    } else {
+      late_.push_back(*c);
+    }
     return true;
   }
   points_.push_back(*c);
   return true;
+}
+
+void CaptureFitter::settle() const {
+  if (late_.empty()) return;
+  const auto by_seq = [](const CapturePoint& a, const CapturePoint& b) { return a.seq < b.seq; };
+  std::stable_sort(late_.begin(), late_.end(), by_seq);
+  std::vector<CapturePoint> merged;
+  merged.reserve(points_.size() + late_.size());
+  // points_ first among equal sequence numbers: the copy that came first is kept.
+  std::merge(points_.begin(), points_.end(), late_.begin(), late_.end(), std::back_inserter(merged),
+             by_seq);
+  merged.erase(
+      std::unique(merged.begin(), merged.end(),
+                  [](const CapturePoint& a, const CapturePoint& b) { return a.seq == b.seq; }),
+      merged.end());
+  points_ = std::move(merged);
+  late_.clear();
 }
 
 std::vector<double> windowedRates(std::span<const int64_t> t_ns, std::span<const double> x,
@@ -144,6 +167,7 @@ std::vector<std::array<bool, kAxes>> turnsApart(const std::vector<Vec3>& wide,
 }  // namespace
 
 std::vector<Vec3> CaptureFitter::rates() const {
+  settle();
   const std::size_t n = points_.size();
   std::vector<Vec3> out(n, Vec3::Zero());
   std::vector<int64_t> t(n);
@@ -167,6 +191,7 @@ std::vector<Vec3> CaptureFitter::rates() const {
 }
 
 std::vector<std::array<bool, kAxes>> CaptureFitter::turns() const {
+  settle();
   if (!readsTurns(options_))
     return std::vector<std::array<bool, kAxes>>(points_.size(), std::array<bool, kAxes>{});
   return turnsApart(accelerationsOver(options_.acc_half_window),
@@ -174,6 +199,7 @@ std::vector<std::array<bool, kAxes>> CaptureFitter::turns() const {
 }
 
 std::vector<Vec3> CaptureFitter::accelerations() const {
+  settle();
   std::vector<Vec3> out = accelerationsOver(options_.acc_half_window);
   if (!readsTurns(options_)) return out;
   // At the turns the narrow window's reading is taken.
@@ -186,6 +212,7 @@ std::vector<Vec3> CaptureFitter::accelerations() const {
 }
 
 std::vector<Vec3> CaptureFitter::accelerationsOver(int half_window) const {
+  settle();
   const std::size_t n = points_.size();
   std::vector<Vec3> out(n, Vec3::Zero());
   const auto h = static_cast<std::size_t>(std::max(half_window, 1));
@@ -659,6 +686,7 @@ std::array<double, kAxes> CaptureFitter::inertiaChoice(
 }
 
 double CaptureFitter::delaySamples() const {
+  settle();
   const std::vector<Vec3> rate = rates();
   const std::vector<Vec3> acc = accelerations();
   return delaySamples(rate, acc, inertiaChoice(rate, acc));
@@ -694,6 +722,7 @@ double CaptureFitter::delaySamples(const std::vector<Vec3>& rate, const std::vec
 }
 
 CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) const {
+  settle();
   CaptureFit out;
   out.counts = counts_;
   const std::vector<Vec3> rate = rates();

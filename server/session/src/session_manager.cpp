@@ -94,6 +94,28 @@ void SessionManager::unknownSession(uint64_t session_id, const std::string& what
         what + " for unknown session " + std::to_string(session_id) + " dropped", now_ns);
 }
 
+void SessionManager::badCommand(uint64_t client_id, const Origin& from, const std::string& what,
+                                int64_t now_ns) {
+  ++stats_.bad_commands;
+  // An honest client hears about its own bad command; a participant sending a flood of them
+  // is heard kBadCommandEvents times per 5 s (each event is published and logged), the rest
+  // counted. Callers without DDS (participant 0) are not limited.
+  if (from.participant != 0) {
+    if (bad_commands_by_.size() >= kMaxUnknownIds && !bad_commands_by_.count(from.participant)) {
+      std::erase_if(bad_commands_by_,
+                    [&](const auto& kv) { return now_ns - kv.second.first >= 5 * kNsPerS; });
+      if (bad_commands_by_.size() >= kMaxUnknownIds) return;
+    }
+    auto& [since, count] = bad_commands_by_[from.participant];
+    if (count == 0 || now_ns - since >= 5 * kNsPerS) {
+      since = now_ns;
+      count = 0;
+    }
+    if (++count > kBadCommandEvents) return;
+  }
+  event(0, client_id, telehand_msg_EVENT_ERROR, what, now_ns);
+}
+
 void SessionManager::refuse(uint64_t session_id, uint64_t client_id, const std::string& what,
                             uint64_t count, int64_t now_ns, std::optional<uint64_t> rate_key) {
   stats_.refused += count;
@@ -208,13 +230,12 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
       open(cmd, now_ns, from);
       return;
     case telehand_msg_CMD_CLOSE:
-      requestClose(cmd, now_ns);
+      requestClose(cmd, now_ns, from);
       return;
     case telehand_msg_CMD_MARK: {
       if (!sessions_.count(cmd.session_id)) {
-        ++stats_.bad_commands;
-        event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-              "MARK for unknown session " + std::to_string(cmd.session_id), now_ns);
+        badCommand(cmd.client_id, from,
+                   "MARK for unknown session " + std::to_string(cmd.session_id), now_ns);
         return;
       }
       event(cmd.session_id, cmd.client_id, telehand_msg_EVENT_MARK, cmd.text, now_ns);
@@ -228,9 +249,8 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
     case telehand_msg_CMD_PHASE: {
       Session* s = find(cmd.session_id);
       if (!s) {
-        ++stats_.bad_commands;
-        event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-              "PHASE for unknown session " + std::to_string(cmd.session_id), now_ns);
+        badCommand(cmd.client_id, from,
+                   "PHASE for unknown session " + std::to_string(cmd.session_id), now_ns);
         return;
       }
       s->onPhase(cmd, now_ns);
@@ -239,9 +259,8 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
     case telehand_msg_CMD_TAKEOVER: {
       Session* s = find(cmd.session_id);
       if (!s) {
-        ++stats_.bad_commands;
-        event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-              "TAKEOVER for unknown session " + std::to_string(cmd.session_id), now_ns);
+        badCommand(cmd.client_id, from,
+                   "TAKEOVER for unknown session " + std::to_string(cmd.session_id), now_ns);
         return;
       }
       const std::string who =
@@ -251,9 +270,8 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
       return;
     }
   }
-  ++stats_.bad_commands;
-  event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-        "unknown command kind " + std::to_string(static_cast<int>(cmd.kind)), now_ns);
+  badCommand(cmd.client_id, from,
+             "unknown command kind " + std::to_string(static_cast<int>(cmd.kind)), now_ns);
 }
 
 void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
@@ -327,9 +345,8 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   if (cmd.mode != telehand_msg_MODE_MOBILIZATION && cmd.mode != telehand_msg_MODE_EXPLORATION &&
       cmd.mode != telehand_msg_MODE_CAPTURE && cmd.mode != telehand_msg_MODE_LESSON &&
       cmd.mode != telehand_msg_MODE_REPLAY && cmd.mode != telehand_msg_MODE_MASSAGE) {
-    ++stats_.bad_commands;
-    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-          "OPEN with unknown mode " + std::to_string(static_cast<int>(cmd.mode)), now_ns);
+    badCommand(cmd.client_id, from,
+               "OPEN with unknown mode " + std::to_string(static_cast<int>(cmd.mode)), now_ns);
     return;
   }
   std::string case_name = cmd.case_name;
@@ -369,12 +386,12 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       case_name = replayed->case_name;
     }
   } catch (const Error& e) {
-    ++stats_.bad_commands;
-    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-          std::string("cannot open the ") +
-              (lesson_info || cmd.mode == telehand_msg_MODE_LESSON ? "lesson run: " : "replay: ") +
-              e.what(),
-          now_ns);
+    badCommand(
+        cmd.client_id, from,
+        std::string("cannot open the ") +
+            (lesson_info || cmd.mode == telehand_msg_MODE_LESSON ? "lesson run: " : "replay: ") +
+            e.what(),
+        now_ns);
     return;
   }
   // The massage renders the web of the case (docs/massage.md): a massage session, a capture of
@@ -391,17 +408,14 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     // A follower renders the live fit of a running capture session.
     capture = find(cmd.follow_session);
     if (!capture || capture->mode != telehand_msg_MODE_CAPTURE || capture->closing) {
-      ++stats_.bad_commands;
-      event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-            "cannot follow session " + std::to_string(cmd.follow_session) +
-                ": no capture session of that id is running",
-            now_ns);
+      badCommand(cmd.client_id, from,
+                 "cannot follow session " + std::to_string(cmd.follow_session) +
+                     ": no capture session of that id is running",
+                 now_ns);
       return;
     }
     if (cmd.mode == telehand_msg_MODE_CAPTURE) {
-      ++stats_.bad_commands;
-      event(0, cmd.client_id, telehand_msg_EVENT_ERROR, "a capture session cannot follow another",
-            now_ns);
+      badCommand(cmd.client_id, from, "a capture session cannot follow another", now_ns);
       return;
     }
     case_name = "capture-" + std::to_string(cmd.follow_session);
@@ -413,11 +427,11 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
                                        (case_name + ".toml")))) {
     // Without a case file: the healthy joint, and for a massage the built-in webs.
     if (case_name != "healthy" && !(massage && web_case)) {
-      ++stats_.bad_commands;
-      event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-            "unknown patient case '" + case_name + "' (known: healthy" +
-                (massage ? std::string(", and for a massage oedema, scar, hypertonic") : "") + ")",
-            now_ns);
+      badCommand(cmd.client_id, from,
+                 "unknown patient case '" + case_name + "' (known: healthy" +
+                     (massage ? std::string(", and for a massage oedema, scar, hypertonic") : "") +
+                     ")",
+                 now_ns);
       return;
     }
     patient.name = case_name;
@@ -426,8 +440,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     try {
       patient = loadPatientCaseByName(config_.cases_dir, case_name);
     } catch (const ConfigError& e) {
-      ++stats_.bad_commands;
-      event(0, cmd.client_id, telehand_msg_EVENT_ERROR, e.what(), now_ns);
+      badCommand(cmd.client_id, from, e.what(), now_ns);
       return;
     }
   }
@@ -606,9 +619,8 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
   }
   if (elsewhere(id)) return;  // pool: the server that claimed it answers
   const auto cannot = [&](const std::string& why) {
-    ++stats_.bad_commands;
-    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-          "cannot resume session " + std::to_string(id) + ": " + why, now_ns);
+    badCommand(cmd.client_id, from, "cannot resume session " + std::to_string(id) + ": " + why,
+               now_ns);
   };
   std::optional<SessionInfo> info;
   try {
@@ -712,12 +724,12 @@ std::size_t SessionManager::recoverFromStore(int64_t now_ns, bool take_active) {
   return found;
 }
 
-void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
+void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns,
+                                  const Origin& from) {
   Session* s = find(cmd.session_id);
   if (!s) {
-    ++stats_.bad_commands;
-    event(0, cmd.client_id, telehand_msg_EVENT_ERROR,
-          "CLOSE for unknown session " + std::to_string(cmd.session_id), now_ns);
+    badCommand(cmd.client_id, from, "CLOSE for unknown session " + std::to_string(cmd.session_id),
+               now_ns);
     return;
   }
   s->close_wait.closeAsked(now_ns, static_cast<int64_t>(config_.close_grace_s * 1e9),

@@ -259,6 +259,51 @@ TEST(CaptureFit, FaultySensorsAndRenderedSamplesAreLeftOut) {
   EXPECT_EQ(counts.not_capture, 1u);
 }
 
+TEST(CaptureFit, SamplesOutOfOrderGiveTheSamePointsAsInOrder) {
+  // A backlog sent after an outage while live samples go on, a retried chunk: the same points,
+  // in sequence order, the first copy of a sequence number kept.
+  SyntheticCaptureOptions o;
+  o.seconds_per_axis = 4.0;
+  const SyntheticCapture cap = synthesizeCapture(o);
+  const std::size_t n = cap.samples.size();
+  ASSERT_GT(n, 4000u);
+  CaptureFitter in_order(cap.geometry), scrambled(cap.geometry);
+  for (const auto& s : cap.samples) in_order.add(s, true);
+  auto altered = [](Sample s) {  // a second copy that must not be the one kept
+    s.fingers[0].normal_n += 5.0f;
+    s.fingers[0].tangential_n += 5.0f;
+    return s;
+  };
+  for (std::size_t k = n / 2; k < n; ++k) scrambled.add(cap.samples[k], true);
+  for (std::size_t k = n / 2; k-- > 0;) scrambled.add(cap.samples[k], true);  // far back
+  for (std::size_t k = 0; k < 100; ++k) scrambled.add(altered(cap.samples[k]), true);
+  for (std::size_t k = n - 10; k < n; ++k) {
+    EXPECT_FALSE(scrambled.add(altered(cap.samples[k]), true)) << "held already, in order";
+  }
+  for (std::size_t k = n - 40; k < n - 30; ++k) scrambled.add(altered(cap.samples[k]), true);
+  {
+    CaptureFitter one(cap.geometry);
+    one.add(altered(cap.samples[50]), true);
+    ASSERT_EQ(one.size(), 1u);
+    const auto it =
+        std::find_if(in_order.points().begin(), in_order.points().end(),
+                     [&](const CapturePoint& p) { return p.seq == cap.samples[50].seq; });
+    ASSERT_NE(it, in_order.points().end());
+    ASSERT_NE(one.points()[0].axis_force_n, it->axis_force_n) << "the second copy differs";
+  }
+  ASSERT_EQ(scrambled.size(), in_order.size());
+  const auto& a = in_order.points();
+  const auto& b = scrambled.points();
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    ASSERT_EQ(a[i].seq, b[i].seq) << i;
+    ASSERT_EQ(a[i].angles_rad, b[i].angles_rad) << i;
+    ASSERT_EQ(a[i].axis_force_n, b[i].axis_force_n) << i << ": the first copy is kept";
+  }
+  // Read again after more arrive: merged again, still in order.
+  scrambled.add(altered(cap.samples[n / 4]), true);
+  EXPECT_EQ(scrambled.points().size(), a.size());
+}
+
 TEST(CaptureFit, StoredCaptureFitsTheSameAndWritesALoadableCase) {
   namespace fs = std::filesystem;
   const fs::path dir = fs::temp_directory_path() / ("telehand-fit-" + std::to_string(getpid()));

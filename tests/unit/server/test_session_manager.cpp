@@ -1122,6 +1122,29 @@ TEST_F(OwnershipTest, ASenderTheLinkCouldNotNameIsRefused) {
   EXPECT_EQ(stored(session_).rows, sent);
 }
 
+TEST_F(OwnershipTest, BadCommandsFromOneParticipantAreSaidAFewTimesAndCounted) {
+  // Each bad command's event is published and logged: a flood of them from one participant is
+  // said kBadCommandEvents times per 5 s and counted; another participant is still answered.
+  const auto errors = [&] { return out_.eventsOf(telehand_msg_EVENT_ERROR).size(); };
+  const std::size_t before = errors();
+  const uint64_t bad_before = manager_->stats().bad_commands;
+  session_ = 424242;  // no such session
+  for (int i = 0; i < 50; ++i) {
+    command(telehand_msg_CMD_MARK, kB, 0, "note");
+    now_ns_ += 1'000'000;
+  }
+  const auto limit = static_cast<std::size_t>(SessionManager::kBadCommandEvents);
+  EXPECT_EQ(errors() - before, limit);
+  EXPECT_EQ(manager_->stats().bad_commands - bad_before, 50u);
+  command(telehand_msg_CMD_CLOSE, kA, 0);
+  EXPECT_EQ(errors() - before, limit + 1) << "another participant is answered";
+  now_ns_ += 5'000'000'000;
+  command(telehand_msg_CMD_PHASE, kB, 0);
+  EXPECT_EQ(errors() - before, limit + 2) << "and the first again after 5 s";
+  EXPECT_THAT(std::string(out_.eventsOf(telehand_msg_EVENT_ERROR).back()->text),
+              HasSubstr("PHASE for unknown session 424242"));
+}
+
 TEST_F(OwnershipTest, LateChunksOfASessionThisServerNeverRanAreTakenFromItsOwnerOnly) {
   // The session ended under a server before this one (or so long ago that this one no longer
   // remembers it): its owner is the record's.

@@ -196,15 +196,25 @@ std::vector<double> windowedRates(std::span<const int64_t> t_ns, std::span<const
 std::optional<CapturePoint> capturePoint(const JointModel& geometry, const Sample& s, bool valid,
                                          CaptureCounts& counts);
 
-/// Accumulates capture samples (in sequence order) and fits them.
+/// Accumulates capture samples and fits them. Samples may come out of sequence order (a
+/// retried chunk, a backlog sent after an outage while live samples go on): those are kept
+/// aside and merged in order, duplicates dropped, when the points are next read, so that a
+/// capture's cost stays O(n log n) whatever order its samples come in. Not thread-safe.
 class CaptureFitter {
  public:
   explicit CaptureFitter(const JointModelParams& geometry, const FitOptions& options = {});
-  /// Returns true when the sample was used.
+  /// Returns true when the sample was used (false: not a usable capture point, or a sequence
+  /// number already held in order; a duplicate among the late ones is dropped at the merge).
   bool add(const Sample& s, bool valid);
-  std::size_t size() const noexcept { return points_.size(); }
+  std::size_t size() const {
+    settle();
+    return points_.size();
+  }
   const CaptureCounts& counts() const noexcept { return counts_; }
-  const std::vector<CapturePoint>& points() const noexcept { return points_; }
+  const std::vector<CapturePoint>& points() const {
+    settle();
+    return points_;
+  }
   /// Angular rates of every point (windowedRates over FitOptions::rate_half_window, over
   /// ±turn_rate_half_window at the turns), rad/s.
   std::vector<Vec3> rates() const;
@@ -233,9 +243,14 @@ class CaptureFitter {
   double delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
                       const std::array<double, kAxes>& known_j) const;
 
+  /// Merges the late points into points_ (sorted by sequence number, the first copy of each
+  /// kept).
+  void settle() const;
+
   JointModel geometry_;
   FitOptions options_;
-  std::vector<CapturePoint> points_;
+  mutable std::vector<CapturePoint> points_;  // in sequence order
+  mutable std::vector<CapturePoint> late_;    // out of order, not merged yet
   CaptureCounts counts_;
 };
 

@@ -175,6 +175,8 @@ class SessionManager {
   static constexpr uint64_t kMaxHeldSteps = 200;
   /// Unknown session ids remembered for rate-limited error events.
   static constexpr std::size_t kMaxUnknownIds = 1024;
+  /// Events about bad commands said to one participant per 5 s (badCommand).
+  static constexpr int kBadCommandEvents = 8;
   /// A drift correction this large (any axis, degrees) is reported as a SessionEvent.
   static constexpr double kDriftEventDeg = 1.0;
   /// Samples more than this many sequence numbers (10 min at 1 kHz) from the highest the
@@ -197,7 +199,10 @@ class SessionManager {
   /// SessionStatus for a session of the record that no Session runs here.
   void publishRecordStatus(const SessionInfo& info, telehand_msg_SessionState state,
                            uint64_t client_id, uint32_t request_seq);
-  void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
+  void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from);
+  /// A command that cannot be carried out: counted (ManagerStats::bad_commands) and said in an
+  /// ERROR event to its client, at most kBadCommandEvents per participant per 5 s.
+  void badCommand(uint64_t client_id, const Origin& from, const std::string& what, int64_t now_ns);
   /// True when `from` opened session `s` (or either is unknown).
   static bool owns(const Session& s, const Origin& from);
   /// True when `from` may act on session `s`; otherwise counts and reports the refusal.
@@ -234,6 +239,7 @@ class SessionManager {
   const sim::HandModel* hand_;
   std::map<uint64_t, Session> sessions_;
   std::map<uint64_t, int64_t> unknown_reported_ns_;
+  std::map<uint64_t, std::pair<int64_t, int>> bad_commands_by_;  // participant: window, events
   std::map<uint64_t, int64_t> refused_reported_ns_;  // per session id, bounded like unknown ids
   /// Owner of an ended session (GUID hex, NUL-terminated), in a ring of kMaxEndedOwners
   /// reserved at construction: remembering them allocates nothing per session.
