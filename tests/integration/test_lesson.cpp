@@ -184,31 +184,25 @@ TEST_F(LessonRunTest, ClinicianDemonstratesStudentRunsItAndTheRecordHoldsTheLess
   ASSERT_TRUE(std::regex_search(shown, m, std::regex(R"(mean overall (\d+)\n)"))) << shown;
   EXPECT_NEAR(std::stod(m[1]), mean, 0.51) << shown;
 
-  // A report of a session that ran no lesson: refused, saying why.
-  Process not_a_run(
-      {TELEHAND_RECORDS_BIN, "--db", db, "report", std::to_string(demo), "-o", path("report")},
-      path("not-a-run.log"));
-  const auto not_rc = not_a_run.wait(30s);
-  ASSERT_TRUE(not_rc.has_value());
-  EXPECT_EQ(*not_rc, 2) << not_a_run.output();
-  EXPECT_NE(not_a_run.output().find("session " + std::to_string(demo) +
-                                    " is not a lesson run (mode mobilization)"),
-            std::string::npos)
-      << not_a_run.output();
+  // A report refused: exit 2, saying why.
+  const auto refused = [&](uint64_t session, const std::string& into, const std::string& log,
+                           const std::string& why) {
+    Process p({TELEHAND_RECORDS_BIN, "--db", db, "report", std::to_string(session), "-o", into},
+              path(log));
+    const auto code = p.wait(30s);
+    ASSERT_TRUE(code.has_value());
+    EXPECT_EQ(*code, 2) << p.output();
+    EXPECT_NE(p.output().find(why), std::string::npos) << p.output();
+  };
+  // Of a session that ran no lesson.
+  refused(demo, path("report"), "not-a-run.log",
+          "session " + std::to_string(demo) + " is not a lesson run (mode mobilization)");
   EXPECT_FALSE(std::filesystem::exists(path("report") + "/lesson-" + std::to_string(lesson) +
                                        "-session-" + std::to_string(demo) + ".html"));
-
-  // A report into something that is not a directory: refused, saying where (not aborted).
+  // Into something that is not a directory: saying where (not aborted), the file kept.
   { std::ofstream(path("a-file")) << "kept\n"; }
-  Process into_file(
-      {TELEHAND_RECORDS_BIN, "--db", db, "report", std::to_string(run), "-o", path("a-file")},
-      path("into-file.log"));
-  const auto file_rc = into_file.wait(30s);
-  ASSERT_TRUE(file_rc.has_value());
-  EXPECT_EQ(*file_rc, 2) << into_file.output();
-  EXPECT_NE(into_file.output().find("cannot write the report into '" + path("a-file") + "'"),
-            std::string::npos)
-      << into_file.output();
+  refused(run, path("a-file"), "into-file.log",
+          "cannot write the report into '" + path("a-file") + "'");
   std::ifstream kept(path("a-file"));
   std::string kept_line;
   EXPECT_TRUE(std::getline(kept, kept_line) && kept_line == "kept");

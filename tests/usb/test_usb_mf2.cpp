@@ -50,6 +50,14 @@ class UsbMf2Test : public ::testing::Test {
     prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
     emu_ = std::make_unique<Mf2Emulator>(options_);
   }
+  /// The largest motor current the emulated device applies now, A.
+  double maxCurrent() {
+    return emu_->withFirmware([](Mf2Firmware& fw) {
+      double m = 0.0;
+      for (const double a : fw.appliedCurrentA()) m = std::max(m, std::abs(a));
+      return m;
+    });
+  }
   void TearDown() override {
     if (dev_) dev_->stop();
     dev_.reset();
@@ -528,13 +536,6 @@ TEST_F(UsbMf2Test, DeviceGetsZeroWhenTheLoopStopsWritingAndHonoursTheEmergencySt
   push.force_n[kThumb] = Vec3(1.0, 0.0, 0.0);
   DeviceSample s;
   for (int i = 0; i < 30; ++i) ASSERT_TRUE(cycle(push, s));
-  auto maxCurrent = [&] {
-    return emu_->withFirmware([](Mf2Firmware& fw) {
-      double m = 0.0;
-      for (const double a : fw.appliedCurrentA()) m = std::max(m, std::abs(a));
-      return m;
-    });
-  };
   EXPECT_GT(maxCurrent(), 0.05) << "the device drives the force";
 
   // The loop stops writing: after command_fresh_ns the device is sent zero, disabled.
@@ -572,13 +573,6 @@ TEST_F(UsbMf2Test, AnEncoderFaultIsADeviceFaultAndTheDeviceGetsNoForceUntilItCle
   ForceCommand push;
   push.force_n[kThumb] = Vec3(1.0, 0.0, 0.0);
   DeviceSample s;
-  auto maxCurrent = [&] {
-    return emu_->withFirmware([](Mf2Firmware& fw) {
-      double m = 0.0;
-      for (const double a : fw.appliedCurrentA()) m = std::max(m, std::abs(a));
-      return m;
-    });
-  };
   auto enabled = [&] { return emu_->withFirmware([](Mf2Firmware& fw) { return fw.enabled(); }); };
   for (int i = 0; i < 30; ++i) ASSERT_TRUE(cycle(push, s));
   ASSERT_GT(maxCurrent(), 0.05) << "the device drives the force";

@@ -102,8 +102,8 @@ void Session::publishStatus(telehand_msg_SessionState state) {
   st.ended_ns = state == telehand_msg_SESSION_CLOSED ? wallNs() : 0;
   st.samples_recorded = recorder.recorded();
   st.stored_below = recorder.storedBelow();
-  st.samples_missing = state == telehand_msg_SESSION_CLOSED && expected > recorder.recorded()
-                           ? expected - recorder.recorded()
+  st.samples_missing = state == telehand_msg_SESSION_CLOSED && expected > storedOfExpected()
+                           ? expected - storedOfExpected()
                            : 0;
   if (lesson) copyString(st.lesson, encodePlan(lesson->plan));
   ctx.out.publish(st);
@@ -519,7 +519,8 @@ void Session::close(const std::string& state, int64_t now_ns) {
     spdlog::error("session {}: {}", info.id, e.what());
   }
   const uint64_t recorded = recorder.recorded();
-  const uint64_t missing = expected > recorded ? expected - recorded : 0;
+  const uint64_t stored = storedOfExpected();
+  const uint64_t missing = expected > stored ? expected - stored : 0;
   ctx.event(info.id, client_id, missing ? telehand_msg_EVENT_ERROR : telehand_msg_EVENT_INFO,
             state + ": " + std::to_string(recorded) + " samples recorded" +
                 (missing ? ", " + std::to_string(missing) + " missing" : "") +

@@ -1023,7 +1023,7 @@ void SessionManager::tick(int64_t now_ns) {
     auto it = sessions_.find(id);
     if (it == sessions_.end()) continue;
     Session& s = it->second;
-    if (s.closing) finish(s, now_ns, s.recorder.recorded() >= s.expected ? "closed" : "incomplete");
+    if (s.closing) finish(s, now_ns, recordComplete(s) ? "closed" : "incomplete");
     sessions_.erase(it);
   }
 #if defined(__GLIBC__)
@@ -1047,6 +1047,22 @@ void SessionManager::tick(int64_t now_ns) {
     }
   }
 #endif
+}
+
+bool SessionManager::recordComplete(Session& s) {
+  // The row count says no more than that enough rows arrived: rows of sequence numbers at or
+  // past what the client says it sent would stand in for missing ones. So the record's rows
+  // below `expected` are counted (one range count, at the end only).
+  if (s.recorder.recorded() < s.expected) return false;
+  if (s.expected == 0) return true;
+  try {
+    s.stored_of_expected = store_.countSamples(s.info.id, 0, s.expected - 1);
+  } catch (const StoreError& e) {
+    ++stats_.store_errors;
+    spdlog::error("session {}: {}", s.info.id, e.what());
+    return false;  // not known to be complete: not said to be
+  }
+  return *s.stored_of_expected >= s.expected;
 }
 
 void SessionManager::releaseRecordMemory() {
@@ -1172,7 +1188,7 @@ void SessionManager::closeAll(int64_t now_ns) {
     s.recorder.flushNow(ctx_);
     s.flushHand(now_ns);
     if (s.closing) {
-      finish(s, now_ns, s.recorder.recorded() >= s.expected ? "closed" : "incomplete");
+      finish(s, now_ns, recordComplete(s) ? "closed" : "incomplete");
       continue;
     }
     // Not ended by its client: suspended, for its client to resume on the next server.

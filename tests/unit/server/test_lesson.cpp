@@ -171,6 +171,17 @@ class LessonTest : public ::testing::Test {
     manager_->onCommand(c, now_ns_);
     tickFor(200);
   }
+  /// A closed mobilization session of `ms` samples (8 deg of flexion back and forth): a record
+  /// to replay; 0 if it could not be opened.
+  uint64_t recordedMobilization(int ms) {
+    const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+    if (live == 0) return 0;
+    Motion m;
+    m.flex_amp_deg = 8.0;
+    stream(live, m, 0, ms);
+    close(live, static_cast<uint64_t>(ms));
+    return live;
+  }
   /// A closed demonstration of `m` (6 s) and a lesson made from it.
   uint64_t demoLesson(const Motion& m, int guided = 1, int attempts = 2, bool takeover = false) {
     demo_ = open(telehand_msg_MODE_MOBILIZATION);
@@ -417,12 +428,8 @@ TEST_F(LessonTest, AMassageLessonRunsWithTheMassageOnlyAndRefusesTheJointsPhases
 
 TEST_F(LessonTest, AReplayReproducesTheLiveHandStates) {
   // A live session: every HandState published, by the sample it reflects.
-  const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+  const uint64_t live = recordedMobilization(3000);
   ASSERT_NE(live, 0u);
-  Motion m;
-  m.flex_amp_deg = 8.0;
-  stream(live, m, 0, 3000);
-  close(live, 3000);
   std::map<uint64_t, telehand_msg_HandState> seen;
   for (const auto& h : out_.hands) {
     if (h.session_id == live) seen[h.device_seq] = h;
@@ -539,12 +546,8 @@ TEST_F(LessonTest, AReplayReadsThroughGapsInItsRecordAFewPagesATick) {
   // time. Read a page of 1,000 sequence numbers at a time, the gaps are 6,000 empty pages;
   // read in one tick they would stall the serve loop. A few pages a tick, the replay goes
   // through them over the next ticks and still replays every sample.
-  const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+  const uint64_t live = recordedMobilization(100);
   ASSERT_NE(live, 0u);
-  Motion m;
-  m.flex_amp_deg = 8.0;
-  stream(live, m, 0, 100);
-  close(live, 100);
   std::vector<Sample> last;
   store_->forEachSampleIn(live, 99, 99, [&](const Sample& s, bool) { last.push_back(s); });
   ASSERT_EQ(last.size(), 1u);
@@ -571,12 +574,8 @@ TEST_F(LessonTest, AReplayReadsThroughGapsInItsRecordAFewPagesATick) {
 }
 
 TEST_F(LessonTest, ALoopedReplayStartsOverAtItsEndWithTheSameStates) {
-  const uint64_t live = open(telehand_msg_MODE_MOBILIZATION);
+  const uint64_t live = recordedMobilization(2000);
   ASSERT_NE(live, 0u);
-  Motion m;
-  m.flex_amp_deg = 8.0;
-  stream(live, m, 0, 2000);
-  close(live, 2000);
   ReplayViewer v(*store_, config_, live, now_ns_,
                  [this](telehand_msg_CommandKind k, uint64_t s) { return command(k, s); });
   ASSERT_NE(v.id, 0u);

@@ -947,6 +947,36 @@ class OwnershipTest : public SessionManagerTest {
     return r;
   }
 
+  /// A session that ends incomplete (its last 100 samples not sent before the CLOSE's grace
+  /// ran out); `restarted`: then served by a server started afresh, which does not remember
+  /// it. A stranger's late chunk of the missing 100 is refused, naming the owner; the
+  /// owner's is stored.
+  void lateChunksAreTakenFromTheOwnerOnly(bool restarted) {
+    ASSERT_NE(open("healthy"), 0u);
+    moveToDeg(5.0);
+    const uint64_t sent = seq_ - 1;
+    sendRange(session_, 1, sent - 100, kA);
+    command(telehand_msg_CMD_CLOSE, kA, sent);
+    now_ns_ += static_cast<int64_t>(config_.close_grace_s * 1e9) + 10'000'000;
+    manager_->tick(now_ns_);
+    ASSERT_EQ(manager_->activeSessions(), 0u);
+    ASSERT_EQ(store_->session(session_)->state, "incomplete");
+    ASSERT_EQ(store_->session(session_)->owner, kA.guid);
+    if (restarted) manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+    sendRange(session_, sent - 99, 100, kB, kRogueVersion);
+    EXPECT_EQ(manager_->stats().refused, 100u);
+    ASSERT_EQ(securityEvents().size(), 1u);
+    EXPECT_THAT(securityEvents()[0],
+                AllOf(HasSubstr("a late RecordChunk from participant " + kB.guid),
+                      HasSubstr("belongs to " + kA.guid)));
+    EXPECT_EQ(stored(session_).rows, sent - 100);
+    sendRange(session_, sent - 99, 100, kA);
+    const Stored st = stored(session_);
+    EXPECT_EQ(st.rows, sent);
+    EXPECT_EQ(st.from_rogue, 0u);
+    EXPECT_EQ(manager_->stats().refused, 100u);
+  }
+
   static constexpr uint32_t kRogueVersion = 999;
   const Origin kA{11, "0110a0a0a0a0a0a0a0a0a0a0000001c1", ""};
   const Origin kB{22, "0110b0b0b0b0b0b0b0b0b0b0000001c1", ""};
@@ -1013,7 +1043,7 @@ TEST_F(OwnershipTest, AnotherParticipantIsRefusedAllButMarksAndTheOwnerIsServed)
 
   // A's own are taken: its record, its file, its mark, its CLOSE.
   sample(angles_);
-  sendRange(session_, 1, a_sent + 1, kA);
+  sendRange(session_, 0, a_sent + 1, kA);  // sequence numbers 0 .. a_sent, as a client's
   file(kA, "device.toml", 100);
   command(telehand_msg_CMD_MARK, kA, 0, "mid-point");
   command(telehand_msg_CMD_CLOSE, kA, a_sent + 1);
@@ -1052,7 +1082,7 @@ TEST_F(OwnershipTest, AnUnknownSenderIsNotRefused) {
   const uint64_t sent = seq_ - 1;
   const Origin nobody{};
   manager_->onDeviceState(wireSample(session_, seq_), now_ns_, nobody);
-  sendRange(session_, 1, sent + 1, nobody);
+  sendRange(session_, 0, sent + 1, nobody);
   command(telehand_msg_CMD_MARK, nobody, 0, "note");
   command(telehand_msg_CMD_CLOSE, nobody, sent + 1);
   tickFor(50'000'000);
@@ -1065,7 +1095,7 @@ TEST_F(OwnershipTest, AnUnknownSenderIsNotRefused) {
   from_ = nobody;
   ASSERT_NE(open("healthy"), 0u);
   EXPECT_EQ(store_->session(session_)->owner, "");
-  sendRange(session_, 1, 100, kB);
+  sendRange(session_, 0, 100, kB);
   command(telehand_msg_CMD_CLOSE, kB, 100);
   tickFor(50'000'000);
   EXPECT_EQ(manager_->stats().refused, 0u);
@@ -1106,7 +1136,7 @@ TEST_F(OwnershipTest, ASenderTheLinkCouldNotNameIsRefused) {
   EXPECT_EQ(manager_->activeSessions(), 1u);
   // The owner's record is whole and holds nothing of the stranger's.
   session_ = owned;
-  sendRange(session_, 1, sent, kA);
+  sendRange(session_, 0, sent, kA);
   command(telehand_msg_CMD_CLOSE, kA, sent);
   tickFor(50'000'000);
   EXPECT_EQ(manager_->activeSessions(), 0u);
@@ -1114,12 +1144,30 @@ TEST_F(OwnershipTest, ASenderTheLinkCouldNotNameIsRefused) {
   const Stored st = stored(session_);
   EXPECT_EQ(st.rows, sent);
   EXPECT_EQ(st.from_rogue, 0u);
-  EXPECT_EQ(st.highest, sent);
+  EXPECT_EQ(st.highest, sent - 1);
   // Nor does it reach the record once the session has ended.
   const uint64_t refused = manager_->stats().refused;
   sendRange(session_, sent + 1, 100, gone, kRogueVersion);
   EXPECT_EQ(manager_->stats().refused, refused + 100u);
   EXPECT_EQ(stored(session_).rows, sent);
+}
+
+TEST_F(OwnershipTest, RowsPastWhatWasSentDoNotMakeUpForMissingOnes) {
+  // "closed, 0 missing" means every sequence number below what the client says it sent is in
+  // the record, not that as many rows arrived: 100 of them missing and 100 past the end is
+  // incomplete, 100 missing.
+  ASSERT_NE(open("healthy"), 0u);
+  const uint64_t sent = 1000;
+  sendRange(session_, 0, 900, kA);
+  sendRange(session_, 1000, 100, kA);
+  command(telehand_msg_CMD_CLOSE, kA, sent);
+  now_ns_ += closeGraceNs() + 10'000'000;
+  manager_->tick(now_ns_);
+  ASSERT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(stored(session_).rows, sent);
+  EXPECT_EQ(store_->session(session_)->state, "incomplete");
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_CLOSED);
+  EXPECT_EQ(out_.statuses.back().samples_missing, 100u);
 }
 
 TEST_F(OwnershipTest, BadCommandsFromOneParticipantAreSaidAFewTimesAndCounted) {
@@ -1148,29 +1196,7 @@ TEST_F(OwnershipTest, BadCommandsFromOneParticipantAreSaidAFewTimesAndCounted) {
 TEST_F(OwnershipTest, LateChunksOfASessionThisServerNeverRanAreTakenFromItsOwnerOnly) {
   // The session ended under a server before this one (or so long ago that this one no longer
   // remembers it): its owner is the record's.
-  ASSERT_NE(open("healthy"), 0u);
-  moveToDeg(5.0);
-  const uint64_t sent = seq_ - 1;
-  sendRange(session_, 1, sent - 100, kA);
-  command(telehand_msg_CMD_CLOSE, kA, sent);
-  now_ns_ += static_cast<int64_t>(config_.close_grace_s * 1e9) + 10'000'000;
-  manager_->tick(now_ns_);
-  ASSERT_EQ(manager_->activeSessions(), 0u);
-  ASSERT_EQ(store_->session(session_)->state, "incomplete");
-  ASSERT_EQ(store_->session(session_)->owner, kA.guid);
-  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
-  sendRange(session_, sent - 99, 100, kB, kRogueVersion);
-  EXPECT_EQ(manager_->stats().refused, 100u);
-  ASSERT_EQ(securityEvents().size(), 1u);
-  EXPECT_THAT(securityEvents()[0],
-              AllOf(HasSubstr("a late RecordChunk from participant " + kB.guid),
-                    HasSubstr("belongs to " + kA.guid)));
-  EXPECT_EQ(stored(session_).rows, sent - 100);
-  sendRange(session_, sent - 99, 100, kA);
-  const Stored st = stored(session_);
-  EXPECT_EQ(st.rows, sent);
-  EXPECT_EQ(st.from_rogue, 0u);
-  EXPECT_EQ(manager_->stats().refused, 100u);
+  lateChunksAreTakenFromTheOwnerOnly(true);
 }
 
 TEST_F(OwnershipTest, ASuspendedSessionTakesChunksFromItsOwnerOnly) {
@@ -1458,13 +1484,13 @@ TEST_F(OwnershipTest, AClosingSessionWaitsWhileItsBacklogKeepsComing) {
   command(telehand_msg_CMD_CLOSE, kA, sent);
   const auto grace = static_cast<int64_t>(config_.close_grace_s * 1e9);
   int64_t waited = 0;
-  for (uint64_t next = 1; next <= sent; next += 100) {
+  for (uint64_t next = 0; next < sent; next += 100) {
     now_ns_ += grace * 4 / 5;
     waited += grace * 4 / 5;
     manager_->tick(now_ns_);
     ASSERT_EQ(manager_->activeSessions(), 1u)
         << "closed after " << static_cast<double>(waited) * 1e-9 << " s";
-    sendRange(session_, next, std::min<uint64_t>(100, sent - next + 1), kA);
+    sendRange(session_, next, std::min<uint64_t>(100, sent - next), kA);
   }
   ASSERT_GT(waited, 2 * grace);
   manager_->tick(now_ns_);
@@ -1530,28 +1556,7 @@ TEST_F(OwnershipTest, ARoguesChunksDoNotHoldAClosingSessionOpen) {
 }
 
 TEST_F(OwnershipTest, LateChunksOfAnEndedSessionAreTakenFromItsOwnerOnly) {
-  ASSERT_NE(open("healthy"), 0u);
-  moveToDeg(5.0);
-  const uint64_t sent = seq_ - 1;
-  sendRange(session_, 1, sent - 100, kA);
-  command(telehand_msg_CMD_CLOSE, kA, sent);
-  now_ns_ += static_cast<int64_t>(config_.close_grace_s * 1e9) + 10'000'000;
-  manager_->tick(now_ns_);
-  ASSERT_EQ(manager_->activeSessions(), 0u);
-  EXPECT_EQ(store_->session(session_)->state, "incomplete");
-  // B's "late" chunk is refused; A's is stored.
-  sendRange(session_, sent - 99, 100, kB, kRogueVersion);
-  EXPECT_EQ(manager_->stats().refused, 100u);
-  ASSERT_EQ(securityEvents().size(), 1u);
-  EXPECT_THAT(securityEvents()[0],
-              AllOf(HasSubstr("a late RecordChunk from participant " + kB.guid),
-                    HasSubstr("belongs to " + kA.guid)));
-  EXPECT_EQ(stored(session_).rows, sent - 100);
-  sendRange(session_, sent - 99, 100, kA);
-  const Stored s = stored(session_);
-  EXPECT_EQ(s.rows, sent);
-  EXPECT_EQ(s.from_rogue, 0u);
-  EXPECT_EQ(manager_->stats().refused, 100u);
+  lateChunksAreTakenFromTheOwnerOnly(false);
 }
 
 }  // namespace

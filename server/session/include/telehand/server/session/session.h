@@ -99,6 +99,13 @@ class Session {
   // closing
   bool closing = false;
   uint64_t expected = 0;
+  /// The record's rows of sequence numbers below `expected`, counted when the session ends
+  /// (SessionManager::recordComplete); unset, the recorder's count stands for it. "Missing" is
+  /// what this lacks of `expected`: rows of other sequence numbers do not make up for them.
+  std::optional<uint64_t> stored_of_expected;
+  uint64_t storedOfExpected() const noexcept {
+    return stored_of_expected.value_or(recorder.recorded());
+  }
   int64_t recount_ns = 0;  // pool: when the record's own count is read next while closing
   /// How long a closing session waits for the samples its record lacks: a grace after the
   /// CLOSE, put off by another grace whenever samples still arrive (a client's backlog sent

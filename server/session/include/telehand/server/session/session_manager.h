@@ -200,6 +200,9 @@ class SessionManager {
   void publishRecordStatus(const SessionInfo& info, telehand_msg_SessionState state,
                            uint64_t client_id, uint32_t request_seq);
   void requestClose(const telehand_msg_SessionCommand& cmd, int64_t now_ns, const Origin& from);
+  /// Whether the record holds every sequence number below what the session's client said it
+  /// sent (Session::stored_of_expected set from the record).
+  bool recordComplete(Session& s);
   /// A command that cannot be carried out: counted (ManagerStats::bad_commands) and said in an
   /// ERROR event to its client, at most kBadCommandEvents per participant per 5 s.
   void badCommand(uint64_t client_id, const Origin& from, const std::string& what, int64_t now_ns);
