@@ -50,6 +50,19 @@ class UsbMf2Test : public ::testing::Test {
     prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
     emu_ = std::make_unique<Mf2Emulator>(options_);
   }
+  /// 1 N on the thumb.
+  static ForceCommand thumbPush() {
+    ForceCommand push;
+    push.force_n[kThumb] = Vec3(1.0, 0.0, 0.0);
+    return push;
+  }
+  /// A started device, ready, sent `push` for 30 cycles (its currents then follow it).
+  UsbMf2& startDriving(const ForceCommand& push, DeviceSample& s) {
+    UsbMf2& dev = startDevice();
+    EXPECT_TRUE(dev.waitReady(5s)) << dev.statusText();
+    for (int i = 0; i < 30; ++i) EXPECT_TRUE(cycle(push, s));
+    return dev;
+  }
   /// The largest motor current the emulated device applies now, A.
   double maxCurrent() {
     return emu_->withFirmware([](Mf2Firmware& fw) {
@@ -530,12 +543,9 @@ TEST_F(UsbMf2Test, AFirmGripHoldsTheStiffCaseStill) {
 }
 
 TEST_F(UsbMf2Test, DeviceGetsZeroWhenTheLoopStopsWritingAndHonoursTheEmergencyStop) {
-  UsbMf2& dev = startDevice();
-  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
-  ForceCommand push;
-  push.force_n[kThumb] = Vec3(1.0, 0.0, 0.0);
+  const ForceCommand push = thumbPush();
   DeviceSample s;
-  for (int i = 0; i < 30; ++i) ASSERT_TRUE(cycle(push, s));
+  UsbMf2& dev = startDriving(push, s);
   EXPECT_GT(maxCurrent(), 0.05) << "the device drives the force";
 
   // The loop stops writing: after command_fresh_ns the device is sent zero, disabled.
@@ -568,13 +578,10 @@ TEST_F(UsbMf2Test, DeviceGetsZeroWhenTheLoopStopsWritingAndHonoursTheEmergencySt
 }
 
 TEST_F(UsbMf2Test, AnEncoderFaultIsADeviceFaultAndTheDeviceGetsNoForceUntilItClears) {
-  UsbMf2& dev = startDevice();
-  ASSERT_TRUE(dev.waitReady(5s)) << dev.statusText();
-  ForceCommand push;
-  push.force_n[kThumb] = Vec3(1.0, 0.0, 0.0);
+  const ForceCommand push = thumbPush();
   DeviceSample s;
+  UsbMf2& dev = startDriving(push, s);
   auto enabled = [&] { return emu_->withFirmware([](Mf2Firmware& fw) { return fw.enabled(); }); };
-  for (int i = 0; i < 30; ++i) ASSERT_TRUE(cycle(push, s));
   ASSERT_GT(maxCurrent(), 0.05) << "the device drives the force";
 
   // An encoder loses count (status bit 6): a device fault, as an emergency stop is.
