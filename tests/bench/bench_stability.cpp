@@ -171,6 +171,10 @@ int main(int argc, char** argv) {
                  "       %s --late-sweep [--seconds S (default 10)]\n",
                  argv[0], argv[0], argv[0]);
   };
+  // A whole number in [lo, hi] (counts, case numbers, seeds).
+  const auto wholeNumber = [](const char* text, double lo, double hi, double& out) {
+    return parseFiniteNumber(text, out) && out >= lo && out <= hi && out == std::floor(out);
+  };
   const auto bad = [&](const char* option, const char* value, const char* want) {
     std::fprintf(stderr, "%s: %s '%s' is not %s\n", argv[0], option, value, want);
     return 2;
@@ -190,13 +194,11 @@ int main(int argc, char** argv) {
       usage(stdout);
       return 0;
     } else if (!std::strcmp(opt, "--random")) {
-      if (!parseFiniteNumber(value, randoms) || randoms < 0 || randoms > 100000 ||
-          randoms != std::floor(randoms)) {
+      if (!wholeNumber(value, 0, 100000, randoms)) {
         return bad(opt, value, "a count of random cases (0-100000)");
       }
     } else if (!std::strcmp(opt, "--first")) {
-      if (!parseFiniteNumber(value, first) || first < 1 || first > 1e15 ||
-          first != std::floor(first)) {
+      if (!wholeNumber(value, 1, 1e15, first)) {
         return bad(opt, value, "the first random case (a whole number, 1-1e15)");
       }
     } else if (!std::strcmp(opt, "--seconds")) {
@@ -205,7 +207,7 @@ int main(int argc, char** argv) {
       }
       seconds_given = true;
     } else if (!std::strcmp(opt, "--seed")) {
-      if (!parseFiniteNumber(value, seed) || seed < 0 || seed > 1e15 || seed != std::floor(seed)) {
+      if (!wholeNumber(value, 0, 1e15, seed)) {
         return bad(opt, value, "a seed (a whole number, 0-1e15)");
       }
     } else if (!std::strcmp(opt, "--hz")) {

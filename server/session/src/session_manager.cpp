@@ -199,9 +199,8 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
     if (Session* s = find(cmd.session_id); s && !owns(*s, from)) {
       if (s->foreign_marks >= kMaxForeignMarks) {
         refuse(s->info.id, s->client_id,
-               "a MARK from participant " + (from.guid.empty() ? std::string("?") : from.guid) +
-                   ": session " + std::to_string(s->info.id) + " holds " +
-                   std::to_string(kMaxForeignMarks) + " marks from other participants",
+               "a MARK from " + senderOf(from) + ": session " + std::to_string(s->info.id) +
+                   " holds " + std::to_string(kMaxForeignMarks) + " marks from other participants",
                1, now_ns);
         return;
       }
@@ -318,9 +317,8 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
   // Bounds: a flood of OPENs must not take the server's memory (each session holds a hand).
   if (sessions_.size() >= static_cast<std::size_t>(config_.max_sessions)) {
     refuse(0, cmd.client_id,
-           "an OPEN from participant " + (from.guid.empty() ? std::string("?") : from.guid) + ": " +
-               std::to_string(sessions_.size()) + " sessions open, the server's limit " +
-               "(server.max_sessions)",
+           "an OPEN from " + senderOf(from) + ": " + std::to_string(sessions_.size()) +
+               " sessions open, the server's limit " + "(server.max_sessions)",
            1, now_ns, kOpenKey | from.participant);
     return;
   }
@@ -333,7 +331,7 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
     });
     if (mine >= config_.max_sessions_per_participant) {
       refuse(0, cmd.client_id,
-             "an OPEN from participant " + from.guid + ": " +
+             "an OPEN from " + senderOf(from) + ": " +
                  (from.identity.empty() ? std::string("it has ")
                                         : "its identity " + from.identity + " has ") +
                  std::to_string(mine) +
@@ -636,9 +634,8 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
   }
   if (from.participant != 0 && !info->owner.empty() && info->owner != from.guid) {
     refuse(id, cmd.client_id,
-           "a resume of session " + std::to_string(id) + " from participant " +
-               (from.guid.empty() ? std::string("?") : from.guid) + ": it belongs to " +
-               info->owner,
+           "a resume of session " + std::to_string(id) + " from " + senderOf(from) +
+               ": it belongs to " + info->owner,
            1, now_ns, kOpenKey | from.participant);
     return;
   }
@@ -834,7 +831,7 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
       if (from.participant != 0 && owner != nullptr && owner->guid[0] != '\0' &&
           std::string_view(owner->guid.data()) != from.guid) {
         refuse(c.session_id, 0,
-               "a late RecordChunk from participant " + from.guid + ": session " +
+               "a late RecordChunk from " + senderOf(from) + ": session " +
                    std::to_string(c.session_id) + " belongs to " + owner->guid.data(),
                c.samples._length, now_ns);
         return;
