@@ -123,7 +123,7 @@ void validateServerConfig(const ServerConfig& c, const std::string& origin) {
   requireRange(origin, "server.max_sessions", c.max_sessions, 1, 4096);
   requireRange(origin, "server.max_sessions_per_participant", c.max_sessions_per_participant, 1,
                4096);
-  requireRange(origin, "server.max_file_bytes", c.max_file_bytes, 0, 64 * 1024 * 1024);
+  requireRange(origin, "server.max_file_bytes", c.max_file_bytes, 0, kMaxFileBytesLimit);
   requireRange(origin, "server.max_files_per_session", c.max_files_per_session, 0, 1024);
   requireRange(origin, "server.status_keep_s", c.status_keep_s, 0.0, 86400.0);
   requireRange(origin, "server.resume_wait_s", c.resume_wait_s, 0.0, 7 * 86400.0);

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 #include <string_view>
 
 #include "telehand/core/clock.h"
@@ -1181,7 +1182,24 @@ void SessionManager::closeAll(int64_t now_ns) {
     writer_->wait();
     landWrites();
   }
+  // Pool: the sessions the record still says are this server's. One another server took over
+  // since the last heartbeat (this one's lease had run out) is let go, not written over; the
+  // heartbeat renews the lease, so no one can take the rest before they are written.
+  std::optional<std::vector<uint64_t>> mine;
+  if (pooled()) {
+    try {
+      mine = store_.poolHeartbeat(pool_id_, sessions_.size() + suspended_.size(), kPoolLeaseNs);
+      std::sort(mine->begin(), mine->end());
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("pool: {}", e.what());
+    }
+  }
   for (auto& [id, s] : sessions_) {
+    if (mine && !std::binary_search(mine->begin(), mine->end(), id)) {
+      spdlog::warn("session {}: taken over by another server of the pool; let go here", id);
+      continue;
+    }
     s.recorder.flushNow(ctx_);
     s.flushHand(now_ns);
     if (s.closing) {

@@ -231,3 +231,30 @@ TEST(ServerConfig, ErrorsNameOriginAndKey) {
 
 }  // namespace
 }  // namespace telehand
+
+namespace telehand {
+namespace {
+
+/// The network configs bound the size of a DDS sample (Cyclone's MaxSampleSize, 2 GiB by
+/// default: a peer could make a server reassemble that much before refusing it), and the
+/// bound lets every SessionFile through that a server may be configured to keep.
+TEST(NetworkConfigs, BoundTheSampleSizeAboveTheLargestFileAServerKeeps) {
+  for (const char* name : {"loopback.xml", "wan.xml"}) {
+    const std::string path = std::string(TELEHAND_DEPLOY_DIR) + "/cyclonedds/" + name;
+    std::ifstream in(path);
+    ASSERT_TRUE(in) << path;
+    const std::string xml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const auto at = xml.find("<MaxSampleSize>");
+    ASSERT_NE(at, std::string::npos) << name;
+    std::size_t used = 0;
+    const long long mib = std::stoll(xml.substr(at + 15), &used);
+    EXPECT_EQ(xml.substr(at + 15 + used, 3), "MiB") << name;
+    const long long bytes = mib * 1024 * 1024;
+    // A file's name (string<128>), session id and time, and the CDR header: well under 1 MiB.
+    EXPECT_GE(bytes, static_cast<long long>(kMaxFileBytesLimit) + 1024 * 1024) << name;
+    EXPECT_LE(bytes, 2LL * kMaxFileBytesLimit) << name;
+  }
+}
+
+}  // namespace
+}  // namespace telehand

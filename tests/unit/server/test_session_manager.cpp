@@ -1763,6 +1763,32 @@ TEST(ServeWatchTest, ALoopThatHandlesNothingForTheStallTimeIsWedged) {
   EXPECT_FALSE(watch.alive(9, 69'000'000'001));
 }
 
+// A server of a pool that stops writes its sessions' state (suspended, for their clients
+// to resume elsewhere), but not over a session another server took over while this one's
+// lease had run out and before its next heartbeat told it so: that session is the other
+// server's, and stays as that server holds it.
+TEST_F(SessionManagerTest, AStoppingPoolServerLeavesWhatAnotherServerTookOver) {
+  manager_->joinPool("a");
+  const uint64_t kept = open("healthy");
+  ASSERT_NE(kept, 0u);
+  hold(20);
+  const uint64_t taken = open("stiff");
+  ASSERT_NE(taken, 0u);
+  ASSERT_NE(taken, kept);
+  hold(20);
+  // The lease runs on the record's clock (the host's for SQLite): let it run out.
+  std::this_thread::sleep_for(std::chrono::nanoseconds(SessionManager::kPoolLeaseNs) +
+                              std::chrono::milliseconds(200));
+  SqliteStore other(config_.db_path);
+  other.poolHeartbeat("b", 0, SessionManager::kPoolLeaseNs);
+  ASSERT_TRUE(other.poolClaim(taken, "b").won);
+  manager_->closeAll(now_ns_);
+  EXPECT_EQ(store_->poolOwner(taken), "b");
+  EXPECT_EQ(store_->session(taken)->state, "active") << "not written over";
+  EXPECT_EQ(store_->poolOwner(kept), "a");
+  EXPECT_EQ(store_->session(kept)->state, "suspended");
+}
+
 TEST_F(SessionManagerTest, TheServeLoopsProgressCountsRoundsCommandsAndChunks) {
   const uint64_t p0 = manager_->progress();
   manager_->tick(now_ns_);

@@ -50,6 +50,10 @@ struct ClientConfig {
   LoopConfig loop;
 };
 
+/// The most server.max_file_bytes may be. The network configs (deploy/cyclonedds) let no DDS
+/// sample larger than this and its header through (MaxSampleSize).
+inline constexpr int kMaxFileBytesLimit = 64 * 1024 * 1024;
+
 struct ServerConfig {
   std::string db_path = "records/telehand.db";
   double hand_state_hz = 100.0;  ///< decimated HandState, 60-100 Hz (docs/design.md)
@@ -65,7 +69,7 @@ struct ServerConfig {
   /// capture's device and calibration files are a few kB) and how many per session.
   int max_sessions = 64;
   int max_sessions_per_participant = 4;
-  int max_file_bytes = 256 * 1024;
+  int max_file_bytes = 256 * 1024;  ///< at most kMaxFileBytesLimit
   int max_files_per_session = 8;
   /// How long an ended session's status stays published for late joiners, seconds.
   double status_keep_s = 60.0;
