@@ -281,8 +281,65 @@ TEST_F(GatewayTest, BrowsersBeyondTheLimitAreRefused) {
   WsClient extra(port_);
   EXPECT_FALSE(extra.ok() && extra.waitFor("\"type\":\"hello\"", 1s));
   EXPECT_EQ(statOf(stats(), "clients_refused"), 1u);
+  // The refusal says why, for the page to show.
+  const std::string answer = upgradeWith(port_, "");
+  EXPECT_NE(answer.find(" 503 "), std::string::npos) << answer;
+  EXPECT_NE(answer.find("--max-clients"), std::string::npos) << answer;
+  EXPECT_EQ(statOf(stats(), "clients_refused"), 2u);
   tabs.clear();
   EXPECT_TRUE(drained()) << stats();
+}
+
+// A page of another site open in the supervisor's browser could open the console's
+// WebSocket (browsers allow it) and mark or take over sessions with the console's DDS
+// identity: a WebSocket whose Origin is not the console's own page is refused and says why.
+// A program sends no Origin and is served, as is the console's own page.
+TEST_F(GatewayTest, AnotherSitesPageCannotOpenTheWebSocket) {
+  const std::string foreign = upgradeWith(port_, "Origin: http://evil.example\r\n");
+  EXPECT_NE(foreign.find(" 403 "), std::string::npos) << foreign;
+  EXPECT_NE(foreign.find("evil.example"), std::string::npos) << foreign;
+  // Same host, another port: another site.
+  const std::string other_port =
+      upgradeWith(port_, "Origin: http://127.0.0.1:" + std::to_string(port_ + 1) + "\r\n");
+  EXPECT_NE(other_port.find(" 403 "), std::string::npos) << other_port;
+  std::string s = stats();
+  EXPECT_EQ(statOf(s, "foreign_origin"), 2u) << s;
+  EXPECT_EQ(statOf(s, "clients_total"), 0u) << s;
+
+  int own = -1;
+  const std::string answer =
+      upgradeWith(port_, "Origin: http://127.0.0.1:" + std::to_string(port_) + "\r\n", &own);
+  EXPECT_NE(answer.find(" 101 "), std::string::npos) << answer;
+  int program = -1;
+  upgradeWith(port_, "", &program);
+  EXPECT_GE(program, 0);
+  for (int i = 0; i < 100 && statOf(stats(), "clients_total") < 2; ++i)
+    std::this_thread::sleep_for(50ms);
+  s = stats();
+  EXPECT_EQ(statOf(s, "clients_total"), 2u) << s;
+  EXPECT_EQ(statOf(s, "foreign_origin"), 2u) << s;
+  if (own >= 0) ::close(own);
+  if (program >= 0) ::close(program);
+  EXPECT_TRUE(drained()) << stats();
+}
+
+// A browser the gateway dropped (here: a message over the limit) that neither reads nor
+// closes is let go when it next sends: nothing more it sends is handled, and its place
+// under --max-clients is free again.
+TEST_F(GatewayTest, ADroppedBrowserThatSendsAgainIsLetGo) {
+  int fd = -1;
+  upgradeWith(port_, "", &fd);
+  ASSERT_GE(fd, 0);
+  ASSERT_TRUE(
+      writeTextFrame(fd, R"({"op":"mark","session":1,"text":")" + std::string(5000, 'x') + "\"}"));
+  std::this_thread::sleep_for(200ms);
+  ASSERT_TRUE(writeTextFrame(fd, R"({"op":"ping"})"));
+  const bool gone = drained();
+  const std::string s = stats();
+  ::close(fd);
+  EXPECT_TRUE(gone) << s;
+  EXPECT_EQ(statOf(s, "bad_messages"), 1u) << s;
+  EXPECT_EQ(statOf(s, "messages_in"), 1u) << "the ping after the drop is not handled\n" << s;
 }
 
 /// The first match of `pattern`'s group 1 in `p`'s output within `timeout` (0: none).

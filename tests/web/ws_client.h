@@ -163,6 +163,55 @@ inline int rawUpgrade(int port) {
   return fd;
 }
 
+/// A WebSocket upgrade to 127.0.0.1:`port` with `headers` ("Name: value\r\n" each) besides
+/// the handshake's own; the gateway's answer (its first bytes, "" if none), and the socket
+/// through `fd` when it was upgraded (else closed and -1).
+inline std::string upgradeWith(int port, const std::string& headers, int* fd_out = nullptr) {
+  if (fd_out) *fd_out = -1;
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<uint16_t>(port));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
+    ::close(fd);
+    return "";
+  }
+  const std::string req = "GET /ws HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port) +
+                          "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                          "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: "
+                          "13\r\n" +
+                          headers + "\r\n";
+  std::string answer;
+  if (::write(fd, req.data(), req.size()) == static_cast<ssize_t>(req.size())) {
+    char buf[1024];
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n > 0) answer.assign(buf, static_cast<std::size_t>(n));
+  }
+  if (fd_out && answer.find(" 101 ") != std::string::npos) {
+    *fd_out = fd;
+  } else {
+    ::close(fd);
+  }
+  return answer;
+}
+
+/// Writes `text` to a raw WebSocket as one masked text frame (the mask all zero); false when
+/// the write failed.
+inline bool writeTextFrame(int fd, const std::string& text) {
+  std::string f(1, static_cast<char>(0x81));
+  if (text.size() < 126) {
+    f += static_cast<char>(0x80 | text.size());
+  } else {
+    f += static_cast<char>(0x80 | 126);
+    f += static_cast<char>((text.size() >> 8) & 0xff);
+    f += static_cast<char>(text.size() & 0xff);
+  }
+  f.append(4, '\0');
+  f += text;
+  return ::write(fd, f.data(), f.size()) == static_cast<ssize_t>(f.size());
+}
+
 /// GET `path` from 127.0.0.1:`port`; the body, or "" on failure.
 inline std::string httpGet(int port, const std::string& path) {
   char err[256] = {0};

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -41,7 +42,9 @@ int64_t steadyNs() {
 double ms(int64_t ns) { return static_cast<double>(ns) * 1e-6; }
 
 // civetweb's C callbacks: the Gateway is the callback data.
-int connectCb(const mg_connection*, void* g) { return static_cast<Gateway*>(g)->onConnect(); }
+int connectCb(const mg_connection* conn, void* g) {
+  return static_cast<Gateway*>(g)->onConnect(const_cast<mg_connection*>(conn));
+}
 void readyCb(mg_connection* c, void* g) { static_cast<Gateway*>(g)->onReady(c); }
 int dataCb(mg_connection* c, int bits, char* data, size_t len, void* g) {
   return static_cast<Gateway*>(g)->onData(c, bits, data, len);
@@ -342,11 +345,62 @@ bool Gateway::knownSession(uint64_t id) const {
 
 // --- browsers ---
 
-int Gateway::onConnect() {
+namespace {
+/// Whether `origin` (a browser's Origin header) names the site at `host` (the Host header).
+bool sameOrigin(const char* origin, const char* host) {
+  // A browser names the page that opens a WebSocket in Origin; the console's own page comes
+  // from the Host it connects to. Scheme and host compared without case.
+  if (!host || !*host) return false;
+  const std::string_view o(origin);
+  for (const std::string_view scheme : {"http://", "https://"}) {
+    if (o.size() != scheme.size() + std::strlen(host)) continue;
+    if (o.substr(0, scheme.size()) != scheme) continue;
+    const std::string_view rest = o.substr(scheme.size());
+    if (std::equal(rest.begin(), rest.end(), host, host + std::strlen(host), [](char a, char b) {
+          return std::tolower(static_cast<unsigned char>(a)) ==
+                 std::tolower(static_cast<unsigned char>(b));
+        }))
+      return true;
+  }
+  return false;
+}
+
+/// An HTTP answer to a WebSocket upgrade that is not taken: status and why, then the
+/// connection closes (civetweb's own error page leaves the status line out here).
+void refuse(mg_connection* conn, const char* status, const std::string& why) {
+  mg_printf(conn,
+            "HTTP/1.1 %s\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: "
+            "%zu\r\nConnection: close\r\n\r\n%s",
+            status, why.size(), why.c_str());
+}
+}  // namespace
+
+int Gateway::onConnect(mg_connection* conn) {
+  // A page of another site that the supervisor's browser has open may open a WebSocket here
+  // too, and would act with the console's DDS identity: only the console's own page (or a
+  // program, which sends no Origin) is served.
+  const char* origin = mg_get_header(conn, "Origin");
+  if (origin && !sameOrigin(origin, mg_get_header(conn, "Host"))) {
+    ++stats_.clients_refused;
+    ++stats_.foreign_origin;
+    spdlog::warn(
+        "refused a WebSocket opened by a page of {} (the console serves its own page "
+        "only)",
+        origin);
+    refuse(conn, "403 Forbidden",
+           fmt::format("telehand-web: a WebSocket from a page of {} is refused; open the "
+                       "console's own page",
+                       origin));
+    return 1;
+  }
   std::lock_guard lk(clients_mutex_);
   if (clients_.size() >= o_.max_clients) {
     ++stats_.clients_refused;
     spdlog::warn("refused a browser: {} connected, the limit (--max-clients)", clients_.size());
+    refuse(conn, "503 Service Unavailable",
+           fmt::format("telehand-web: {} browsers are connected, the limit (--max-clients); "
+                       "try again when one leaves",
+                       clients_.size()));
     return 1;
   }
   return 0;
@@ -493,6 +547,12 @@ int Gateway::onData(mg_connection* conn, int bits, const char* data, std::size_t
   }
   const int opcode = bits & 0x0f;
   if (opcode == MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE) return 0;
+  {
+    // A browser already dropped (too slow, a failed write, a message too big): nothing more
+    // is taken from it, and returning 0 ends the connection, which frees its place.
+    std::lock_guard lk(c->m);
+    if (c->closing || c->close_code != 0) return 0;
+  }
   if (opcode == MG_WEBSOCKET_OPCODE_PING || opcode == MG_WEBSOCKET_OPCODE_PONG) return 1;
   ++stats_.messages_in;
   if (len > o_.max_message) {
@@ -790,18 +850,19 @@ std::string Gateway::statsJson() const {
     sessions = sessions_.size();
   }
   return fmt::format(
-      R"({{"clients_open":{},"clients_total":{},"clients_refused":{},"writer_threads":{},)"
+      R"({{"clients_open":{},"clients_total":{},"clients_refused":{},"foreign_origin":{},)"
+      R"("writer_threads":{},)"
       R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
       R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
       R"("takeovers":{},"dropped_slow":{},"replay_hands":{},"replay_hand_frames":{},)"
       R"("replay_hand_cached":{},"replay_workers":{}}})",
       stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
-      stats_.writer_threads.load(), sessions, stats_.hand_states.load(), stats_.hand_frames.load(),
-      stats_.hand_sent.load(), stats_.hand_coalesced.load(), stats_.messages_in.load(),
-      stats_.bad_messages.load(), stats_.unknown_session.load(), stats_.marks.load(),
-      stats_.replays.load(), stats_.takeovers.load(), stats_.dropped_slow.load(),
-      replay_hands_->hands.load(), replay_hands_->frames.load(), replay_hands_->cached.load(),
-      stats_.replay_workers.load());
+      stats_.foreign_origin.load(), stats_.writer_threads.load(), sessions,
+      stats_.hand_states.load(), stats_.hand_frames.load(), stats_.hand_sent.load(),
+      stats_.hand_coalesced.load(), stats_.messages_in.load(), stats_.bad_messages.load(),
+      stats_.unknown_session.load(), stats_.marks.load(), stats_.replays.load(),
+      stats_.takeovers.load(), stats_.dropped_slow.load(), replay_hands_->hands.load(),
+      replay_hands_->frames.load(), replay_hands_->cached.load(), stats_.replay_workers.load());
 }
 
 }  // namespace telehand::web

@@ -51,11 +51,12 @@ struct Options {
 struct Stats {
   std::atomic<uint64_t> clients_open{0};
   std::atomic<uint64_t> clients_total{0};
-  std::atomic<uint64_t> clients_refused{0};
-  std::atomic<uint64_t> hand_states{0};     ///< HandState taken from DDS
-  std::atomic<uint64_t> hand_frames{0};     ///< HandState frames serialized (watched sessions)
-  std::atomic<uint64_t> hand_sent{0};       ///< frames written to browsers
-  std::atomic<uint64_t> hand_coalesced{0};  ///< frames replaced by a newer one before sending
+  std::atomic<uint64_t> clients_refused{0};  ///< over --max-clients, or a foreign page's
+  std::atomic<uint64_t> foreign_origin{0};   ///< WebSockets opened by another site's page
+  std::atomic<uint64_t> hand_states{0};      ///< HandState taken from DDS
+  std::atomic<uint64_t> hand_frames{0};      ///< HandState frames serialized (watched sessions)
+  std::atomic<uint64_t> hand_sent{0};        ///< frames written to browsers
+  std::atomic<uint64_t> hand_coalesced{0};   ///< frames replaced by a newer one before sending
   std::atomic<uint64_t> messages_in{0};
   std::atomic<uint64_t> bad_messages{0};  ///< malformed, oversized or unknown requests
   std::atomic<uint64_t> unknown_session{0};
@@ -81,7 +82,7 @@ class Gateway {
   int run(const std::atomic<bool>& stop);
 
   // civetweb's callbacks (public for the C trampolines in gateway.cpp).
-  int onConnect();
+  int onConnect(mg_connection* conn);
   void onReady(mg_connection* conn);
   int onData(mg_connection* conn, int bits, const char* data, std::size_t len);
   void onClose(const mg_connection* conn);
