@@ -96,9 +96,22 @@ class GatewayTest : public ProcessTest {
     useOwnDomain();  // ClosedTabsLeaveNothingBehind measures the gateway's memory
     db_ = path("records.db");
     { server::store::SqliteStore store(db_); }  // an empty store
-    web_.emplace(cmd(TELEHAND_WEB_BIN, {"--db", db_, "--bind", "127.0.0.1:0", "--max-clients", "8",
-                                        "--replay-hand-s", "20", "--log-level", "warn"}),
-                 path("web.log"));
+    startWeb({});
+  }
+  /// Starts the gateway on the test's record, with `extra` options besides the fixture's.
+  void startWeb(const std::vector<std::string>& extra) {
+    if (web_) {
+      EXPECT_EQ(web_->stop(), 0) << web_->output();
+      web_.reset();
+    }
+    port_ = 0;
+    std::vector<std::string> args = {"--db",          db_,   "--bind",          "127.0.0.1:0",
+                                     "--max-clients", "8",   "--replay-hand-s", "20",
+                                     "--log-level",   "warn"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    web_.emplace(
+        cmd(TELEHAND_WEB_BIN, args),
+        path(++starts_ == 1 ? std::string("web.log") : "web-" + std::to_string(starts_) + ".log"));
     // Port 0: the system chooses; the gateway prints which.
     for (int i = 0; i < 200 && port_ == 0; ++i) {
       std::this_thread::sleep_for(50ms);
@@ -149,6 +162,7 @@ class GatewayTest : public ProcessTest {
 
   std::string db_;
   int port_ = 0;
+  int starts_ = 0;
   std::optional<Process> web_;
 };
 
@@ -560,6 +574,41 @@ TEST_F(GatewayTest, ALongRecordsHandIsCutAtTheBoundWhileTheGatewayAnswers) {
   EXPECT_EQ(statOf(stats(), "replay_workers"), 0u) << stats();
   EXPECT_EQ(statOf(stats(), "replay_hands"), 1u) << stats();
   EXPECT_LT(statOf(stats(), "replay_hand_frames"), 1001u + 1001u) << stats();
+}
+
+// A browser that asks for replays and does not read them: what waits for it is bounded in
+// bytes, not only in messages (512 replays of a long record are hundreds of MB), and past
+// the bound (--queue-bytes, here 1 MiB) it is dropped as too slow; its next message frees
+// its place.
+TEST_F(GatewayTest, ABrowserThatDoesNotReadItsReplaysIsDroppedAtTheByteBound) {
+  const uint64_t session = writeRecord(db_, "healthy", 30.0);
+  startWeb({"--queue-bytes", std::to_string(1 << 20)});
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  ASSERT_GE(fd, 0);
+  const int small = 4096;
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &small, sizeof small);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<uint16_t>(port_));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+  const std::string req =
+      "GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n";
+  ASSERT_EQ(::write(fd, req.data(), req.size()), static_cast<ssize_t>(req.size()));
+  const std::string ask = R"({"op":"replay","session":)" + std::to_string(session) + "}";
+  uint64_t dropped = 0;
+  for (int i = 0; i < 60 && dropped == 0; ++i) {
+    if (!writeTextFrame(fd, ask)) break;
+    std::this_thread::sleep_for(100ms);
+    dropped = statOf(stats(), "dropped_slow");
+  }
+  const std::string s = stats();
+  EXPECT_EQ(dropped, 1u) << s;
+  EXPECT_LT(statOf(s, "replays"), 60u) << s;
+  writeTextFrame(fd, R"({"op":"ping"})");
+  EXPECT_TRUE(drained()) << stats();
+  ::close(fd);
 }
 
 TEST_F(GatewayTest, AReplayOnAMissingCaseHasNoHandAndSaysWhy) {

@@ -81,6 +81,7 @@ struct Gateway::Client {
   std::string close_reason;
   uint64_t watching = 0;
   std::deque<std::string> queue;
+  std::size_t queued_bytes = 0;  // of `queue`
   std::shared_ptr<const std::string> hand;  // the newest HandState frame not yet sent
   int64_t next_hand_ns = 0;
   std::thread writer;
@@ -443,6 +444,7 @@ void Gateway::onClose(const mg_connection* conn) {
     std::lock_guard lk(c->m);
     c->closing = true;
     c->queue.clear();
+    c->queued_bytes = 0;
     c->hand.reset();
   }
   c->cv.notify_one();
@@ -456,14 +458,16 @@ bool Gateway::push(Client& c, std::string frame) {
   {
     std::lock_guard lk(c.m);
     if (c.closing || c.close_code != 0) return false;
-    if (c.queue.size() >= o_.queue_depth) {
+    if (c.queue.size() >= o_.queue_depth || c.queued_bytes + frame.size() > o_.queue_bytes) {
       // A browser that does not read: dropped, never waited for.
       ++stats_.dropped_slow;
       c.queue.clear();
+      c.queued_bytes = 0;
       c.close_code = kClosePolicy;
       c.close_reason = "too slow: the gateway's queue for this browser is full";
       spdlog::warn("browser {}: {}", c.id, c.close_reason);
     } else {
+      c.queued_bytes += frame.size();
       c.queue.push_back(std::move(frame));
     }
   }
@@ -498,6 +502,7 @@ void Gateway::writerLoop(const std::shared_ptr<Client>& cp) {
       batch.assign(std::make_move_iterator(c.queue.begin()),
                    std::make_move_iterator(c.queue.end()));
       c.queue.clear();
+      c.queued_bytes = 0;
       if (c.hand && now >= c.next_hand_ns) {
         hand = std::move(c.hand);
         c.hand.reset();

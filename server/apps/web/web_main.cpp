@@ -67,6 +67,10 @@ int main(int argc, char** argv) {
   app.add_option("--max-message", o.max_message, "largest message a browser may send, bytes")
       ->check(CLI::Range(256, 65536))
       ->capture_default_str();
+  app.add_option("--queue-bytes", o.queue_bytes,
+                 "bytes of replies waiting for one browser before it is dropped as too slow")
+      ->check(CLI::Range(std::size_t{1} << 16, std::size_t{1} << 30))
+      ->capture_default_str();
   app.add_option("--seconds", o.seconds, "serve this long (0 = until Ctrl-C)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
