@@ -583,19 +583,10 @@ TEST_F(GatewayTest, ALongRecordsHandIsCutAtTheBoundWhileTheGatewayAnswers) {
 TEST_F(GatewayTest, ABrowserThatDoesNotReadItsReplaysIsDroppedAtTheByteBound) {
   const uint64_t session = writeRecord(db_, "healthy", 30.0);
   startWeb({"--queue-bytes", std::to_string(1 << 20)});
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  // A browser that reads slowly: a receive buffer of 4 kB, and it never reads.
+  int fd = -1;
+  upgradeWith(port_, "", &fd, 4096);
   ASSERT_GE(fd, 0);
-  const int small = 4096;
-  ::setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &small, sizeof small);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_port = htons(static_cast<uint16_t>(port_));
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
-  const std::string req =
-      "GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n";
-  ASSERT_EQ(::write(fd, req.data(), req.size()), static_cast<ssize_t>(req.size()));
   const std::string ask = R"({"op":"replay","session":)" + std::to_string(session) + "}";
   uint64_t dropped = 0;
   for (int i = 0; i < 60 && dropped == 0; ++i) {

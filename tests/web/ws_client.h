@@ -135,28 +135,18 @@ class WsClient {
   bool closed_ = false;
 };
 
-/// Opens a WebSocket by hand and returns the socket once upgraded (-1 on failure); the
-/// caller close()s it without a close frame.
-inline int rawUpgrade(int port) {
+/// A TCP connection to 127.0.0.1:`port` (-1 on failure); with `receive_buffer` > 0 the
+/// socket's receive buffer is set that small first (a browser that reads slowly).
+inline int connectLoopback(int port, int receive_buffer = 0) {
   const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  if (fd < 0) return -1;
+  if (receive_buffer > 0)
+    ::setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &receive_buffer, sizeof receive_buffer);
   sockaddr_in a{};
   a.sin_family = AF_INET;
   a.sin_port = htons(static_cast<uint16_t>(port));
   a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
   if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
-    ::close(fd);
-    return -1;
-  }
-  const std::string req =
-      "GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n";
-  if (::write(fd, req.data(), req.size()) != static_cast<ssize_t>(req.size())) {
-    ::close(fd);
-    return -1;
-  }
-  char buf[512];
-  const ssize_t n = ::read(fd, buf, sizeof buf);
-  if (n <= 0 || std::string(buf, static_cast<std::size_t>(n)).find(" 101 ") == std::string::npos) {
     ::close(fd);
     return -1;
   }
@@ -164,19 +154,14 @@ inline int rawUpgrade(int port) {
 }
 
 /// A WebSocket upgrade to 127.0.0.1:`port` with `headers` ("Name: value\r\n" each) besides
-/// the handshake's own; the gateway's answer (its first bytes, "" if none), and the socket
-/// through `fd` when it was upgraded (else closed and -1).
-inline std::string upgradeWith(int port, const std::string& headers, int* fd_out = nullptr) {
+/// the handshake's own, on a connection of connectLoopback(port, receive_buffer); the
+/// gateway's answer (its first bytes, "" if none), and the socket through `fd_out` when it
+/// was upgraded (else closed and -1).
+inline std::string upgradeWith(int port, const std::string& headers, int* fd_out = nullptr,
+                               int receive_buffer = 0) {
   if (fd_out) *fd_out = -1;
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_port = htons(static_cast<uint16_t>(port));
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
-    ::close(fd);
-    return "";
-  }
+  const int fd = connectLoopback(port, receive_buffer);
+  if (fd < 0) return "";
   const std::string req = "GET /ws HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port) +
                           "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                           "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: "
@@ -194,6 +179,14 @@ inline std::string upgradeWith(int port, const std::string& headers, int* fd_out
     ::close(fd);
   }
   return answer;
+}
+
+/// Opens a WebSocket by hand and returns the socket once upgraded (-1 on failure); the
+/// caller close()s it without a close frame.
+inline int rawUpgrade(int port) {
+  int fd = -1;
+  upgradeWith(port, "", &fd);
+  return fd;
 }
 
 /// Writes `text` to a raw WebSocket as one masked text frame (the mask all zero); false when
