@@ -81,7 +81,7 @@ struct Gateway::Client {
   std::string close_reason;
   uint64_t watching = 0;
   std::deque<std::string> queue;
-  std::size_t queued_bytes = 0;  // of `queue`
+  std::size_t queued_bytes = 0;             // of `queue`
   std::shared_ptr<const std::string> hand;  // the newest HandState frame not yet sent
   int64_t next_hand_ns = 0;
   std::thread writer;

@@ -32,10 +32,10 @@ struct Options {
   double band_min_n = 12.0;             ///< reference force band shown on the plot
   double band_max_n = 16.0;
   std::size_t max_clients = 32;
-  std::size_t max_message = 4096;     ///< largest message a browser may send, bytes
-  std::size_t queue_depth = 512;      ///< messages waiting for one browser before it is dropped
+  std::size_t max_message = 4096;       ///< largest message a browser may send, bytes
+  std::size_t queue_depth = 512;        ///< messages waiting for one browser before it is dropped
   std::size_t queue_bytes = 16u << 20;  ///< ...or bytes (a replay is up to a few MB)
-  std::size_t replay_points = 24000;  ///< samples a replay sends at most (decimated evenly)
+  std::size_t replay_points = 24000;    ///< samples a replay sends at most (decimated evenly)
   /// A replay's hand (replay_hand.h): the patient cases the server reads, frames per second of
   /// record, frames in all and seconds of record at most, and how many run at once (each
   /// takes a core while it runs; more wait their turn).
