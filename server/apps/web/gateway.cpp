@@ -79,6 +79,8 @@ struct Gateway::Client {
   bool closing = false;     // the connection is going: the writer ends
   uint16_t close_code = 0;  // the writer closes the connection with this code (0: no)
   std::string close_reason;
+  /// Going, or dropped: nothing more is sent to it or taken from it (`m` held).
+  bool done() const noexcept { return closing || close_code != 0; }
   uint64_t watching = 0;
   std::deque<std::string> queue;
   std::size_t queued_bytes = 0;             // of `queue`
@@ -348,19 +350,17 @@ bool Gateway::knownSession(uint64_t id) const {
 
 namespace {
 /// Whether `origin` (a browser's Origin header) names the site at `host` (the Host header).
-bool sameOrigin(const char* origin, const char* host) {
+bool sameOrigin(std::string_view origin, const char* host_header) {
   // A browser names the page that opens a WebSocket in Origin; the console's own page comes
-  // from the Host it connects to. Scheme and host compared without case.
-  if (!host || !*host) return false;
-  const std::string_view o(origin);
+  // from the Host it connects to. The host compared without case.
+  if (!host_header || !*host_header) return false;
+  const std::string_view host(host_header);
+  const auto same = [](char a, char b) {
+    return std::tolower(static_cast<unsigned char>(a)) ==
+           std::tolower(static_cast<unsigned char>(b));
+  };
   for (const std::string_view scheme : {"http://", "https://"}) {
-    if (o.size() != scheme.size() + std::strlen(host)) continue;
-    if (o.substr(0, scheme.size()) != scheme) continue;
-    const std::string_view rest = o.substr(scheme.size());
-    if (std::equal(rest.begin(), rest.end(), host, host + std::strlen(host), [](char a, char b) {
-          return std::tolower(static_cast<unsigned char>(a)) ==
-                 std::tolower(static_cast<unsigned char>(b));
-        }))
+    if (origin.starts_with(scheme) && std::ranges::equal(origin.substr(scheme.size()), host, same))
       return true;
   }
   return false;
@@ -457,7 +457,7 @@ void Gateway::onClose(const mg_connection* conn) {
 bool Gateway::push(Client& c, std::string frame) {
   {
     std::lock_guard lk(c.m);
-    if (c.closing || c.close_code != 0) return false;
+    if (c.done()) return false;
     if (c.queue.size() >= o_.queue_depth || c.queued_bytes + frame.size() > o_.queue_bytes) {
       // A browser that does not read: dropped, never waited for.
       ++stats_.dropped_slow;
@@ -556,7 +556,7 @@ int Gateway::onData(mg_connection* conn, int bits, const char* data, std::size_t
     // A browser already dropped (too slow, a failed write, a message too big): nothing more
     // is taken from it, and returning 0 ends the connection, which frees its place.
     std::lock_guard lk(c->m);
-    if (c->closing || c->close_code != 0) return 0;
+    if (c->done()) return 0;
   }
   if (opcode == MG_WEBSOCKET_OPCODE_PING || opcode == MG_WEBSOCKET_OPCODE_PONG) return 1;
   ++stats_.messages_in;
@@ -817,7 +817,7 @@ void Gateway::startReplayHand(const std::shared_ptr<Client>& c, uint64_t session
         [&] {
           if (c->replay_cancel.load() || stopping_.load()) return true;
           std::lock_guard ck(c->m);
-          return c->closing || c->close_code != 0;
+          return c->done();
         });
     --stats_.replay_workers;
   });

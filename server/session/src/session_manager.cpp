@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <cstring>
 #include <filesystem>
-#include <optional>
 #include <string_view>
 
 #include "telehand/core/clock.h"
@@ -1182,24 +1181,19 @@ void SessionManager::closeAll(int64_t now_ns) {
     writer_->wait();
     landWrites();
   }
-  // Pool: the sessions the record still says are this server's. One another server took over
-  // since the last heartbeat (this one's lease had run out) is let go, not written over; the
-  // heartbeat renews the lease, so no one can take the rest before they are written.
-  std::optional<std::vector<uint64_t>> mine;
   if (pooled()) {
+    // Pool: a session another server took over since the last heartbeat (this one's lease had
+    // run out) is let go, not written over; the heartbeat renews the lease, so no one can take
+    // the rest before they are written.
     try {
-      mine = store_.poolHeartbeat(pool_id_, sessions_.size() + suspended_.size(), kPoolLeaseNs);
-      std::sort(mine->begin(), mine->end());
+      letGoOfTakenSessions(
+          store_.poolHeartbeat(pool_id_, sessions_.size() + suspended_.size(), kPoolLeaseNs));
     } catch (const StoreError& e) {
       ++stats_.store_errors;
       spdlog::error("pool: {}", e.what());
     }
   }
   for (auto& [id, s] : sessions_) {
-    if (mine && !std::binary_search(mine->begin(), mine->end(), id)) {
-      spdlog::warn("session {}: taken over by another server of the pool; let go here", id);
-      continue;
-    }
     s.recorder.flushNow(ctx_);
     s.flushHand(now_ns);
     if (s.closing) {
@@ -1224,6 +1218,21 @@ void SessionManager::closeAll(int64_t now_ns) {
 }
 
 // ---- Pool (docs/pool.md) --------------------------------------------------------------------
+
+void SessionManager::letGoOfTakenSessions(std::vector<uint64_t> mine) {
+  std::sort(mine.begin(), mine.end());
+  const auto owned = [&](uint64_t id) { return std::binary_search(mine.begin(), mine.end(), id); };
+  // Writing nothing more of them: their clients follow the new owner.
+  for (auto it = sessions_.begin(); it != sessions_.end();) {
+    if (owned(it->first)) {
+      ++it;
+      continue;
+    }
+    spdlog::warn("session {}: taken over by another server of the pool; let go here", it->first);
+    it = sessions_.erase(it);
+  }
+  std::erase_if(suspended_, [&](const auto& kv) { return !owned(kv.first); });
+}
 
 bool SessionManager::elsewhere(uint64_t session_id) const {
   return pooled() && !sessions_.count(session_id) && !suspended_.count(session_id);
@@ -1276,18 +1285,7 @@ void SessionManager::poolTick(int64_t now_ns) {
   last_beat_ns_ = t1;
   records_ns_ = 0;
   beat_progress_ = progress;
-  const auto owned = [&](uint64_t id) { return std::binary_search(mine.begin(), mine.end(), id); };
-  // Sessions another server took over while this one did not renew its lease in time: let go,
-  // writing nothing more (their clients follow the new owner).
-  for (auto it = sessions_.begin(); it != sessions_.end();) {
-    if (owned(it->first)) {
-      ++it;
-      continue;
-    }
-    spdlog::warn("session {}: taken over by another server of the pool; let go here", it->first);
-    it = sessions_.erase(it);
-  }
-  std::erase_if(suspended_, [&](const auto& kv) { return !owned(kv.first); });
+  letGoOfTakenSessions(mine);
   int claims = 0;
   for (uint64_t id : orphans) {
     if (claims >= kMaxClaimsPerBeat) break;

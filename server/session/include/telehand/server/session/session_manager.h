@@ -230,6 +230,10 @@ class SessionManager {
   void landWrites();
   /// Pool: heartbeat, let go of sessions lost, claim orphans, checkpoint hands.
   void poolTick(int64_t now_ns);
+  /// Pool: lets go of the sessions (open or suspended) that are not in `mine`, the ones the
+  /// record says are this server's: another server took them over while this one's lease had
+  /// run out.
+  void letGoOfTakenSessions(std::vector<uint64_t> mine);
   /// Pool: a session this server just claimed from the record (its owner's lease ran out).
   void takeOver(uint64_t session_id, const store::PoolClaim& claim, int64_t now_ns);
   /// Pool: a session that no Session runs here and that this server does not wait for
