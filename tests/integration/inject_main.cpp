@@ -53,14 +53,17 @@ struct Peer {
   }
 
   void send(telehand_msg_CommandKind kind, uint64_t session, uint64_t samples_sent = 0) {
-    telehand_msg_SessionCommand c = sessionCommand(kind, client_id, ++request_seq, session);
-    c.samples_sent = samples_sent;
-    c.last_seq = samples_sent ? samples_sent - 1 : 0;
-    copyString(c.case_name, "healthy");
-    copyString(c.user, "inject");
-    copyString(c.text, "");
-    command.write(c);
+    last = sessionCommand(kind, client_id, ++request_seq, session);
+    last.samples_sent = samples_sent;
+    last.last_seq = samples_sent ? samples_sent - 1 : 0;
+    copyString(last.case_name, "healthy");
+    copyString(last.user, "inject");
+    copyString(last.text, "");
+    command.write(last);
   }
+
+  /// The last command again, as it was (the same request_seq).
+  void repeat() { command.write(last); }
 
   /// First error event addressed to this client or session that contains `needle`.
   std::optional<std::string> awaitError(const std::string& needle, uint64_t session,
@@ -93,6 +96,7 @@ struct Peer {
   dds::Reader<telehand_msg_JointModel> models;
   uint64_t client_id = 0x1badc0de;
   uint32_t request_seq = 0;
+  telehand_msg_SessionCommand last{};
 };
 
 telehand_msg_DeviceState plausibleSample(uint64_t session, uint64_t seq) {
@@ -218,6 +222,34 @@ int openFlood(const dds::Options& o, uint64_t count, int participants, std::chro
     }
   }
   std::vector<std::set<uint64_t>> opened(peers.size());
+  // Each participant's first OPEN is asked again every second until answered, as a client
+  // asks (ClientLink::open): that this writer has matched the server's reader does not mean
+  // the server's reader has matched this writer yet, and what it sends before then is lost.
+  // The rest of the flood is sent once: every OPEN of it reaches a server that knows its
+  // sender.
+  uint64_t first_opens = 0;
+  for (std::size_t i = 0; i < peers.size() && first_opens < count; ++i, ++first_opens) {
+    Peer& p = *peers[i];
+    p.send(telehand_msg_CMD_OPEN, 0);
+    const auto deadline = std::chrono::steady_clock::now() + 10s;
+    auto next_ask = std::chrono::steady_clock::now() + 1s;
+    while (opened[i].empty()) {
+      if (std::chrono::steady_clock::now() > deadline) {
+        std::cerr << "inject: participant " << i << "'s first OPEN was not answered in 10 s\n";
+        return 1;
+      }
+      if (std::chrono::steady_clock::now() >= next_ask) {
+        next_ask += 1s;
+        p.repeat();
+      }
+      p.status.take([&](const telehand_msg_SessionStatus& st, const dds_sample_info_t&) {
+        if (st.client_id == p.client_id && st.request_seq == p.request_seq &&
+            st.state == telehand_msg_SESSION_ACTIVE)
+          opened[i].insert(st.session_id);
+      });
+      std::this_thread::sleep_for(5ms);
+    }
+  }
   const auto collect = [&] {
     for (std::size_t i = 0; i < peers.size(); ++i) {
       peers[i]->status.take(
@@ -229,7 +261,7 @@ int openFlood(const dds::Options& o, uint64_t count, int participants, std::chro
     }
   };
   const auto t0 = std::chrono::steady_clock::now();
-  for (uint64_t k = 0; k < count; ++k) {
+  for (uint64_t k = first_opens; k < count; ++k) {
     peers[k % peers.size()]->send(telehand_msg_CMD_OPEN, 0);
     if (k % 256 == 255) collect();
   }
