@@ -356,6 +356,57 @@ TEST_F(GatewayTest, ADroppedBrowserThatSendsAgainIsLetGo) {
   EXPECT_EQ(statOf(s, "messages_in"), 1u) << "the ping after the drop is not handled\n" << s;
 }
 
+// A browser that vanished without closing (a laptop shut, a cable pulled: no FIN) is pinged
+// once silent for --ping-s and let go after 6 pings without an answer, its place under
+// --max-clients free again; a browser that answers them, as every browser does by itself,
+// stays however long it says nothing else.
+TEST_F(GatewayTest, AVanishedBrowserIsLetGoAfterUnansweredPings) {
+  constexpr double kPingS = 0.5;
+  startWeb({"--ping-s", "0.5"});
+  int vanished = -1;
+  int alive = -1;
+  upgradeWith(port_, "", &vanished);
+  const std::string answer = upgradeWith(port_, "", &alive);
+  ASSERT_GE(vanished, 0);
+  ASSERT_GE(alive, 0);
+  const std::size_t head = answer.find("\r\n\r\n");
+  ASSERT_NE(head, std::string::npos) << answer;
+  std::string pending = answer.substr(head + 4);
+  WsClient program(port_);  // the tests' and the benchmark's client answers them too
+  ASSERT_TRUE(program.ok()) << program.error();
+  for (int i = 0; i < 100 && statOf(stats(), "clients_open") < 3; ++i)
+    std::this_thread::sleep_for(50ms);
+  ASSERT_EQ(statOf(stats(), "clients_open"), 3u) << stats();
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto since = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  };
+  int pings = 0;
+  std::optional<double> let_go_s;
+  while (since() < 30.0 && (!let_go_s || since() < *let_go_s + 3.0)) {
+    const int n = readFrames(alive, pending, true, 100ms);
+    ASSERT_GE(n, 0) << "the gateway closed the browser that answers its pings after " << since()
+                    << " s\n"
+                    << stats();
+    pings += n;
+    if (!let_go_s && statOf(stats(), "clients_open") == 2) let_go_s = since();
+  }
+  const std::string s = stats();
+  const bool program_served = program.ok() && !program.waitClosed(0ms);
+  program.close();
+  ::close(vanished);
+  ::close(alive);
+  ASSERT_TRUE(let_go_s.has_value()) << "the vanished browser was not let go in 30 s\n" << s;
+  std::cout << "pinged every " << kPingS << " s: the vanished browser let go after " << *let_go_s
+            << " s; the one that answers pinged " << pings << " times and still served\n";
+  // Not before it was silent for its 6 pings and one more wait.
+  EXPECT_GE(*let_go_s, 6.0 * kPingS) << s;
+  EXPECT_EQ(statOf(s, "clients_open"), 2u) << "the two that answer are still served\n" << s;
+  EXPECT_TRUE(program_served);
+  EXPECT_GE(pings, 6) << "the answering browser was pinged all along";
+  EXPECT_TRUE(drained()) << stats();
+}
+
 /// The first match of `pattern`'s group 1 in `p`'s output within `timeout` (0: none).
 uint64_t awaitNumber(const Process& p, const std::string& pattern,
                      std::chrono::milliseconds timeout) {

@@ -5,6 +5,7 @@
 #include <arpa/inet.h>
 #include <civetweb.h>
 #include <netinet/in.h>
+#include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -103,8 +104,14 @@ class WsClient {
   }
 
  private:
-  static int onData(mg_connection*, int bits, char* data, size_t len, void* self) {
+  static int onData(mg_connection* conn, int bits, char* data, size_t len, void* self) {
     auto* c = static_cast<WsClient*>(self);
+    if ((bits & 0x0f) == MG_WEBSOCKET_OPCODE_PING) {
+      // Answered as a browser answers them (civetweb's client leaves that to its user): the
+      // gateway closes a browser that leaves its pings unanswered (--ping-s).
+      mg_websocket_client_write(conn, MG_WEBSOCKET_OPCODE_PONG, data, len);
+      return 1;
+    }
     if ((bits & 0x0f) != MG_WEBSOCKET_OPCODE_TEXT) return 1;
     {
       std::lock_guard lk(c->m_);
@@ -155,8 +162,8 @@ inline int connectLoopback(int port, int receive_buffer = 0) {
 
 /// A WebSocket upgrade to 127.0.0.1:`port` with `headers` ("Name: value\r\n" each) besides
 /// the handshake's own, on a connection of connectLoopback(port, receive_buffer); the
-/// gateway's answer (its first bytes, "" if none), and the socket through `fd_out` when it
-/// was upgraded (else closed and -1).
+/// gateway's answer (its head and what came with it, "" if none), and the socket through
+/// `fd_out` when it was upgraded (else closed and -1).
 inline std::string upgradeWith(int port, const std::string& headers, int* fd_out = nullptr,
                                int receive_buffer = 0) {
   if (fd_out) *fd_out = -1;
@@ -169,9 +176,17 @@ inline std::string upgradeWith(int port, const std::string& headers, int* fd_out
                           headers + "\r\n";
   std::string answer;
   if (::write(fd, req.data(), req.size()) == static_cast<ssize_t>(req.size())) {
-    char buf[1024];
-    const ssize_t n = ::read(fd, buf, sizeof buf);
-    if (n > 0) answer.assign(buf, static_cast<std::size_t>(n));
+    // The whole head (the first frames may follow it in the same read), within 5 s.
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+    while (answer.find("\r\n\r\n") == std::string::npos &&
+           std::chrono::steady_clock::now() < until) {
+      pollfd p{fd, POLLIN, 0};
+      if (::poll(&p, 1, 100) <= 0) continue;
+      char buf[1024];
+      const ssize_t n = ::read(fd, buf, sizeof buf);
+      if (n <= 0) break;
+      answer.append(buf, static_cast<std::size_t>(n));
+    }
   }
   if (fd_out && answer.find(" 101 ") != std::string::npos) {
     *fd_out = fd;
@@ -203,6 +218,57 @@ inline bool writeTextFrame(int fd, const std::string& text) {
   f.append(4, '\0');
   f += text;
   return ::write(fd, f.data(), f.size()) == static_cast<ssize_t>(f.size());
+}
+
+/// Reads what the gateway sends on a raw WebSocket `fd` for `for_time`; `pending` holds the
+/// bytes not yet a whole frame (start it with what followed the upgrade's answer). Each ping
+/// is answered with a pong, as a browser does by itself, when `answer_pings`. Returns the pings
+/// read, or -1 once the gateway has closed the connection.
+inline int readFrames(int fd, std::string& pending, bool answer_pings,
+                      std::chrono::milliseconds for_time) {
+  const auto until = std::chrono::steady_clock::now() + for_time;
+  int pings = 0;
+  for (;;) {
+    // Whole frames first: FIN and opcode, a length of 7, 16 or 64 bits, no mask (server).
+    while (pending.size() >= 2) {
+      const auto byte = [&](std::size_t i) { return static_cast<uint8_t>(pending[i]); };
+      std::size_t head = 2;
+      uint64_t len = byte(1) & 0x7f;
+      if (len == 126) {
+        if (pending.size() < 4) break;
+        len = (uint64_t{byte(2)} << 8) | byte(3);
+        head = 4;
+      } else if (len == 127) {
+        if (pending.size() < 10) break;
+        len = 0;
+        for (std::size_t i = 2; i < 10; ++i) len = (len << 8) | byte(i);
+        head = 10;
+      }
+      if (pending.size() < head + len) break;
+      const int opcode = byte(0) & 0x0f;
+      if (opcode == MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE) return -1;
+      if (opcode == MG_WEBSOCKET_OPCODE_PING) {
+        ++pings;
+        if (answer_pings && len < 126) {
+          std::string pong(1, static_cast<char>(0x80 | MG_WEBSOCKET_OPCODE_PONG));
+          pong += static_cast<char>(0x80 | len);
+          pong.append(4, '\0');  // the mask, all zero
+          pong.append(pending, head, len);
+          if (::write(fd, pong.data(), pong.size()) != static_cast<ssize_t>(pong.size())) return -1;
+        }
+      }
+      pending.erase(0, head + len);
+    }
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        until - std::chrono::steady_clock::now());
+    if (left.count() <= 0) return pings;
+    pollfd p{fd, POLLIN, 0};
+    if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) continue;
+    char buf[4096];
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n <= 0) return -1;
+    pending.append(buf, static_cast<std::size_t>(n));
+  }
 }
 
 /// GET `path` from 127.0.0.1:`port`; the body, or "" on failure.

@@ -140,6 +140,11 @@ Gateway::Gateway(const Options& options)
     throw ConfigError("this civetweb was built without WebSocket support");
   }
   const std::string threads = std::to_string(o_.max_clients + 8);
+  // civetweb's websocket timeout is only how long a read waits: without its pings a peer that
+  // vanished without a FIN (a laptop closed, a cable pulled) would hold a thread and a place
+  // under --max-clients for good. With them it is let go after 6 pings without an answer.
+  const std::string ping_ms =
+      std::to_string(static_cast<long>(std::lround(std::max(o_.ping_s, 0.1) * 1000.0)));
   const char* opts[] = {"listening_ports",
                         o_.bind.c_str(),
                         "document_root",
@@ -151,7 +156,9 @@ Gateway::Gateway(const Options& options)
                         "request_timeout_ms",
                         "10000",
                         "websocket_timeout_ms",
-                        "3600000",
+                        ping_ms.c_str(),
+                        "enable_websocket_ping_pong",
+                        "yes",
                         "additional_header",
                         "Cache-Control: no-cache",
                         nullptr};

@@ -71,6 +71,11 @@ int main(int argc, char** argv) {
                  "bytes of replies waiting for one browser before it is dropped as too slow")
       ->check(CLI::Range(std::size_t{1} << 16, std::size_t{1} << 30))
       ->capture_default_str();
+  app.add_option("--ping-s", o.ping_s,
+                 "seconds a browser may be silent before it is pinged; 6 pings unanswered "
+                 "close it")
+      ->check(CLI::Range(0.2, 600.0))
+      ->capture_default_str();
   app.add_option("--seconds", o.seconds, "serve this long (0 = until Ctrl-C)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
