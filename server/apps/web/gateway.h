@@ -37,7 +37,7 @@ struct Options {
   std::size_t queue_bytes = 16u << 20;  ///< ...or bytes (a replay is up to a few MB)
   /// Seconds a browser may be silent before the gateway pings it; after 6 pings without an
   /// answer (a browser answers them itself) the connection is closed and its place freed.
-  double ping_s = 10.0;
+  double ping_s = 30.0;
   std::size_t replay_points = 24000;  ///< samples a replay sends at most (decimated evenly)
   /// A replay's hand (replay_hand.h): the patient cases the server reads, frames per second of
   /// record, frames in all and seconds of record at most, and how many run at once (each
