@@ -2,6 +2,7 @@
 // MF-2 and the client's loop in capture mode, fitted per axis (paper section IV.B).
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <numbers>
@@ -548,18 +549,45 @@ JointModelParams shippedCase(const std::string& name) {
 /// walls, 0.5 N with them. The fit uses the known moving mass (FitOptions::inertia_kgm2):
 /// a sweep does not separate inertia from stiffness (docs/capture.md). None of these has a
 /// spasm, and none is found. spasm: CaptureFitTruth.SpasmGainAndElasticCurve.
-TEST(CaptureFitTruth, ShippedCasesAtDefaultLength) {
-  uint64_t seed = 11;
-  for (const char* name : {"healthy", "stiff", "lax", "recovery"}) {
-    for (const double hz : {0.5, 3.0, 6.0}) {
-      const JointModelParams truth = shippedCase(name);
-      const CaseRun r = runCase(truth, hz, ++seed);
-      const std::string what = std::string(name) + " " + std::to_string(hz).substr(0, 3) + " Hz";
-      expectWithin(truth, r, what, 0.3, 0.5);
-      EXPECT_EQ(r.fit.model(truth).speed_gain_s_per_rad, 0.0) << what;
-    }
-  }
+/// A test name's rate: 0.5 Hz as "0p5Hz", 3 Hz as "3Hz".
+std::string hzName(double hz) {
+  const int tenths = static_cast<int>(std::lround(hz * 10.0));
+  return std::to_string(tenths / 10) + (tenths % 10 ? "p" + std::to_string(tenths % 10) : "") +
+         "Hz";
 }
+
+struct ShippedRun {
+  const char* name;
+  double hz;
+  uint64_t seed;
+};
+
+void PrintTo(const ShippedRun& r, std::ostream* os) { *os << r.name << " " << r.hz << " Hz"; }
+
+class ShippedCasesAtDefaultLength : public ::testing::TestWithParam<ShippedRun> {};
+
+TEST_P(ShippedCasesAtDefaultLength, FitsWithinTheBoundsAndFindsNoSpasm) {
+  const ShippedRun& run = GetParam();
+  const JointModelParams truth = shippedCase(run.name);
+  const CaseRun r = runCase(truth, run.hz, run.seed);
+  const std::string what =
+      std::string(run.name) + " " + std::to_string(run.hz).substr(0, 3) + " Hz";
+  expectWithin(truth, r, what, 0.3, 0.5);
+  EXPECT_EQ(r.fit.model(truth).speed_gain_s_per_rad, 0.0) << what;
+}
+
+// One ctest entry per case and rate (each a capture and a fit of its own, seeds 12-23).
+INSTANTIATE_TEST_SUITE_P(
+    CaptureFitTruth, ShippedCasesAtDefaultLength,
+    ::testing::Values(ShippedRun{"healthy", 0.5, 12}, ShippedRun{"healthy", 3.0, 13},
+                      ShippedRun{"healthy", 6.0, 14}, ShippedRun{"stiff", 0.5, 15},
+                      ShippedRun{"stiff", 3.0, 16}, ShippedRun{"stiff", 6.0, 17},
+                      ShippedRun{"lax", 0.5, 18}, ShippedRun{"lax", 3.0, 19},
+                      ShippedRun{"lax", 6.0, 20}, ShippedRun{"recovery", 0.5, 21},
+                      ShippedRun{"recovery", 3.0, 22}, ShippedRun{"recovery", 6.0, 23}),
+    [](const ::testing::TestParamInfo<ShippedRun>& i) {
+      return std::string(i.param.name) + "_" + hzName(i.param.hz);
+    });
 
 /// The spasm case (deploy/cases/spasm.toml: gain 1.5 s/rad, damping 0.002 N·m·s/rad, capped
 /// at 0.01): the fit holds the stretch reflex, so the holding curve comes out as for the
@@ -749,25 +777,41 @@ TEST(CaptureFitTruth, AReflexDoesNotHideTheNeutralZone) {
 /// the earlier start does not pay, and keeps the first lag's fits when the new lag's explain
 /// the capture worse. Patients 40 and 41 (spasms of their own, not looked at while making the
 /// change) at 2 and 4 Hz hold the same limits.
-TEST(CaptureFitTruth, SpasmIsNotLostWhenTheLagIsChosenAgain) {
-  struct Run {
-    uint64_t patient;
-    double hz;
-    uint64_t seed;
-  };
-  for (const Run& run : {Run{25, 3.0, 2}, Run{32, 2.0, 4}, Run{41, 2.0, 6}, Run{41, 4.0, 6},
-                         Run{40, 2.0, 6}, Run{40, 4.0, 6}}) {
-    const PatientCase pc = randomPatientCase(run.patient);
-    const std::string what = "random-" + std::to_string(run.patient) + " " +
-                             std::to_string(run.hz).substr(0, 3) + " Hz seed " +
-                             std::to_string(run.seed);
-    ASSERT_GT(pc.model.speed_gain_s_per_rad, 0.0) << what;
-    const CaseRun r = runCase(pc.model, run.hz, run.seed, kPaperNoiseN, true);
-    expectWithin(pc.model, r, what, 0.3, 0.5);
-    for (std::size_t i = 0; i < kAxes; ++i)
-      EXPECT_LT(r.fit.axes[i].rms_n, 1.45) << what << " " << kAxisNames[i];
-  }
+struct PatientRun {
+  uint64_t patient;
+  double hz;
+  uint64_t seed;
+};
+
+std::string describe(const PatientRun& run) {
+  return "random-" + std::to_string(run.patient) + " " + std::to_string(run.hz).substr(0, 3) +
+         " Hz seed " + std::to_string(run.seed);
 }
+
+void PrintTo(const PatientRun& r, std::ostream* os) { *os << describe(r); }
+
+class SpasmIsNotLostWhenTheLagIsChosenAgain : public ::testing::TestWithParam<PatientRun> {};
+
+TEST_P(SpasmIsNotLostWhenTheLagIsChosenAgain, FitsWithinTheBoundsAndExplainsTheCapture) {
+  const PatientRun& run = GetParam();
+  const PatientCase pc = randomPatientCase(run.patient);
+  const std::string what = describe(run);
+  ASSERT_GT(pc.model.speed_gain_s_per_rad, 0.0) << what;
+  const CaseRun r = runCase(pc.model, run.hz, run.seed, kPaperNoiseN, true);
+  expectWithin(pc.model, r, what, 0.3, 0.5);
+  for (std::size_t i = 0; i < kAxes; ++i)
+    EXPECT_LT(r.fit.axes[i].rms_n, 1.45) << what << " " << kAxisNames[i];
+}
+
+// One ctest entry per patient and rate.
+INSTANTIATE_TEST_SUITE_P(CaptureFitTruth, SpasmIsNotLostWhenTheLagIsChosenAgain,
+                         ::testing::Values(PatientRun{25, 3.0, 2}, PatientRun{32, 2.0, 4},
+                                           PatientRun{41, 2.0, 6}, PatientRun{41, 4.0, 6},
+                                           PatientRun{40, 2.0, 6}, PatientRun{40, 4.0, 6}),
+                         [](const ::testing::TestParamInfo<PatientRun>& i) {
+                           return "random" + std::to_string(i.param.patient) + "_" +
+                                  hzName(i.param.hz) + "_seed" + std::to_string(i.param.seed);
+                         });
 
 /// The force channel's lag is chosen with each axis' walls and zone searched at every lag
 /// (FitOptions::lag_with_shape): a plain cubic misreads the kinks where the stiffness
@@ -868,54 +912,61 @@ TEST(CaptureFitTruth, InertiaChoiceFollowsTheOptions) {
 
 /// Every curve the live refit publishes rises over its range, while a noisy fast capture
 /// arrives chunk by chunk.
-TEST(LiveRefitTruth, NeverPublishesAFallingCurve) {
-  for (const char* name : {"lax", "spasm"}) {
-    SyntheticCaptureOptions o;
-    o.truth = shippedCase(name);
-    o.frequency_hz = 3.0;
-    o.seed = 21;
-    // 6 s per axis, each swept to its range ends (the default 10 s costs twice the time,
-    // every refit fitting the whole capture so far).
-    o.seconds_per_axis = 6.0;
-    const SyntheticCapture cap = synthesizeCapture(o);
-    // Refits at fixed steps of the capture's time, whatever they cost on this machine: every
-    // 1.5 s of it (a fit of lax at 3 Hz takes 4-5 s for 30 s of capture, the walls and zone
-    // searched from two starts and the spasm's gain profiled); the spasm's fit alternates
-    // the gain with the curve, so fewer of them.
-    LiveRefitOptions lo;
-    lo.max_busy_fraction = 0.0;
-    lo.min_interval_ns = std::string(name) == "spasm" ? 3 * kNsPerS : 1'500'000'000;
-    LiveRefit live(cap.geometry, o.truth, lo);
-    int64_t now = 0;
-    int published = 0;
-    double last_gain = 0.0;
-    for (std::size_t i = 0; i < cap.samples.size(); ++i) {
-      live.add(cap.samples[i], true, now);
-      if (i % 100 != 99) continue;
-      now += 100 * kNsPerMs;
-      const auto u = live.poll(now);
-      if (!u) continue;
-      ++published;
-      last_gain = u->params.speed_gain_s_per_rad;
-      const JointModel m(u->params);
-      for (int ax = 0; ax < kAxes; ++ax) {
-        const CubicCurve& c = u->params.axes[static_cast<std::size_t>(ax)];
-        EXPECT_TRUE(risesOverRange(c)) << name << " " << kAxisNames[static_cast<std::size_t>(ax)];
-        double last = -1e9;
-        for (double d = c.min_deg - 3.0; d <= c.max_deg + 3.0; d += 0.1) {
-          const double f = m.holdingForceN(ax, degToRad(d));
-          EXPECT_GE(f, last - 1e-9) << name << " at " << d;
-          last = f;
-        }
+class LiveRefitTruth : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(LiveRefitTruth, NeverPublishesAFallingCurve) {
+  const char* name = GetParam();
+  SyntheticCaptureOptions o;
+  o.truth = shippedCase(name);
+  o.frequency_hz = 3.0;
+  o.seed = 21;
+  // 6 s per axis, each swept to its range ends (the default 10 s costs twice the time,
+  // every refit fitting the whole capture so far).
+  o.seconds_per_axis = 6.0;
+  const SyntheticCapture cap = synthesizeCapture(o);
+  // Refits at fixed steps of the capture's time, whatever they cost on this machine: every
+  // 3 s of it, 6 of them (a fit of lax at 3 Hz takes 4-5 s for 30 s of capture, the walls and
+  // zone searched from two starts; every 1.5 s took 46 s alone).
+  LiveRefitOptions lo;
+  lo.max_busy_fraction = 0.0;
+  lo.min_interval_ns = 3 * kNsPerS;
+  LiveRefit live(cap.geometry, o.truth, lo);
+  int64_t now = 0;
+  int published = 0;
+  double last_gain = 0.0;
+  for (std::size_t i = 0; i < cap.samples.size(); ++i) {
+    live.add(cap.samples[i], true, now);
+    if (i % 100 != 99) continue;
+    now += 100 * kNsPerMs;
+    const auto u = live.poll(now);
+    if (!u) continue;
+    ++published;
+    last_gain = u->params.speed_gain_s_per_rad;
+    const JointModel m(u->params);
+    for (int ax = 0; ax < kAxes; ++ax) {
+      const CubicCurve& c = u->params.axes[static_cast<std::size_t>(ax)];
+      EXPECT_TRUE(risesOverRange(c)) << name << " " << kAxisNames[static_cast<std::size_t>(ax)];
+      double last = -1e9;
+      for (double d = c.min_deg - 3.0; d <= c.max_deg + 3.0; d += 0.1) {
+        const double f = m.holdingForceN(ax, degToRad(d));
+        EXPECT_GE(f, last - 1e-9) << name << " at " << d;
+        last = f;
       }
     }
-    EXPECT_GT(published, 2) << name;
-    // The spasm reaches followers too (truth 1.5 s/rad).
-    if (std::string(name) == "spasm") {
-      EXPECT_NEAR(last_gain, 1.5, 0.5);
-    }
+  }
+  std::printf("%s: %d refits published\n", name, published);
+  EXPECT_GT(published, 2) << name;
+  // The spasm reaches followers too (truth 1.5 s/rad).
+  if (std::string(name) == "spasm") {
+    EXPECT_NEAR(last_gain, 1.5, 0.5);
   }
 }
+
+// One ctest entry per case: a free neutral zone, and a spasm.
+INSTANTIATE_TEST_SUITE_P(Cases, LiveRefitTruth, ::testing::Values("lax", "spasm"),
+                         [](const ::testing::TestParamInfo<const char*>& i) {
+                           return std::string(i.param);
+                         });
 
 }  // namespace
 }  // namespace telehand::server::estimate
