@@ -348,6 +348,8 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   if (const char* h = std::getenv("PROBE_RHW")) fo.rate_half_window = std::atoi(h);
   if (const char* h = std::getenv("PROBE_THW")) fo.turn_half_window = std::atoi(h);
   if (const char* h = std::getenv("PROBE_TRHW")) fo.turn_rate_half_window = std::atoi(h);
+  if (const char* h = std::getenv("PROBE_TW")) fo.weigh_turns = std::atoi(h) != 0;
+  if (const char* h = std::getenv("PROBE_WALL_SHARE")) fo.min_wall_share = std::atof(h);
   server::estimate::CaptureFitter fitter(cap.geometry, fo);
   for (const auto& smp : cap.samples) fitter.add(smp, true);
   const int64_t t0 = now();
@@ -377,7 +379,8 @@ int probe(const std::string& file, double hz, uint64_t seed) {
         a.hysteresis_n, e.first, e.second, a.speed_gain_fitted_s_per_rad, a.speed_gain_se_s_per_rad,
         a.spasm, a.damping_nms_per_rad);
     if (std::getenv("PROBE_CURVE")) {
-      for (double d = a.reached_min_deg; d <= a.reached_max_deg; d += 5.0)
+      for (double d = a.reached_min_deg; d <= a.reached_max_deg;
+           d += std::max(0.1, std::atof(std::getenv("PROBE_CURVE"))))
         std::printf("   %6.1f truth %7.2f fit %7.2f\n", d, tm.holdingForceN(i, degToRad(d)),
                     fm.holdingForceN(i, degToRad(d)));
     }

@@ -313,10 +313,15 @@ namespace {
 /// channels does not show as a speed-dependent force.
 struct AxisData {
   std::vector<double> x, y, v, w;
+  /// Per sample, the square root of its weight in the least squares (empty: all 1).
+  std::vector<double> s;
+  /// The row factor of sample i.
+  double row(std::size_t i) const { return s.empty() ? 1.0 : s[i]; }
 };
 
 AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>& rate,
-                  const std::vector<Vec3>& acc, int axis, double delay) {
+                  const std::vector<Vec3>& acc, int axis, double delay,
+                  const std::vector<Vec3>& weight = {}) {
   AxisData d;
   const std::size_t n = pts.size();
   const auto k = static_cast<std::size_t>(std::floor(delay));
@@ -333,6 +338,7 @@ AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>&
     d.y.push_back(pts[i].axis_force_n[axis]);
     d.v.push_back(mix(rate[a][axis], rate[b][axis]));
     d.w.push_back(mix(acc[a][axis], acc[b][axis]));
+    if (!weight.empty()) d.s.push_back(std::sqrt(std::min(weight[a][axis], weight[b][axis])));
   }
   return d;
 }
@@ -356,24 +362,25 @@ double accelerationCollinearity(const AxisData& d) {
 /// left-hand side). Returns the fit; b, j and j's standard error through the references.
 PiecewiseFitResult fitAxis(const AxisData& d, double known_j, const PiecewiseFitOptions& o,
                            double& b, double& j, double& j_se) {
-  if (std::isnan(known_j)) {
-    const std::array<std::span<const double>, 2> extras = {d.v, d.w};
-    PiecewiseFitResult r = fitPiecewiseCubic(d.x, d.y, extras, o);
-    if (r.ok) {
-      b = r.extra[0];
-      j = r.extra[1];
-      j_se = r.extra_se[1];
-    }
-    return r;
+  // Weighted least squares as rows scaled by the square roots of the weights.
+  const std::size_t n = d.y.size();
+  const bool free_j = std::isnan(known_j);
+  std::vector<double> y(n), v(n), w(free_j ? n : 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double r = d.row(i);
+    y[i] = r * (d.y[i] - (free_j ? 0.0 : known_j * d.w[i]));
+    v[i] = r * d.v[i];
+    if (free_j) w[i] = r * d.w[i];
   }
-  std::vector<double> y(d.y.size());
-  for (std::size_t i = 0; i < y.size(); ++i) y[i] = d.y[i] - known_j * d.w[i];
-  const std::array<std::span<const double>, 1> extras = {d.v};
-  PiecewiseFitResult r = fitPiecewiseCubic(d.x, y, extras, o);
+  PiecewiseFitOptions so = o;
+  if (!d.s.empty()) so.curve_scale = d.s;
+  std::vector<std::span<const double>> extras = {v};
+  if (free_j) extras.push_back(w);
+  PiecewiseFitResult r = fitPiecewiseCubic(d.x, y, extras, so);
   if (r.ok) {
     b = r.extra[0];
-    j = known_j;
-    j_se = 0.0;
+    j = free_j ? r.extra[1] : known_j;
+    j_se = free_j ? r.extra_se[1] : 0.0;
   }
   return r;
 }
@@ -423,10 +430,25 @@ DynamicFit fitWithSpasm(const AxisData& d, double known_j, const PiecewiseFitOpt
     }
     y[i] = d.y[i] - known - (free_j ? 0.0 : known_j * d.w[i]);
   }
+  std::vector<double> w;
+  if (!d.s.empty()) {
+    // Weighted least squares as rows scaled by the square roots of the weights.
+    for (std::size_t i = 0; i < n; ++i) {
+      y[i] *= d.s[i];
+      u[i] *= d.s[i];
+      scale[i] *= d.s[i];
+      if (with_step) z[i] *= d.s[i];
+    }
+    if (free_j) {
+      w.resize(n);
+      for (std::size_t i = 0; i < n; ++i) w[i] = d.s[i] * d.w[i];
+    }
+  }
   PiecewiseFitOptions so = o;
-  if (sp.gain > 0.0) so.curve_scale = scale;
+  if (sp.gain > 0.0 || !d.s.empty()) so.curve_scale = scale;
   std::vector<std::span<const double>> extras = {u};
-  if (free_j) extras.push_back(d.w);
+  if (free_j)
+    extras.push_back(d.s.empty() ? std::span<const double>(d.w) : std::span<const double>(w));
   if (with_step) extras.push_back(z);
   DynamicFit f;
   f.r = fitPiecewiseCubic(d.x, y, extras, so);
@@ -522,7 +544,8 @@ struct SpasmFit {
 /// searched at each gain; the lowest residual of the starts is kept.
 /// `plain`: the fit without spasm; the spasm is kept when it pays for itself (`penalty`).
 SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, double cap,
-                  double penalty, double min_gain, const SpasmFit* start = nullptr) {
+                  double penalty, double min_gain, const PiecewiseFitOptions& search,
+                  const SpasmFit* start = nullptr) {
   SpasmFit out;
   out.fit = plain;
   const std::size_t n = d.x.size();
@@ -531,7 +554,7 @@ SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, do
   // The shape searches within the rounds start from the walls only (their second start, the
   // zone first, is for the plain fit, which these rounds start from): it would double their
   // cost.
-  PiecewiseFitOptions inner;
+  PiecewiseFitOptions inner = search;
   inner.zone_first_start = false;
   // From a shape, gain and damping: Gauss-Newton on the gain, then the shape searched again
   // with it, until both settle; the round of lowest residual is kept (a round judges the
@@ -689,11 +712,51 @@ double CaptureFitter::delaySamples() const {
   settle();
   const std::vector<Vec3> rate = rates();
   const std::vector<Vec3> acc = accelerations();
-  return delaySamples(rate, acc, inertiaChoice(rate, acc));
+  return delaySamples(rate, acc, inertiaChoice(rate, acc), turnWeights());
+}
+
+std::vector<Vec3> CaptureFitter::turnWeights() const {
+  settle();
+  if (!options_.weigh_turns || !readsTurns(options_)) return {};
+  const std::size_t n = points_.size();
+  const std::vector<Vec3> wide = accelerationsOver(options_.acc_half_window);
+  const std::vector<Vec3> narrow = accelerationsOver(options_.turn_half_window);
+  const std::vector<std::array<bool, kAxes>> turn = turnsApart(wide, narrow, options_.turn_outlier);
+  std::vector<Vec3> out(n, Vec3::Ones());
+  const double jl = options_.inertia_kgm2 / geometry_.params().lever_arm_m;
+  std::vector<double> step;
+  for (int axis = 0; axis < kAxes; ++axis) {
+    const auto ax = static_cast<std::size_t>(axis);
+    // The force channel's noise: the robust spread of its sample to sample changes, over √2
+    // (the force itself changes little in a millisecond).
+    step.clear();
+    for (std::size_t i = 1; i < n; ++i)
+      if (points_[i].seq == points_[i - 1].seq + 1)
+        step.push_back(std::abs(points_[i].axis_force_n[axis] - points_[i - 1].axis_force_n[axis]));
+    if (step.size() < 10) continue;
+    std::nth_element(step.begin(), step.begin() + static_cast<std::ptrdiff_t>(step.size() / 2),
+                     step.end());
+    const double sigma = 1.4826 * step[step.size() / 2] / std::sqrt(2.0);
+    const double s2 = std::max(sigma * sigma, 1e-6);
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t lo = i > 0 ? i - 1 : 0, hi = std::min(i + 1, n - 1);
+      bool near = false;
+      double da = 0.0;
+      for (std::size_t k = lo; k <= hi; ++k) {
+        near = near || turn[k][ax];
+        da = std::max(da, std::abs(narrow[k][axis] - wide[k][axis]));
+      }
+      if (!near) continue;
+      const double e = jl * da;
+      out[i][axis] = s2 / (s2 + e * e);
+    }
+  }
+  return out;
 }
 
 double CaptureFitter::delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
-                                   const std::array<double, kAxes>& known_j) const {
+                                   const std::array<double, kAxes>& known_j,
+                                   const std::vector<Vec3>& weight) const {
   // The residual of a fit with the dynamic terms (the walls and zone searched, or a plain
   // cubic: FitOptions::lag_with_shape), summed over the axes, for each whole-sample delay; a
   // parabola through the best and its neighbours gives the fraction.
@@ -702,9 +765,10 @@ double CaptureFitter::delaySamples(const std::vector<Vec3>& rate, const std::vec
   std::vector<double> rss(static_cast<std::size_t>(most) + 1, 0.0);
   PiecewiseFitOptions plain;
   plain.find_walls = plain.find_zone = options_.lag_with_shape;
+  plain.min_wall_share = options_.min_wall_share;
   for (int k = 0; k <= most; ++k) {
     for (int axis = 0; axis < kAxes; ++axis) {
-      const AxisData d = axisData(points_, rate, acc, axis, k);
+      const AxisData d = axisData(points_, rate, acc, axis, k, weight);
       double b = 0.0, j = 0.0, se = 0.0;
       const PiecewiseFitResult r =
           fitAxis(d, known_j[static_cast<std::size_t>(axis)], plain, b, j, se);
@@ -731,11 +795,14 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   const double lever = geometry_.params().lever_arm_m;
   std::array<std::array<double, 3>, kAxes> inertia_info{};
   const std::array<double, kAxes> known_j = inertiaChoice(rate, acc, &inertia_info);
-  out.delay_samples = delaySamples(rate, acc, known_j);
+  const std::vector<Vec3> weight = turnWeights();
+  out.delay_samples = delaySamples(rate, acc, known_j, weight);
   // In force units at the lever arm: the cap on damping plus spasm (N per rad/s).
   const double cap = options_.render_force_scale > 0.0
                          ? kMaxDeviceDampingNsPerM * lever / options_.render_force_scale
                          : 1e300;
+  PiecewiseFitOptions search;
+  search.min_wall_share = options_.min_wall_share;
   struct Work {
     AxisData d;
     SpasmFit sp;
@@ -750,19 +817,19 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       const SpasmFit before = wk.sp;
       wk = Work{};
       if (n < options_.min_samples) continue;
-      wk.d = axisData(points_, rate, acc, axis, delay);
+      wk.d = axisData(points_, rate, acc, axis, delay, weight);
       const auto& x = wk.d.x;
       if (x.size() < options_.min_samples) continue;
       const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
       if (*hi - *lo < options_.min_span_deg) continue;
       const double kj = known_j[static_cast<std::size_t>(axis)];
       DynamicFit plain;
-      plain.r = fitAxis(wk.d, kj, PiecewiseFitOptions{}, plain.b, plain.j, plain.j_se);
+      plain.r = fitAxis(wk.d, kj, search, plain.b, plain.j, plain.j_se);
       if (!plain.r.ok) continue;
       wk.sp.fit = plain;
       if (options_.fit_spasm)
         wk.sp = fitSpasm(wk.d, kj, plain, cap, options_.spasm_penalty,
-                         options_.min_speed_gain_s_per_rad, &before);
+                         options_.min_speed_gain_s_per_rad, search, &before);
       wk.ok = true;
       any_spasm = any_spasm || wk.sp.found;
       if (report && progress) progress(axis, 0.5);
@@ -779,7 +846,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       for (int axis = 0; axis < kAxes; ++axis) {
         const Work& wk = work[static_cast<std::size_t>(axis)];
         if (!wk.ok) continue;
-        const AxisData dk = axisData(points_, rate, acc, axis, k);
+        const AxisData dk = axisData(points_, rate, acc, axis, k, weight);
         const GainFit g = convergeGain(dk, known_j[static_cast<std::size_t>(axis)],
                                        wk.sp.fit.r.curve, wk.sp.gain, wk.sp.fit.b, cap, 10);
         rss[static_cast<std::size_t>(k)] +=
@@ -874,6 +941,12 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     for (std::size_t i = 0; i < x.size(); ++i)
       res[i] = y[i] - a.holdingForceN(x[i]) - a.dynamicForceN(x[i], d.v[i], d.w[i], lever);
     a.hysteresis_n = hysteresis(x, res, d.v);
+    if (!d.s.empty()) {
+      // The residual as it is, every sample counted alike (the fit's own is weighted).
+      double ss = 0.0;
+      for (const double e : res) ss += e * e;
+      a.rms_n = std::sqrt(ss / static_cast<double>(std::max<std::size_t>(res.size(), 1)));
+    }
     // The same shape fitted without the dynamic terms: how much the curve rests on them.
     PiecewiseFitOptions fixed;
     fixed.fixed_shape = &r.curve;

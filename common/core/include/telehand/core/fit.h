@@ -57,6 +57,9 @@ struct PiecewiseFitOptions {
   /// A zone or wall is kept only when it lowers the residual sum of squares by more than
   /// this many times σ² ln n (a Bayesian-information-style penalty against fitting noise).
   double penalty = 2.0;
+  /// ...and a wall only when it also lowers it by this share of the sum of squares of the
+  /// force it adds beyond it (wall_n_per_deg times the depth, over the samples there).
+  double min_wall_share = 0.005;
   /// With walls and zone searched, a second search from a start with the zone searched
   /// first, the better kept (twice the search's cost).
   bool zone_first_start = true;

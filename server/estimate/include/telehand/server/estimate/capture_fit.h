@@ -138,6 +138,14 @@ struct FitOptions {
   /// damping sits at the cap (1 N per rad/s at 1 cm), and the fit put a false wall one
   /// degree inside the range reached (flexion 0.92 N off; over ±2 ms, 0.05 N).
   int turn_rate_half_window = 2;
+  /// The turns' samples (and one either side) weigh less in the least squares, by how well
+  /// their inertial force is known: σ² / (σ² + (J/L · Δa)²), σ the force channel's noise read
+  /// from the capture, Δa the most the wide and narrow accelerations disagree there, J/L the
+  /// known inertia at the lever arm. false: every sample weighs the same.
+  bool weigh_turns = true;
+  /// A wall is kept only when it explains at least this share of the force it adds beyond
+  /// it (PiecewiseFitOptions::min_wall_share); 0: whenever it pays for itself.
+  double min_wall_share = PiecewiseFitOptions{}.min_wall_share;
   /// Samples an axis needs spread over at least this many degrees to be fitted.
   double min_span_deg = 5.0;
   std::size_t min_samples = 200;
@@ -241,7 +249,11 @@ class CaptureFitter {
       const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
       std::array<std::array<double, 3>, kAxes>* info = nullptr) const;
   double delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
-                      const std::array<double, kAxes>& known_j) const;
+                      const std::array<double, kAxes>& known_j,
+                      const std::vector<Vec3>& weight) const;
+  /// Per point and axis, its weight in the least squares (FitOptions::weigh_turns; empty:
+  /// all 1).
+  std::vector<Vec3> turnWeights() const;
 
   /// Merges the late points into points_ (sorted by sequence number, the first copy of each
   /// kept).
