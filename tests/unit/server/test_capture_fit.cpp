@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <numbers>
 #include <random>
+#include <utility>
 
 #include "telehand/config/config.h"
 #include "telehand/core/fit.h"
@@ -540,6 +541,14 @@ void expectWithin(const JointModelParams& truth, const CaseRun& r, const std::st
   }
 }
 
+/// One capture of a 6 Hz mobilization fitted twice, as the fit is and with `other` options
+/// (judged over the range the capture covered): what an option changes, on the same data.
+std::pair<CaseRun, CaseRun> fitBothWays(const JointModelParams& truth, uint64_t seed,
+                                        const FitOptions& other) {
+  return {runCase(truth, 6.0, seed, kPaperNoiseN, true),
+          runCase(truth, 6.0, seed, kPaperNoiseN, true, other)};
+}
+
 JointModelParams shippedCase(const std::string& name) {
   return loadPatientCase(std::string(TELEHAND_DEPLOY_DIR) + "/cases/" + name + ".toml").model;
 }
@@ -705,8 +714,7 @@ TEST(CaptureFitTruth, TurnsAtTheRangeEndsAreReadWithTheNarrowWindow) {
   const PatientCase pc = randomPatientCase(10);
   FitOptions wide_only;
   wide_only.turn_outlier = 0.0;
-  const CaseRun with = runCase(pc.model, 6.0, 1, kPaperNoiseN, true);
-  const CaseRun without = runCase(pc.model, 6.0, 1, kPaperNoiseN, true, wide_only);
+  const auto [with, without] = fitBothWays(pc.model, 1, wide_only);
   expectWithin(pc.model, with, "random-10 6 Hz, turns narrow", 0.3, 0.5);
   EXPECT_GT(without.check[kFlexion].inner_n, with.check[kFlexion].inner_n + 0.1)
       << "the wide window alone: the turns' inertial force bends the curve";
@@ -768,8 +776,7 @@ TEST(CaptureFitTruth, TurnsWeighLessByHowWellTheirInertialForceIsKnown) {
   ASSERT_GT(pc.model.speed_gain_s_per_rad, 1.0);
   FitOptions alike;
   alike.weigh_turns = false;
-  const CaseRun weighed = runCase(pc.model, 6.0, 10, kPaperNoiseN, true);
-  const CaseRun counted = runCase(pc.model, 6.0, 10, kPaperNoiseN, true, alike);
+  const auto [weighed, counted] = fitBothWays(pc.model, 10, alike);
   expectWithin(pc.model, weighed, "random-173 6 Hz seed 10", 0.3, 0.5);
   EXPECT_GT(counted.check[kAxial].inner_n, 0.4) << "the turns counted alike";
 
@@ -790,8 +797,7 @@ TEST(CaptureFitTruth, AWallMustExplainTheForceItAdds) {
   const PatientCase pc = randomPatientCase(197);
   FitOptions any_wall;
   any_wall.min_wall_share = 0.0;
-  const CaseRun shared = runCase(pc.model, 6.0, 10, kPaperNoiseN, true);
-  const CaseRun paid = runCase(pc.model, 6.0, 10, kPaperNoiseN, true, any_wall);
+  const auto [shared, paid] = fitBothWays(pc.model, 10, any_wall);
   expectWithin(pc.model, shared, "random-197 6 Hz seed 10", 0.3, 0.5);
   EXPECT_FALSE(shared.fit.axes[kAxial].wall_max) << "the sweep did not reach the truth's wall";
   ASSERT_TRUE(paid.fit.axes[kAxial].wall_max);
