@@ -358,33 +358,6 @@ double accelerationCollinearity(const AxisData& d) {
   return std::sqrt(std::clamp(1.0 - r.rms * r.rms / var, 0.0, 1.0));
 }
 
-/// y ≈ piecewise(x) + b·v + j·w, with j estimated (`known_j` NaN) or known (moved to the
-/// left-hand side). Returns the fit; b, j and j's standard error through the references.
-PiecewiseFitResult fitAxis(const AxisData& d, double known_j, const PiecewiseFitOptions& o,
-                           double& b, double& j, double& j_se) {
-  // Weighted least squares as rows scaled by the square roots of the weights.
-  const std::size_t n = d.y.size();
-  const bool free_j = std::isnan(known_j);
-  std::vector<double> y(n), v(n), w(free_j ? n : 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    const double r = d.row(i);
-    y[i] = r * (d.y[i] - (free_j ? 0.0 : known_j * d.w[i]));
-    v[i] = r * d.v[i];
-    if (free_j) w[i] = r * d.w[i];
-  }
-  PiecewiseFitOptions so = o;
-  if (!d.s.empty()) so.curve_scale = d.s;
-  std::vector<std::span<const double>> extras = {v};
-  if (free_j) extras.push_back(w);
-  PiecewiseFitResult r = fitPiecewiseCubic(d.x, y, extras, so);
-  if (r.ok) {
-    b = r.extra[0];
-    j = free_j ? r.extra[1] : known_j;
-    j_se = free_j ? r.extra_se[1] : 0.0;
-  }
-  return r;
-}
-
 /// The spasm as the fit holds it, in force units at the lever arm: the damping is `b` (N per
 /// rad/s) except while stretching (the holding force and the rate of one sign), where it is
 /// min(b + gain·|F_el|, cap).
@@ -462,6 +435,20 @@ DynamicFit fitWithSpasm(const AxisData& d, double known_j, const PiecewiseFitOpt
     }
   }
   return f;
+}
+
+/// y ≈ piecewise(x) + b·v + j·w, with j estimated (`known_j` NaN) or known: the fit with
+/// no spasm. Returns the fit; b, j and j's standard error through the references.
+PiecewiseFitResult fitAxis(const AxisData& d, double known_j, const PiecewiseFitOptions& o,
+                           double& b, double& j, double& j_se) {
+  const std::vector<double> no_force(d.x.size(), 0.0);  // no spasm: nothing stretches
+  const DynamicFit f = fitWithSpasm(d, known_j, o, SpasmTerm{}, no_force);
+  if (f.r.ok) {
+    b = f.b;
+    j = f.j;
+    j_se = f.j_se;
+  }
+  return f.r;
 }
 
 double rssOf(const PiecewiseFitResult& r) {
