@@ -22,7 +22,9 @@
 //     without the spasm term, PROBE_RHW=H fits (and rates the truth) with rates over ±H
 //     samples (FitOptions::rate_half_window), PROBE_THW=H reads the turns' accelerations
 //     over ±H samples (FitOptions::turn_half_window), PROBE_TRHW=H their rates
-//     (FitOptions::turn_rate_half_window), PROBE_NOISE=N captures with N newtons of
+//     (FitOptions::turn_rate_half_window), PROBE_AHW=H the accelerations over ±H samples
+//     (FitOptions::acc_half_window), PROBE_JCOL=C FitOptions::max_inertia_collinearity,
+//     PROBE_J=1 prints each axis' inertia, PROBE_NOISE=N captures with N newtons of
 //     thimble noise (default the paper's 1.43), PROBE_SECONDS=S with S seconds per axis,
 //     PROBE_DUMP=FILE the points.
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
@@ -35,6 +37,9 @@
 //          [--cases a,b] [--hz 0.5,3] [--seeds FIRST,COUNT] [--random S1,S2 (randomPatientCase)]
 //          [--turn-window H (FitOptions::turn_half_window)]
 //          [--turn-rate-window H (FitOptions::turn_rate_half_window)]
+//          [--rate-window H (FitOptions::rate_half_window)]
+//          [--acc-window H (FitOptions::acc_half_window)]
+//          [--inertia-collinearity C (FitOptions::max_inertia_collinearity)]
 //          [--technique massage [--seconds S] [--noise N]] | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
@@ -151,6 +156,10 @@ struct TableOptions {
   int turn_half_window = server::estimate::FitOptions{}.turn_half_window;  ///< --turn-window
   /// --turn-rate-window
   int turn_rate_half_window = server::estimate::FitOptions{}.turn_rate_half_window;
+  int rate_half_window = server::estimate::FitOptions{}.rate_half_window;  ///< --rate-window
+  int acc_half_window = server::estimate::FitOptions{}.acc_half_window;    ///< --acc-window
+  /// --inertia-collinearity
+  double max_inertia_collinearity = server::estimate::FitOptions{}.max_inertia_collinearity;
 };
 
 /// The web's largest static normal force error at the same thimble positions (fitted
@@ -293,6 +302,9 @@ int fitTable(const TableOptions& t) {
         server::estimate::FitOptions fo;
         fo.turn_half_window = t.turn_half_window;
         fo.turn_rate_half_window = t.turn_rate_half_window;
+        fo.rate_half_window = t.rate_half_window;
+        fo.acc_half_window = t.acc_half_window;
+        fo.max_inertia_collinearity = t.max_inertia_collinearity;
         server::estimate::CaptureFitter fitter(cap.geometry, fo);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
@@ -347,6 +359,8 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
   if (const char* h = std::getenv("PROBE_RHW")) fo.rate_half_window = std::atoi(h);
   if (const char* h = std::getenv("PROBE_THW")) fo.turn_half_window = std::atoi(h);
+  if (const char* h = std::getenv("PROBE_AHW")) fo.acc_half_window = std::atoi(h);
+  if (const char* h = std::getenv("PROBE_JCOL")) fo.max_inertia_collinearity = std::atof(h);
   if (const char* h = std::getenv("PROBE_TRHW")) fo.turn_rate_half_window = std::atoi(h);
   if (const char* h = std::getenv("PROBE_TW")) fo.weigh_turns = std::atoi(h) != 0;
   if (const char* h = std::getenv("PROBE_WALL_SHARE")) fo.min_wall_share = std::atof(h);
@@ -372,12 +386,15 @@ int probe(const std::string& file, double hz, uint64_t seed) {
     const std::pair<double, double> e{fe.inner, fe.edges};
     std::printf(
         "%-9s plan %.1f..%.1f reached %.1f..%.1f truth %.1f..%.1f fit %.1f..%.1f walls %d%d "
-        "zone %.1f (%.1f) rms %.2f hyst %.2f err %.3f/%.3f gain %.3f±%.3f %d b %.5f\n",
+        "zone %.1f (%.1f) rms %.4f hyst %.2f err %.3f/%.3f gain %.3f±%.3f %d b %.5f\n",
         kAxisNames[ax].data(), cap.plan.lo_deg[ax], cap.plan.hi_deg[ax], a.reached_min_deg,
         a.reached_max_deg, st.axes[ax].min_deg, st.axes[ax].max_deg, a.curve.min_deg,
         a.curve.max_deg, a.wall_min, a.wall_max, a.zone_deg, st.neutral_zone_deg[ax], a.rms_n,
         a.hysteresis_n, e.first, e.second, a.speed_gain_fitted_s_per_rad, a.speed_gain_se_s_per_rad,
         a.spasm, a.damping_nms_per_rad);
+    if (std::getenv("PROBE_J"))
+      std::printf("   inertia %.2e est %d col %.2f\n", a.inertia_kgm2, a.inertia_estimated,
+                  a.inertia_collinearity);
     if (std::getenv("PROBE_CURVE")) {
       for (double d = a.reached_min_deg; d <= a.reached_max_deg;
            d += std::max(0.1, std::atof(std::getenv("PROBE_CURVE"))))
@@ -477,13 +494,16 @@ int run(int argc, char** argv) {
         "         [--hz 0.5,3,6] [--seeds FIRST,COUNT] [--random S1,S2,...]\n"
         "         [--turn-window H (the turns' accelerations over +-H samples)]\n"
         "         [--turn-rate-window H (the turns' rates over +-H samples, 0: as elsewhere)]\n"
+        "         [--rate-window H (the rates elsewhere over +-H samples)]\n"
+        "         [--acc-window H (the accelerations over +-H samples)]\n"
+        "         [--inertia-collinearity C (0: always the known inertia)]\n"
         "         fitted holding force against the truth (docs/capture.md)\n"
         "       telehand_bench_capture --fit-table --technique massage [--seconds S] "
         "[--noise N]\n"
         "       telehand_bench_capture --probe CASE_FILE|random-SEED HZ SEED\n"
         "         one capture fitted; PROBE_CURVE, PROBE_TRUTH, PROBE_LAGS, PROBE_BINS,\n"
-        "         PROBE_NOSPASM, PROBE_RHW, PROBE_THW, PROBE_TRHW, PROBE_NOISE, PROBE_SECONDS, "
-        "PROBE_DUMP\n"
+        "         PROBE_NOSPASM, PROBE_RHW, PROBE_THW, PROBE_TRHW, PROBE_AHW, PROBE_JCOL,\n"
+        "         PROBE_J, PROBE_NOISE, PROBE_SECONDS, PROBE_DUMP\n"
         "         (see the source's header)\n");
     return 0;
   }
@@ -522,6 +542,12 @@ int run(int argc, char** argv) {
         t.turn_half_window = std::stoi(val);
       } else if (key == "--turn-rate-window") {  // FitOptions::turn_rate_half_window
         t.turn_rate_half_window = std::stoi(val);
+      } else if (key == "--rate-window") {  // FitOptions::rate_half_window
+        t.rate_half_window = std::stoi(val);
+      } else if (key == "--acc-window") {  // FitOptions::acc_half_window
+        t.acc_half_window = std::stoi(val);
+      } else if (key == "--inertia-collinearity") {  // FitOptions::max_inertia_collinearity
+        t.max_inertia_collinearity = std::stod(val);
       } else {
         std::fprintf(stderr, "unknown option %s\n", key.c_str());
         return 2;
