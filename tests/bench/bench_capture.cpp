@@ -153,13 +153,9 @@ struct TableOptions {
   double noise_n = 1.43;
   bool cases_given = false;
   bool each = false;  ///< massage (--each 1): the web's values and a line per fit, signed %
-  int turn_half_window = server::estimate::FitOptions{}.turn_half_window;  ///< --turn-window
-  /// --turn-rate-window
-  int turn_rate_half_window = server::estimate::FitOptions{}.turn_rate_half_window;
-  int rate_half_window = server::estimate::FitOptions{}.rate_half_window;  ///< --rate-window
-  int acc_half_window = server::estimate::FitOptions{}.acc_half_window;    ///< --acc-window
-  /// --inertia-collinearity
-  double max_inertia_collinearity = server::estimate::FitOptions{}.max_inertia_collinearity;
+  /// The joint fit's options: --turn-window, --turn-rate-window, --rate-window, --acc-window,
+  /// --inertia-collinearity.
+  server::estimate::FitOptions fit;
 };
 
 /// The web's largest static normal force error at the same thimble positions (fitted
@@ -299,13 +295,7 @@ int fitTable(const TableOptions& t) {
         o.frequency_hz = hz;
         o.seed = seed;
         const auto cap = server::estimate::synthesizeCapture(o);
-        server::estimate::FitOptions fo;
-        fo.turn_half_window = t.turn_half_window;
-        fo.turn_rate_half_window = t.turn_rate_half_window;
-        fo.rate_half_window = t.rate_half_window;
-        fo.acc_half_window = t.acc_half_window;
-        fo.max_inertia_collinearity = t.max_inertia_collinearity;
-        server::estimate::CaptureFitter fitter(cap.geometry, fo);
+        server::estimate::CaptureFitter fitter(cap.geometry, t.fit);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
         const auto fit = fitter.fit();
         all_ok = all_ok && fit.ok();
@@ -539,15 +529,15 @@ int run(int argc, char** argv) {
       } else if (key == "--each") {
         t.each = val != "0";
       } else if (key == "--turn-window") {  // FitOptions::turn_half_window, samples
-        t.turn_half_window = std::stoi(val);
+        t.fit.turn_half_window = std::stoi(val);
       } else if (key == "--turn-rate-window") {  // FitOptions::turn_rate_half_window
-        t.turn_rate_half_window = std::stoi(val);
+        t.fit.turn_rate_half_window = std::stoi(val);
       } else if (key == "--rate-window") {  // FitOptions::rate_half_window
-        t.rate_half_window = std::stoi(val);
+        t.fit.rate_half_window = std::stoi(val);
       } else if (key == "--acc-window") {  // FitOptions::acc_half_window
-        t.acc_half_window = std::stoi(val);
+        t.fit.acc_half_window = std::stoi(val);
       } else if (key == "--inertia-collinearity") {  // FitOptions::max_inertia_collinearity
-        t.max_inertia_collinearity = std::stod(val);
+        t.fit.max_inertia_collinearity = std::stod(val);
       } else {
         std::fprintf(stderr, "unknown option %s\n", key.c_str());
         return 2;

@@ -315,8 +315,6 @@ struct AxisData {
   std::vector<double> x, y, v, w;
   /// Per sample, the square root of its weight in the least squares (empty: all 1).
   std::vector<double> s;
-  /// The row factor of sample i.
-  double row(std::size_t i) const { return s.empty() ? 1.0 : s[i]; }
 };
 
 AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>& rate,
