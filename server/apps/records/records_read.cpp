@@ -31,7 +31,7 @@ std::string formatTime(int64_t ns) {
 /// how many are missing, and 0 would claim the record complete.
 std::string missingSamples(const SessionInfo& s) {
   if (s.samples_expected == 0) return s.samples == 0 && s.state == "closed" ? "0" : "?";
-  return std::to_string(s.samples_expected > s.samples ? s.samples_expected - s.samples : 0);
+  return std::to_string(s.missing());
 }
 
 }  // namespace

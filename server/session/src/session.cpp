@@ -87,8 +87,7 @@ telehand_msg_SessionStatus statusOf(const store::SessionInfo& info, telehand_msg
   st.started_ns = info.started_ns;
   st.ended_ns = info.ended_ns;
   st.samples_recorded = info.samples;
-  st.samples_missing =
-      info.samples_expected > info.samples ? info.samples_expected - info.samples : 0;
+  st.samples_missing = info.missing();
   copyString(st.case_name, info.case_name);
   copyString(st.user, info.user);
   copyString(st.record, location + " session " + std::to_string(info.id));

@@ -1051,7 +1051,9 @@ bool SessionManager::recordComplete(Session& s) {
   // past what the client says it sent would stand in for missing ones. So the record's rows
   // below `expected` are counted (one range count, at the end only).
   if (s.recorder.recorded() < s.expected) return false;
-  if (s.expected == 0) return true;
+  // The client did not say what it sent (0: unknown): complete only as far as the server
+  // can tell, with nothing it received still held back from the record (a write refused).
+  if (s.expected == 0) return s.recorder.drained();
   try {
     s.stored_of_expected = store_.countSamples(s.info.id, 0, s.expected - 1);
   } catch (const StoreError& e) {

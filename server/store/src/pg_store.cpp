@@ -340,7 +340,8 @@ int64_t clampSeq(uint64_t seq) {
 std::string sessionSelect() {
   return "SELECT s.id, s.\"user\", s.case_name, s.mode, s.state, s.started_ns, s.ended_ns, "
          "s.samples_expected, (SELECT count(*) FROM samples WHERE session_id = s.id), "
-         "(SELECT count(*) FROM samples WHERE session_id = s.id AND valid = 0), s.owner "
+         "(SELECT count(*) FROM samples WHERE session_id = s.id AND valid = 0), s.owner, "
+         "(SELECT count(*) FROM samples WHERE session_id = s.id AND seq < s.samples_expected) "
          "FROM sessions s ";
 }
 
@@ -357,6 +358,7 @@ SessionInfo readSession(const Result& r, int row) {
   i.samples = static_cast<uint64_t>(r.integer(row, 8));
   i.rejected = static_cast<uint64_t>(r.integer(row, 9));
   i.owner = r.text(row, 10);
+  i.samples_below_expected = static_cast<uint64_t>(r.integer(row, 11));
   return i;
 }
 

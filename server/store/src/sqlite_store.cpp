@@ -676,7 +676,9 @@ std::string sessionSelect(bool has_owner) {
              "SELECT s.id, s.user, s.case_name, s.mode, s.state, s.started_ns, s.ended_ns, "
              "s.samples_expected, (SELECT count(*) FROM samples WHERE session_id = s.id), "
              "(SELECT count(*) FROM samples WHERE session_id = s.id AND valid = 0), ") +
-         (has_owner ? "s.owner" : "''") + " FROM sessions s ";
+         (has_owner ? "s.owner" : "''") +
+         ", (SELECT count(*) FROM samples WHERE session_id = s.id AND seq < s.samples_expected)"
+         " FROM sessions s ";
 }
 
 SessionInfo readSession(const Statement& st) {
@@ -692,6 +694,7 @@ SessionInfo readSession(const Statement& st) {
   i.samples = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 8));
   i.rejected = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 9));
   i.owner = st.text(10);
+  i.samples_below_expected = static_cast<uint64_t>(sqlite3_column_int64(st.get(), 11));
   return i;
 }
 }  // namespace

@@ -1168,6 +1168,8 @@ TEST_F(OwnershipTest, RowsPastWhatWasSentDoNotMakeUpForMissingOnes) {
   EXPECT_EQ(store_->session(session_)->state, "incomplete");
   EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_CLOSED);
   EXPECT_EQ(out_.statuses.back().samples_missing, 100u);
+  // The record says so too, as read back later (telehand-records, a status query).
+  EXPECT_EQ(store_->session(session_)->missing(), 100u);
 }
 
 TEST_F(OwnershipTest, BadCommandsFromOneParticipantAreSaidAFewTimesAndCounted) {
@@ -1988,6 +1990,44 @@ class GatedStore : public SqliteStore {
   std::string path_;
   std::shared_ptr<WriteGate> gate_;
 };
+
+/// A record that refuses every write of samples.
+class RefusingStore : public SqliteStore {
+ public:
+  using SqliteStore::SqliteStore;
+  std::vector<BatchResult> appendSampleBatches(std::span<const SampleBatch> batches) override {
+    return std::vector<BatchResult>(batches.size(),
+                                    {false, 0, "the record refused the write (test)"});
+  }
+};
+
+class RefusingStoreTest : public RecoveryManagerTest {
+ protected:
+  void SetUp() override {
+    RecoveryManagerTest::SetUp();
+    manager_.reset();
+    store_ = std::make_unique<RefusingStore>(config_.db_path);
+    manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  }
+};
+
+// A client that does not say what it sent (samples_sent 0) gets no "closed" while samples it
+// sent are held back from the record: the record refuses every write until the close's grace
+// runs out, and the session ends incomplete.
+TEST_F(RefusingStoreTest, ACloseWithoutACountIsNotCompleteWhileSamplesAreHeldBack) {
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  pass(10);
+  ASSERT_GE(manager_->stats().store_errors, 1u);
+  auto c = command(telehand_msg_CMD_CLOSE, session_);
+  c.samples_sent = 0;
+  manager_->onCommand(c, now_ns_, from_);
+  pass(static_cast<int64_t>(config_.close_grace_s * 1000) + 1000);  // past the grace
+  ASSERT_EQ(manager_->activeSessions(), 0u);
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "incomplete");
+  EXPECT_EQ(info->samples, 0u);
+}
 
 class WriterThreadTest : public RecoveryManagerTest {
  protected:

@@ -523,6 +523,30 @@ TEST_P(SessionStoreTest, CloseRecordsEndExpectedAndState) {
   EXPECT_EQ(s->samples, 8u) << "two samples never arrived";
 }
 
+TEST_P(SessionStoreTest, RowsPastWhatWasSentAreNotCountedAgainstTheMissingOnes) {
+  // 0-5 and 8-11 stored, 10 said sent: 6 and 7 are missing, whatever arrived past 9.
+  auto store = this->open();
+  const uint64_t id = store->createSession(info("alice"));
+  store->appendSamples(id, samples(id, 0, 6), {});
+  store->appendSamples(id, samples(id, 8, 12), {});
+  store->closeSession(id, 1'700'000'100'000'000'000, 10, "incomplete");
+  auto s = store->session(id);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->samples, 10u);
+  EXPECT_EQ(s->samples_below_expected, 8u);
+  EXPECT_EQ(s->missing(), 2u);
+  const auto listed = store->listSessions();
+  ASSERT_EQ(listed.size(), 1u);
+  EXPECT_EQ(listed[0].missing(), 2u) << "the list says what the session says";
+  // Not closed yet (nothing said sent): nothing counted missing, nothing below.
+  const uint64_t open_id = store->createSession(info("bob"));
+  store->appendSamples(open_id, samples(open_id, 0, 3), {});
+  s = store->session(open_id);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->samples_below_expected, 0u);
+  EXPECT_EQ(s->missing(), 0u);
+}
+
 TEST_P(SessionStoreTest, ListIsOrderedById) {
   auto store = this->open();
   const uint64_t a = store->createSession(info("alice"));

@@ -25,10 +25,18 @@ struct SessionInfo {
   int64_t ended_ns = 0;
   uint64_t samples = 0;           ///< distinct sequence numbers stored
   uint64_t samples_expected = 0;  ///< what the client said it sent (0 = unknown)
-  uint64_t rejected = 0;          ///< samples stored flagged invalid (non-finite fields)
+  /// Of the samples stored, those below samples_expected: rows past what the client said
+  /// it sent do not make up for missing ones.
+  uint64_t samples_below_expected = 0;
+  uint64_t rejected = 0;  ///< samples stored flagged invalid (non-finite fields)
   /// Who opened it: the DDS participant's GUID (under DDS Security, derived from its
   /// authenticated certificate), and the identity's name where known. '' before schema 3.
   std::string owner;
+  /// Samples the client said it sent that the record lacks (0 when it never said).
+  uint64_t missing() const noexcept {
+    return samples_expected > samples_below_expected ? samples_expected - samples_below_expected
+                                                     : 0;
+  }
 };
 
 struct EventRecord {
