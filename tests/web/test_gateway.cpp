@@ -172,11 +172,17 @@ TEST_F(GatewayTest, MalformedMessagesAreNamedAndTheConnectionStays) {
   ASSERT_TRUE(c.ok()) << c.error();
   ASSERT_TRUE(c.waitFor("\"type\":\"hello\""));
   const std::pair<std::string, std::string> cases[] = {
-      {"not json", "not a JSON object"},
-      {"[1,2,3]", "not a JSON object"},
+      {"not json", "not JSON: [json.exception.parse_error.101] parse error at line 1, column 2"},
+      {"[1,2,3]", "not a JSON object but array"},
       {R"({"session":1})", R"(no \"op\" string)"},
-      {R"({"op":"watch","session":"abc"})", "is not a session id"},
-      {R"({"op":"watch","session":-4})", "is not a session id"},
+      {R"({"op":"watch","session":"abc"})", R"(is not a session id: \"abc\")"},
+      {R"({"op":"watch","session":-4})", "is not a session id: -4"},
+      // A sign, a space or a number past 2^64 in a string is not a session id either (no
+      // "-5" read as 2^64 - 5).
+      {R"({"op":"watch","session":"-5"})", R"(is not a session id: \"-5\")"},
+      {R"({"op":"watch","session":"+7"})", "is not a session id"},
+      {R"({"op":"watch","session":" 7"})", "is not a session id"},
+      {R"({"op":"watch","session":"18446744073709551616"})", "is not a session id"},
       {R"({"op":"watch"})", R"(needs a \"session\" id)"},
       {R"({"op":"mark","session":1})", R"(needs a \"text\" string)"},
       {R"({"op":"launch"})", "unknown op"},
@@ -301,6 +307,33 @@ TEST_F(GatewayTest, BrowsersBeyondTheLimitAreRefused) {
   EXPECT_NE(answer.find(" 503 "), std::string::npos) << answer;
   EXPECT_NE(answer.find("--max-clients"), std::string::npos) << answer;
   EXPECT_EQ(statOf(stats(), "clients_refused"), 2u);
+  tabs.clear();
+  EXPECT_TRUE(drained()) << stats();
+}
+
+// Browsers that open together: no more than --max-clients are served, the others are
+// refused (before the upgrade, or at once after it with 1013 when they passed the count
+// together before any was connected), and the statistics are still served meanwhile.
+TEST_F(GatewayTest, ABurstOfBrowsersDoesNotPassTheLimit) {
+  constexpr int kBurst = 16;  // the fixture's --max-clients 8, and civetweb's 8 more threads
+  std::vector<std::unique_ptr<WsClient>> tabs(kBurst);
+  std::vector<std::thread> openers;
+  for (int i = 0; i < kBurst; ++i)
+    openers.emplace_back(
+        [&, i] { tabs[static_cast<std::size_t>(i)] = std::make_unique<WsClient>(port_); });
+  for (auto& t : openers) t.join();
+  int served = 0;
+  for (auto& t : tabs)
+    if (t->ok() && t->waitFor("\"type\":\"hello\"", 2s)) ++served;
+  EXPECT_LE(served, 8);
+  EXPECT_GE(served, 1);
+  const std::string s = stats();
+  EXPECT_LE(statOf(s, "clients_open"), 8u) << s;
+  EXPECT_EQ(statOf(s, "clients_refused") + static_cast<uint64_t>(served),
+            static_cast<uint64_t>(kBurst))
+      << s;
+  // The page is still served meanwhile.
+  EXPECT_NE(httpGet(port_, "/api/stats").find("clients_open"), std::string::npos);
   tabs.clear();
   EXPECT_TRUE(drained()) << stats();
 }

@@ -31,6 +31,7 @@ constexpr int64_t kListRebuildNs = 250'000'000;
 constexpr std::size_t kEventsKept = 64;
 constexpr std::size_t kSessionsKept = 512;  // ended ones beyond this are forgotten, oldest first
 constexpr uint16_t kCloseTooBig = 1009;
+constexpr uint16_t kCloseTryLater = 1013;
 constexpr uint16_t kClosePolicy = 1008;
 
 int64_t steadyNs() {
@@ -417,15 +418,28 @@ int Gateway::onConnect(mg_connection* conn) {
 void Gateway::onReady(mg_connection* conn) {
   auto c = std::make_shared<Client>();
   c->conn = conn;
+  std::size_t others = 0;
   {
     std::lock_guard lk(clients_mutex_);
     c->id = next_client_++;
+    others = clients_.size();
     clients_[conn] = c;
   }
   ++stats_.clients_open;
   ++stats_.clients_total;
   const mg_request_info* ri = mg_get_request_info(conn);
-  spdlog::info("browser {} connected from {}", c->id, ri ? ri->remote_addr : "?");
+  if (others >= o_.max_clients) {
+    // Upgrades that arrived together all passed onConnect's count before any was added: the
+    // ones past the limit are closed at once ("try again later"), with their thread freed.
+    ++stats_.clients_refused;
+    spdlog::warn("refused browser {} from {}: {} connected, the limit (--max-clients)", c->id,
+                 ri ? ri->remote_addr : "?", others);
+    std::lock_guard lk(c->m);
+    c->close_code = kCloseTryLater;
+    c->close_reason = "too many browsers (--max-clients); try again when one leaves";
+  } else {
+    spdlog::info("browser {} connected from {}", c->id, ri ? ri->remote_addr : "?");
+  }
   push(*c, fmt::format(R"({{"type":"hello","client":{},"hand_hz":{},"band":[{},{}],)"
                        R"("max_message":{},"replay":{},"domain":{},"partition":{},"dofs":{}}})",
                        c->id, o_.hand_hz, o_.band_min_n, o_.band_max_n, o_.max_message,
@@ -533,6 +547,12 @@ void Gateway::writerLoop(const std::shared_ptr<Client>& cp) {
       ++stats_.hand_sent;
     }
     if (ok && list) ok = send(*sessionsFrame(steadyNs()));
+    if (!ok && close_code == 0) {
+      // The connection failed under the write (a browser that stopped reading for civetweb's
+      // timeout, a reset): said and counted, as a drop for a full queue is.
+      ++stats_.write_failed;
+      spdlog::warn("browser {}: a write failed; the browser is dropped", c.id);
+    }
     if (close_code != 0 || !ok) {
       if (close_code != 0) {
         std::string payload(2, '\0');
@@ -592,10 +612,17 @@ int Gateway::onData(mg_connection* conn, int bits, const char* data, std::size_t
 }
 
 void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
-  const nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
-  if (j.is_discarded() || !j.is_object()) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::exception& e) {
     ++stats_.bad_messages;
-    push(*c, errorFrame("malformed", "not a JSON object"));
+    push(*c, errorFrame("malformed", fmt::format("not JSON: {}", e.what())));
+    return;
+  }
+  if (!j.is_object()) {
+    ++stats_.bad_messages;
+    push(*c, errorFrame("malformed", fmt::format("not a JSON object but {}", j.type_name())));
     return;
   }
   const auto op = j.find("op");
@@ -610,18 +637,24 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
     if (s->is_number_unsigned()) {
       session = s->get<uint64_t>();
     } else if (s->is_string()) {
-      try {
-        std::size_t used = 0;
-        const std::string str = s->get<std::string>();
-        session = std::stoull(str, &used);
-        if (used != str.size()) session.reset();
-      } catch (const std::exception&) {
-        session.reset();
+      // Digits only: stoull would take a sign (and wrap "-5"), spaces and "+".
+      const std::string str = s->get<std::string>();
+      const bool digits =
+          !str.empty() && str.size() <= 20 &&
+          std::all_of(str.begin(), str.end(), [](char ch) { return ch >= '0' && ch <= '9'; });
+      if (digits) {
+        try {
+          session = std::stoull(str);
+        } catch (const std::exception&) {
+          session.reset();  // past 2^64
+        }
       }
     }
     if (!session) {
       ++stats_.bad_messages;
-      push(*c, errorFrame("malformed", "\"session\" is not a session id"));
+      std::string given = s->dump();
+      if (given.size() > 40) given = given.substr(0, 40) + "...";
+      push(*c, errorFrame("malformed", fmt::format("\"session\" is not a session id: {}", given)));
       return;
     }
   }
@@ -805,7 +838,8 @@ void Gateway::replay(const std::shared_ptr<Client>& cp, uint64_t session) {
     ++stats_.replays;
     push(c, std::move(*frame));
   } catch (const std::exception& e) {
-    push(c, errorFrame("store", e.what()));
+    spdlog::warn("browser {}: replay of session {}: {}", c.id, session, e.what());
+    push(c, errorFrame("store", fmt::format("replay of session {}: {}", session, e.what())));
     return;
   }
   startReplayHand(cp, session);
@@ -851,7 +885,8 @@ void Gateway::records(Client& c) {
   try {
     push(c, recordsFrame(o_.db));
   } catch (const std::exception& e) {
-    push(c, errorFrame("store", e.what()));
+    spdlog::warn("browser {}: the list of records: {}", c.id, e.what());
+    push(c, errorFrame("store", fmt::format("the list of records: {}", e.what())));
   }
 }
 
@@ -867,14 +902,15 @@ std::string Gateway::statsJson() const {
       R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
       R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
       R"("takeovers":{},"dropped_slow":{},"replay_hands":{},"replay_hand_frames":{},)"
-      R"("replay_hand_cached":{},"replay_workers":{}}})",
+      R"("replay_hand_cached":{},"replay_workers":{},"write_failed":{}}})",
       stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
       stats_.foreign_origin.load(), stats_.writer_threads.load(), sessions,
       stats_.hand_states.load(), stats_.hand_frames.load(), stats_.hand_sent.load(),
       stats_.hand_coalesced.load(), stats_.messages_in.load(), stats_.bad_messages.load(),
       stats_.unknown_session.load(), stats_.marks.load(), stats_.replays.load(),
       stats_.takeovers.load(), stats_.dropped_slow.load(), replay_hands_->hands.load(),
-      replay_hands_->frames.load(), replay_hands_->cached.load(), stats_.replay_workers.load());
+      replay_hands_->frames.load(), replay_hands_->cached.load(), stats_.replay_workers.load(),
+      stats_.write_failed.load());
 }
 
 }  // namespace telehand::web

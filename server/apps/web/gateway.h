@@ -68,6 +68,7 @@ struct Stats {
   std::atomic<uint64_t> takeovers{0};  ///< TAKEOVER commands sent
   std::atomic<uint64_t> replays{0};
   std::atomic<uint64_t> dropped_slow{0};    ///< browsers dropped for a full queue
+  std::atomic<uint64_t> write_failed{0};    ///< browsers dropped for a failed write
   std::atomic<uint64_t> writer_threads{0};  ///< writer threads alive now
   std::atomic<uint64_t> replay_workers{0};  ///< threads sending a replay's hand now
 };
