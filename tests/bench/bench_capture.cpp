@@ -40,6 +40,7 @@
 //          [--rate-window H (FitOptions::rate_half_window)]
 //          [--acc-window H (FitOptions::acc_half_window)]
 //          [--inertia-collinearity C (FitOptions::max_inertia_collinearity)]
+//          [--sweep-seconds S (per axis, as telehand-client's)]
 //          [--technique massage [--seconds S] [--noise N]] | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
@@ -150,6 +151,8 @@ struct TableOptions {
   std::vector<uint64_t> random;  ///< randomPatientCase seeds instead of the case files
   bool massage = false;          ///< the web's tissue model instead of the joint
   double seconds = 60.0;         ///< massage capture length
+  /// Joint capture length per axis (telehand-client --sweep-seconds).
+  double sweep_seconds = server::estimate::SyntheticCaptureOptions{}.seconds_per_axis;
   double noise_n = 1.43;
   bool cases_given = false;
   bool each = false;  ///< massage (--each 1): the web's values and a line per fit, signed %
@@ -294,6 +297,7 @@ int fitTable(const TableOptions& t) {
         o.truth = truth;
         o.frequency_hz = hz;
         o.seed = seed;
+        o.seconds_per_axis = t.sweep_seconds;
         const auto cap = server::estimate::synthesizeCapture(o);
         server::estimate::CaptureFitter fitter(cap.geometry, t.fit);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
@@ -487,6 +491,7 @@ int run(int argc, char** argv) {
         "         [--rate-window H (the rates elsewhere over +-H samples)]\n"
         "         [--acc-window H (the accelerations over +-H samples)]\n"
         "         [--inertia-collinearity C (0: always the known inertia)]\n"
+        "         [--sweep-seconds S (capture length per axis, as telehand-client's)]\n"
         "         fitted holding force against the truth (docs/capture.md)\n"
         "       telehand_bench_capture --fit-table --technique massage [--seconds S] "
         "[--noise N]\n"
@@ -524,6 +529,8 @@ int run(int argc, char** argv) {
           t.cases = {"healthy", "oedema", "scar", "hypertonic"};
       } else if (key == "--seconds") {
         t.seconds = std::stod(val);
+      } else if (key == "--sweep-seconds") {
+        t.sweep_seconds = std::stod(val);
       } else if (key == "--noise") {
         t.noise_n = std::stod(val);
       } else if (key == "--each") {
