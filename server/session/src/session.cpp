@@ -342,8 +342,13 @@ void Session::onTakeover(const telehand_msg_SessionCommand& cmd, const Session* 
                          const std::string& who, int64_t now_ns) {
   auto refuse = [&](const std::string& why) {
     ++ctx.stats.bad_commands;
+    if (++takeover_refusals_ > kMaxTakeoverRefusals) return;
     ctx.event(info.id, cmd.client_id, telehand_msg_EVENT_ERROR,
-              "take-over by " + who + " refused: " + why, now_ns);
+              "take-over by " + who + " refused: " + why +
+                  (takeover_refusals_ == kMaxTakeoverRefusals
+                       ? " (further refused take-overs of this session are counted, not recorded)"
+                       : ""),
+              now_ns);
   };
   if (mode != telehand_msg_MODE_LESSON || !lesson) return refuse("the session runs no lesson");
   if (!lesson->plan.takeover) {

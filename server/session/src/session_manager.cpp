@@ -121,9 +121,15 @@ void SessionManager::refuse(uint64_t session_id, uint64_t client_id, const std::
   stats_.refused += count;
   if (!reportDue(refused_reported_ns_, kMaxUnknownIds, rate_key.value_or(session_id), now_ns))
     return;
-  event(session_id, client_id, telehand_msg_EVENT_ERROR,
-        "security: refused " + what + " (" + std::to_string(stats_.refused) +
-            " refused by this server so far)",
+  // Under the session's key only for a session this server runs or holds for its client: any
+  // other id, made up by the sender, would be a new instance of the transient-local
+  // SessionEvent topic that nothing retires, kept for good and replayed to every late joiner.
+  // Those go under session 0, the id named in the text.
+  const bool here = sessions_.count(session_id) > 0 || suspended_.count(session_id) > 0;
+  event(here ? session_id : 0, client_id, telehand_msg_EVENT_ERROR,
+        "security: refused " + what +
+            (here || session_id == 0 ? "" : " (for session " + std::to_string(session_id) + ")") +
+            " (" + std::to_string(stats_.refused) + " refused by this server so far)",
         now_ns);
 }
 
@@ -822,7 +828,10 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
     try {
       const bool waiting = suspended_.count(c.session_id) > 0;
       const EndedOwner* owner = rememberedOwner(c.session_id);
-      if (!owner && !waiting) {
+      // A session waiting for its client is looked up too when its owner is no longer
+      // remembered (a stranger's chunks for kMaxEndedOwners other sessions push it out of
+      // the ring): its chunks are taken from its owner only, as a running session's are.
+      if (!owner) {
         if (const auto info = store_.session(c.session_id)) {
           rememberOwner(c.session_id, info->owner);
           owner = rememberedOwner(c.session_id);
@@ -836,7 +845,7 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
                c.samples._length, now_ns);
         return;
       }
-      if (waiting || owner != nullptr) {
+      if (owner != nullptr) {
         const int64_t t0 = SteadyClock{}.nowNs();
         const uint64_t added = store_.appendSamples(c.session_id, samples, valid);
         records_ns_ += SteadyClock{}.nowNs() - t0;

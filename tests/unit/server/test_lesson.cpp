@@ -22,6 +22,7 @@
 #include "telehand/protocol/wire.h"
 #include "telehand/server/lesson/lesson.h"
 #include "telehand/server/session/replay.h"
+#include "telehand/server/session/session.h"
 #include "telehand/server/session/session_manager.h"
 #include "telehand/server/sim/hand_model.h"
 #include "telehand/server/store/sqlite_store.h"
@@ -754,6 +755,23 @@ TEST_F(LessonTest, ATakeOverLeadsTheGuideFromTheSupervisorsLiveSession) {
   // Bounded per run.
   for (int i = 0; i < 40; ++i) takeover(other_run, i % 2 ? sup : 0);
   EXPECT_THAT(refusal(other_run), HasSubstr("take-overs already"));
+  // Anyone may ask: a flood of refused asks is counted, and said (and recorded) only up to a
+  // bound per session, not one event and one row of the student's record per ask.
+  const auto refusals = [&] {
+    std::size_t n = 0;
+    for (const auto& t : out_.textsOf(telehand_msg_EVENT_ERROR, strict))
+      n += t.find("take-over by") != std::string::npos;
+    return n;
+  };
+  const uint64_t bad_before = manager_->stats().bad_commands;
+  for (int i = 0; i < 200; ++i) takeover(strict, sup);
+  EXPECT_EQ(manager_->stats().bad_commands - bad_before, 200u);
+  EXPECT_EQ(refusals(), static_cast<std::size_t>(Session::kMaxTakeoverRefusals));
+  EXPECT_THAT(refusal(strict), HasSubstr("counted, not recorded"));
+  std::size_t recorded = 0;
+  for (const auto& e : store_->events(strict))
+    recorded += e.text.find("take-over by") != std::string::npos;
+  EXPECT_EQ(recorded, static_cast<std::size_t>(Session::kMaxTakeoverRefusals));
 }
 
 TEST(LessonPlan, RoundTripsAndRefusesWhatIsOutOfRange) {

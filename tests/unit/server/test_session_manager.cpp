@@ -1224,6 +1224,65 @@ TEST_F(OwnershipTest, ASuspendedSessionTakesChunksFromItsOwnerOnly) {
   EXPECT_EQ(st.highest, 600u);
 }
 
+TEST_F(OwnershipTest, ASuspendedSessionKeepsItsOwnerWhenTheRememberedOnesAreFlooded) {
+  // The server remembers the owners of kMaxEndedOwners sessions not running here. A stranger
+  // whose chunks name that many other sessions of the record pushes the suspended session's
+  // owner out of that ring; its chunks for the suspended session are still refused (the
+  // record says whose it is).
+  ASSERT_NE(open("healthy"), 0u);
+  const uint64_t suspended = session_;
+  sendRange(suspended, 1, 400, kA);
+  manager_->closeAll(now_ns_);
+  ASSERT_EQ(store_->session(suspended)->state, "suspended");
+  manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  ASSERT_EQ(manager_->recoverFromStore(now_ns_), 1u);
+  std::vector<uint64_t> others;
+  for (std::size_t i = 0; i < SessionManager::kMaxEndedOwners + 8; ++i) {
+    SessionInfo info;
+    info.user = "other";
+    info.case_name = "healthy";
+    info.mode = "mobilization";
+    info.state = "closed";
+    info.owner = kA.guid;
+    others.push_back(store_->createSession(info));
+  }
+  for (const uint64_t id : others) sendChunk(id, {}, kB);
+  const uint64_t refused = manager_->stats().refused;
+  sendRange(suspended, 401, 200, kB, kRogueVersion);
+  EXPECT_EQ(manager_->stats().refused, refused + 200u);
+  const Stored st = stored(suspended);
+  EXPECT_EQ(st.rows, 400u);
+  EXPECT_EQ(st.from_rogue, 0u);
+  sendRange(suspended, 401, 200, kA);  // the owner's are still taken
+  EXPECT_EQ(stored(suspended).rows, 600u);
+}
+
+TEST_F(OwnershipTest, RefusalsForSessionsNotHereAreNotPublishedUnderTheirIds) {
+  // A SessionEvent's session id is its DDS instance (transient-local, kept until retired):
+  // refusals for ids no session here has (made up by the sender) go under session 0, the id
+  // named in the text, so that a flood of made-up ids leaves no instance behind.
+  ASSERT_NE(open("healthy"), 0u);
+  const std::size_t before = out_.events.size();
+  for (uint64_t id = 900'000; id < 900'050; ++id) {
+    telehand_msg_DeviceState far = wireSample(id, uint64_t{1} << 63, kRogueVersion);
+    sendChunk(id, {far}, kB);  // each id its own report
+  }
+  std::size_t refusals = 0;
+  for (std::size_t i = before; i < out_.events.size(); ++i) {
+    const auto& e = out_.events[i];
+    if (!std::string(e.text).starts_with("security: refused")) continue;
+    ++refusals;
+    EXPECT_EQ(e.session_id, 0u) << e.text;
+    EXPECT_THAT(std::string(e.text), HasSubstr("(for session 9000"));
+  }
+  EXPECT_EQ(refusals, 50u);
+  // One for the session running here still goes under its id.
+  sendRange(session_, uint64_t{1} << 62, 1, kB, kRogueVersion);
+  ASSERT_FALSE(out_.events.empty());
+  EXPECT_EQ(out_.events.back().session_id, session_);
+  EXPECT_THAT(std::string(out_.events.back().text), HasSubstr("belongs to"));
+}
+
 TEST_F(OwnershipTest, UnderSecurityTheLimitCountsTheIdentityNotItsParticipants) {
   // Two participants of one certificate (their GUIDs share the subject's 48-bit hash) and
   // one of another: the limit per participant holds for the identity.

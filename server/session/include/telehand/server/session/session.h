@@ -139,6 +139,10 @@ class Session {
   std::unique_ptr<LessonRun> lesson;  // MODE_LESSON
   std::unique_ptr<Replay> replay;     // MODE_REPLAY, or a lesson's watch phase
 
+  /// Refused TAKEOVERs said as events (and kept in the record): anyone may ask, so a flood of
+  /// asks is counted (ManagerStats::bad_commands) past this many, not written row by row.
+  static constexpr int kMaxTakeoverRefusals = 16;
+
  private:
   /// The session's own model with the guide of `authority` (0: none), adopted and published:
   /// the demonstration's path, or under a take-over the taking-over session's latest.
@@ -164,6 +168,7 @@ class Session {
   static constexpr double kTakeoverPeriodChange = 0.05;         // so is a period changed by 5 %
   uint64_t takeover_source_ = 0;    // the session leading the guide (0: the demonstration)
   int takeovers_ = 0;               // TAKEOVER requests taken
+  int takeover_refusals_ = 0;       // refused TAKEOVERs so far (kMaxTakeoverRefusals)
   double guide_authority_ = 0.0;    // the guided trial's under way (0: none)
   int64_t next_takeover_ns_ = 0;    // next refresh of the taken-over guide
   uint64_t takeover_last_seq_ = 0;  // the source's last sample the guide was derived up to
