@@ -112,13 +112,16 @@ TEST_F(CliOptionsTest, EveryFloatingPointOptionRefusesWhatIsNotAFiniteNumber) {
   }
 }
 
-TEST_F(CliOptionsTest, TheConnectTimeoutIsPositiveAndBounded) {
+TEST_F(CliOptionsTest, TheTimeoutsArePositiveAndBounded) {
+  // A huge one would overflow the nanoseconds it becomes.
   const Program& client = kPrograms[0];
-  for (const char* bad : {"0", "-1", "0.01", "3601", "1e9"}) {
-    Process p(argv(client, {std::string("--connect-timeout=") + bad}),
-              path(std::string("timeout") + bad));
-    EXPECT_EQ(p.wait(30s), std::optional<int>(2)) << bad << "\n" << p.output();
-    EXPECT_NE(p.output().find("--connect-timeout"), std::string::npos) << bad << p.output();
+  for (const char* option : {"--connect-timeout", "--device-timeout"}) {
+    for (const char* bad : {"0", "-1", "0.01", "3601", "1e9", "1e300"}) {
+      Process p(argv(client, {std::string(option) + "=" + bad}),
+                path(std::string(option).substr(2) + bad));
+      EXPECT_EQ(p.wait(30s), std::optional<int>(2)) << option << bad << "\n" << p.output();
+      EXPECT_NE(p.output().find(option), std::string::npos) << option << bad << p.output();
+    }
   }
 }
 

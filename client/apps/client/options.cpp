@@ -24,7 +24,7 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   app.add_option("--usb-serial", o.usb_serial, "use the MF-2 with this serial number");
   app.add_option("--device-timeout", o.device_timeout, "seconds to wait for the USB MF-2 to stream")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(CLI::Range(0.1, 3600.0));
   auto* seconds = app.add_option("--seconds", o.seconds,
                                  "session length (Ctrl-C ends it early); capture mode with the "
                                  "simulated MF-2: 3 × --sweep-seconds + 2, every axis swept")

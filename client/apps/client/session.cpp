@@ -104,13 +104,16 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
       static_cast<unsigned long long>(link.stats().chunks_sent.load()));
   std::printf(
       "  loop: %llu overruns, worst wake-up %.0f us late, %llu watchdog trips, "
-      "%llu clamps, %llu rate-limited, %llu samples dropped\n",
+      "%llu clamps, %llu rate-limited, %llu samples dropped, %llu non-finite forces zeroed, "
+      "%llu device writes failed\n",
       static_cast<unsigned long long>(h.overruns.load()),
       static_cast<double>(h.max_lateness_ns.load()) / 1e3,
       static_cast<unsigned long long>(h.watchdog_trips.load()),
       static_cast<unsigned long long>(h.clamped.load()),
       static_cast<unsigned long long>(h.rate_limited.load()),
-      static_cast<unsigned long long>(h.samples_dropped.load()));
+      static_cast<unsigned long long>(h.samples_dropped.load()),
+      static_cast<unsigned long long>(h.nonfinite.load()),
+      static_cast<unsigned long long>(h.device_write_failures.load()));
   if (h.massage.load() && h.massage_ticks.load() > 0) {
     std::printf(
         "  massage: both thimbles within 10 ± 2 N (reference) on %.1f %% of %llu ticks, largest "
@@ -176,12 +179,14 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
     // sending, or a failover); one for a sample not sent yet is refused.
     std::printf(
         "  direct: %llu server forces taken; none fresh (older than %.0f ms) on %llu ticks in "
-        "%llu gaps, nothing rendered then; %llu refused (for samples not sent yet)\n",
+        "%llu gaps, nothing rendered then; %llu refused (for samples not sent yet), %llu "
+        "refused as not finite\n",
         static_cast<unsigned long long>(h.direct_forces.load()),
         static_cast<double>(loop::TeleopOptions{}.direct_max_age_ns) * 1e-6,
         static_cast<unsigned long long>(h.direct_stale_ticks.load()),
         static_cast<unsigned long long>(h.direct_stale_gaps.load()),
-        static_cast<unsigned long long>(h.direct_forces_ahead.load()));
+        static_cast<unsigned long long>(h.direct_forces_ahead.load()),
+        static_cast<unsigned long long>(link.stats().direct_rejected.load()));
   }
   if (const auto crypto = dds::cryptoCounts()) {
     std::printf("  security: %s\n", dds::cryptoSummary(*crypto).c_str());
@@ -226,6 +231,19 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
               static_cast<unsigned long long>(closed.samples_recorded),
               static_cast<unsigned long long>(closed.samples_missing), closed.record.c_str(),
               link.recordDigest().text().c_str());
+  if (const uint64_t dropped = h.samples_dropped.load(); dropped > 0) {
+    // Never sent (the loop's ring to the link was full), so the server saw no gap: the record
+    // is whole for what was sent, and the session is not.
+    std::printf(
+        "  record: %llu samples were dropped before they were sent (the link fell "
+        "behind the loop); the session is not recorded whole\n",
+        static_cast<unsigned long long>(dropped));
+    return 3;
+  }
+  if (ls.acks_rejected.load() > 0) {
+    std::printf("  warning: %llu statuses said more was stored than was sent; not believed\n",
+                static_cast<unsigned long long>(ls.acks_rejected.load()));
+  }
   return closed.samples_missing == 0 && closed.samples_recorded == sent ? 0 : 3;
 }
 

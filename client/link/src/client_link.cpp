@@ -249,6 +249,17 @@ void ClientLink::keep(SpillQueue::Chunk&& c) {
 
 void ClientLink::acknowledge(uint64_t stored_below) {
   if (stored_below <= stored_below_) return;
+  if (stored_below > stats_.last_seq.load(std::memory_order_relaxed) + 1) {
+    // Stored past anything sent: not a record's acknowledgement (a server at fault, or a
+    // status not from the session's server). Believed, it would let the client forget
+    // samples the record does not hold.
+    if (stats_.acks_rejected.fetch_add(1, std::memory_order_relaxed) < 8) {
+      message("rejected a status saying samples below " + std::to_string(stored_below) +
+              " are stored: the last sample sent is " +
+              std::to_string(stats_.last_seq.load(std::memory_order_relaxed)));
+    }
+    return;
+  }
   stored_below_ = stored_below;
   stats_.stored_below.store(stored_below, std::memory_order_relaxed);
   try {
@@ -411,6 +422,15 @@ void ClientLink::pollDirectForces() {
     loop::DirectForceSample d;
     d.device_seq = f.device_seq;
     d.force_n = forcesFromWire(f);
+    if (!d.force_n[0].allFinite() || !d.force_n[1].allFinite()) {
+      // The gate would zero it; refused here, so that it is said and counted, not rendered as
+      // a silent zero.
+      if (stats_.direct_rejected.fetch_add(1, std::memory_order_relaxed) < 8) {
+        message("rejected DirectForce for sample " + std::to_string(f.device_seq) +
+                ": a force that is not finite");
+      }
+      return;
+    }
     stats_.direct_forces.fetch_add(1, std::memory_order_relaxed);
     loop_.directForces().tryPush(d);  // full: the loop holds the last one it took
   });
@@ -472,7 +492,7 @@ std::vector<std::string> ClientLink::takeMessages() {
 }
 
 telehand_msg_SessionCommand ClientLink::command(telehand_msg_CommandKind kind) {
-  return sessionCommand(kind, client_id_, ++request_seq_, session_id_);
+  return sessionCommand(kind, client_id_, request_seq_.fetch_add(1) + 1, session_id_);
 }
 
 void ClientLink::mark(const std::string& text) {

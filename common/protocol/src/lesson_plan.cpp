@@ -65,8 +65,10 @@ std::optional<LessonPlan> decodePlan(const std::string& text, std::string* why) 
   p.assessment = v != 0.0;
   if (!num("demo_s", 0, 600, p.demo_s)) return bad("lesson plan: 'demo_s' out of 0..600 s");
   if (!num("band_min_n", 0, 100, p.band_min_n) || !num("band_max_n", 0, 100, p.band_max_n) ||
-      p.band_min_n > p.band_max_n) {
-    return bad("lesson plan: 'band_min_n'/'band_max_n' missing, out of 0..100 N or reversed");
+      p.band_min_n > p.band_max_n || !(p.band_max_n > 0.0)) {
+    return bad(
+        "lesson plan: 'band_min_n'/'band_max_n' missing, out of 0..100 N, reversed or a band "
+        "ending at 0 N");
   }
   if (!num("frequency_hz", 0.1, 10, p.frequency_hz)) {
     return bad("lesson plan: 'frequency_hz' out of 0.1..10 Hz");

@@ -802,6 +802,11 @@ TEST(LessonPlan, RoundTripsAndRefusesWhatIsOutOfRange) {
   EXPECT_FALSE(decodePlan(old)->takeover);
   EXPECT_FALSE(decodePlan("lesson=1;schedule=loud", &why));
   EXPECT_THAT(why, HasSubstr("schedule"));
+  // A band ending at 0 N would divide the client's progress by zero.
+  LessonPlan zero = p;
+  zero.band_min_n = zero.band_max_n = 0.0;
+  EXPECT_FALSE(decodePlan(encodePlan(zero), &why));
+  EXPECT_THAT(why, HasSubstr("ending at 0 N"));
   std::string text = encodePlan(p);
   text.replace(text.find("trial_s=8.000"), 13, "trial_s=1e9");
   EXPECT_FALSE(decodePlan(text, &why));

@@ -41,6 +41,12 @@ struct LinkStats {
   std::atomic<uint64_t> last_seq{0};
   std::atomic<uint64_t> live_sent{0};      ///< DeviceState packets that went out (deadband)
   std::atomic<uint64_t> direct_forces{0};  ///< DirectForce packets received (direct mode)
+  /// DirectForces refused for a component that is not finite: not rendered (the loop holds
+  /// the last good one for its age limit, then renders nothing).
+  std::atomic<uint64_t> direct_rejected{0};
+  /// Statuses whose stored_below is past anything this client sent: not believed (the
+  /// samples they would let the client forget are kept).
+  std::atomic<uint64_t> acks_rejected{0};
   /// Recovery (docs/recovery.md): sessions taken on again by a server after theirs went
   /// away, chunks sent again to it, chunks kept until the server says they are stored.
   std::atomic<uint64_t> resumes{0};
@@ -145,7 +151,9 @@ class ClientLink {
   DeviceStateDeadband deadband_;
 
   uint64_t client_id_;
-  uint32_t request_seq_ = 0;
+  /// Commands come from the main thread (PHASE, MARK, CLOSE) and the link thread (resume):
+  /// each takes its own number.
+  std::atomic<uint32_t> request_seq_{0};
   uint64_t session_id_ = 0;
   uint64_t chunk_seq_ = 0;
   std::vector<telehand_msg_DeviceState> chunk_;
