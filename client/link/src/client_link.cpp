@@ -249,14 +249,14 @@ void ClientLink::keep(SpillQueue::Chunk&& c) {
 
 void ClientLink::acknowledge(uint64_t stored_below) {
   if (stored_below <= stored_below_) return;
-  if (stored_below > stats_.last_seq.load(std::memory_order_relaxed) + 1) {
+  if (const uint64_t last = stats_.last_seq.load(std::memory_order_relaxed);
+      stored_below > last + 1) {
     // Stored past anything sent: not a record's acknowledgement (a server at fault, or a
     // status not from the session's server). Believed, it would let the client forget
     // samples the record does not hold.
-    if (stats_.acks_rejected.fetch_add(1, std::memory_order_relaxed) < 8) {
+    if (firstFew(stats_.acks_rejected)) {
       message("rejected a status saying samples below " + std::to_string(stored_below) +
-              " are stored: the last sample sent is " +
-              std::to_string(stats_.last_seq.load(std::memory_order_relaxed)));
+              " are stored: the last sample sent is " + std::to_string(last));
     }
     return;
   }
@@ -352,6 +352,10 @@ void ClientLink::watchServer() {
   command_writer_.write(cmd);  // no server yet: asked again in a second
 }
 
+bool ClientLink::firstFew(std::atomic<uint64_t>& refused) {
+  return refused.fetch_add(1, std::memory_order_relaxed) < kRefusalsSaid;
+}
+
 void ClientLink::message(std::string text) {
   std::lock_guard lock(messages_mu_);
   if (messages_.size() < 256) messages_.push_back(std::move(text));
@@ -425,7 +429,7 @@ void ClientLink::pollDirectForces() {
     if (!d.force_n[0].allFinite() || !d.force_n[1].allFinite()) {
       // The gate would zero it; refused here, so that it is said and counted, not rendered as
       // a silent zero.
-      if (stats_.direct_rejected.fetch_add(1, std::memory_order_relaxed) < 8) {
+      if (firstFew(stats_.direct_rejected)) {
         message("rejected DirectForce for sample " + std::to_string(f.device_seq) +
                 ": a force that is not finite");
       }

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -637,18 +638,12 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
     if (s->is_number_unsigned()) {
       session = s->get<uint64_t>();
     } else if (s->is_string()) {
-      // Digits only: stoull would take a sign (and wrap "-5"), spaces and "+".
-      const std::string str = s->get<std::string>();
-      const bool digits =
-          !str.empty() && str.size() <= 20 &&
-          std::all_of(str.begin(), str.end(), [](char ch) { return ch >= '0' && ch <= '9'; });
-      if (digits) {
-        try {
-          session = std::stoull(str);
-        } catch (const std::exception&) {
-          session.reset();  // past 2^64
-        }
-      }
+      // Digits only, the whole string, within 64 bits: from_chars takes no sign, space or
+      // "+" (stoull took "-5" as 2^64 - 5).
+      const std::string& str = s->get_ref<const std::string&>();
+      uint64_t id = 0;
+      const auto [end, ec] = std::from_chars(str.data(), str.data() + str.size(), id);
+      if (ec == std::errc{} && end == str.data() + str.size()) session = id;
     }
     if (!session) {
       ++stats_.bad_messages;

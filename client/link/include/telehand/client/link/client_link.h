@@ -134,6 +134,10 @@ class ClientLink {
   void watchServer();
   void beginResume(const std::string& why);
   void message(std::string text);
+  /// Counts a refusal in `refused`; true for the first kRefusalsSaid, which are said
+  /// (message), so that a flood is counted rather than said line by line.
+  static bool firstFew(std::atomic<uint64_t>& refused);
+  static constexpr uint64_t kRefusalsSaid = 8;
   void pollModels();
   void pollEvents();
   void pollDirectForces();
