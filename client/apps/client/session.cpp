@@ -231,6 +231,10 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
               static_cast<unsigned long long>(closed.samples_recorded),
               static_cast<unsigned long long>(closed.samples_missing), closed.record.c_str(),
               link.recordDigest().text().c_str());
+  if (ls.acks_rejected.load() > 0) {
+    std::printf("  warning: %llu statuses said more was stored than was sent; not believed\n",
+                static_cast<unsigned long long>(ls.acks_rejected.load()));
+  }
   if (const uint64_t dropped = h.samples_dropped.load(); dropped > 0) {
     // Never sent (the loop's ring to the link was full), so the server saw no gap: the record
     // is whole for what was sent, and the session is not.
@@ -239,10 +243,6 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
         "behind the loop); the session is not recorded whole\n",
         static_cast<unsigned long long>(dropped));
     return 3;
-  }
-  if (ls.acks_rejected.load() > 0) {
-    std::printf("  warning: %llu statuses said more was stored than was sent; not believed\n",
-                static_cast<unsigned long long>(ls.acks_rejected.load()));
   }
   return closed.samples_missing == 0 && closed.samples_recorded == sent ? 0 : 3;
 }
