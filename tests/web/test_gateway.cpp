@@ -39,7 +39,8 @@ uint64_t statOf(const std::string& json, const std::string& key) {
 
 /// A closed record of `seconds` of a 3 Hz mobilization of the index MCP on `case_name`, written
 /// into the store as the server writes a session's samples.
-uint64_t writeRecord(const std::string& db, const std::string& case_name, double seconds) {
+uint64_t writeRecord(const std::string& db, const std::string& case_name, double seconds,
+                     uint64_t first_seq = 0) {
   server::store::SqliteStore store(db);
   server::store::SessionInfo info;
   info.user = "student";
@@ -55,7 +56,7 @@ uint64_t writeRecord(const std::string& db, const std::string& case_name, double
     const double t = static_cast<double>(i) * 1e-3;
     Sample d;
     d.session_id = id;
-    d.seq = i;
+    d.seq = first_seq + i;
     d.source_time_ns = info.started_ns + static_cast<int64_t>(i) * 1'000'000;
     d.model_version = 1;
     const Vec3 angles(degToRad(20.0 + 8.0 * std::sin(2 * M_PI * 3.0 * t)), 0.0, 0.0);
@@ -75,7 +76,7 @@ uint64_t writeRecord(const std::string& db, const std::string& case_name, double
       batch.clear();
     }
   }
-  store.closeSession(id, wallNs(), n, "closed");
+  store.closeSession(id, wallNs(), first_seq + n, "closed");
   return id;
 }
 
@@ -198,10 +199,11 @@ TEST_F(GatewayTest, MalformedMessagesAreNamedAndTheConnectionStays) {
   ASSERT_TRUE(bin);
   EXPECT_NE(bin->find("binary messages are not accepted"), std::string::npos) << *bin;
   // Still served.
-  ASSERT_TRUE(c.send(R"({"op":"ping","t":42})"));
+  // The page's clock comes back exactly (a tab open for hours sends 10^7 ms and more).
+  ASSERT_TRUE(c.send(R"({"op":"ping","t":12345678.901})"));
   const auto pong = c.waitFor("\"type\":\"pong\"");
   ASSERT_TRUE(pong);
-  EXPECT_NE(pong->find("\"t\":42"), std::string::npos) << *pong;
+  EXPECT_NE(pong->find("\"t\":12345678.901,"), std::string::npos) << *pong;
   EXPECT_EQ(statOf(stats(), "bad_messages"), std::size(cases) + 1);
 }
 
@@ -329,6 +331,8 @@ TEST_F(GatewayTest, ABurstOfBrowsersDoesNotPassTheLimit) {
   EXPECT_GE(served, 1);
   const std::string s = stats();
   EXPECT_LE(statOf(s, "clients_open"), 8u) << s;
+  // Those closed at once after the upgrade were never served: not counted as open or served.
+  EXPECT_EQ(statOf(s, "clients_total"), static_cast<uint64_t>(served)) << s;
   EXPECT_EQ(statOf(s, "clients_refused") + static_cast<uint64_t>(served),
             static_cast<uint64_t>(kBurst))
       << s;
@@ -368,6 +372,31 @@ TEST_F(GatewayTest, AnotherSitesPageCannotOpenTheWebSocket) {
   EXPECT_EQ(statOf(s, "foreign_origin"), 2u) << s;
   if (own >= 0) ::close(own);
   if (program >= 0) ::close(program);
+  EXPECT_TRUE(drained()) << stats();
+}
+
+// DNS rebinding: a page of another site whose name was made to point at this machine has an
+// Origin that matches its Host. The Host itself names no address, localhost or allowed name:
+// refused, for the WebSocket and for every other request.
+TEST_F(GatewayTest, APageOfANameMadeToPointHereIsRefused) {
+  const std::string host = "rebind.example:" + std::to_string(port_);
+  const std::string ws = upgradeWith(port_, "Origin: http://" + host + "\r\n", nullptr, 0, host);
+  EXPECT_NE(ws.find(" 403 "), std::string::npos) << ws;
+  EXPECT_NE(ws.find("--allow-host"), std::string::npos) << ws;
+  EXPECT_EQ(httpGet(port_, "/api/stats", host).find("clients_open"), std::string::npos);
+  EXPECT_EQ(httpGet(port_, "/index.html", "REBIND.example").find("<html"), std::string::npos);
+  // By address (v4, v6) or as localhost, with or without a port: served.
+  for (const std::string& ok : std::vector<std::string>{
+           "127.0.0.1", "localhost:" + std::to_string(port_), "[::1]:80", "LocalHost"}) {
+    EXPECT_NE(httpGet(port_, "/api/stats", ok).find("clients_open"), std::string::npos) << ok;
+  }
+  int own = -1;
+  const std::string local = "localhost:" + std::to_string(port_);
+  const std::string answer = upgradeWith(port_, "Origin: http://" + local + "\r\n", &own, 0, local);
+  EXPECT_NE(answer.find(" 101 "), std::string::npos) << answer;
+  if (own >= 0) ::close(own);
+  const std::string s = stats();
+  EXPECT_EQ(statOf(s, "foreign_host"), 3u) << s;
   EXPECT_TRUE(drained()) << stats();
 }
 
@@ -619,6 +648,40 @@ TEST_F(GatewayTest, AReplayCarriesTheHandComputedFromTheRecord) {
   ASSERT_TRUE(grown.end);
   EXPECT_FALSE((*grown.end)["cached"].get<bool>()) << grown.end->dump();
   EXPECT_EQ(grown.frames.size(), r.frames.size());
+}
+
+// Going back to live stops the replay's hand being computed: the replays' worker is free for the
+// other browsers, and no more of that hand is queued ahead of the live frames.
+TEST_F(GatewayTest, WatchingLiveAgainStopsTheReplaysHand) {
+  const uint64_t session = writeRecord(db_, "stiff", 30.0);
+  {
+    WsClient c(port_);
+    ASSERT_TRUE(c.ok()) << c.error();
+    ASSERT_TRUE(c.waitFor("\"type\":\"hello\""));
+    ASSERT_TRUE(c.send(R"({"op":"replay","session":)" + std::to_string(session) + "}"));
+    ASSERT_TRUE(c.waitFor("\"type\":\"replay_hand\""));
+    ASSERT_TRUE(c.send(R"({"op":"watch","session":424242})"));  // no such live session here
+    ASSERT_TRUE(c.waitFor("\"type\":\"error\""));
+    EXPECT_EQ(statOf(stats(), "replay_workers"), 0u) << stats();
+    EXPECT_FALSE(c.waitFor("\"type\":\"replay_hand_end\"", 2s)) << "the hand went on";
+  }
+  EXPECT_TRUE(drained()) << stats();
+}
+
+// Sample numbers past 10^6 (17 minutes of a 1 kHz record) come in a replay exactly.
+TEST_F(GatewayTest, AReplaysSampleNumbersAreExact) {
+  const uint64_t session = writeRecord(db_, "healthy", 1.0, 1'234'567);
+  WsClient c(port_);
+  ASSERT_TRUE(c.ok()) << c.error();
+  ASSERT_TRUE(c.waitFor("\"type\":\"hello\""));
+  ASSERT_TRUE(c.send(R"({"op":"replay","session":)" + std::to_string(session) + "}"));
+  const auto text = c.waitFor("\"type\":\"replay\"");
+  ASSERT_TRUE(text);
+  const auto j = nlohmann::json::parse(*text);
+  ASSERT_TRUE(j.contains("seq")) << text->substr(0, 300);
+  ASSERT_FALSE(j["seq"].empty());
+  EXPECT_EQ(j["seq"].front().get<uint64_t>(), 1'234'567u);
+  EXPECT_EQ(j["seq"].back().get<uint64_t>(), 1'234'567u + 1000u);
 }
 
 TEST_F(GatewayTest, ALongRecordsHandIsCutAtTheBoundWhileTheGatewayAnswers) {

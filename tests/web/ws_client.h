@@ -165,15 +165,16 @@ inline int connectLoopback(int port, int receive_buffer = 0) {
 /// gateway's answer (its head and what came with it, "" if none), and the socket through
 /// `fd_out` when it was upgraded (else closed and -1).
 inline std::string upgradeWith(int port, const std::string& headers, int* fd_out = nullptr,
-                               int receive_buffer = 0) {
+                               int receive_buffer = 0, const std::string& host = "") {
   if (fd_out) *fd_out = -1;
   const int fd = connectLoopback(port, receive_buffer);
   if (fd < 0) return "";
-  const std::string req = "GET /ws HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port) +
-                          "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                          "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: "
-                          "13\r\n" +
-                          headers + "\r\n";
+  const std::string req =
+      "GET /ws HTTP/1.1\r\nHost: " + (host.empty() ? "127.0.0.1:" + std::to_string(port) : host) +
+      "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: "
+      "13\r\n" +
+      headers + "\r\n";
   std::string answer;
   if (::write(fd, req.data(), req.size()) == static_cast<ssize_t>(req.size())) {
     // The whole head (the first frames may follow it in the same read), within 5 s.
@@ -272,10 +273,11 @@ inline int readFrames(int fd, std::string& pending, bool answer_pings,
 }
 
 /// GET `path` from 127.0.0.1:`port`; the body, or "" on failure.
-inline std::string httpGet(int port, const std::string& path) {
+inline std::string httpGet(int port, const std::string& path,
+                           const std::string& host = "127.0.0.1") {
   char err[256] = {0};
   mg_connection* c = mg_download("127.0.0.1", port, 0, err, sizeof err,
-                                 "GET %s HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n", path.c_str());
+                                 "GET %s HTTP/1.0\r\nHost: %s\r\n\r\n", path.c_str(), host.c_str());
   if (!c) return "";
   std::string body;
   char buf[4096];

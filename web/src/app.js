@@ -150,10 +150,11 @@ function send(msg) {
   if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(msg));
 }
 let backoff = 500;
+let openedAt = 0;
 function connect() {
   ws = new WebSocket(`${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`);
   ws.onopen = () => {
-    backoff = 500;
+    openedAt = Date.now();
     probe.connected = true;
     $('link').textContent = 'connected';
     $('link').className = 'ok';
@@ -164,6 +165,11 @@ function connect() {
     probe.connected = false;
     $('link').textContent = `disconnected${e.reason ? `: ${e.reason}` : ''}; retrying`;
     $('link').className = 'bad';
+    // The wait starts short again only after a connection that held: a gateway that closes
+    // each connection at once (a reply over its queue bound, a full house) is not asked
+    // twice a second.
+    if (openedAt && Date.now() - openedAt > 10000) backoff = 500;
+    openedAt = 0;
     setTimeout(connect, backoff);
     backoff = Math.min(backoff * 2, 10000);
   };
@@ -227,9 +233,12 @@ const handlers = {
     tb.replaceChildren(...m.sessions.slice().reverse().map((s) => {
       const tr = document.createElement('tr');
       tr.dataset.session = s.id;
-      tr.innerHTML = `<td>${s.id}</td><td></td><td></td><td>${s.state}</td><td>${s.samples}</td><td></td>`;
-      tr.children[1].textContent = s.user;
-      tr.children[2].textContent = s.case;
+      // Every cell as text: a record's strings are not the page's markup.
+      for (const v of [s.id, s.user, s.case, s.state, s.samples, '']) {
+        const td = document.createElement('td');
+        td.textContent = v;
+        tr.append(td);
+      }
       const b = document.createElement('button');
       b.textContent = 'replay';
       b.className = 'replay';
@@ -272,6 +281,11 @@ const handlers = {
   },
   ack(m) {
     probe.acks.push(m);
+    // The typed mark goes only once the gateway took it (a refused one stays to be edited).
+    if (m.op === 'mark' && pendingMark !== null && $('mark-text').value.trim() === pendingMark) {
+      $('mark-text').value = '';
+    }
+    if (m.op === 'mark') pendingMark = null;
     $(m.op === 'takeover' ? 'takeover-status' : 'mark-status').textContent = `sent: ${m.text}`;
   },
   error(m) {
@@ -325,13 +339,16 @@ const handlers = {
   },
 };
 
+const kMaxEvents = 500;  // the newest; a flood of events does not grow the page without end
 function addEvent(when, kind, text) {
   probe.events.push({ kind, text });
+  if (probe.events.length > kMaxEvents) probe.events.splice(0, probe.events.length - kMaxEvents);
   const li = document.createElement('li');
   li.className = kind;
   li.textContent = `${when}  ${kind}  ${text}`;
   const box = $('events');
   box.append(li);
+  while (box.children.length > kMaxEvents) box.firstElementChild.remove();
   box.scrollTop = box.scrollHeight;  // this list only, never the page
 }
 
@@ -453,6 +470,8 @@ setInterval(() => {
 
 // --- take-over: a lesson run that allows it follows the supervisor's own MF-2 session ---
 let lastOp = null;
+let pendingMark = null;  // the mark sent, cleared from the input when the gateway takes it
+const kMarkBytes = 127;
 function showTakeover() {
   const sessions = probe.sessions || [];
   const me = sessions.find((s) => s.id === view.session);
@@ -497,11 +516,18 @@ $('mark-form').addEventListener('submit', (e) => {
     $('mark-status').textContent = view.session ? 'type a mark first' : 'watch or replay a session first';
     return;
   }
-  lastOp = 'mark';
   const msg = { op: 'mark', session: view.session, text };
   if (view.mode === 'replay') msg.at_s = replayPos;
+  // The gateway takes 127 bytes of UTF-8, a replay's "at 123.4 s: " included.
+  const prefix = view.mode === 'replay' ? `at ${replayPos.toFixed(1)} s: ` : '';
+  const bytes = new TextEncoder().encode(prefix + text).length;
+  if (bytes > kMarkBytes) {
+    $('mark-status').textContent = `too long: ${bytes} bytes of ${kMarkBytes}${prefix ? ' with the replay time' : ''}; shorten it`;
+    return;
+  }
+  lastOp = 'mark';
+  pendingMark = text;
   send(msg);
-  $('mark-text').value = '';
   $('mark-status').textContent = 'sending…';
 });
 // The lists are rebuilt as frames come: one handler per table, not per button.

@@ -1,5 +1,6 @@
 #include "gateway.h"
 
+#include <arpa/inet.h>
 #include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
@@ -78,6 +79,7 @@ struct Gateway::Client {
   mg_connection* conn = nullptr;
   std::mutex m;
   std::condition_variable cv;
+  bool served = false;      // counted in served_ (set once, under clients_mutex_)
   bool closing = false;     // the connection is going: the writer ends
   uint16_t close_code = 0;  // the writer closes the connection with this code (0: no)
   std::string close_reason;
@@ -165,6 +167,9 @@ Gateway::Gateway(const Options& options)
                         "Cache-Control: no-cache",
                         nullptr};
   mg_callbacks callbacks{};
+  callbacks.begin_request = [](mg_connection* c) {
+    return static_cast<Gateway*>(mg_get_user_data(mg_get_context(c)))->onRequest(c);
+  };
   callbacks.log_message = [](const mg_connection*, const char* message) {
     spdlog::warn("http: {}", message);
     return 1;
@@ -375,6 +380,26 @@ bool sameOrigin(std::string_view origin, const char* host_header) {
   return false;
 }
 
+/// Whether a Host header names this console: no header (a program), an IP address (v4, or v6
+/// in brackets), localhost, or a name of `allowed`; the port is not compared.
+bool hostAllowed(const char* host_header, const std::vector<std::string>& allowed) {
+  if (!host_header || !*host_header) return true;
+  std::string_view host(host_header);
+  if (host.front() == '[') return host.find(']') != std::string_view::npos;  // an IPv6 address
+  host = host.substr(0, host.find(':'));
+  std::string lower(host);
+  for (char& ch : lower) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+  if (lower == "localhost") return true;
+  in_addr v4{};
+  if (inet_pton(AF_INET, lower.c_str(), &v4) == 1) return true;
+  for (const std::string& a : allowed) {
+    std::string b = a;
+    for (char& ch : b) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+    if (b == lower) return true;
+  }
+  return false;
+}
+
 /// An HTTP answer to a WebSocket upgrade that is not taken: status and why, then the
 /// connection closes (civetweb's own error page leaves the status line out here).
 void refuse(mg_connection* conn, const char* status, const std::string& why) {
@@ -384,6 +409,18 @@ void refuse(mg_connection* conn, const char* status, const std::string& why) {
             status, why.size(), why.c_str());
 }
 }  // namespace
+
+int Gateway::onRequest(mg_connection* conn) {
+  const char* host = mg_get_header(conn, "Host");
+  if (hostAllowed(host, o_.allow_hosts)) return 0;
+  ++stats_.foreign_host;
+  spdlog::warn("refused a request for host '{}' (not an address, localhost or --allow-host)", host);
+  refuse(conn, "403 Forbidden",
+         fmt::format("telehand-web: this console is not served as '{}'; open it by its address, "
+                     "as localhost, or start telehand-web with --allow-host NAME",
+                     host));
+  return 1;
+}
 
 int Gateway::onConnect(mg_connection* conn) {
   // A page of another site that the supervisor's browser has open may open a WebSocket here
@@ -404,13 +441,13 @@ int Gateway::onConnect(mg_connection* conn) {
     return 1;
   }
   std::lock_guard lk(clients_mutex_);
-  if (clients_.size() >= o_.max_clients) {
+  if (served_ >= o_.max_clients) {
     ++stats_.clients_refused;
-    spdlog::warn("refused a browser: {} connected, the limit (--max-clients)", clients_.size());
+    spdlog::warn("refused a browser: {} connected, the limit (--max-clients)", served_);
     refuse(conn, "503 Service Unavailable",
            fmt::format("telehand-web: {} browsers are connected, the limit (--max-clients); "
                        "try again when one leaves",
-                       clients_.size()));
+                       served_));
     return 1;
   }
   return 0;
@@ -423,13 +460,17 @@ void Gateway::onReady(mg_connection* conn) {
   {
     std::lock_guard lk(clients_mutex_);
     c->id = next_client_++;
-    others = clients_.size();
+    others = served_;
+    c->served = served_ < o_.max_clients;
+    if (c->served) {
+      ++served_;
+      ++stats_.clients_open;  // under the lock: never above the limit, even for a moment
+      ++stats_.clients_total;
+    }
     clients_[conn] = c;
   }
-  ++stats_.clients_open;
-  ++stats_.clients_total;
   const mg_request_info* ri = mg_get_request_info(conn);
-  if (others >= o_.max_clients) {
+  if (!c->served) {
     // Upgrades that arrived together all passed onConnect's count before any was added: the
     // ones past the limit are closed at once ("try again later"), with their thread freed.
     ++stats_.clients_refused;
@@ -461,6 +502,10 @@ void Gateway::onClose(const mg_connection* conn) {
     if (it == clients_.end()) return;
     c = it->second;
     clients_.erase(it);
+    if (c->served) {
+      --served_;
+      --stats_.clients_open;
+    }
   }
   {
     std::lock_guard lk(c->m);
@@ -472,7 +517,6 @@ void Gateway::onClose(const mg_connection* conn) {
   c->cv.notify_one();
   if (c->writer.joinable()) c->writer.join();
   stopReplayHand(*c);
-  --stats_.clients_open;
   spdlog::info("browser {} gone", c->id);
 }
 
@@ -661,9 +705,10 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
   };
   if (name == "ping") {
     const auto t = j.find("t");
+    // The page's time back as it sent it (a tab open for hours sends 10^7 ms and more).
+    const bool given = t != j.end() && t->is_number() && std::isfinite(t->get<double>());
     push(*c, fmt::format(R"({{"type":"pong","t":{},"now_ms":{:.3f}}})",
-                         t != j.end() && t->is_number() ? jsonNumber(t->get<double>()) : "null",
-                         ms(wallNs())));
+                         given ? fmt::format("{}", t->get<double>()) : "null", ms(wallNs())));
   } else if (name == "watch") {
     if (needSession()) watch(c, *session);
   } else if (name == "mark") {
@@ -702,6 +747,9 @@ void Gateway::handle(const std::shared_ptr<Client>& c, std::string_view text) {
 }
 
 void Gateway::watch(const std::shared_ptr<Client>& c, uint64_t session) {
+  // Back to live: a replay's hand still being computed for this browser is no longer wanted
+  // (it would hold the replays' worker and queue megabytes ahead of the live frames).
+  stopReplayHand(*c);
   if (session != 0 && !knownSession(session)) {
     ++stats_.unknown_session;
     push(*c, errorFrame("unknown_session", fmt::format("no session {} on domain {} partition {}",
@@ -897,7 +945,7 @@ std::string Gateway::statsJson() const {
       R"("sessions":{},"hand_states":{},"hand_frames":{},"hand_sent":{},"hand_coalesced":{},)"
       R"("messages_in":{},"bad_messages":{},"unknown_session":{},"marks":{},"replays":{},)"
       R"("takeovers":{},"dropped_slow":{},"replay_hands":{},"replay_hand_frames":{},)"
-      R"("replay_hand_cached":{},"replay_workers":{},"write_failed":{}}})",
+      R"("replay_hand_cached":{},"replay_workers":{},"write_failed":{},"foreign_host":{}}})",
       stats_.clients_open.load(), stats_.clients_total.load(), stats_.clients_refused.load(),
       stats_.foreign_origin.load(), stats_.writer_threads.load(), sessions,
       stats_.hand_states.load(), stats_.hand_frames.load(), stats_.hand_sent.load(),
@@ -905,7 +953,7 @@ std::string Gateway::statsJson() const {
       stats_.unknown_session.load(), stats_.marks.load(), stats_.replays.load(),
       stats_.takeovers.load(), stats_.dropped_slow.load(), replay_hands_->hands.load(),
       replay_hands_->frames.load(), replay_hands_->cached.load(), stats_.replay_workers.load(),
-      stats_.write_failed.load());
+      stats_.write_failed.load(), stats_.foreign_host.load());
 }
 
 }  // namespace telehand::web

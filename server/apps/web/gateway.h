@@ -25,11 +25,15 @@ namespace telehand::web {
 struct Options {
   dds::Options dds;
   std::string bind = "127.0.0.1:8080";  ///< civetweb listening_ports syntax
-  std::string root;                     ///< the page's files (index.html, vendor/, hand24.urdf)
-  std::string db;                       ///< the record store for replay ('' = no replay)
-  std::string hand;                     ///< the hand model (URDF) HandState's joints follow
-  double hand_hz = 60.0;                ///< HandState frames per second per browser, at most
-  double band_min_n = 12.0;             ///< reference force band shown on the plot
+  /// Host names the console may be reached by besides IP addresses and localhost (a Host
+  /// header naming another is refused: a page whose name was made to point here, DNS
+  /// rebinding, is another site).
+  std::vector<std::string> allow_hosts;
+  std::string root;          ///< the page's files (index.html, vendor/, hand24.urdf)
+  std::string db;            ///< the record store for replay ('' = no replay)
+  std::string hand;          ///< the hand model (URDF) HandState's joints follow
+  double hand_hz = 60.0;     ///< HandState frames per second per browser, at most
+  double band_min_n = 12.0;  ///< reference force band shown on the plot
   double band_max_n = 16.0;
   std::size_t max_clients = 32;
   std::size_t max_message = 4096;       ///< largest message a browser may send, bytes
@@ -53,10 +57,11 @@ struct Options {
 
 /// Counters /api/stats reports (tests and the benchmark read them).
 struct Stats {
-  std::atomic<uint64_t> clients_open{0};
-  std::atomic<uint64_t> clients_total{0};
+  std::atomic<uint64_t> clients_open{0};     ///< browsers served now (not those being refused)
+  std::atomic<uint64_t> clients_total{0};    ///< browsers served since start
   std::atomic<uint64_t> clients_refused{0};  ///< over --max-clients, or a foreign page's
   std::atomic<uint64_t> foreign_origin{0};   ///< WebSockets opened by another site's page
+  std::atomic<uint64_t> foreign_host{0};     ///< requests naming a host not allowed (--allow-host)
   std::atomic<uint64_t> hand_states{0};      ///< HandState taken from DDS
   std::atomic<uint64_t> hand_frames{0};      ///< HandState frames serialized (watched sessions)
   std::atomic<uint64_t> hand_sent{0};        ///< frames written to browsers
@@ -88,6 +93,8 @@ class Gateway {
 
   // civetweb's callbacks (public for the C trampolines in gateway.cpp).
   int onConnect(mg_connection* conn);
+  /// Every request: refused (403, 1) when its Host header names a host not allowed.
+  int onRequest(mg_connection* conn);
   void onReady(mg_connection* conn);
   int onData(mg_connection* conn, int bits, const char* data, std::size_t len);
   void onClose(const mg_connection* conn);
@@ -153,6 +160,7 @@ class Gateway {
   mutable std::mutex clients_mutex_;
   std::map<const mg_connection*, std::shared_ptr<Client>> clients_;
   uint64_t next_client_ = 1;
+  std::size_t served_ = 0;  ///< clients_ entries served (not refused at onReady); clients_mutex_
   mg_context* http_ = nullptr;
   std::atomic<bool> stopping_{false};
 };

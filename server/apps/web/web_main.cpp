@@ -29,6 +29,10 @@ int main(int argc, char** argv) {
                  "address:port to serve on (default 127.0.0.1:8080, this machine only; e.g. "
                  "0.0.0.0:8080 to open it to the network; port 0: one the system chooses, "
                  "printed at start)");
+  app.add_option("--allow-host", o.allow_hosts,
+                 "a host name the console is opened by (repeatable); IP addresses and localhost "
+                 "always are. A request naming another host is refused (a page of another site "
+                 "whose name was made to point here)");
   app.add_option("--db", o.db,
                  "the record store to replay sessions from (telehand-server --db): an SQLite "
                  "file path or a PostgreSQL URI postgresql://[user@]host[:port]/dbname");
