@@ -125,7 +125,8 @@ proto::StatePacket Mf2Firmware::tick() {
   s.device_time_us = tick_ * 1000u;
   for (int i = 0; i < proto::kActuators; ++i) {
     s.actuator_counts[i] =
-        static_cast<int32_t>(std::lround(p_.zero_counts[i] + q_[i] * p_.counts_per_rad[i]));
+        static_cast<int32_t>(std::lround(p_.zero_counts[i] + q_[i] * p_.counts_per_rad[i])) +
+        count_offset_[i];
   }
   s.gimbal_counts = p_.gimbal_counts;
   for (int i = 0; i < proto::kFsrs; ++i) {

@@ -63,6 +63,8 @@ class Mf2Firmware {
   void pressEstopButton(bool pressed) { estop_button_ = pressed; }
   /// An encoder lost count (status bit 6) until cleared.
   void setEncoderFault(bool on) { encoder_fault_ = on; }
+  /// An encoder that lost count without saying so: its counts reported `counts` off.
+  void setCountOffset(int actuator, int32_t counts) { count_offset_[actuator] = counts; }
 
   // What happened (tests check content against these).
   const std::vector<proto::CommandPacket>& commands() const { return commands_; }
@@ -91,6 +93,7 @@ class Mf2Firmware {
   bool enabled_ = false, estop_latched_ = false, estop_button_ = false;
   bool watchdog_expired_ = true, overcurrent_ = false, last_rejected_ = false;
   bool encoder_fault_ = false;
+  std::array<int32_t, proto::kActuators> count_offset_{};
   uint32_t rx_errors_ = 0;
   bool keep_history_ = true;
   std::vector<proto::CommandPacket> commands_;

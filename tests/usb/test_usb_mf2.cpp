@@ -616,5 +616,51 @@ TEST_F(UsbMf2Test, AnEncoderFaultIsADeviceFaultAndTheDeviceGetsNoForceUntilItCle
   }));
 }
 
+// An encoder that lost a motor turn without setting its fault bit: the pose it gives is outside
+// the linkage's range, so there is no pose to work the currents out at. The device is sent
+// zero, disabled, from the first such packet (the last command's currents do not stay on
+// until the firmware's watchdog), a run of them is a fault that says why, and a pose back in
+// range drives again.
+TEST_F(UsbMf2Test, APoseOutsideTheLinkagesRangeGetsNoForceAndARunOfThemIsAFault) {
+  const ForceCommand push = thumbPush();
+  DeviceSample s;
+  UsbMf2& dev = startDriving(push, s);
+  auto enabled = [&] { return emu_->withFirmware([](Mf2Firmware& fw) { return fw.enabled(); }); };
+  ASSERT_GT(maxCurrent(), 0.05) << "the device drives the force";
+  const uint64_t bad0 = dev.stats().bad_pose.load();
+
+  emu_->withFirmware([](Mf2Firmware& fw) { fw.setCountOffset(0, 163'840); });
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return dev.stats().bad_pose.load() > bad0;
+  }));
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return !enabled() && maxCurrent() == 0.0;
+  }));
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return dev.status() == DeviceStatus::kFault;
+  })) << dev.statusText();
+  EXPECT_NE(dev.statusText().find("outside the linkage's range"), std::string::npos)
+      << dev.statusText();
+  for (int i = 0; i < 50; ++i) {
+    dev.write(push);
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    ASSERT_EQ(maxCurrent(), 0.0) << i;
+    ASSERT_FALSE(enabled()) << i;
+  }
+
+  emu_->withFirmware([](Mf2Firmware& fw) { fw.setCountOffset(0, 0); });
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return dev.status() == DeviceStatus::kOk;
+  })) << dev.statusText();
+  ASSERT_TRUE(eventually([&] {
+    dev.write(push);
+    return enabled() && maxCurrent() > 0.05;
+  }));
+}
+
 }  // namespace
 }  // namespace telehand::test::usb

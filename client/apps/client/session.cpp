@@ -105,7 +105,7 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
   std::printf(
       "  loop: %llu overruns, worst wake-up %.0f us late, %llu watchdog trips, "
       "%llu clamps, %llu rate-limited, %llu samples dropped, %llu non-finite forces zeroed, "
-      "%llu device writes failed\n",
+      "%llu device writes failed, %llu device samples with a position not finite\n",
       static_cast<unsigned long long>(h.overruns.load()),
       static_cast<double>(h.max_lateness_ns.load()) / 1e3,
       static_cast<unsigned long long>(h.watchdog_trips.load()),
@@ -113,7 +113,8 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
       static_cast<unsigned long long>(h.rate_limited.load()),
       static_cast<unsigned long long>(h.samples_dropped.load()),
       static_cast<unsigned long long>(h.nonfinite.load()),
-      static_cast<unsigned long long>(h.device_write_failures.load()));
+      static_cast<unsigned long long>(h.device_write_failures.load()),
+      static_cast<unsigned long long>(h.device_nonfinite.load()));
   if (h.massage.load() && h.massage_ticks.load() > 0) {
     std::printf(
         "  massage: both thimbles within 10 ± 2 N (reference) on %.1f %% of %llu ticks, largest "
@@ -210,6 +211,14 @@ int printSummary(const ClientOptions& o, uint64_t session, bool capture, double 
         static_cast<unsigned long long>(u.disconnects.load()),
         rtts ? static_cast<double>(u.rtt_sum_ns.load()) / static_cast<double>(rtts) / 1e3 : 0.0,
         static_cast<double>(u.rtt_max_ns.load()) / 1e3);
+    if (u.bad_pose.load() > 0 || u.device_rx_errors.load() > 0) {
+      std::printf(
+          "  usb warning: %llu state packets gave a pose outside the linkage's range (no force "
+          "then: an encoder that lost count, or the device file's zero_counts off), the device "
+          "refused %llu commands\n",
+          static_cast<unsigned long long>(u.bad_pose.load()),
+          static_cast<unsigned long long>(u.device_rx_errors.load()));
+    }
   }
   const auto& ls = link.stats();
   if (ls.resumes.load() > 0 || ls.retained_dropped.load() > 0) {

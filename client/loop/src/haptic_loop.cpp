@@ -85,7 +85,14 @@ StepStatus HapticLoop::step() noexcept {
   }
 
   StepStatus status = StepStatus::kOk;
-  const bool fresh = device_.read(sample_);
+  bool fresh = device_.read(incoming_);
+  if (fresh && !(incoming_.fingers[kThumb].position_m.allFinite() &&
+                 incoming_.fingers[kIndex].position_m.allFinite())) {
+    bump(health_.device_nonfinite);
+    fresh = false;
+  } else if (fresh) {
+    sample_ = incoming_;
+  }
   if (fresh) {
     last_sample_time_ns_ = sample_.time_ns;
   } else {

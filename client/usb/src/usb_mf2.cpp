@@ -468,9 +468,16 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
 
   DeviceSample sample;
   if (!cal_.toFingers(s, sample.fingers)) {
+    // No pose to work the currents out at: the command goes on, zero and disabled (the last
+    // one's currents must not stay on until the firmware's watchdog), and the device's own
+    // faults are still told; a run of them is a fault of its own.
     bump(stats_.bad_pose);
+    if (bad_pose_run_ < UINT32_MAX) ++bad_pose_run_;
+    reportFaults(s.status);
+    sendCommand();
     return;
   }
+  bad_pose_run_ = 0;
   const int64_t now = clock_.nowNs();
   bump(stats_.packets_in);
   stats_.device_rx_errors.store(s.rx_errors, std::memory_order_relaxed);
@@ -500,11 +507,17 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
   samples_->write(sample);
   raw_->write(s);
 
+  reportFaults(s.status);
+  sendCommand();
+}
+
+void UsbMf2::reportFaults(uint16_t status) {
   // The device's own faults: an emergency stop, and an encoder that lost count (the pose,
-  // and every force worked out at it, is wrong until the device counts true again). Set and
-  // cleared only on a change: the text costs an allocation and a lock, once per packet
-  // otherwise.
-  const auto faults = static_cast<uint16_t>(s.status & kDeviceFaultBits);
+  // and every force worked out at it, is wrong until the device counts true again); and a
+  // pose the linkage cannot take, packet after packet. Set and cleared only on a change: the
+  // text costs an allocation and a lock, once per packet otherwise.
+  auto faults = static_cast<uint16_t>(status & kDeviceFaultBits);
+  if (bad_pose_run_ >= kBadPoseFault) faults |= kBadPoseBit;
   const DeviceStatus now_status = status_.load(std::memory_order_relaxed);
   if (faults != 0) {
     if (now_status != DeviceStatus::kFault || faults != reported_faults_) {
@@ -518,14 +531,20 @@ void UsbMf2::handlePacket(const uint8_t* data, int length) {
         if (text.back() != ':') text += ";";
         text += " encoder fault (an encoder lost count): no force until it clears";
       }
+      if (faults & kBadPoseBit) {
+        if (text.back() != ':') text += ";";
+        text += " its encoders read a pose outside the linkage's range (" +
+                std::to_string(bad_pose_run_) +
+                " packets in a row; an encoder that lost count, or the device file's "
+                "zero_counts off): no force until the pose is back in range";
+      }
       setStatus(DeviceStatus::kFault, text, true);
       reported_faults_ = faults;
     }
-  } else if (now_status != DeviceStatus::kOk) {
+  } else if (now_status != DeviceStatus::kOk && have_state_) {
     reported_faults_ = 0;
     setStatus(DeviceStatus::kOk, "MF-2 streaming from " + where_, true);
   }
-  sendCommand();
 }
 
 void UsbMf2::sendCommand() {
@@ -540,7 +559,7 @@ void UsbMf2::sendCommand() {
   const bool fresh = force_.time_ns != 0 && now - force_.time_ns <= cfg_.command_fresh_ns;
   // An encoder that lost count: the currents would be worked out at a wrong pose. Zero, and
   // the actuators disabled, until the device reports it cleared.
-  const bool encoder_fault = (state_.status & proto::kStatusEncoderFault) != 0;
+  const bool encoder_fault = (state_.status & proto::kStatusEncoderFault) != 0 || bad_pose_run_ > 0;
   proto::CommandPacket c;
   c.seq = ++cmd_seq_;
   if (fresh && !encoder_fault) {

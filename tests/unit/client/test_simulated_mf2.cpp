@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <string_view>
 #include <vector>
 
 #include "telehand/client/loop/haptic_loop.h"
@@ -242,6 +243,49 @@ double flexionAtForce(const JointModel& m, double force_n) {
     (m.holdingForceN(kFlexion, mid) < force_n ? lo : hi) = mid;
   }
   return 0.5 * (lo + hi);
+}
+
+/// The simulated MF-2 whose `nan_at`-th read gives a thumb position that is not finite.
+class NanOnceDevice final : public devices::Device {
+ public:
+  NanOnceDevice(devices::Device& inner, int nan_at) : inner_(inner), nan_at_(nan_at) {}
+  bool read(DeviceSample& out) noexcept override {
+    const bool got = inner_.read(out);
+    if (++reads_ == nan_at_) out.fingers[kThumb].position_m[0] = std::nan("");
+    return got;
+  }
+  bool write(const ForceCommand& cmd) noexcept override { return inner_.write(cmd); }
+  devices::DeviceStatus status() const noexcept override { return inner_.status(); }
+  std::string_view name() const noexcept override { return "nan-once"; }
+
+ private:
+  devices::Device& inner_;
+  int nan_at_;
+  int reads_ = 0;
+};
+
+// One device sample with a position that is not finite is not taken: the joint's rate filter
+// is not left NaN, so the loop goes on rendering the joint (it did not fall to a silent 0 N
+// for the rest of the session), and the sample is counted.
+TEST(SimulatedMf2, ADeviceSampleThatIsNotFiniteIsNotTakenAndTheJointStillRenders) {
+  const JointModelParams model = healthyIndexMcp();
+  OperatorConfig op;
+  ManualClock clock(1 * kNsPerS);
+  SimulatedMf2 sim(model, op, clock);
+  NanOnceDevice dev(sim, 2000);
+  loop::HapticLoop hl(dev, clock, model, SafetyLimits{});
+  Sample s;
+  double late_max = 0.0;
+  for (int i = 0; i < 4000; ++i) {
+    clock.advance(kNsPerMs);
+    hl.step();
+    while (hl.samples().tryPop(s)) {
+    }
+    if (i > 3000) late_max = std::max(late_max, sim.renderedForce()[kThumb].norm());
+  }
+  EXPECT_EQ(hl.health().device_nonfinite.load(), 1u);
+  EXPECT_GT(late_max, 0.5) << "the joint is no longer rendered after the bad sample";
+  EXPECT_EQ(hl.health().nonfinite.load(), 0u);
 }
 
 TEST(SimulatedMf2, MobilizationInTheHapticLoop) {

@@ -344,6 +344,48 @@ TEST_F(Mf2DeviceFileErrors, BadCalibrationIsNamed) {
   EXPECT_NE(e.find("fsr2.counts_per_n"), std::string::npos) << e;
 }
 
+// Encoder zeros and ranges whose counts the device's 32-bit counters cannot carry are refused,
+// and an empty range names its keys and element.
+TEST_F(Mf2DeviceFileErrors, EncoderValuesTheWireCannotCarryAreNamed) {
+  const std::string p = rewrite("zero_counts = [0, 0, 0]", "zero_counts = [0, 3e9, 0]");
+  const std::string e = error(p);
+  EXPECT_NE(e.find("32-bit"), std::string::npos) << e;
+  EXPECT_NE(e.find("'thumb.counts_per_rad', 'zero_counts'"), std::string::npos) << e;
+  EXPECT_NE(e.find("element 2"), std::string::npos) << e;
+}
+
+TEST_F(Mf2DeviceFileErrors, AnEmptyEncoderRangeNamesItsKeysAndElement) {
+  const std::string p =
+      rewrite("min_deg = [-60.0, -90.0, -90.0]", "min_deg = [-60.0, 250.0, -90.0]");
+  const std::string e = error(p);
+  EXPECT_NE(e.find("range is empty"), std::string::npos) << e;
+  EXPECT_NE(e.find("'thumb.counts_per_rad', 'zero_counts', 'min_deg', 'max_deg' element 2"),
+            std::string::npos)
+      << e;
+}
+
+// A thimble's FSR counts are a 12-bit ADC's, and its zero and slope are its own: a value the ADC
+// cannot read, or a sensor without its calibration, is refused naming the key.
+TEST_F(Mf2DeviceFileErrors, ThimbleCountsTheAdcCannotReadOrMissingAreNamed) {
+  const fs::path t = dir_ / "devices" / "thimbles" / "thumb-T01.toml";
+  std::ifstream in(t);
+  const std::string original((std::istreambuf_iterator<char>(in)), {});
+  in.close();
+  auto tried = [&](const std::string& from, const std::string& to) {
+    std::string text = original;
+    const auto at = text.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    text.replace(at, from.size(), to);
+    std::ofstream(t) << text;
+    return error((dir_ / "devices" / "mf2.toml").string());
+  };
+  std::string e = tried("saturation_counts = 4000.0", "saturation_counts = 5000.0");
+  EXPECT_NE(e.find("fsr1.saturation_counts"), std::string::npos) << e;
+  EXPECT_NE(e.find("4095"), std::string::npos) << e;
+  e = tried("counts_per_n = 183.0", "");
+  EXPECT_NE(e.find("fsr2.counts_per_n' must be set"), std::string::npos) << e;
+}
+
 TEST_F(Mf2DeviceFileErrors, LinkageThatCannotReachTheGripIsRejected) {
   const std::string p = rewrite("distal_m = [0.12, 0.12]", "distal_m = [0.03, 0.03]");
   EXPECT_NE(error(p).find("cannot reach the home grip"), std::string::npos) << error(p);

@@ -2,14 +2,20 @@
 // non-finite or out-of-range values are ConfigErrors naming the file, line and key.
 #include <toml++/toml.h>
 
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
+#include <utility>
 
 #include "telehand/config/toml_reader.h"
 #include "telehand/core/error.h"
 #include "telehand/devices/mf2_device.h"
+#include "telehand/devices/mf2_protocol.h"
 
 namespace telehand::mf2 {
 
@@ -31,12 +37,31 @@ Quat quatFromRpyDeg(const std::array<double, 3>& rpy) {
 
 constexpr double kMaxCountsPerRad = 1e7;
 
+/// `keys`: where the file gives the values, for the messages ("'thumb.min_deg' etc. element
+/// 2"; empty for the built-in description).
 EncoderCalibration encoder(double counts_per_rad, double zero, double min_deg, double max_deg,
-                           const std::string& origin, const std::string& what) {
+                           const std::string& origin, const std::string& what,
+                           const std::string& keys = "") {
+  const std::string at = keys.empty() ? "" : " (" + keys + ")";
   if (std::abs(counts_per_rad) < 1.0) {
-    throw ConfigError(origin + ": " + what + " counts_per_rad must be at least 1 in magnitude");
+    throw ConfigError(origin + ": " + what + " counts_per_rad must be at least 1 in magnitude" +
+                      at);
   }
-  if (!(min_deg < max_deg)) throw ConfigError(origin + ": " + what + " range is empty");
+  if (!(min_deg < max_deg)) {
+    throw ConfigError(origin + ": " + what + " range is empty: min_deg " +
+                      config::formatNumber(min_deg) + " is not below max_deg " +
+                      config::formatNumber(max_deg) + at);
+  }
+  // The wire carries counts as 32-bit integers: a zero and range whose counts do not fit
+  // would make every packet a pose the linkage cannot take.
+  const double reach =
+      std::abs(zero) +
+      std::abs(counts_per_rad) * std::max(std::abs(degToRad(min_deg)), std::abs(degToRad(max_deg)));
+  if (reach > static_cast<double>(std::numeric_limits<int32_t>::max())) {
+    throw ConfigError(origin + ": " + what + " zero_counts " + config::formatNumber(zero) +
+                      " with its counts_per_rad and range reaches " + config::formatNumber(reach) +
+                      " counts, past the 32-bit counts the device sends" + at);
+  }
   EncoderCalibration e;
   e.counts_per_rad = counts_per_rad;
   e.zero_counts = static_cast<int64_t>(std::llround(zero));
@@ -100,11 +125,22 @@ ThimbleCalibration parseThimbleCalibration(const std::string& text, const std::s
     const std::string name = "fsr" + std::to_string(i + 1);
     Table s(root, name, origin, true);
     FsrCalibration& f = c.fsr[i];
-    f.zero_counts = s.number("zero_counts", f.zero_counts, 0.0, 65535.0);
-    f.counts_per_n = s.number("counts_per_n", f.counts_per_n, 1e-3, 1e6);
-    f.saturation_counts = s.number("saturation_counts", f.saturation_counts, 0.0, 65535.0);
-    f.floor_counts = s.number("floor_counts", f.floor_counts, -1.0, 65535.0);
+    // A 12-bit ADC reads 0..kFsrMaxRaw; the zero and the slope are the sensor's own (no
+    // default stands for a calibration).
+    constexpr double kMaxRaw = devices::proto::kFsrMaxRaw;
+    constexpr double kUnset = std::numeric_limits<double>::quiet_NaN();
+    f.zero_counts = s.number("zero_counts", kUnset, 0.0, kMaxRaw);
+    f.counts_per_n = s.number("counts_per_n", kUnset, 1e-3, 1e6);
+    f.saturation_counts = s.number("saturation_counts", f.saturation_counts, 0.0, kMaxRaw);
+    f.floor_counts = s.number("floor_counts", f.floor_counts, -1.0, kMaxRaw);
     s.rejectUnknown();
+    for (const auto& [key, v] :
+         {std::pair{"zero_counts", f.zero_counts}, std::pair{"counts_per_n", f.counts_per_n}}) {
+      if (std::isnan(v)) {
+        throw ConfigError(origin + ": '" + name + "." + key +
+                          "' must be set (the sensor's own calibration)");
+      }
+    }
     if (!(f.saturation_counts > f.zero_counts)) {
       throw ConfigError(origin + ": '" + name + ".saturation_counts' must exceed zero_counts");
     }
@@ -136,7 +172,8 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
   const double base_zero = dev.number("base_zero_counts", 0.0, -1e12, 1e12);
   const auto base_range = dev.numbers<2>("base_range_deg", {-45.0, 45.0}, -180.0, 180.0);
   d.actuator_encoders[0] =
-      encoder(base_cpr, base_zero, base_range[0], base_range[1], origin, "device.base");
+      encoder(base_cpr, base_zero, base_range[0], base_range[1], origin, "device.base",
+              "'device.base_counts_per_rad', 'base_zero_counts', 'base_range_deg'");
   d.max_torque_nm[0] = dev.number("base_max_torque_nm", d.max_torque_nm[0], 0.0, 10.0);
   dev.rejectUnknown();
   if (d.name.empty()) throw ConfigError(origin + ": 'device.name' must be set");
@@ -164,7 +201,9 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
     const char* joint_names[3] = {"yaw", "crank 1", "crank 2"};
     for (int j = 0; j < 3; ++j) {
       d.actuator_encoders[actuatorIndex(f, j)] =
-          encoder(cpr[j], zero[j], lo[j], hi[j], origin, name + " " + joint_names[j]);
+          encoder(cpr[j], zero[j], lo[j], hi[j], origin, name + " " + joint_names[j],
+                  "'" + name + ".counts_per_rad', 'zero_counts', 'min_deg', 'max_deg' element " +
+                      std::to_string(j + 1));
       d.max_torque_nm[actuatorIndex(f, j)] = torque[j];
     }
     const auto gcpr = t.numbers<3>("gimbal_counts_per_rad", {651.9, 651.9, 651.9},
@@ -173,8 +212,12 @@ Mf2Description parseMf2Description(const std::string& text, const std::string& o
     const auto glo = t.numbers<3>("gimbal_min_deg", {-170.0, -80.0, -170.0}, -360.0, 360.0);
     const auto ghi = t.numbers<3>("gimbal_max_deg", {170.0, 80.0, 170.0}, -360.0, 360.0);
     for (int j = 0; j < 3; ++j) {
-      d.gimbal_encoders[f][j] = encoder(gcpr[j], gzero[j], glo[j], ghi[j], origin,
-                                        name + " gimbal " + std::to_string(j + 1));
+      d.gimbal_encoders[f][j] = encoder(
+          gcpr[j], gzero[j], glo[j], ghi[j], origin, name + " gimbal " + std::to_string(j + 1),
+          "'" + name +
+              ".gimbal_counts_per_rad', 'gimbal_zero_counts', 'gimbal_min_deg', "
+              "'gimbal_max_deg' element " +
+              std::to_string(j + 1));
     }
     const std::string thimble = t.text("thimble", "");
     t.rejectUnknown();

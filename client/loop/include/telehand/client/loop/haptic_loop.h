@@ -25,6 +25,9 @@ struct LoopHealth {
   std::atomic<uint64_t> ticks{0};
   std::atomic<uint64_t> overruns{0};  ///< ticks that finished after the next deadline
   std::atomic<uint64_t> device_read_failures{0};
+  /// Device samples with a thimble position that is not finite: not taken (the tick renders
+  /// as one without a new sample); rendered, one would leave the joint's rate filter NaN.
+  std::atomic<uint64_t> device_nonfinite{0};
   std::atomic<uint64_t> device_write_failures{0};
   std::atomic<uint64_t> watchdog_trips{0};
   std::atomic<uint64_t> nonfinite{0};
@@ -287,7 +290,8 @@ class HapticLoop {
   std::atomic<int> rt_error_{0};
   std::thread thread_;
   devices::DeviceSample sample_{};
-  int64_t wall_offset_ns_ = 0;  // wall clock minus the loop clock, fixed at construction
+  devices::DeviceSample incoming_{};  // read into; taken into sample_ when its positions are finite
+  int64_t wall_offset_ns_ = 0;        // wall clock minus the loop clock, fixed at construction
   int64_t last_sample_time_ns_ = INT64_MIN / 2;
   // Fault detector state (RT thread only).
   FaultLimits fault_limits_;

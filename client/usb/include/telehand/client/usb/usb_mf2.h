@@ -159,6 +159,8 @@ class UsbMf2 final : public Device {
   void sendCommand();
   void afterEvents();
   void handlePacket(const uint8_t* data, int length);
+  /// The status for the device's fault bits and the bad-pose run (set on a change only).
+  void reportFaults(uint16_t status);
   void markDisconnected(const std::string& why);
   void setStatus(DeviceStatus s, const std::string& text, bool notify);
   void note(const std::string& message);
@@ -214,6 +216,12 @@ class UsbMf2 final : public Device {
   static constexpr uint16_t kDeviceFaultBits =
       proto::kStatusEstopButton | proto::kStatusEstopLatched | proto::kStatusEncoderFault;
   uint16_t reported_faults_ = 0;  // the fault bits the status text tells of
+  /// Packets in a row whose encoder counts the linkage cannot take (a lost count, a device
+  /// file's zero off by a turn): no force while there is one; a fault after kBadPoseFault.
+  uint32_t bad_pose_run_ = 0;
+  static constexpr uint32_t kBadPoseFault = 100;  // 0.1 s at 1 kHz
+  /// reported_faults_'s bit for a pose out of the linkage's range (no device status bit).
+  static constexpr uint16_t kBadPoseBit = 1u << 15;
   TimedForce force_{};
   uint32_t cmd_seq_ = 0;
   uint32_t last_echo_ = 0;
