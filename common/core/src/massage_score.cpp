@@ -207,7 +207,7 @@ MassageTargets deriveMassageTargets(const MassageSeries& demo, const TissueParam
   MassageTargets tg;
   const MassageFigures first = analyseMassage(demo, web, -1e300, 1e300, settle_s);
   const double half = std::max(2.0 * first.normal_sd_n, 1.0);
-  tg.band_min_n = first.normal_mean_n - half;
+  tg.band_min_n = std::max(first.normal_mean_n - half, 0.0);  // a press is never below 0 N
   tg.band_max_n = first.normal_mean_n + half;
   const MassageFigures f = analyseMassage(demo, web, tg.band_min_n, tg.band_max_n, settle_s);
   tg.normal_mean_n = f.normal_mean_n;

@@ -36,7 +36,9 @@ std::optional<LessonPlan> decodePlan(const std::string& text, std::string* why) 
     const std::string item = text.substr(pos, end - pos);
     const std::size_t eq = item.find('=');
     if (eq == std::string::npos) return bad("lesson plan item '" + item + "' has no '='");
-    kv[item.substr(0, eq)] = item.substr(eq + 1);
+    if (!kv.emplace(item.substr(0, eq), item.substr(eq + 1)).second) {
+      return bad("lesson plan: '" + item.substr(0, eq) + "' is given twice");
+    }
     pos = end + 1;
   }
   auto num = [&](const char* key, double lo, double hi, double& out) -> bool {

@@ -1,6 +1,8 @@
 #include "records_lesson.h"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -14,6 +16,7 @@
 #include "telehand/config/config.h"
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
+#include "telehand/protocol/lesson_plan.h"
 #include "telehand/server/lesson/lesson.h"
 #include "telehand/server/store/open_store.h"
 
@@ -44,6 +47,29 @@ TissueParams webOf(const std::string& cases_dir, const std::string& case_name) {
   return tissueCase(case_name.c_str());
 }
 
+/// Refuses, before it is stored, a lesson whose run the server or the client would refuse
+/// (its plan as the session's status carries it) or whose trials are too short to judge: a
+/// trial is scored after `settle_s` and over at least one of the demonstration's periods.
+void checkLesson(const LessonInfo& l, const LessonPlan& plan, double settle_s) {
+  std::string why;
+  LessonPlan stored = plan;
+  if (stored.lesson_id == 0) stored.lesson_id = 1;  // the id the record gives it, not yet known
+  if (!decodePlan(encodePlan(stored), &why)) {
+    throw Error("the demonstration gives a lesson that cannot be run: " + why);
+  }
+  const double need_s = settle_s + 1.0 / plan.frequency_hz;
+  if (l.trial_s < need_s) {
+    char text[200];
+    std::snprintf(text, sizeof text,
+                  "--trial-seconds %.1f: a trial is judged after %.1f s of settling and over at "
+                  "least one of the demonstration's periods (%.1f s at %.2f Hz): give %.1f s or "
+                  "more",
+                  l.trial_s, settle_s, 1.0 / plan.frequency_hz, plan.frequency_hz,
+                  std::ceil(need_s * 10.0) / 10.0);
+    throw Error(text);
+  }
+}
+
 int createMassageLesson(SessionStore& store, const LessonRequest& r, const SessionInfo& demo) {
   if (r.takeover) {
     throw Error("--takeover: session " + std::to_string(r.demo) +
@@ -66,6 +92,8 @@ int createMassageLesson(SessionStore& store, const LessonRequest& r, const Sessi
   l.assessment = false;
   l.takeover = false;
   l.targets = server::lesson::encodeMassageTargets(t);
+  checkLesson(l, server::lesson::planOf(l, server::lesson::decodeMassageTargets(l.targets), 0.0),
+              server::lesson::kMassageSettleS);
   l.created_ns = wallNs();
   const uint64_t id = store.createLesson(l);
   std::cout << std::fixed << std::setprecision(2) << "lesson " << id << " '" << l.name
@@ -121,6 +149,8 @@ int runLessonCreate(const LessonRequest& r) {
   l.assessment = r.assessment;
   l.takeover = r.takeover;
   l.targets = server::lesson::encodeTargets(t);
+  checkLesson(l, server::lesson::planOf(l, server::lesson::decodeTargets(l.targets), 0.0),
+              server::lesson::kSettleS);
   l.created_ns = wallNs();
   const uint64_t id = store.createLesson(l);
   std::cout << std::fixed << std::setprecision(2) << "lesson " << id << " '" << l.name

@@ -62,6 +62,9 @@ std::string encodeTargets(const technique::Targets& t) {
     put(out, ("rom_max_deg" + std::to_string(i)).c_str(), t.rom_max_deg[i]);
   }
   put(out, "path_period_s", t.path_period_s);
+  // The demonstration's own figures: an attempt is scored against them (technique::score).
+  put(out, "time_in_band", t.time_in_band);
+  put(out, "path_error_deg", t.path_error_deg);
   out += "path=";
   char buf[64];
   for (std::size_t k = 0; k < t.path_rad.size(); ++k) {
@@ -92,6 +95,17 @@ technique::Targets decodeTargets(const std::string& text) {
     t.rom_max_deg[i] = num("rom_max_deg" + std::to_string(i), -180, 180);
   }
   t.path_period_s = num("path_period_s", 0.1, 10);
+  for (const char* key : {"time_in_band", "path_error_deg"}) {
+    if (!kv.contains(key)) {
+      // Scored without them, every attempt would get the time-in-band share whatever its force.
+      throw Error(std::string("lesson targets: '") + key +
+                  "' (the demonstration's own figure an attempt is scored against) is "
+                  "missing; create the lesson again from its demonstration (telehand-records "
+                  "lesson create --demo N)");
+    }
+  }
+  t.time_in_band = num("time_in_band", 0, 1);
+  t.path_error_deg = num("path_error_deg", 0, 360);
   const auto it = kv.find("path");
   if (it == kv.end()) throw Error("lesson targets: 'path' is missing");
   std::vector<double> v;

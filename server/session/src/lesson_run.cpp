@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <numeric>
 
@@ -23,7 +24,14 @@ void LessonRun::begin(const std::string& phase, double authority, uint64_t first
 void LessonRun::end(uint64_t last_seq, int64_t now_ns) {
   if (!in_trial_) return;
   in_trial_ = false;
-  if (last_seq < current_.first_seq) return;  // ended before a sample of it was sent
+  if (last_seq < current_.first_seq) {
+    // Ended before a sample of it was sent: it took one of the plan's trials, so it is said.
+    current_.empty = true;
+    current_.last_seq = current_.first_seq;
+    current_.deadline_ns = now_ns;
+    waiting_.push_back(current_);
+    return;
+  }
   // A trial is scored over its planned length and a margin at most: a client that never
   // ends one cannot make the server read (and hold) minutes of record at once.
   const auto span = static_cast<uint64_t>((plan.trial_s + kTrialMarginS) * 1000.0);
@@ -36,7 +44,7 @@ void LessonRun::end(uint64_t last_seq, int64_t now_ns) {
 void LessonRun::scoreDue(SessionContext& ctx, uint64_t session_id, uint64_t client_id,
                          double force_scale, int64_t now_ns, bool final) {
   for (auto it = waiting_.begin(); it != waiting_.end();) {
-    bool due = final || now_ns >= it->deadline_ns;
+    bool due = final || it->empty || now_ns >= it->deadline_ns;
     if (!due && now_ns < it->next_check_ns) {
       ++it;
       continue;
@@ -64,6 +72,13 @@ void LessonRun::scoreDue(SessionContext& ctx, uint64_t session_id, uint64_t clie
 
 void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_id,
                       double force_scale, const Trial& t, int64_t now_ns) {
+  if (t.empty) {
+    ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
+              lesson::trialLabel(t.index, t.phase, t.authority) +
+                  " not scored: it ended before a sample of it was sent",
+              now_ns);
+    return;
+  }
   std::vector<Sample> samples;
   samples.reserve(t.last_seq - t.first_seq + 1);
   try {
@@ -79,6 +94,21 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   const uint64_t expected = t.last_seq - t.first_seq + 1;
   const uint64_t missing = expected - std::min<uint64_t>(expected, samples.size());
   const std::string label = lesson::trialLabel(t.index, t.phase, t.authority);
+  const double settle_s = massage ? lesson::kMassageSettleS : lesson::kSettleS;
+  const double period_s = massage ? 1.0 / std::max(std::abs(massage->frequency_hz), 0.1)
+                                  : 1.0 / std::max(targets.frequency_hz, 0.1);
+  if (static_cast<double>(samples.size()) * 1e-3 < settle_s + period_s) {
+    // Shorter than the settling and one of the demonstration's periods: nothing to judge, and
+    // a 0 would say the student failed a trial the record cannot show.
+    char need[64];
+    std::snprintf(need, sizeof need, "%.1f s needed: %.1f s to settle and a %.1f s period",
+                  settle_s + period_s, settle_s, period_s);
+    ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
+              label + " not scored: " + std::to_string(samples.size()) + " of " +
+                  std::to_string(expected) + " samples in the record (" + need + ")",
+              now_ns);
+    return;
+  }
   if (samples.size() < 2000) {
     ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
               label + " not scored: " + std::to_string(samples.size()) + " of " +

@@ -483,7 +483,7 @@ void Session::recover(int64_t now_ns) {
   ctx.event(info.id, 0, telehand_msg_EVENT_INFO, text, now_ns);
 }
 
-void Session::close(const std::string& state, int64_t now_ns) {
+bool Session::close(const std::string& state, int64_t now_ns) {
   if (lesson) {
     // The last trial ends with the record; everything waiting is scored on what arrived.
     lesson->end(seq_high, now_ns);
@@ -516,11 +516,20 @@ void Session::close(const std::string& state, int64_t now_ns) {
     }
     ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, link, now_ns);
   }
+  closed_ns = wallNs();
   try {
-    ctx.store.closeSession(info.id, wallNs(), expected, state);
+    ctx.store.closeSession(info.id, closed_ns, expected, state);
   } catch (const StoreError& e) {
+    // The record still says active: CLOSED would tell the client a close the record does not
+    // hold. The server closes it again until the record takes it (SessionManager::tick).
     ++ctx.stats.store_errors;
-    spdlog::error("session {}: {}", info.id, e.what());
+    spdlog::error("session {}: the record would not close it ({}); trying again", info.id,
+                  e.what());
+    ctx.event(info.id, client_id, telehand_msg_EVENT_ERROR,
+              "the record would not take the session's close (" + std::string(e.what()) +
+                  "); the server tries again",
+              now_ns);
+    return false;
   }
   const uint64_t recorded = recorder.recorded();
   const uint64_t stored = storedOfExpected();
@@ -533,6 +542,7 @@ void Session::close(const std::string& state, int64_t now_ns) {
                                       : ""),
             now_ns);
   publishStatus(telehand_msg_SESSION_CLOSED);
+  return true;
 }
 
 }  // namespace telehand::server::session

@@ -380,6 +380,20 @@ void SessionManager::open(const telehand_msg_SessionCommand& cmd, int64_t now_ns
       } else {
         targets = lesson::decodeTargets(lesson_info->targets);
       }
+      // The lesson's settings come from the record, which may be damaged or hostile: the run
+      // is refused here, naming the setting, rather than acknowledged with a plan the client
+      // refuses (or trial counts and lengths the run cannot hold).
+      const LessonPlan plan = massage_targets ? lesson::planOf(*lesson_info, *massage_targets, 0.0)
+                                              : lesson::planOf(*lesson_info, targets, 0.0);
+      std::string why;
+      if (!validSchedule(lesson_info->schedule)) {
+        throw Error("lesson " + std::to_string(cmd.lesson_id) + " in the record: schedule '" +
+                    lesson_info->schedule.substr(0, 40) +
+                    "' is not concurrent, terminal, faded or self");
+      }
+      if (!decodePlan(encodePlan(plan), &why)) {
+        throw Error("lesson " + std::to_string(cmd.lesson_id) + " in the record: " + why);
+      }
       case_name = lesson_info->case_name;
     } else if (cmd.mode == telehand_msg_MODE_REPLAY) {
       replayed = store_.session(cmd.follow_session);
@@ -613,6 +627,7 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
     // Still running here: its client lost sight of this server (a partition), not the
     // reverse. Answered again, with the model, so that it goes on with this server.
     if (!owns(*s, from, "a resume", 1, now_ns)) return;
+    if (!stillOurs(id)) return;  // the server that took it over answers
     s->client_id = cmd.client_id;
     s->request_seq = cmd.request_seq;
     s->publishStatus(telehand_msg_SESSION_ACTIVE);
@@ -626,6 +641,10 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
     badCommand(cmd.client_id, from, "cannot resume session " + std::to_string(id) + ": " + why,
                now_ns);
   };
+  if (closeOwed(id)) {
+    cannot("it ended here; its close is not in the record yet and is tried again every second");
+    return;
+  }
   std::optional<SessionInfo> info;
   try {
     info = store_.session(id);
@@ -665,6 +684,7 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
   copyString(c.user, info->user);
   c.follow_session = 0;  // a follower renders the model it has
   c.lesson_id = 0;
+  if (!stillOurs(id)) return;
   open(c, now_ns, from, &*info);
 }
 
@@ -676,6 +696,17 @@ void SessionManager::publishRecordStatus(const SessionInfo& info, telehand_msg_S
 void SessionManager::closeUnresumed(uint64_t session_id, int64_t now_ns, const std::string& why) {
   suspended_.erase(session_id);
   try {
+    // Its server may have closed it meanwhile (a pool server whose lease lapsed while it
+    // finished the session): that close, and the client's count in it, stands.
+    if (const auto before = store_.session(session_id);
+        before && before->state != "active" && before->state != "suspended") {
+      spdlog::info("session {}: not closed as interrupted: the record has it {} already",
+                   session_id, before->state);
+      publishRecordStatus(*before, telehand_msg_SESSION_CLOSED, 0, 0);
+      retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9),
+                             session_id);
+      return;
+    }
     const auto extent = store_.extent(session_id);
     store_.closeSession(session_id, wallNs(), extent ? extent->last_seq + 1 : 0, "interrupted");
     store_.appendEvent(session_id, {wallNs(), "error", why});
@@ -731,6 +762,8 @@ void SessionManager::requestClose(const telehand_msg_SessionCommand& cmd, int64_
                                   const Origin& from) {
   Session* s = find(cmd.session_id);
   if (!s) {
+    // Ended here, its close not yet in the record: CLOSED follows when the record takes it.
+    if (closeOwed(cmd.session_id)) return;
     badCommand(cmd.client_id, from, "CLOSE for unknown session " + std::to_string(cmd.session_id),
                now_ns);
     return;
@@ -969,6 +1002,7 @@ void SessionManager::flushRecords() {
 
 void SessionManager::tick(int64_t now_ns) {
   progress_.fetch_add(1, std::memory_order_relaxed);
+  if (!owed_closes_.empty() && now_ns >= next_owed_close_ns_) closeOwed(now_ns, false);
   if (pooled() &&
       (now_ns >= next_pool_ns_ || claim_soon_.exchange(false, std::memory_order_relaxed))) {
     poolTick(now_ns);
@@ -1181,10 +1215,62 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
   for (uint64_t id : s.capture.takeFollowers()) {
     if (Session* f = find(id)) f->capture.unfollow();  // keeps the last model it got
   }
-  s.close(state, now_ns);
+  if (!s.close(state, now_ns)) {
+    if (owed_closes_.size() >= kMaxOwedCloses) {
+      spdlog::error("session {}: left active in the record: {} closes are owed already",
+                    owed_closes_.front().session_id, kMaxOwedCloses);
+      owed_closes_.erase(owed_closes_.begin());
+    }
+    if (owed_closes_.empty()) next_owed_close_ns_ = now_ns + kOwedCloseEveryNs;
+    owed_closes_.push_back({s.info.id, s.closed_ns, s.expected, state, s.client_id});
+  } else {
+    retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), s.info.id);
+  }
   rememberOwner(s.info.id, s.info.owner);
   refused_reported_ns_.erase(s.info.id);
-  retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), s.info.id);
+}
+
+bool SessionManager::closeOwed(uint64_t session_id) const {
+  return std::any_of(owed_closes_.begin(), owed_closes_.end(),
+                     [&](const OwedClose& c) { return c.session_id == session_id; });
+}
+
+void SessionManager::closeOwed(int64_t now_ns, bool last_try) {
+  next_owed_close_ns_ = now_ns + kOwedCloseEveryNs;
+  for (auto it = owed_closes_.begin(); it != owed_closes_.end();) {
+    const OwedClose& c = *it;
+    try {
+      if (pooled() && !store_.poolClaim(c.session_id, pool_id_).won) {
+        spdlog::warn("session {}: another server of the pool owns it now; its close is left to it",
+                     c.session_id);
+        it = owed_closes_.erase(it);
+        continue;
+      }
+      store_.closeSession(c.session_id, c.ended_ns, c.samples_expected, c.state);
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      if (last_try) {
+        spdlog::error(
+            "session {}: left active in the record, which would not take its close as {} ({}); "
+            "a server that recovers it closes it as interrupted",
+            c.session_id, c.state, e.what());
+      }
+      ++it;
+      continue;
+    }
+    spdlog::info("session {}: the record took its close as {}", c.session_id, c.state);
+    try {
+      if (const auto info = store_.session(c.session_id)) {
+        publishRecordStatus(*info, telehand_msg_SESSION_CLOSED, c.client_id, 0);
+      }
+    } catch (const StoreError& e) {
+      ++stats_.store_errors;
+      spdlog::error("session {}: {}", c.session_id, e.what());
+    }
+    retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9),
+                           c.session_id);
+    it = owed_closes_.erase(it);
+  }
 }
 
 void SessionManager::closeAll(int64_t now_ns) {
@@ -1226,6 +1312,7 @@ void SessionManager::closeAll(int64_t now_ns) {
     s.publishStatus(telehand_msg_SESSION_SUSPENDED);
   }
   sessions_.clear();
+  if (!owed_closes_.empty()) closeOwed(now_ns, true);
 }
 
 // ---- Pool (docs/pool.md) --------------------------------------------------------------------
@@ -1243,6 +1330,22 @@ void SessionManager::letGoOfTakenSessions(std::vector<uint64_t> mine) {
     it = sessions_.erase(it);
   }
   std::erase_if(suspended_, [&](const auto& kv) { return !owned(kv.first); });
+}
+
+bool SessionManager::stillOurs(uint64_t session_id) {
+  if (!pooled()) return true;
+  try {
+    if (store_.poolClaim(session_id, pool_id_).won) return true;
+  } catch (const StoreError& e) {
+    // Not known to be ours: not answered now (its client asks again within a second).
+    ++stats_.store_errors;
+    spdlog::error("pool: session {}: {}", session_id, e.what());
+    return false;
+  }
+  spdlog::warn("session {}: taken over by another server of the pool; let go here", session_id);
+  sessions_.erase(session_id);
+  suspended_.erase(session_id);
+  return false;
 }
 
 bool SessionManager::elsewhere(uint64_t session_id) const {
@@ -1341,6 +1444,12 @@ void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim
   try {
     info = store_.session(session_id);
     if (!info) return;
+    if (info->state != "active" && info->state != "suspended") {
+      // Its server closed it after it was listed as an orphan: nothing to take over.
+      spdlog::info("pool: session {}: claimed, but the record has it {}: left as it is", session_id,
+                   info->state);
+      return;
+    }
     const std::string why =
         claim.previous.empty()
             ? "owner: server " + pool_id_ + " took the session on (it had no owner in the pool)"

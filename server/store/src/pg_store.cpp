@@ -793,8 +793,18 @@ std::optional<uint64_t> PgStore::copySamples(std::span<const SampleBatch> batche
   PGresult* start = PQexec(conn_, sql.c_str());
   if (PQresultStatus(start) != PGRES_COPY_IN) db.check(start, sql.c_str());  // throws
   PQclear(start);
-  const bool sent = PQputCopyData(conn_, buf.data(), static_cast<int>(buf.size())) == 1 &&
-                    PQputCopyEnd(conn_, nullptr) == 1;
+  // In slices: PQputCopyData takes an int length, and a backlog (the record away for a while)
+  // can pass 2 GiB.
+  constexpr std::size_t kSlice = std::size_t{64} << 20;
+  bool sent = true;
+  for (std::size_t at = 0; sent && at < buf.size(); at += kSlice) {
+    const std::size_t n = std::min(kSlice, buf.size() - at);
+    sent = PQputCopyData(conn_, buf.data() + at, static_cast<int>(n)) == 1;
+  }
+  sent = PQputCopyEnd(conn_, sent ? nullptr : "telehand: a slice of the COPY was not sent") == 1 &&
+         sent;
+  // A backlog's buffer is not kept for the thread's life.
+  if (buf.capacity() > 4 * kSlice) std::string().swap(buf);
   Result r(PQgetResult(conn_));
   while (PGresult* more = PQgetResult(conn_)) PQclear(more);
   if (sent && PQresultStatus(r.get()) == PGRES_COMMAND_OK) {
@@ -832,7 +842,14 @@ std::vector<SessionStore::BatchResult> PgStore::appendSampleBatches(
         connect();
         prepare();
         const auto copied = copySamples(batches);
-        if (copied) {
+        if (copied && *copied != rows) {
+          // Every row or none, for a COPY: a count that says otherwise is not taken as stored
+          // (batch by batch below, each skipping what the record holds).
+          spdlog::error(
+              "record database '{}': a COPY of {} samples reported {} rows; storing "
+              "them batch by batch",
+              location_, rows, *copied);
+        } else if (copied) {
           for (std::size_t i = 0; i < batches.size(); ++i) {
             out[i].stored = true;
             out[i].added = batches[i].samples.size();

@@ -235,11 +235,24 @@ bool decodeBlob(int format, const void* data, int bytes, Sample& s) {
   return true;
 }
 
+/// "SQLite on '<file>'" for an error message: which record it was.
+std::string sqliteOn(sqlite3* db) {
+  const char* file = sqlite3_db_filename(db, "main");
+  return std::string("SQLite on '") + (file && *file ? file : ":memory:") + "'";
+}
+
+/// The statement's opening words for an error message (the whole of a short one).
+std::string statementOf(const char* sql) {
+  std::string s = sql ? sql : "?";
+  if (s.size() > 72) s = s.substr(0, 69) + "...";
+  return s;
+}
+
 class Statement {
  public:
   Statement(sqlite3* db, const char* sql) : db_(db) {
     if (sqlite3_prepare_v2(db, sql, -1, &s_, nullptr) != SQLITE_OK) {
-      throw StoreError(std::string("SQLite: cannot prepare '") + sql + "': " + sqlite3_errmsg(db));
+      throw StoreError(sqliteOn(db) + ": cannot prepare '" + sql + "': " + sqlite3_errmsg(db));
     }
   }
   Statement(sqlite3* db, const std::string& sql) : Statement(db, sql.c_str()) {}
@@ -251,7 +264,8 @@ class Statement {
     const int rc = sqlite3_step(s_);
     if (rc == SQLITE_ROW) return true;
     if (rc == SQLITE_DONE) return false;
-    throw StoreError(std::string("SQLite: ") + sqlite3_errmsg(db_));
+    throw StoreError(sqliteOn(db_) + ": " + sqlite3_errmsg(db_) +
+                     " (in: " + statementOf(sqlite3_sql(s_)) + ")");
   }
   std::string text(int col) const {
     const auto* t = sqlite3_column_text(s_, col);
@@ -579,7 +593,8 @@ void SqliteStore::exec(const char* sql) {
 sqlite3_stmt* SqliteStore::prepare(const char* sql) {
   sqlite3_stmt* s = nullptr;
   if (sqlite3_prepare_v2(db_, sql, -1, &s, nullptr) != SQLITE_OK) {
-    throw StoreError(std::string("SQLite: cannot prepare: ") + sqlite3_errmsg(db_));
+    throw StoreError("SQLite on '" + path_ + "': cannot prepare '" + statementOf(sql) +
+                     "': " + sqlite3_errmsg(db_));
   }
   return s;
 }
@@ -611,8 +626,8 @@ uint64_t SqliteStore::appendSamples(uint64_t session_id, std::span<const Sample>
       sqlite3_reset(st);
       bindSample(st, session_id, s, ok);
       if (sqlite3_step(st) != SQLITE_DONE) {
-        throw StoreError("SQLite: cannot store sample " + std::to_string(s.seq) + " of session " +
-                         std::to_string(session_id) + ": " + sqlite3_errmsg(db_));
+        throw StoreError("SQLite on '" + path_ + "': cannot store sample " + std::to_string(s.seq) +
+                         " of session " + std::to_string(session_id) + ": " + sqlite3_errmsg(db_));
       }
       added += static_cast<uint64_t>(sqlite3_changes(db_));
     }

@@ -231,8 +231,29 @@ TEST_F(LessonTest, TargetsComeFromTheDemonstrationRecord) {
     hi = std::max(hi, radToDeg(a[kFlexion]));
   }
   EXPECT_NEAR(hi - lo, 2 * m.flex_amp_deg, 0.5);
+  // The demonstration's own time in band and path error, which an attempt is scored against,
+  // are kept with the rest.
+  const technique::Targets derived = lesson::targetsFromRecord(*store_, demo_, 0.25);
+  EXPECT_GT(derived.time_in_band, 0.5);
+  EXPECT_NEAR(t.time_in_band, derived.time_in_band, 1e-9);
+  EXPECT_GT(derived.path_error_deg, 0.0);
+  EXPECT_NEAR(t.path_error_deg, derived.path_error_deg, 1e-9);
   // The record keeps what it was given (encode, decode, encode).
   EXPECT_EQ(lesson::encodeTargets(t), l->targets);
+  // Targets without them (a damaged record) are refused, naming the key.
+  for (const std::string key : {"time_in_band=", "path_error_deg="}) {
+    std::string bad = l->targets;
+    const auto at = bad.find(key);
+    ASSERT_NE(at, std::string::npos) << key;
+    bad.erase(at, bad.find(';', at) + 1 - at);
+    try {
+      lesson::decodeTargets(bad);
+      ADD_FAILURE() << "accepted targets without " << key;
+    } catch (const telehand::Error& e) {
+      EXPECT_THAT(e.what(), HasSubstr(key.substr(0, key.size() - 1))) << e.what();
+      EXPECT_THAT(e.what(), HasSubstr("lesson create")) << e.what();
+    }
+  }
 }
 
 TEST_F(LessonTest, ARunIsPlannedGuidedAndScoredFromTheRecord) {
@@ -360,6 +381,57 @@ TEST_F(LessonTest, BadLessonsAndPhasesAreRefusedWithAReason) {
   }
   EXPECT_EQ(open(telehand_msg_MODE_REPLAY, 0, 12345), 0u);
   EXPECT_THAT(out_.textsOf(telehand_msg_EVENT_ERROR, 0).back(), HasSubstr("no session 12345"));
+}
+
+// A lesson row whose settings no run can hold (a damaged or hostile record) is refused at the
+// OPEN, naming the setting, rather than acknowledged with a plan the client refuses.
+TEST_F(LessonTest, ALessonsSettingsFromTheRecordAreCheckedAtTheOpen) {
+  const uint64_t good = demoLesson(Motion{});
+  const auto base = store_->lesson(good);
+  ASSERT_TRUE(base.has_value());
+  auto refusedFor = [&](const std::function<void(store::LessonInfo&)>& spoil) {
+    store::LessonInfo l = *base;
+    spoil(l);
+    const uint64_t id = store_->createLesson(l);
+    EXPECT_EQ(open(telehand_msg_MODE_LESSON, id), 0u);
+    return out_.textsOf(telehand_msg_EVENT_ERROR, 0).back();
+  };
+  EXPECT_THAT(refusedFor([](auto& l) { l.trial_s = 1e300; }), HasSubstr("trial_s"));
+  EXPECT_THAT(refusedFor([](auto& l) { l.trial_s = -5; }), HasSubstr("trial_s"));
+  EXPECT_THAT(refusedFor([](auto& l) { l.guided = 2'000'000'000; }), HasSubstr("guided"));
+  EXPECT_THAT(refusedFor([](auto& l) { l.guided = -1; }), HasSubstr("guided"));
+  EXPECT_THAT(refusedFor([](auto& l) { l.schedule = std::string(300, 'x'); }),
+              HasSubstr("schedule"));
+  EXPECT_THAT(refusedFor([](auto& l) { l.schedule = "terminal;guided=9"; }), HasSubstr("schedule"));
+  // The good one still opens.
+  EXPECT_NE(open(telehand_msg_MODE_LESSON, good), 0u);
+}
+
+// A trial shorter than the settling and one of the demonstration's periods has nothing to judge:
+// it is not scored (an error event saying why), not recorded as a 0; nor is a trial that ended
+// before any of its samples was sent.
+TEST_F(LessonTest, ATrialTooShortToJudgeOrEmptyIsSaidNotScoredZero) {
+  const Motion demo;  // 3 Hz: 2 s to settle and a 0.33 s period
+  const uint64_t run = open(telehand_msg_MODE_LESSON, demoLesson(demo, 0, 3));
+  ASSERT_NE(run, 0u);
+  stream(run, demo, 0, 2200);     // samples 0..2199
+  phase(run, "attempt", 0.0, 0);  // trial 1: samples 1..2200 (2.2 s)
+  stream(run, demo, 2200, 1);
+  phase(run, "attempt", 0.0, 2200);  // trial 1 ends; trial 2 begins at 2201
+  phase(run, "attempt", 0.0, 2200);  // trial 2 ends before a sample of it: trial 3 begins
+  tickFor(11000);
+  const auto errors = out_.textsOf(telehand_msg_EVENT_ERROR, run);
+  bool short_said = false, empty_said = false;
+  for (const auto& e : errors) {
+    short_said = short_said || (e.find("trial 1") != std::string::npos &&
+                                e.find("not scored") != std::string::npos &&
+                                e.find("needed") != std::string::npos);
+    empty_said = empty_said || (e.find("trial 2") != std::string::npos &&
+                                e.find("ended before a sample") != std::string::npos);
+  }
+  EXPECT_TRUE(short_said) << ::testing::PrintToString(errors);
+  EXPECT_TRUE(empty_said) << ::testing::PrintToString(errors);
+  EXPECT_TRUE(store_->trials(run).empty()) << "a trial with nothing to judge was recorded";
 }
 
 TEST_F(LessonTest, AMassageLessonRunsWithTheMassageOnlyAndRefusesTheJointsPhases) {
@@ -811,6 +883,9 @@ TEST(LessonPlan, RoundTripsAndRefusesWhatIsOutOfRange) {
   text.replace(text.find("trial_s=8.000"), 13, "trial_s=1e9");
   EXPECT_FALSE(decodePlan(text, &why));
   EXPECT_THAT(why, HasSubstr("trial_s"));
+  // A key given twice (a setting smuggled in through another's value) is refused.
+  EXPECT_FALSE(decodePlan(encodePlan(p) + ";guided=9", &why));
+  EXPECT_THAT(why, HasSubstr("'guided' is given twice"));
   // Authority fades from full over the guided trials, never zero while guided.
   EXPECT_DOUBLE_EQ(guidedAuthority(0, 2), 1.0);
   EXPECT_DOUBLE_EQ(guidedAuthority(1, 2), 0.5);

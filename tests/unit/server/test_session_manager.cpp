@@ -1850,6 +1850,57 @@ TEST_F(SessionManagerTest, AStoppingPoolServerLeavesWhatAnotherServerTookOver) {
   EXPECT_EQ(store_->session(kept)->state, "suspended");
 }
 
+// Server a's lease lapsed while it finished a session: b took the session over (suspended,
+// waiting for its client), then a's close landed. When nobody resumes it, b leaves a's close
+// and its client's count as they are, rather than closing the record as interrupted.
+TEST_F(SessionManagerTest, ASessionClosedByItsPoolServerAfterATakeOverStaysClosed) {
+  SqliteStore a(config_.db_path);
+  a.poolHeartbeat("a", 1, SessionManager::kPoolLeaseNs);
+  SessionInfo info;
+  info.user = "student";
+  info.case_name = "healthy";
+  info.mode = "mobilization";
+  info.state = "active";
+  info.started_ns = wallNs();
+  const uint64_t x = a.createSession(info);
+  ASSERT_TRUE(a.poolClaim(x, "a").won);
+  std::this_thread::sleep_for(std::chrono::nanoseconds(SessionManager::kPoolLeaseNs) +
+                              std::chrono::milliseconds(200));
+  manager_->joinPool("b");
+  manager_->tick(now_ns_);  // b's beat: a's lease ran out, x is b's
+  ASSERT_EQ(store_->poolOwner(x), "b");
+  ASSERT_EQ(store_->session(x)->state, "suspended");
+  a.closeSession(x, wallNs(), 5, "closed");
+  now_ns_ += 3600 * kNsPerS;  // nobody resumes it
+  manager_->tick(now_ns_);
+  const auto after = store_->session(x);
+  ASSERT_TRUE(after.has_value());
+  EXPECT_EQ(after->state, "closed");
+  EXPECT_EQ(after->samples_expected, 5u);
+}
+
+// Server a's lease lapsed and b took a running session over: a resume that reaches a first is
+// not answered by a (it lets the session go), so the client binds to b alone.
+TEST_F(SessionManagerTest, AResumeOfASessionAnotherPoolServerTookOverIsNotAnsweredHere) {
+  manager_->joinPool("a");
+  const uint64_t x = open("healthy");
+  ASSERT_NE(x, 0u);
+  hold(20);
+  std::this_thread::sleep_for(std::chrono::nanoseconds(SessionManager::kPoolLeaseNs) +
+                              std::chrono::milliseconds(200));
+  SqliteStore b(config_.db_path);
+  b.poolHeartbeat("b", 0, SessionManager::kPoolLeaseNs);
+  ASSERT_TRUE(b.poolClaim(x, "b").won);
+  const std::size_t before = out_.statuses.size();
+  auto resume = command(telehand_msg_CMD_OPEN, x);
+  manager_->onCommand(resume, now_ns_, from_);
+  for (std::size_t i = before; i < out_.statuses.size(); ++i) {
+    EXPECT_NE(out_.statuses[i].state, telehand_msg_SESSION_ACTIVE) << "answered for b's session";
+  }
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->poolOwner(x), "b");
+}
+
 TEST_F(SessionManagerTest, TheServeLoopsProgressCountsRoundsCommandsAndChunks) {
   const uint64_t p0 = manager_->progress();
   manager_->tick(now_ns_);
@@ -2086,6 +2137,71 @@ TEST_F(RefusingStoreTest, ACloseWithoutACountIsNotCompleteWhileSamplesAreHeldBac
   const auto info = store_->session(session_);
   EXPECT_EQ(info->state, "incomplete");
   EXPECT_EQ(info->samples, 0u);
+}
+
+/// A record that refuses the first `refusals` closes of a session (an end time given).
+class ClosingLateStore : public SqliteStore {
+ public:
+  using SqliteStore::SqliteStore;
+  void closeSession(uint64_t session_id, int64_t ended_ns, uint64_t samples_expected,
+                    const std::string& state) override {
+    if (ended_ns != 0 && refusals > 0) {
+      --refusals;
+      throw StoreError("the record refused the close (test)");
+    }
+    SqliteStore::closeSession(session_id, ended_ns, samples_expected, state);
+  }
+  int refusals = 3;
+};
+
+class ClosingLateTest : public RecoveryManagerTest {
+ protected:
+  void SetUp() override {
+    RecoveryManagerTest::SetUp();
+    manager_.reset();
+    store_ = std::make_unique<ClosingLateStore>(config_.db_path);
+    manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
+  }
+  bool closedPublished() const {
+    return std::any_of(out_.statuses.begin(), out_.statuses.end(), [&](const auto& st) {
+      return st.session_id == session_ && st.state == telehand_msg_SESSION_CLOSED;
+    });
+  }
+};
+
+// The record would not take the close: the client is not told CLOSED while the record still
+// says active, the close (with the client's count) is tried again until the record takes it,
+// and the client's CLOSE and resume meanwhile are not taken for a session unknown or lost.
+TEST_F(ClosingLateTest, AFailedCloseIsTriedAgainAndClosedIsSaidOnlyOnceTheRecordHoldsIt) {
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  pass(600);
+  auto c = command(telehand_msg_CMD_CLOSE, session_);
+  c.samples_sent = 100;
+  c.last_seq = 99;
+  manager_->onCommand(c, now_ns_, from_);
+  pass(100);
+  ASSERT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_FALSE(closedPublished());
+  EXPECT_EQ(store_->session(session_)->state, "active");
+  const std::size_t errors = out_.events.size();
+  manager_->onCommand(c, now_ns_, from_);  // the client asks again: not "unknown session"
+  for (std::size_t i = errors; i < out_.events.size(); ++i) {
+    EXPECT_EQ(std::string(out_.events[i].text).find("unknown session"), std::string::npos)
+        << out_.events[i].text;
+  }
+  auto again = command(telehand_msg_CMD_OPEN, session_);  // nor taken on again
+  manager_->onCommand(again, now_ns_, from_);
+  EXPECT_EQ(manager_->activeSessions(), 0u);
+  EXPECT_EQ(store_->session(session_)->state, "active");
+  pass(3500);  // three more refusals, a second apart, then the record takes it
+  EXPECT_TRUE(closedPublished());
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples_expected, 100u);
+  EXPECT_EQ(info->samples, 100u);
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_CLOSED);
+  EXPECT_EQ(out_.statuses.back().samples_missing, 0u);
 }
 
 class WriterThreadTest : public RecoveryManagerTest {

@@ -127,6 +127,25 @@ TEST_F(SqliteStoreTest, ErrorsAreTelehandErrors) {
   EXPECT_THROW(SqliteStore((dir_ / "missing.db").string(), SqliteStore::Mode::kReadOnly), Error);
 }
 
+// A statement the record refuses names the record's file and the statement, for the log of a
+// server that keeps several.
+TEST_F(SqliteStoreTest, AStatementsErrorNamesTheFileAndTheStatement) {
+  { SqliteStore create(dbPath()); }
+  SqliteStore reader(dbPath(), SqliteStore::Mode::kReadOnly);
+  SessionInfo i;
+  i.user = "u";
+  i.case_name = "healthy";
+  i.mode = "mobilization";
+  i.state = "active";
+  try {
+    reader.createSession(i);
+    FAIL() << "a read-only record took a session";
+  } catch (const StoreError& e) {
+    EXPECT_THAT(e.what(), HasSubstr(dbPath()));
+    EXPECT_THAT(e.what(), HasSubstr("INSERT INTO sessions"));
+  }
+}
+
 // ---- Columns, schema version, migration, refusal --------------------------------------------
 
 /// Raw SQLite access to a record file, as another program would have it.

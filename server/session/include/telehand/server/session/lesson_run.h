@@ -62,7 +62,8 @@ class LessonRun {
     uint64_t first_seq = 0, last_seq = 0;
     int64_t deadline_ns = 0;
     int64_t next_check_ns = 0;
-    bool cut = false;  // longer than planned: scored over its first part
+    bool cut = false;    // longer than planned: scored over its first part
+    bool empty = false;  // ended before a sample of it was sent: said, not scored
   };
   void score(SessionContext& ctx, uint64_t session_id, uint64_t client_id, double force_scale,
              const Trial& t, int64_t now_ns);

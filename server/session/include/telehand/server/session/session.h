@@ -68,8 +68,11 @@ class Session {
   void tick(int64_t now_ns);
   /// A recovering joint: republish its range once a second when it has grown enough.
   void recoverIfDue(int64_t now_ns);
-  /// Report the link's rates and the outcome, close the record, publish CLOSED.
-  void close(const std::string& state, int64_t now_ns);
+  /// Report the link's rates and the outcome, close the record, publish CLOSED. False when the
+  /// record would not take the close (a store error, said as an event): nothing is published,
+  /// and the caller closes the record later with `closed_ns` and `expected`.
+  bool close(const std::string& state, int64_t now_ns);
+  int64_t closed_ns = 0;  ///< the wall time close() closed the record at
   /// A lesson run's or a replay's PHASE command (docs/lessons.md); errors go out as events.
   void onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns);
   /// A TAKEOVER (docs/lessons.md "Take-over"): the guided trials follow `source`'s live

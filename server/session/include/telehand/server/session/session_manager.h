@@ -262,6 +262,26 @@ class SessionManager {
   std::vector<EndedOwner> ended_owners_;
   std::size_t ended_next_ = 0;  // where the next one goes (the oldest, once full)
   std::vector<std::pair<int64_t, uint64_t>> retiring_;  // (when, session id), in time order
+  /// Closes the record would not take when their sessions ended: tried again every
+  /// kOwedCloseEveryNs until it does, then CLOSED is published from the record.
+  struct OwedClose {
+    uint64_t session_id = 0;
+    int64_t ended_ns = 0;
+    uint64_t samples_expected = 0;
+    std::string state;
+    uint64_t client_id = 0;
+  };
+  std::vector<OwedClose> owed_closes_;
+  int64_t next_owed_close_ns_ = 0;
+  static constexpr int64_t kOwedCloseEveryNs = 1'000'000'000;
+  static constexpr std::size_t kMaxOwedCloses = 4096;
+  void closeOwed(int64_t now_ns, bool last_try);
+  /// Whether the session ended here and its close is owed to the record.
+  bool closeOwed(uint64_t session_id) const;
+  /// Pool: whether this server still owns the session in the record (claimed again, which
+  /// renews nothing another server holds); one another server took over is let go here.
+  /// Without a pool, always.
+  bool stillOurs(uint64_t session_id);
   // When the link's idle() freed what Cyclone frees later, on its garbage collector's thread:
   // settle() and a trim once that has run (0: none due).
   static constexpr int64_t kSettleNs = 500'000'000;
