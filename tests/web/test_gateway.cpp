@@ -250,6 +250,32 @@ TEST_F(GatewayTest, UnknownSessionIdsAreNamed) {
   EXPECT_TRUE(c.waitFor("\"type\":\"watching\""));
 }
 
+// A store of many sessions is listed by its newest only (a reply of every one would pass a
+// browser's queue bound and drop it at every connection), saying how many there are.
+TEST_F(GatewayTest, TheRecordsListTheNewestSessionsAndHowManyThereAre) {
+  constexpr std::size_t kListed = 1000;  // web::kMaxRecordsListed (server/apps/web/replay.h)
+  uint64_t last = 0;
+  {
+    server::store::SqliteStore store(db_);
+    server::store::SessionInfo info;
+    info.user = "student";
+    info.case_name = "healthy";
+    info.mode = "mobilization";
+    info.state = "closed";
+    for (std::size_t i = 0; i < kListed + 5; ++i) last = store.createSession(info);
+  }
+  WsClient c(port_);
+  ASSERT_TRUE(c.ok()) << c.error();
+  ASSERT_TRUE(c.send(R"({"op":"records"})"));
+  const auto r = c.waitFor("\"type\":\"records\"", 20s);
+  ASSERT_TRUE(r);
+  const auto j = nlohmann::json::parse(*r);
+  EXPECT_EQ(j["total"].get<std::size_t>(), kListed + 5);
+  ASSERT_EQ(j["sessions"].size(), kListed);
+  EXPECT_EQ(j["sessions"].back()["id"].get<uint64_t>(), last);
+  EXPECT_EQ(j["sessions"].front()["id"].get<uint64_t>(), last - kListed + 1);
+}
+
 TEST_F(GatewayTest, ClosedTabsLeaveNothingBehind) {
   constexpr int kRounds = 20;
   // Tabs closed properly, tabs that vanish (no close frame), one mid-request: 5 a round.

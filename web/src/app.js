@@ -230,6 +230,9 @@ const handlers = {
   records(m) {
     probe.records = m.sessions;
     const tb = $('records').tBodies[0];
+    const older = (m.total || 0) - m.sessions.length;
+    $('records-more').textContent =
+      older > 0 ? `the newest ${m.sessions.length} of ${m.total}; telehand-records list shows every one` : '';
     tb.replaceChildren(...m.sessions.slice().reverse().map((s) => {
       const tr = document.createElement('tr');
       tr.dataset.session = s.id;

@@ -109,14 +109,16 @@ std::optional<std::string> replayFrame(const std::string& db, uint64_t session,
 
 std::string recordsFrame(const std::string& db) {
   const auto store = openStore(db, SessionStore::Mode::kReadOnly);
+  const auto all = store->listSessions();
+  // The newest only: a record of years would make a reply over a browser's queue bound, and
+  // the browser would be dropped at every connection.
+  const std::size_t from = all.size() > kMaxRecordsListed ? all.size() - kMaxRecordsListed : 0;
   std::string out = R"({"type":"records","sessions":[)";
-  bool first = true;
-  for (const auto& s : store->listSessions()) {
-    if (!first) out += ',';
-    first = false;
-    out += sessionJson(s);
+  for (std::size_t i = from; i < all.size(); ++i) {
+    if (i != from) out += ',';
+    out += sessionJson(all[i]);
   }
-  out += "]}";
+  fmt::format_to(std::back_inserter(out), R"(],"total":{}}})", all.size());
   return out;
 }
 

@@ -12,7 +12,9 @@ namespace telehand::web {
 /// StoreError when the store cannot be read.
 std::optional<std::string> replayFrame(const std::string& db, uint64_t session,
                                        std::size_t max_points);
-/// {"type":"records","sessions":[...]}: every session the store holds.
+/// {"type":"records","sessions":[...],"total":N}: the newest kMaxRecordsListed sessions the
+/// store holds (in id order), and how many it holds.
+inline constexpr std::size_t kMaxRecordsListed = 1000;
 std::string recordsFrame(const std::string& db);
 
 }  // namespace telehand::web
