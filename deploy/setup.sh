@@ -21,7 +21,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   # the emulated MF-2 (USB tests) and the fuzz targets (clang's libFuzzer)
   umockdev libumockdev-dev clang libclang-rt-14-dev
-  # formatting check (tests/layout/check_format.sh)
+  # formatting and layout checks (tests/layout/: they read the tracked files with git)
+  git
   clang-format
   # plots of fitted captures (telehand-records fit)
   gnuplot-nox

@@ -5,10 +5,13 @@ set -uo pipefail
 root=${1:-$(cd "$(dirname "$0")/../.." && pwd)}
 cd "$root" || exit 2
 command -v clang-format >/dev/null || { echo "format: clang-format not found (deploy/setup.sh installs it)"; exit 1; }
+# The list first: a checkout git cannot read must fail here, not pass having checked nothing.
+files=$(git ls-files '*.h' '*.cpp') || { echo "format: cannot list the tracked files (git ls-files failed in $root)"; exit 1; }
+[ -n "$files" ] || { echo "format: no tracked C++ files in $root"; exit 1; }
 bad=()
 while IFS= read -r f; do
   clang-format --dry-run --Werror "$f" >/dev/null 2>&1 || bad+=("$f")
-done < <(git ls-files '*.h' '*.cpp')
+done <<< "$files"
 if [ ${#bad[@]} -gt 0 ]; then
   echo "format: ${#bad[@]} files differ from .clang-format (clang-format -i FILE to fix):"
   printf '  %s\n' "${bad[@]}"

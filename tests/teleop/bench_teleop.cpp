@@ -101,8 +101,11 @@ int main(int argc, char** argv) {
   std::string massage_case = "healthy";
   std::string case_name = "regain";
   std::string clinician = "force";
-  app.add_option("--rtt", rtts, "round trips, ms")->capture_default_str();
+  app.add_option("--rtt", rtts, "round trips, ms")
+      ->check(CLI::Range(0.0, 10000.0))
+      ->capture_default_str();
   app.add_option("--loss", losses, "mean losses, % (bursty, 4 packets per burst)")
+      ->check(CLI::Range(0.0, 90.0))
       ->capture_default_str();
   app.add_option("--modes", modes, "model, direct")
       ->check(CLI::IsMember({"model", "direct"}))

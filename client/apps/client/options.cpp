@@ -41,7 +41,7 @@ std::optional<int> parseOptions(int argc, char** argv, ClientOptions& o) {
   app.add_option("--case", o.case_name, "patient case on the server")->capture_default_str();
   app.add_option("--user", o.user, "who is at the device")->capture_default_str();
   auto* freq = app.add_option("--frequency", o.cfg.op.frequency_hz,
-                              "simulated mobilization frequency, Hz (1-6)");
+                              "simulated mobilization frequency, Hz (0.1-10; the paper's 1-6)");
   auto* bmin =
       app.add_option("--band-min", o.cfg.op.band_min_n, "force band low end, N at reference scale");
   auto* bmax = app.add_option("--band-max", o.cfg.op.band_max_n,

@@ -132,7 +132,8 @@ MassageFigures analyseMassage(const MassageSeries& s, const TissueParams& web, d
 
   // The press.
   double tangential = 0.0, normal = 0.0, var = 0.0;
-  int in_band = 0;
+  int in_band = 0, touching = 0;
+  const double contact_n = std::max(0.5, 0.5 * band_min_n);
   for (int k = 0; k < 2; ++k) {
     double sum = 0.0;
     for (std::size_t i = i0; i < n; ++i) {
@@ -140,6 +141,7 @@ MassageFigures analyseMassage(const MassageSeries& s, const TissueParams& web, d
       sum += v;
       tangential += std::abs(s.tangential_ref_n[k][i]);
       in_band += v >= band_min_n && v <= band_max_n ? 1 : 0;
+      touching += v >= contact_n ? 1 : 0;
     }
     const double mean = sum / m;
     double ss = 0.0;
@@ -153,6 +155,7 @@ MassageFigures analyseMassage(const MassageSeries& s, const TissueParams& web, d
   f.normal_mean_n = 0.5 * (f.finger_normal_mean_n[kThumb] + f.finger_normal_mean_n[kIndex]);
   f.normal_sd_n = std::sqrt(0.5 * var);
   f.time_in_band = in_band / (2.0 * m);
+  f.contact_share = touching / (2.0 * m);
   f.tangential_ratio = normal > 0.0 ? tangential / normal : 0.0;
 
   // The circle of the contact point, in the web frame.
@@ -194,6 +197,10 @@ MassageFigures analyseMassage(const MassageSeries& s, const TissueParams& web, d
     r_var += d * d;
   }
   f.radial_rms_m = std::sqrt(r_var / k);
+  const double judged_s = s.t_s[n - 1] - s.t_s[i0];
+  const double laps_s = s.t_s[i1 - 1] - s.t_s[i0];
+  f.circling_share =
+      judged_s > 0.0 ? std::min(1.0, (laps_s + laps_s / std::max(whole, 1.0)) / judged_s) : 0.0;
   // Eigenvalues of the 2x2 covariance.
   const double half_tr = 0.5 * (sxx + syy) / k;
   const double det_part = std::hypot(0.5 * (sxx - syy) / k, sxy / k);
@@ -246,6 +253,7 @@ MassageScore scoreMassage(const MassageSeries& attempt, const MassageTargets& t,
       {std::abs(r.tangential_ratio_error), 0.05, 0.10},
       {r.centre_offset_m, std::max(0.0005, 0.25 * t.radius_m), 0.05},
   });
+  r.overall *= f.circling_share * f.contact_share;
   return r;
 }
 
@@ -260,7 +268,14 @@ std::string massageSummaryLine(const MassageScore& s) {
                 tidy(s.spread_delta_n, 1), f.frequency_hz, tidy(s.frequency_error_hz, 2),
                 f.radius_m * 1e3, s.radius_ratio, f.circularity, tidy(s.circularity_delta, 2),
                 f.tangential_ratio, tidy(s.tangential_ratio_error, 2), f.laps, s.overall);
-  return buf;
+  std::string line = buf;
+  if (f.laps >= 1.0 && (f.circling_share < 0.995 || f.contact_share < 0.995)) {
+    // Why the score is lower than its terms: part of the trial was not the technique.
+    std::snprintf(buf, sizeof buf, " (circling %.0f %% of the time, on the web %.0f %%)",
+                  100.0 * f.circling_share, 100.0 * f.contact_share);
+    line += buf;
+  }
+  return line;
 }
 
 }  // namespace telehand::technique

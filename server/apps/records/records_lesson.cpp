@@ -8,6 +8,7 @@
 #include <iomanip>
 #include <iostream>
 #include <map>
+#include <optional>
 #include <sstream>
 
 #include "file_output.h"
@@ -26,24 +27,28 @@ using namespace server::store;
 
 namespace {
 
+/// The case's file in the cases directory, when there is one: a file that is there but
+/// cannot be read is an error (naming the file and key), not a fall-back to built-in values
+/// the server, which refuses such a file, never renders.
+std::optional<PatientCase> caseFileOf(const std::string& cases_dir, const std::string& case_name) {
+  if (!std::filesystem::exists(std::filesystem::path(cases_dir) / (case_name + ".toml"))) {
+    return std::nullopt;
+  }
+  return loadPatientCaseByName(cases_dir, case_name);
+}
+
 /// The force scale of a case (the demonstration's rendering), from the cases directory; the
 /// healthy joint's when the case is not there.
 double forceScaleOf(const std::string& cases_dir, const std::string& case_name) {
-  try {
-    return loadPatientCaseByName(cases_dir, case_name).model.force_scale;
-  } catch (const ConfigError&) {
-    return healthyIndexMcp().force_scale;
-  }
+  const auto c = caseFileOf(cases_dir, case_name);
+  return c ? c->model.force_scale : healthyIndexMcp().force_scale;
 }
 
 /// The web of a case: its file's [tissue] when the cases directory has one, else the built-in
 /// web of that name (as the server renders it, docs/massage.md "Cases").
 TissueParams webOf(const std::string& cases_dir, const std::string& case_name) {
-  try {
-    const PatientCase c = loadPatientCaseByName(cases_dir, case_name);
-    if (c.tissue_given) return c.tissue;
-  } catch (const ConfigError&) {
-  }
+  const auto c = caseFileOf(cases_dir, case_name);
+  if (c && c->tissue_given) return c->tissue;
   return tissueCase(case_name.c_str());
 }
 

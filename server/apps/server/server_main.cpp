@@ -65,11 +65,15 @@ int main(int argc, char** argv) {
   std::string hand = std::string(TELEHAND_DEPLOY_DIR) + "/hand/hand24.urdf";
   std::string cases = std::string(TELEHAND_DEPLOY_DIR) + "/cases";
   bool list_dofs = false;
-  app.add_option("--hand", hand,
-                 "hand model (URDF) for the Bullet simulation; 'none': HandState from the shared "
-                 "joint model")
-      ->capture_default_str();
-  app.add_option("--cases", cases, "directory of patient cases (*.toml)")->capture_default_str();
+  CLI::Option* hand_opt =
+      app.add_option("--hand", hand,
+                     "hand model (URDF) for the Bullet simulation; 'none': HandState from the "
+                     "shared joint model (overrides the config file's)")
+          ->capture_default_str();
+  CLI::Option* cases_opt =
+      app.add_option("--cases", cases,
+                     "directory of patient cases (*.toml; overrides the config file's)")
+          ->capture_default_str();
   app.add_flag("--list-dofs", list_dofs,
                "print the hand's joint rotations in HandState.joint_angles_rad order and exit");
   bool pool = false;
@@ -97,8 +101,9 @@ int main(int argc, char** argv) {
     // The flags lie in the ranges of the config keys they stand for.
     validateServerConfig(
         cfg, config_path.empty() ? std::string("command line") : "command line and " + config_path);
-    if (cfg.hand_model.empty()) cfg.hand_model = hand == "none" ? "" : hand;
-    if (cfg.cases_dir.empty()) cfg.cases_dir = cases;
+    // Given on the command line, they override the config file's (as --db does).
+    if (*hand_opt || cfg.hand_model.empty()) cfg.hand_model = hand == "none" ? "" : hand;
+    if (*cases_opt || cfg.cases_dir.empty()) cfg.cases_dir = cases;
     std::optional<server::sim::HandModel> hand_model;
     if (!cfg.hand_model.empty()) hand_model = server::sim::HandModel::load(cfg.hand_model);
     if (list_dofs) {

@@ -9,6 +9,7 @@
 #include <iostream>
 
 #include "gateway.h"
+#include "telehand/app/cli.h"
 #include "telehand/app/dds_cli.h"
 #include "telehand/app/signals.h"
 #include "telehand/core/error.h"
@@ -87,11 +88,7 @@ int main(int argc, char** argv) {
   app::addDdsOptions(app, o.dds, insecure, "supervisor");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")
       ->capture_default_str();
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e) == 0 ? 0 : 2;
-  }
+  TELEHAND_CLI_PARSE(app, argc, argv);
   if (!bind.empty()) o.bind = bind;
   try {
     setupLogging("telehand-web", log_level);

@@ -202,6 +202,8 @@ std::string encodeMassageScore(const technique::MassageScore& s) {
   put(out, "circularity", f.circularity);
   put(out, "laps", f.laps);
   put(out, "duration_s", f.duration_s);
+  put(out, "circling_share", f.circling_share);
+  put(out, "contact_share", f.contact_share);
   return out;
 }
 

@@ -157,6 +157,44 @@ TEST(MassageScore, IdenticalAttemptScoresPerfect) {
   std::printf("%s\n", technique::massageSummaryLine(s).c_str());
 }
 
+// One good lap and the rest of the trial held still, or the demonstration's circles traced off
+// the web, are not the technique: the score is scaled by the share of the trial spent circling
+// and pressing the web, and the summary says why.
+TEST(MassageScore, OneLapThenStillOrCirclesOffTheWebScoreLow) {
+  const TissueParams web = tissueCase("healthy");
+  const MassageTargets t =
+      technique::deriveMassageTargets(syntheticSeries(web, 10.0, 1.5, 0.006, 0.006, 0.0, 0.0), web);
+  const MassageSeries full = syntheticSeries(web, 10.0, 1.5, 0.006, 0.006, 0.0, 0.0);
+  const MassageScore whole = technique::scoreMassage(full, t, web);
+  EXPECT_NEAR(whole.figures.circling_share, 1.0, 1e-9);
+  EXPECT_NEAR(whole.figures.contact_share, 1.0, 1e-9);
+  EXPECT_GT(whole.overall, 95.0);
+
+  // One lap and a half after the settling, then held where it was for the rest of 10 s.
+  MassageSeries still = full;
+  const std::size_t stop = 2700;
+  for (std::size_t i = stop; i < still.t_s.size(); ++i) {
+    for (int k = 0; k < 2; ++k) still.position_m[k][i] = still.position_m[k][stop];
+  }
+  const MassageScore held = technique::scoreMassage(still, t, web);
+  EXPECT_LE(held.figures.laps, 2.0);
+  EXPECT_LT(held.figures.circling_share, 0.3);
+  EXPECT_LT(held.overall, 30.0) << technique::massageSummaryLine(held);
+  EXPECT_NE(technique::massageSummaryLine(held).find("circling"), std::string::npos);
+
+  // The same circles with no press: off the web.
+  MassageSeries air = full;
+  for (int k = 0; k < 2; ++k) {
+    std::fill(air.normal_ref_n[k].begin(), air.normal_ref_n[k].end(), 0.0);
+    std::fill(air.tangential_ref_n[k].begin(), air.tangential_ref_n[k].end(), 0.0);
+  }
+  const MassageScore off = technique::scoreMassage(air, t, web);
+  EXPECT_EQ(off.figures.contact_share, 0.0);
+  EXPECT_EQ(off.overall, 0.0) << technique::massageSummaryLine(off);
+  std::printf("held still: %s\noff the web: %s\n", technique::massageSummaryLine(held).c_str(),
+              technique::massageSummaryLine(off).c_str());
+}
+
 // Each error the student is configured with reads back as itself against the clinician's
 // demonstration (another seed: another wander, other noise).
 TEST(MassageScore, KnownErrorsAreRecovered) {

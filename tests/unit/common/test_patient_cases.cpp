@@ -508,6 +508,16 @@ TEST(PatientCaseFile, BadTissueValuesAreNamed) {
   EXPECT_THAT(caseError(with("stiffness = 2.0\n")),
               AllOf(HasSubstr("bad.toml"), HasSubstr("tissue.stiffness")));
   EXPECT_THAT(caseError(with("thickness_m = 0.5\n")), HasSubstr("tissue.thickness_m"));
+  // A patch that changes the web with no rim to blend over (a step: nothing pushes the finger
+  // out of it, and the web would give back more energy than it took).
+  EXPECT_THAT(caseError(with("patch_radius_m = 0.006\npatch_stiffness_factor = 10.0\n"
+                             "patch_rim_m = 0.0\n")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("tissue.patch_rim_m"), HasSubstr("rim")));
+  // With the rim, or with no patch, the same values are taken.
+  EXPECT_EQ(caseError(with("patch_radius_m = 0.006\npatch_stiffness_factor = 10.0\n"
+                           "patch_rim_m = 0.004\n")),
+            "");
+  EXPECT_EQ(caseError(with("patch_radius_m = 0.0\npatch_rim_m = 0.0\n")), "");
 }
 
 const char* kRecovery =

@@ -150,7 +150,8 @@ int main(int argc, char** argv) {
       ->required()
       ->check(CLI::ExistingFile);
   app.add_option("--seed", seed, "random seed of both directions")->capture_default_str();
-  app.add_option("--seconds", seconds, "stop after this long (0 = until SIGTERM/SIGINT)");
+  app.add_option("--seconds", seconds, "stop after this long (0 = until SIGTERM/SIGINT)")
+      ->check(CLI::Range(0.0, 1e6));
   TELEHAND_CLI_PARSE(app, argc, argv)
 
   try {

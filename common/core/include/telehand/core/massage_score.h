@@ -67,6 +67,12 @@ struct MassageFigures {
   double circularity = 0;
   double radial_rms_m = 0;  ///< RMS of the distance from the centre minus radius_m
   double duration_s = 0;    ///< first to last sample
+  /// Share 0..1 of the judged time (after settle) spent circling: the whole laps' time plus
+  /// one of their periods (the lap under way when the trial ended), over the judged time.
+  double circling_share = 0;
+  /// Share 0..1 of the fingers' samples after settle that press the web: normal force at
+  /// least half the band's low end (at least 0.5 N).
+  double contact_share = 0;
 };
 
 /// Figures of one trial on a web. The circle: a least-squares circle (Kasa) through the
@@ -114,8 +120,10 @@ struct MassageScore {
   ///   |tangential ratio error|; 0.05; 0.10
   ///   centre offset; 25 % of the target radius, at least 0.5 mm; 0.05
   /// A steadier press or a rounder circle than the demonstration's costs nothing. No term has
-  /// a cut-off: a larger error, the others unchanged, always scores lower. 0 when the trial
-  /// has no whole lap.
+  /// a cut-off: a larger error, the others unchanged, always scores lower. The sum is then
+  /// multiplied by the circling share and the contact share (figures): one good lap and a
+  /// trial held still, or circles traced off the web, are not the technique. 0 when the
+  /// trial has no whole lap.
   double overall = 0;
 };
 

@@ -78,6 +78,8 @@ struct TissueParams {
   static constexpr double kMaxMu = 2.0;
   static constexpr double kMaxViscous = 50.0;  ///< N·s/m: 12.5 on the device
   static constexpr double kMaxPatchFactor = 10.0;
+  /// The narrowest rim a patch that changes the web is blended over (invalidTissueParam).
+  static constexpr double kMinPatchRimM = 0.001;
   static constexpr double kMaxLengthM = 0.1;
 };
 
