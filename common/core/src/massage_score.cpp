@@ -106,6 +106,9 @@ MassageSeries massageSeriesFromSamples(std::span<const Sample> samples, double f
   }
   for (const Sample& x : samples) {
     double t = static_cast<double>(x.source_time_ns - samples.front().source_time_ns) * 1e-9;
+    // A loop faster than its device records each device sample once a tick, with the same
+    // time: it is taken once (spacing the copies 1 ms apart would stretch the trial's time).
+    if (!s.t_s.empty() && t == s.t_s.back()) continue;
     if (!s.t_s.empty() && !(t > s.t_s.back())) t = s.t_s.back() + 1e-3;
     s.t_s.push_back(t);
     const PerFinger<Vec3> p = thimblePositions(x);

@@ -34,7 +34,8 @@ void LessonRun::end(uint64_t last_seq, int64_t now_ns) {
   }
   // A trial is scored over its planned length and a margin at most: a client that never
   // ends one cannot make the server read (and hold) minutes of record at once.
-  const auto span = static_cast<uint64_t>((plan.trial_s + kTrialMarginS) * 1000.0);
+  // Samples are the client loop's ticks: up to LoopConfig::kMaxRateHz (4 kHz) a second.
+  const auto span = static_cast<uint64_t>((plan.trial_s + kTrialMarginS) * 4000.0);
   current_.last_seq = std::min(last_seq, current_.first_seq + span - 1);
   current_.cut = current_.last_seq < last_seq;
   current_.deadline_ns = now_ns + kScoreWaitNs;

@@ -291,15 +291,25 @@ TEST(TechniqueScore, AppliedForceIsTheNetPushAtReferenceScale) {
   s.fingers[0].normal_n = 4.0f;
   EXPECT_NEAR(appliedForceRefN(s, 0.25), 4.0, 1e-6);
 
-  Sample samples[3] = {s, s, s};
+  Sample samples[4] = {s, s, s, s};
   samples[0].source_time_ns = 5'000'000;
   samples[1].source_time_ns = 6'000'000;
-  samples[2].source_time_ns = 6'000'000;  // a repeated time is placed 1 ms later
+  samples[2].source_time_ns = 6'000'000;  // the same device sample again (a faster loop)
+  samples[3].source_time_ns = 5'500'000;  // a time going back is placed 1 ms later
   const Series series = seriesFromSamples(std::span<const Sample>(samples), 0.25);
   ASSERT_EQ(series.t_s.size(), 3u);
   EXPECT_DOUBLE_EQ(series.t_s[1], 1e-3);
   EXPECT_DOUBLE_EQ(series.t_s[2], 2e-3);
   EXPECT_NEAR(series.force_ref_n[0], 4.0, 1e-6);
+  // A 4 kHz loop on a 1 kHz device: each sample four times, the series as at 1 kHz.
+  std::vector<Sample> once, four;
+  for (int i = 0; i < 50; ++i) {
+    Sample x = s;
+    x.source_time_ns = int64_t{1'000'000} * i;
+    once.push_back(x);
+    for (int k = 0; k < 4; ++k) four.push_back(x);
+  }
+  EXPECT_EQ(seriesFromSamples(four, 0.25).t_s, seriesFromSamples(once, 0.25).t_s);
 }
 
 TEST(TechniqueScore, LinesNameTheFigures) {
