@@ -363,6 +363,7 @@ void UsbMf2::tryOpen() {
   tracker_.reset();
   cal_.reset();
   have_state_ = false;
+  bad_pose_run_ = 0;
   disconnect_pending_ = false;
   clear_halt_in_ = clear_halt_out_ = false;
   command_pending_ = false;
@@ -712,6 +713,7 @@ void UsbMf2::closeDevice() {
   in_busy_ = {};
   out_busy_ = false;
   have_state_ = false;
+  bad_pose_run_ = 0;
   closing_ = false;
   disconnect_pending_ = false;
   if (orderly) setStatus(DeviceStatus::kNotReady, "MF-2 at " + where_ + " closed", true);

@@ -98,7 +98,13 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   const double settle_s = massage ? lesson::kMassageSettleS : lesson::kSettleS;
   const double period_s = massage ? 1.0 / std::max(std::abs(massage->frequency_hz), 0.1)
                                   : 1.0 / std::max(targets.frequency_hz, 0.1);
-  if (static_cast<double>(samples.size()) * 1e-3 < settle_s + period_s) {
+  // The trial's length on its samples' clock (samples are loop ticks, up to 4 kHz).
+  const double span_s =
+      samples.empty()
+          ? 0.0
+          : static_cast<double>(samples.back().source_time_ns - samples.front().source_time_ns) *
+                1e-9;
+  if (!(span_s >= settle_s + period_s)) {
     // Shorter than the settling and one of the demonstration's periods: nothing to judge, and
     // a 0 would say the student failed a trial the record cannot show.
     char need[64];
@@ -161,7 +167,8 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   ctx.event(session_id, client_id, telehand_msg_EVENT_SCORE,
             label + ": " + summary +
                 (missing ? " (" + std::to_string(missing) + " samples missing)" : std::string()) +
-                (t.cut ? " (its first " + std::to_string(expected / 1000) + " s)" : std::string()),
+                (t.cut ? " (its first " + std::to_string(static_cast<long long>(span_s)) + " s)"
+                       : std::string()),
             now_ns);
   overall_.push_back(rec.overall);
 }

@@ -1219,6 +1219,8 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
     if (owed_closes_.size() >= kMaxOwedCloses) {
       spdlog::error("session {}: left active in the record: {} closes are owed already",
                     owed_closes_.front().session_id, kMaxOwedCloses);
+      retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9),
+                             owed_closes_.front().session_id);
       owed_closes_.erase(owed_closes_.begin());
     }
     if (owed_closes_.empty()) next_owed_close_ns_ = now_ns + kOwedCloseEveryNs;
@@ -1237,26 +1239,45 @@ bool SessionManager::closeOwed(uint64_t session_id) const {
 
 void SessionManager::closeOwed(int64_t now_ns, bool last_try) {
   next_owed_close_ns_ = now_ns + kOwedCloseEveryNs;
+  const auto retire = [&](uint64_t id) {
+    retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9), id);
+  };
   for (auto it = owed_closes_.begin(); it != owed_closes_.end();) {
     const OwedClose& c = *it;
     try {
       if (pooled() && !store_.poolClaim(c.session_id, pool_id_).won) {
         spdlog::warn("session {}: another server of the pool owns it now; its close is left to it",
                      c.session_id);
+        retire(c.session_id);
+        it = owed_closes_.erase(it);
+        continue;
+      }
+      // Another server may have taken the session over, had it resumed and closed it while
+      // this one could not reach the record: that close stands.
+      if (const auto now = store_.session(c.session_id);
+          now && now->state != "active" && now->state != "suspended") {
+        spdlog::info("session {}: the record has it {} already; its owed close is dropped",
+                     c.session_id, now->state);
+        publishRecordStatus(*now, telehand_msg_SESSION_CLOSED, c.client_id, 0);
+        retire(c.session_id);
         it = owed_closes_.erase(it);
         continue;
       }
       store_.closeSession(c.session_id, c.ended_ns, c.samples_expected, c.state);
     } catch (const StoreError& e) {
       ++stats_.store_errors;
+      // The record is not taking writes: the rest wait for the next pass (a busy record
+      // costs its timeout per statement, and the serve loop waits meanwhile). Stopping, the
+      // server says which it leaves.
       if (last_try) {
-        spdlog::error(
-            "session {}: left active in the record, which would not take its close as {} ({}); "
-            "a server that recovers it closes it as interrupted",
-            c.session_id, c.state, e.what());
+        for (; it != owed_closes_.end(); ++it) {
+          spdlog::error(
+              "session {}: left active in the record, which would not take its close as {} "
+              "({}); a server that recovers it closes it as interrupted",
+              it->session_id, it->state, e.what());
+        }
       }
-      ++it;
-      continue;
+      break;
     }
     spdlog::info("session {}: the record took its close as {}", c.session_id, c.state);
     try {
@@ -1267,8 +1288,7 @@ void SessionManager::closeOwed(int64_t now_ns, bool last_try) {
       ++stats_.store_errors;
       spdlog::error("session {}: {}", c.session_id, e.what());
     }
-    retiring_.emplace_back(now_ns + static_cast<int64_t>(config_.status_keep_s * 1e9),
-                           c.session_id);
+    retire(c.session_id);
     it = owed_closes_.erase(it);
   }
 }

@@ -2204,6 +2204,33 @@ TEST_F(ClosingLateTest, AFailedCloseIsTriedAgainAndClosedIsSaidOnlyOnceTheRecord
   EXPECT_EQ(out_.statuses.back().samples_missing, 0u);
 }
 
+// While this server could not close the record, another closed it (a pool server that took
+// the session over, its client resumed there): the owed close is dropped, not written over it.
+TEST_F(ClosingLateTest, AnOwedCloseDoesNotOverwriteACloseMadeElsewhere) {
+  static_cast<ClosingLateStore&>(*store_).refusals = 1'000'000;
+  ASSERT_NE(open("healthy"), 0u);
+  chunk(0, 100);
+  pass(600);
+  auto c = command(telehand_msg_CMD_CLOSE, session_);
+  c.samples_sent = 100;
+  c.last_seq = 99;
+  manager_->onCommand(c, now_ns_, from_);
+  pass(1500);
+  ASSERT_EQ(manager_->activeSessions(), 0u);
+  ASSERT_EQ(store_->session(session_)->state, "active");
+  {
+    SqliteStore elsewhere(config_.db_path);
+    elsewhere.closeSession(session_, wallNs(), 140, "closed");
+  }
+  const std::size_t errors = manager_->stats().store_errors;
+  pass(1500);
+  EXPECT_EQ(manager_->stats().store_errors, errors) << "still trying to close it";
+  const auto info = store_->session(session_);
+  EXPECT_EQ(info->state, "closed");
+  EXPECT_EQ(info->samples_expected, 140u);
+  EXPECT_EQ(out_.statuses.back().state, telehand_msg_SESSION_CLOSED);
+}
+
 class WriterThreadTest : public RecoveryManagerTest {
  protected:
   void SetUp() override {
