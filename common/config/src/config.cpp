@@ -193,9 +193,7 @@ void readTissue(TableReader& t, TissueParams& p, const std::string& origin) {
                      " is above 'tissue.mu_static' = " + std::to_string(p.mu_static) +
                      ": the skin cannot slip harder than it sticks");
   }
-  if (p.patch_radius_m > 0.0 &&
-      (p.patch_stiffness_factor != 1.0 || p.patch_friction_factor != 1.0) &&
-      p.patch_rim_m < TissueParams::kMinPatchRimM) {
+  if (p.patchChangesWeb() && p.patch_rim_m < TissueParams::kMinPatchRimM) {
     fail(origin, "'tissue.patch_rim_m' = " + std::to_string(p.patch_rim_m) +
                      " m: a patch that changes the web is blended over a rim of at least " +
                      std::to_string(TissueParams::kMinPatchRimM) +

@@ -71,9 +71,7 @@ const char* invalidTissueParam(const TissueParams& p) noexcept {
   if (!in(p.patch_rim_m, 0.0, P::kMaxLengthM)) return "patch_rim_m";
   // A patch that changes the web needs a rim to blend over: at a step the force out of the
   // patch (the energy's slope) is zero, and the web gives more energy back than it took.
-  if (p.patch_radius_m > 0.0 &&
-      (p.patch_stiffness_factor != 1.0 || p.patch_friction_factor != 1.0) &&
-      p.patch_rim_m < P::kMinPatchRimM) {
+  if (p.patchChangesWeb() && p.patch_rim_m < P::kMinPatchRimM) {
     return "patch_rim_m";
   }
   return nullptr;

@@ -664,7 +664,7 @@ void SessionManager::resume(const telehand_msg_SessionCommand& cmd, int64_t now_
            1, now_ns, kOpenKey | from.participant);
     return;
   }
-  if (info->state != "active" && info->state != "suspended") {
+  if (info->ended()) {
     cannot("the record has it " + info->state);
     return;
   }
@@ -698,8 +698,7 @@ void SessionManager::closeUnresumed(uint64_t session_id, int64_t now_ns, const s
   try {
     // Its server may have closed it meanwhile (a pool server whose lease lapsed while it
     // finished the session): that close, and the client's count in it, stands.
-    if (const auto before = store_.session(session_id);
-        before && before->state != "active" && before->state != "suspended") {
+    if (const auto before = store_.session(session_id); before && before->ended()) {
       spdlog::info("session {}: not closed as interrupted: the record has it {} already",
                    session_id, before->state);
       publishRecordStatus(*before, telehand_msg_SESSION_CLOSED, 0, 0);
@@ -1254,8 +1253,7 @@ void SessionManager::closeOwed(int64_t now_ns, bool last_try) {
       }
       // Another server may have taken the session over, had it resumed and closed it while
       // this one could not reach the record: that close stands.
-      if (const auto now = store_.session(c.session_id);
-          now && now->state != "active" && now->state != "suspended") {
+      if (const auto now = store_.session(c.session_id); now && now->ended()) {
         spdlog::info("session {}: the record has it {} already; its owed close is dropped",
                      c.session_id, now->state);
         publishRecordStatus(*now, telehand_msg_SESSION_CLOSED, c.client_id, 0);
@@ -1464,7 +1462,7 @@ void SessionManager::takeOver(uint64_t session_id, const store::PoolClaim& claim
   try {
     info = store_.session(session_id);
     if (!info) return;
-    if (info->state != "active" && info->state != "suspended") {
+    if (info->ended()) {
       // Its server closed it after it was listed as an orphan: nothing to take over.
       spdlog::info("pool: session {}: claimed, but the record has it {}: left as it is", session_id,
                    info->state);

@@ -2162,6 +2162,19 @@ class ClosingLateTest : public RecoveryManagerTest {
     store_ = std::make_unique<ClosingLateStore>(config_.db_path);
     manager_ = std::make_unique<SessionManager>(*store_, out_, config_, &hand());
   }
+  /// A session of 100 samples, closed by its client (who says it sent 100).
+  void recordAndClose() {
+    ASSERT_NE(open("healthy"), 0u);
+    chunk(0, 100);
+    pass(600);
+    manager_->onCommand(closeCommand(), now_ns_, from_);
+  }
+  telehand_msg_SessionCommand closeCommand() const {
+    auto c = command(telehand_msg_CMD_CLOSE, session_);
+    c.samples_sent = 100;
+    c.last_seq = 99;
+    return c;
+  }
   bool closedPublished() const {
     return std::any_of(out_.statuses.begin(), out_.statuses.end(), [&](const auto& st) {
       return st.session_id == session_ && st.state == telehand_msg_SESSION_CLOSED;
@@ -2173,19 +2186,13 @@ class ClosingLateTest : public RecoveryManagerTest {
 // says active, the close (with the client's count) is tried again until the record takes it,
 // and the client's CLOSE and resume meanwhile are not taken for a session unknown or lost.
 TEST_F(ClosingLateTest, AFailedCloseIsTriedAgainAndClosedIsSaidOnlyOnceTheRecordHoldsIt) {
-  ASSERT_NE(open("healthy"), 0u);
-  chunk(0, 100);
-  pass(600);
-  auto c = command(telehand_msg_CMD_CLOSE, session_);
-  c.samples_sent = 100;
-  c.last_seq = 99;
-  manager_->onCommand(c, now_ns_, from_);
+  ASSERT_NO_FATAL_FAILURE(recordAndClose());
   pass(100);
   ASSERT_EQ(manager_->activeSessions(), 0u);
   EXPECT_FALSE(closedPublished());
   EXPECT_EQ(store_->session(session_)->state, "active");
   const std::size_t errors = out_.events.size();
-  manager_->onCommand(c, now_ns_, from_);  // the client asks again: not "unknown session"
+  manager_->onCommand(closeCommand(), now_ns_, from_);  // asked again: not "unknown session"
   for (std::size_t i = errors; i < out_.events.size(); ++i) {
     EXPECT_EQ(std::string(out_.events[i].text).find("unknown session"), std::string::npos)
         << out_.events[i].text;
@@ -2208,13 +2215,7 @@ TEST_F(ClosingLateTest, AFailedCloseIsTriedAgainAndClosedIsSaidOnlyOnceTheRecord
 // the session over, its client resumed there): the owed close is dropped, not written over it.
 TEST_F(ClosingLateTest, AnOwedCloseDoesNotOverwriteACloseMadeElsewhere) {
   static_cast<ClosingLateStore&>(*store_).refusals = 1'000'000;
-  ASSERT_NE(open("healthy"), 0u);
-  chunk(0, 100);
-  pass(600);
-  auto c = command(telehand_msg_CMD_CLOSE, session_);
-  c.samples_sent = 100;
-  c.last_seq = 99;
-  manager_->onCommand(c, now_ns_, from_);
+  ASSERT_NO_FATAL_FAILURE(recordAndClose());
   pass(1500);
   ASSERT_EQ(manager_->activeSessions(), 0u);
   ASSERT_EQ(store_->session(session_)->state, "active");

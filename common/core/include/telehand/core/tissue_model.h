@@ -80,6 +80,10 @@ struct TissueParams {
   static constexpr double kMaxPatchFactor = 10.0;
   /// The narrowest rim a patch that changes the web is blended over (invalidTissueParam).
   static constexpr double kMinPatchRimM = 0.001;
+  /// A patch that changes the web (and so needs a rim of at least kMinPatchRimM).
+  bool patchChangesWeb() const noexcept {
+    return patch_radius_m > 0.0 && (patch_stiffness_factor != 1.0 || patch_friction_factor != 1.0);
+  }
   static constexpr double kMaxLengthM = 0.1;
 };
 

@@ -32,6 +32,8 @@ struct SessionInfo {
   /// Who opened it: the DDS participant's GUID (under DDS Security, derived from its
   /// authenticated certificate), and the identity's name where known. '' before schema 3.
   std::string owner;
+  /// Ended: neither running (active) nor waiting for its client (suspended).
+  bool ended() const noexcept { return state != "active" && state != "suspended"; }
   /// Samples the client said it sent that the record lacks (0 when it never said).
   uint64_t missing() const noexcept {
     return samples_expected > samples_below_expected ? samples_expected - samples_below_expected
