@@ -69,7 +69,13 @@ bool Replay::loadPage() {
   page_.clear();
   page_pos_ = 0;
   if (next_seq_ > last_seq_) return false;
-  const uint64_t from = next_seq_;
+  // A gap in the record is stepped over at once (an index look-up), however wide.
+  const std::optional<uint64_t> stored = ctx_.store.nextStoredSeq(source_, next_seq_);
+  if (!stored || *stored > last_seq_) {
+    next_seq_ = last_seq_ + 1;
+    return false;
+  }
+  const uint64_t from = *stored;
   const uint64_t to = from + kPage - 1;
   ctx_.store.forEachSampleIn(source_, from, to, [&](const Sample& s, bool valid) {
     if (valid) page_.push_back(s);  // an invalid sample is not replayed (nor was it live)

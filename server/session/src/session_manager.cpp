@@ -780,17 +780,25 @@ void SessionManager::onDeviceState(const telehand_msg_DeviceState& wire, int64_t
 }
 
 namespace {
+/// Whether `seq` lies within the window of `high`, the session's highest sequence number
+/// before the sample (or its chunk) came; without one (`have` false) any number does.
+bool inWindowOf(uint64_t high, bool have, uint64_t seq) {
+  if (seq >= sample_bounds::kMaxSeq) return false;
+  if (!have) return true;
+  const uint64_t lo = high > SessionManager::kSeqWindow ? high - SessionManager::kSeqWindow : 0;
+  return seq >= lo && seq <= high + SessionManager::kSeqWindow;
+}
+
+void advanceSeq(Session& s, uint64_t seq) {
+  if (!s.have_seq || seq > s.seq_high) s.seq_high = seq;
+  s.have_seq = true;
+}
+
 /// Whether `seq` lies within the window of the session's highest sequence number so far
 /// (and advances it); the first sample of a session sets it.
 bool inSeqWindow(Session& s, uint64_t seq) {
-  if (seq >= sample_bounds::kMaxSeq) return false;
-  if (s.have_seq) {
-    const uint64_t lo =
-        s.seq_high > SessionManager::kSeqWindow ? s.seq_high - SessionManager::kSeqWindow : 0;
-    if (seq < lo || seq > s.seq_high + SessionManager::kSeqWindow) return false;
-  }
-  if (!s.have_seq || seq > s.seq_high) s.seq_high = seq;
-  s.have_seq = true;
+  if (!inWindowOf(s.seq_high, s.have_seq, seq)) return false;
+  advanceSeq(s, seq);
   return true;
 }
 }  // namespace
@@ -832,11 +840,20 @@ void SessionManager::onChunk(const telehand_msg_RecordChunk& c, int64_t now_ns,
   std::vector<uint8_t> valid(samples.size(), 1);
   uint64_t outside = 0;
   std::size_t kept = 0;
+  // A chunk's samples are judged against the window as it stood before the chunk (the first
+  // chunk's, against its first sample): one chunk cannot walk the window along by itself.
+  uint64_t anchor = s && s->have_seq ? s->seq_high : 0;
+  if (s && !s->have_seq) {
+    const auto first = std::find_if(samples.begin(), samples.end(),
+                                    [](const Sample& x) { return x.seq < sample_bounds::kMaxSeq; });
+    if (first != samples.end()) anchor = first->seq;
+  }
   for (std::size_t i = 0; i < samples.size(); ++i) {
-    if (s && !inSeqWindow(*s, samples[i].seq)) {
+    if (s && !inWindowOf(anchor, true, samples[i].seq)) {
       ++outside;
       continue;
     }
+    if (s) advanceSeq(*s, samples[i].seq);
     if (!s && samples[i].seq >= sample_bounds::kMaxSeq) {
       ++outside;
       continue;

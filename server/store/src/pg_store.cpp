@@ -987,6 +987,18 @@ uint64_t PgStore::countSamples(uint64_t session_id, uint64_t first_seq, uint64_t
   return r.rows() ? static_cast<uint64_t>(r.integer(0, 0)) : 0;
 }
 
+std::optional<uint64_t> PgStore::nextStoredSeq(uint64_t session_id, uint64_t first_seq) {
+  if (first_seq > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) return std::nullopt;
+  std::lock_guard lock(mutex_);
+  connect();
+  const Result r =
+      Db(conn_, location_)
+          .run("SELECT min(seq) FROM samples WHERE session_id = $1 AND seq >= $2",
+               {int8Param(static_cast<int64_t>(session_id)), int8Param(clampSeq(first_seq))});
+  if (!r.rows() || r.null(0, 0)) return std::nullopt;
+  return static_cast<uint64_t>(r.integer(0, 0));
+}
+
 uint64_t PgStore::storedPrefix(uint64_t session_id) {
   std::lock_guard lock(mutex_);
   connect();

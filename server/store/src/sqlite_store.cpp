@@ -795,6 +795,23 @@ uint64_t SqliteStore::countSamples(uint64_t session_id, uint64_t first_seq, uint
   return st.step() ? static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0)) : 0;
 }
 
+std::optional<uint64_t> SqliteStore::nextStoredSeq(uint64_t session_id, uint64_t first_seq) {
+  constexpr uint64_t kMax = static_cast<uint64_t>(std::numeric_limits<sqlite3_int64>::max());
+  if (first_seq > kMax) return std::nullopt;
+  if (queryInt(db_, "PRAGMA user_version") == 0) {  // schema 1: its blobs, one by one
+    std::optional<uint64_t> out;
+    forEachSampleIn(session_id, first_seq, kMax, [&](const Sample& s, bool) {
+      if (!out || s.seq < *out) out = s.seq;
+    });
+    return out;
+  }
+  Statement st(db_, "SELECT min(seq) FROM samples WHERE session_id = ? AND seq >= ?");
+  sqlite3_bind_int64(st.get(), 1, static_cast<sqlite3_int64>(session_id));
+  sqlite3_bind_int64(st.get(), 2, static_cast<sqlite3_int64>(first_seq));
+  if (!st.step() || sqlite3_column_type(st.get(), 0) == SQLITE_NULL) return std::nullopt;
+  return static_cast<uint64_t>(sqlite3_column_int64(st.get(), 0));
+}
+
 std::optional<SessionStore::Extent> SqliteStore::extent(uint64_t session_id) {
   std::optional<Extent> out;
   if (queryInt(db_, "PRAGMA user_version") == 0) {  // schema 1: its blobs, one by one

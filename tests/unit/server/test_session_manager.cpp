@@ -1433,6 +1433,16 @@ TEST_F(OwnershipTest, SamplesOutsideTheSequenceWindowAreRefusedAndNotStored) {
   sendRange(session_, 0, 10, kA);
   EXPECT_EQ(manager_->stats().refused, 6u);
   EXPECT_EQ(stored(session_).rows, 10u);
+  // One chunk cannot walk the window along by itself: each of its samples is judged against
+  // the highest number before the chunk (here 9), not the chunk's own last one.
+  const uint64_t half = SessionManager::kSeqWindow / 2;
+  sendChunk(session_,
+            {wireSample(session_, 9 + half), wireSample(session_, 9 + 2 * half),
+             wireSample(session_, 9 + 3 * half), wireSample(session_, 9 + 4 * half)},
+            kA);
+  EXPECT_EQ(manager_->stats().refused, 8u);
+  EXPECT_EQ(stored(session_).rows, 12u);
+  EXPECT_EQ(stored(session_).highest, 9 + 2 * half);
 }
 
 TEST_F(OwnershipTest, ImplausibleSamplesAreStoredFlaggedAndKeptFromTheHand) {

@@ -448,6 +448,22 @@ TEST_P(SessionStoreTest, ALargeBatchAndALongRecordComeBackWhole) {
   EXPECT_EQ(store->countSamples(id, 0, UINT64_MAX), 20'010u);
 }
 
+TEST_P(SessionStoreTest, TheNextStoredSequenceNumberStepsOverAGap) {
+  auto store = this->open();
+  const uint64_t id = store->createSession(info("alice"));
+  const uint64_t other = store->createSession(info("bob"));
+  store->appendSamples(id, samples(id, 0, 10), {});
+  store->appendSamples(id, samples(id, uint64_t{1} << 62, (uint64_t{1} << 62) + 2), {});
+  store->appendSamples(other, samples(other, 20, 30), {});
+  EXPECT_EQ(store->nextStoredSeq(id, 0), 0u);
+  EXPECT_EQ(store->nextStoredSeq(id, 9), 9u);
+  EXPECT_EQ(store->nextStoredSeq(id, 10), uint64_t{1} << 62) << "not the other session's 20";
+  EXPECT_EQ(store->nextStoredSeq(id, (uint64_t{1} << 62) + 1), (uint64_t{1} << 62) + 1);
+  EXPECT_EQ(store->nextStoredSeq(id, (uint64_t{1} << 62) + 2), std::nullopt);
+  EXPECT_EQ(store->nextStoredSeq(id, UINT64_MAX), std::nullopt);
+  EXPECT_EQ(store->nextStoredSeq(other + 1, 0), std::nullopt);
+}
+
 TEST_P(SessionStoreTest, TheCallbackMayUseTheStore) {
   auto store = this->open();
   const uint64_t id = store->createSession(info("alice"));

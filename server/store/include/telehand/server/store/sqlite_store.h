@@ -44,6 +44,7 @@ class SqliteStore : public SessionStore {
   void forEachSampleIn(uint64_t session_id, uint64_t first_seq, uint64_t last_seq,
                        const std::function<void(const Sample&, bool)>& fn) override;
   uint64_t countSamples(uint64_t session_id, uint64_t first_seq, uint64_t last_seq) override;
+  std::optional<uint64_t> nextStoredSeq(uint64_t session_id, uint64_t first_seq) override;
   std::optional<Extent> extent(uint64_t session_id) override;
   uint64_t createLesson(const LessonInfo& lesson) override;
   std::vector<LessonInfo> listLessons() override;

@@ -174,6 +174,9 @@ class SessionStore {
                                const std::function<void(const Sample&, bool valid)>& fn) = 0;
   /// How many samples with first_seq <= seq <= last_seq the record holds (an index look-up).
   virtual uint64_t countSamples(uint64_t session_id, uint64_t first_seq, uint64_t last_seq) = 0;
+  /// The lowest sequence number stored at or after first_seq (an index look-up), nullopt
+  /// without one: a reader steps over a gap in the record at once.
+  virtual std::optional<uint64_t> nextStoredSeq(uint64_t session_id, uint64_t first_seq) = 0;
   /// The stored prefix: every seq below it is in the record, and that seq is not (what a
   /// resumed session acknowledges at once). By default a binary search of countSamples; a
   /// store may answer in one query (PostgreSQL: one scan up to the first gap).
