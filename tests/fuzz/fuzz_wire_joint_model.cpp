@@ -1,9 +1,10 @@
 // libFuzzer target: a JointModel from the network (CDR through Cyclone's deserializer, as
 // the client's reader takes it) into fromWire, the client's only check before rendering it.
 // Properties: a refusal names a reason; an accepted model satisfies what fromWire documents
-// (every field finite, non-empty ranges within a patient case's bounds, neutral zones, gains and
-// the lever arm in range, a unit joint orientation, grip offsets within ±30 deg, a terminated case
-// name) and goes back to the wire and in again unchanged.
+// (every field finite, non-empty ranges within a patient case's bounds, curves whose force rises
+// over their range and stays within kMaxHoldingForceN there, neutral zones, gains and the lever
+// arm in range, a unit joint orientation, grip offsets within ±30 deg, a terminated case name)
+// and goes back to the wire and in again unchanged.
 #include <cmath>
 #include <cstdlib>
 #include <string>
@@ -28,6 +29,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
     for (double c : a.coeffs) check(std::isfinite(c));
     check(std::isfinite(a.min_deg) && std::isfinite(a.max_deg) && a.min_deg < a.max_deg);
     check(kRangeMinDegBounds.contains(a.min_deg) && kRangeMaxDegBounds.contains(a.max_deg));
+    check(!passiveCurveProblem(a).has_value());
+    // Rising, so bounded by its ends; and rising at both.
+    for (double deg : {a.min_deg, a.max_deg}) {
+      check(std::abs(a.eval(deg)) <= kMaxHoldingForceN);
+      check(a.slope(deg) > 0.0);
+    }
   }
   for (double z : p->neutral_zone_deg) check(z >= 0.0 && z <= 30.0);
   check(p->speed_gain_s_per_rad >= 0.0 && p->speed_gain_s_per_rad <= 20.0);

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "telehand/core/clock.h"
+#include "telehand/core/printable.h"
 #include "telehand/protocol/dds.h"
 #include "telehand/protocol/wire.h"
 
@@ -85,20 +86,6 @@ struct SessionView {
   std::deque<EventLine> events;  ///< oldest first, at most kEventsKept
   uint64_t events_seen = 0;
 };
-
-/// Text from the network made safe to print: bounded, and control characters replaced so a
-/// name or an event cannot move the cursor or recolour the supervisor's terminal.
-inline std::string printable(const char* s, std::size_t max) {
-  std::string out(s, strnlen(s, max));
-  for (char& c : out) {
-    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
-  }
-  return out;
-}
-template <std::size_t N>
-inline std::string printable(const char (&s)[N]) {
-  return printable(s, N);
-}
 
 /// A value for a --plain key=value field: no spaces, never empty.
 inline std::string token(std::string s) {

@@ -8,6 +8,7 @@
 #include <random>
 
 #include "telehand/core/clock.h"
+#include "telehand/core/printable.h"
 #include "telehand/protocol/wire.h"
 
 namespace telehand::client::link {
@@ -358,7 +359,20 @@ bool ClientLink::firstFew(std::atomic<uint64_t>& refused) {
 
 void ClientLink::message(std::string text) {
   std::lock_guard lock(messages_mu_);
-  if (messages_.size() < 256) messages_.push_back(std::move(text));
+  if (messages_.size() < kMessagesKept) {
+    messages_.push_back(std::move(text));
+  } else {
+    ++messages_dropped_;
+  }
+}
+
+void ClientLink::modelRejected(const std::string& what, uint32_t version, const std::string& why) {
+  // As firstFew, and the last one said says that the rest are only counted.
+  const uint64_t before = stats_.models_rejected.fetch_add(1, std::memory_order_relaxed);
+  if (before >= kRefusalsSaid) return;
+  std::string text = "rejected " + what + " v" + std::to_string(version) + ": " + why;
+  if (before + 1 == kRefusalsSaid) text += " (further rejected models are counted, not said)";
+  message(std::move(text));
 }
 
 void ClientLink::pollModels() {
@@ -376,9 +390,8 @@ void ClientLink::pollModels() {
     std::string why;
     auto params = fromWire(m, &why);
     if (!params) {
-      stats_.models_rejected.fetch_add(1);
-      std::lock_guard lock(messages_mu_);
-      messages_.push_back("rejected JointModel v" + std::to_string(m.version) + ": " + why);
+      // A server that sends the same bad model again is counted each time, said a few times.
+      modelRejected("JointModel", m.version, why);
       return;
     }
     model_version_ = m.version;
@@ -395,10 +408,7 @@ void ClientLink::pollModels() {
       waiting_knn_->knn = knn_kept_.keep(std::move(knn_samples_->model));
       pending_model_ = *waiting_knn_;
     } else {
-      stats_.models_rejected.fetch_add(1);
-      std::lock_guard lock(messages_mu_);
-      messages_.push_back("rejected k-nearest-neighbour model v" +
-                          std::to_string(waiting_knn_->version) + ": " + knn_samples_->why);
+      modelRejected("k-nearest-neighbour model", waiting_knn_->version, knn_samples_->why);
     }
     waiting_knn_.reset();
   }
@@ -452,9 +462,10 @@ void ClientLink::pollEvents() {
     const bool mine =
         (session_id_ != 0 && e.session_id == session_id_) || e.client_id == client_id_;
     if (!mine) return;
+    // Shown on the student's terminal: no escape sequence or other control character in it.
+    const std::string text = printable(e.text);
     if (e.kind == telehand_msg_EVENT_SCORE) {
       // Scores steer what the student is shown: the acknowledging server's only.
-      const std::string text(e.text, strnlen(e.text, sizeof e.text));
       if (session_id_ == 0 || e.session_id != session_id_ ||
           !fromServer(event_reader_.handle(), info) ||
           text.find(" oscillation ") != std::string::npos) {
@@ -472,8 +483,7 @@ void ClientLink::pollEvents() {
     }
     const bool others_mark = e.kind == telehand_msg_EVENT_MARK && e.client_id != client_id_;
     if (e.kind != telehand_msg_EVENT_ERROR && !others_mark) return;
-    std::lock_guard lock(messages_mu_);
-    messages_.emplace_back(others_mark ? "mark: " + std::string(e.text) : std::string(e.text));
+    message(others_mark ? "mark: " + text : text);
   });
 }
 
@@ -492,7 +502,13 @@ void ClientLink::phase(const std::string& name, double value, uint64_t last_seq)
 
 std::vector<std::string> ClientLink::takeMessages() {
   std::lock_guard lock(messages_mu_);
-  return std::exchange(messages_, {});
+  std::vector<std::string> out = std::exchange(messages_, {});
+  if (messages_dropped_ > 0) {
+    out.push_back(std::to_string(messages_dropped_) + " more message(s) not kept: at most " +
+                  std::to_string(kMessagesKept) + " are kept between reads");
+    messages_dropped_ = 0;
+  }
+  return out;
 }
 
 telehand_msg_SessionCommand ClientLink::command(telehand_msg_CommandKind kind) {

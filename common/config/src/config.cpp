@@ -241,20 +241,9 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
                  kRangeMaxDegBounds.hi);
     if (!(curve.min_deg < curve.max_deg)) fail(origin, "'" + name + "' range is empty");
     requireRange(origin, (name + ".neutral_zone_deg").c_str(), m.neutral_zone_deg[ax], 0.0, 30.0);
-    // A joint must resist being moved: the holding force may not fall anywhere in range.
-    // The slope is a quadratic, so its least value is at a range end or at its vertex.
-    double steepest = curve.min_deg;
-    std::vector<double> candidates = {curve.min_deg, curve.max_deg};
-    if (curve.coeffs[0] != 0.0) candidates.push_back(-curve.coeffs[1] / (3.0 * curve.coeffs[0]));
-    for (double a : candidates) {
-      if (a >= curve.min_deg && a <= curve.max_deg && curve.slope(a) < curve.slope(steepest)) {
-        steepest = a;
-      }
-    }
-    if (!(curve.slope(steepest) > 0.0)) {
-      fail(origin, "'" + name + ".coeffs' fall at " + std::to_string(steepest) +
-                       " deg: a passive joint's force must rise with the angle");
-    }
+    // A joint must resist being moved, with a force a joint can have: the same check a
+    // JointModel from the network passes.
+    if (const auto why = passiveCurveProblem(curve)) fail(origin, "'" + name + ".coeffs' " + *why);
   }
   TableReader rec(root, "recovery", origin);
   if (rec.present()) {
@@ -274,6 +263,14 @@ PatientCase parsePatientCase(const std::string& text, const std::string& origin)
       if (pc.final_min_deg[i] > m.axes[i].min_deg || pc.final_max_deg[i] < m.axes[i].max_deg) {
         fail(origin, "'recovery' ranges must contain the starting ranges (" +
                          std::string(kAxisNames[i]) + ")");
+      }
+      // The curve is published over every range between the starting and the final one: it
+      // must be a joint's over the widest (and then over every one inside it).
+      CubicCurve recovered = m.axes[i];
+      recovered.min_deg = pc.final_min_deg[i];
+      recovered.max_deg = pc.final_max_deg[i];
+      if (const auto why = passiveCurveProblem(recovered)) {
+        fail(origin, "'" + axis + ".coeffs' over the recovery's final range " + *why);
       }
     }
   }

@@ -19,16 +19,6 @@ std::array<double, 4> scaledShifted(const std::array<double, 4>& c, double scale
           scale * (c0 - c1 * d + c2 * d * d - c3 * d * d * d)};
 }
 
-/// The least slope of a cubic over its range: at an end or at the slope's vertex.
-double leastSlope(const CubicCurve& c) {
-  double least = std::min(c.slope(c.min_deg), c.slope(c.max_deg));
-  if (c.coeffs[0] != 0.0) {
-    const double v = -c.coeffs[1] / (3.0 * c.coeffs[0]);
-    if (v > c.min_deg && v < c.max_deg) least = std::min(least, c.slope(v));
-  }
-  return least;
-}
-
 }  // namespace
 
 PatientCase randomPatientCase(uint64_t seed, const RandomCaseRanges& r) {
@@ -67,11 +57,12 @@ PatientCase randomPatientCase(uint64_t seed, const RandomCaseRanges& r) {
   const double gain = uniform(r.speed_gain_s_per_rad);  // drawn either way: same stream
   m.speed_gain_s_per_rad = spasm ? gain : 0.0;
   for (std::size_t i = 0; i < kAxes; ++i) {
-    // Positive scales and shifts keep eqs. 3-5 rising (their slopes have no real roots); the
-    // case-file check holds by construction, and is checked all the same.
-    if (!(leastSlope(m.axes[i]) > 0.0)) {
+    // Positive scales and shifts keep eqs. 3-5 rising (their slopes have no real roots), and
+    // the ranges keep their force far under kMaxHoldingForceN; the case-file check holds by
+    // construction, and is checked all the same.
+    if (const auto why = passiveCurveProblem(m.axes[i])) {
       throw Error("random case " + std::to_string(seed) + ": " + std::string(kAxisNames[i]) +
-                  " curve does not rise");
+                  " curve " + *why);
     }
   }
   m.version = 1;

@@ -1,6 +1,8 @@
 #include "telehand/core/joint_model.h"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <cstring>
 
 #include "telehand/core/knn_model.h"
@@ -25,6 +27,47 @@ double CubicCurve::eval(double deg) const noexcept {
 double CubicCurve::slope(double deg) const noexcept {
   const double a = std::clamp(deg, min_deg, max_deg);
   return (3.0 * coeffs[0] * a + 2.0 * coeffs[1]) * a + coeffs[2];
+}
+
+std::optional<std::string> passiveCurveProblem(const CubicCurve& c) {
+  char text[160];
+  // The slope is a quadratic: its least value over the range is at an end or at its vertex.
+  double at = c.min_deg;
+  double least = c.slope(at);
+  auto consider = [&](double deg) {
+    const double s = c.slope(deg);
+    if (std::isnan(s) || s < least) {
+      least = s;
+      at = deg;
+    }
+  };
+  consider(c.max_deg);
+  if (c.coeffs[0] != 0.0) {
+    const double vertex = -c.coeffs[1] / (3.0 * c.coeffs[0]);
+    if (vertex > c.min_deg && vertex < c.max_deg) consider(vertex);
+  }
+  if (!std::isfinite(least)) {
+    std::snprintf(text, sizeof text, "slope is not finite at %g deg", at);
+    return std::string(text);
+  }
+  if (!(least > 0.0)) {
+    std::snprintf(text, sizeof text,
+                  "falls at %g deg (slope %g N/deg): a passive joint's force must rise with the "
+                  "angle",
+                  at, least);
+    return std::string(text);
+  }
+  // Rising, so its force is largest in magnitude at a range end.
+  for (double deg : {c.min_deg, c.max_deg}) {
+    const double f = c.eval(deg);
+    if (!(std::abs(f) <= kMaxHoldingForceN)) {
+      std::snprintf(text, sizeof text,
+                    "holds %g N at %g deg, beyond the %g N any joint may take at the lever arm", f,
+                    deg, kMaxHoldingForceN);
+      return std::string(text);
+    }
+  }
+  return std::nullopt;
 }
 
 JointModelParams healthyIndexMcp() {

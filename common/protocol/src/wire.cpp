@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <numbers>
 
 #include "telehand/core/clock.h"
 #include "telehand/core/error.h"
@@ -117,6 +118,8 @@ std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::
       return outside("max_deg", a.max_deg, kRangeMaxDegBounds);
     }
     if (!(a.min_deg < a.max_deg)) return bad(axis + " range is empty");
+    // What a patient case must be: a force that rises with the angle and stays a joint's.
+    if (const auto problem = passiveCurveProblem(a)) return bad(axis + " curve " + *problem);
   }
   p.lever_arm_m = m.lever_arm_m;
   p.force_scale = m.force_scale;
@@ -293,6 +296,12 @@ std::unique_ptr<const KnnTorqueModel> fromWire(const telehand_msg_KnnModel& k, s
     if (why) *why = std::move(w);
     return nullptr;
   };
+  if (k.samples._length > kMaxKnnSamples) {
+    return bad("has " + std::to_string(k.samples._length) + " samples, more than the " +
+               std::to_string(kMaxKnnSamples) + " a model may hold");
+  }
+  // Joint angles are Euler angles: within ±π (as the wire's float rounds it).
+  constexpr float kMaxAngleRad = std::numbers::pi_v<float>;
   std::vector<KnnPoint> points;
   points.reserve(k.samples._length);
   for (uint32_t i = 0; i < k.samples._length; ++i) {
@@ -301,6 +310,14 @@ std::unique_ptr<const KnnTorqueModel> fromWire(const telehand_msg_KnnModel& k, s
     const Vec3 torque(p.torque_nm[0], p.torque_nm[1], p.torque_nm[2]);
     if (!allFinite(angles) || !allFinite(torque)) {
       return bad("sample " + std::to_string(i) + " is not finite");
+    }
+    for (std::size_t a = 0; a < kAxes; ++a) {
+      if (!(std::abs(p.angles_rad[a]) <= kMaxAngleRad)) {
+        char text[32];
+        std::snprintf(text, sizeof text, "%g", static_cast<double>(p.angles_rad[a]));
+        return bad("sample " + std::to_string(i) + " " + std::string(kAxisNames[a]) + " angle " +
+                   text + " rad is beyond ±π");
+      }
     }
     points.push_back({angles, torque});
   }

@@ -1,8 +1,10 @@
 // The client's link believes its server only as far as what it says can be true: a DirectForce
-// that is not finite is refused (said and counted, not rendered), and an acknowledgement of
+// that is not finite is refused (said and counted, not rendered), an acknowledgement of
 // samples past the last one sent is not believed (the samples it would let the client forget
-// are kept). The server here is a participant of the test's own that answers the OPEN, in a
-// domain (by PID) and partition of its own, on loopback.
+// are kept), a flood of models it refuses is counted and said only a few times, and event text
+// reaches the student's terminal without control characters. The server here is a participant
+// of the test's own that answers the OPEN, in a domain (by PID) and partition of its own, on
+// loopback.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -19,6 +21,7 @@
 #include "telehand/client/link/client_link.h"
 #include "telehand/client/loop/haptic_loop.h"
 #include "telehand/core/clock.h"
+#include "telehand/core/printable.h"
 #include "telehand/devices/simulated_mf2.h"
 #include "telehand/protocol/dds.h"
 #include "telehand/protocol/wire.h"
@@ -44,7 +47,9 @@ struct FakeServer {
         topics(participant),
         commands(participant, topics.session_command, dds::qos::sessionCommand()),
         status(participant, topics.session_status, dds::qos::sessionStatus()),
-        forces(participant, topics.direct_force, dds::qos::directForce(64)) {}
+        forces(participant, topics.direct_force, dds::qos::directForce(64)),
+        models(participant, topics.joint_model, dds::qos::jointModel().keepLast(1024)),
+        events(participant, topics.session_event, dds::qos::sessionEvent()) {}
 
   /// Answers the first OPEN within `timeout`; false when none came.
   bool answerOpen(std::chrono::milliseconds timeout) {
@@ -86,8 +91,29 @@ struct FakeServer {
   dds::Topics topics;
   dds::Reader<telehand_msg_SessionCommand> commands;
   dds::Writer<telehand_msg_SessionStatus> status;
+  void sendModel(const JointModelParams& p, uint32_t version) {
+    telehand_msg_JointModel m{};
+    JointModelParams v = p;
+    v.version = version;
+    toWire(v, kSession, m);
+    ASSERT_EQ(models.write(m), DDS_RETCODE_OK);
+  }
+  void sendEvent(telehand_msg_EventKind kind, uint64_t from_client, const std::string& text) {
+    telehand_msg_SessionEvent e{};
+    e.session_id = kSession;
+    e.seq = ++event_seq;
+    e.source_time_ns = wallNs();
+    e.kind = kind;
+    e.client_id = from_client;
+    copyString(e.text, text);
+    ASSERT_EQ(events.write(e), DDS_RETCODE_OK);
+  }
+
   dds::Writer<telehand_msg_DirectForce> forces;
+  dds::Writer<telehand_msg_JointModel> models;
+  dds::Writer<telehand_msg_SessionEvent> events;
   uint64_t client_id = 0;
+  uint64_t event_seq = 0;
 };
 
 class LinkRefusalsTest : public ::testing::Test {
@@ -178,6 +204,126 @@ TEST_F(LinkRefusalsTest, AnAcknowledgementPastWhatWasSentIsNotBelieved) {
   EXPECT_TRUE(waitFor([&] { return st.stored_below.load() == 1; }));
   EXPECT_EQ(st.acks_rejected.load(), 1u);
   link_->stop();
+}
+
+TEST_F(LinkRefusalsTest, AFloodOfRefusedModelsIsCountedAndSaidAFewTimes) {
+  const auto o = options("models");
+  FakeServer server(o);
+  ASSERT_NO_FATAL_FAILURE(openOn(server, o));
+  ASSERT_TRUE(waitFor([&] { return server.models.matchedReaders() > 0; }));
+  const auto& st = link_->stats();
+
+  // A server that sends a model whose flexion force falls with the angle, again and again.
+  JointModelParams bad = healthyIndexMcp();
+  bad.axes[kFlexion].coeffs = {0.0, 0.0, -0.05, 0.0};
+  constexpr uint32_t kSent = 1000;
+  for (uint32_t v = 1; v <= kSent; ++v) {
+    ASSERT_NO_FATAL_FAILURE(server.sendModel(bad, v));
+    // The link's reader keeps 256 unread: sent in steps it takes.
+    if (v % 100 == 0) {
+      ASSERT_TRUE(waitFor([&] { return st.models_rejected.load() == v; })) << v;
+    }
+  }
+  ASSERT_TRUE(waitFor([&] { return st.models_rejected.load() == kSent; }))
+      << st.models_rejected.load();
+  EXPECT_EQ(st.models_received.load(), 0u);
+  // A good model after them is taken: the link went on listening.
+  ASSERT_NO_FATAL_FAILURE(server.sendModel(healthyIndexMcp(), kSent + 1));
+  EXPECT_TRUE(waitFor([&] { return st.models_received.load() == 1; }));
+  link_->stop();
+
+  const auto said = link_->takeMessages();
+  EXPECT_LE(said.size(), 257u);
+  std::size_t refusals = 0;
+  for (const auto& m : said) {
+    if (m.find("rejected JointModel") == std::string::npos) continue;
+    ++refusals;
+    EXPECT_NE(m.find("flexion"), std::string::npos) << m;
+  }
+  EXPECT_GT(refusals, 0u);
+  EXPECT_LE(refusals, 8u) << "said only for the first few";
+  ASSERT_FALSE(said.empty());
+  bool counted = false;
+  for (const auto& m : said) counted = counted || m.find("counted, not said") != std::string::npos;
+  EXPECT_TRUE(counted);
+}
+
+TEST_F(LinkRefusalsTest, MarksAndErrorsArriveWithoutControlCharacters) {
+  const auto o = options("marks");
+  FakeServer server(o);
+  ASSERT_NO_FATAL_FAILURE(openOn(server, o));
+  ASSERT_TRUE(waitFor([&] { return server.events.matchedReaders() > 0; }));
+
+  // A supervisor's mark that would clear the student's terminal and ring its bell.
+  server.sendEvent(telehand_msg_EVENT_MARK, server.client_id + 1,
+                   "good\x1b[2J\x1b[H grip\x07 \xc2\x9b"
+                   "2J 12 \xc2\xb1 1 N");
+  ASSERT_TRUE(waitFor([&] { return saidSomething("mark: good"); }));
+  // An error naming what a client sent (a case name, say) is shown the same way.
+  server.sendEvent(telehand_msg_EVENT_ERROR, server.client_id,
+                   "unknown patient case '\x1b]0;x\x07'");
+  ASSERT_TRUE(waitFor([&] { return saidSomething("unknown patient case"); }));
+  link_->stop();
+  saidSomething("");
+  bool mark_seen = false;
+  for (const auto& m : said_) {
+    for (char c : m) {
+      const auto u = static_cast<unsigned char>(c);
+      EXPECT_TRUE(u >= 0x20 && u != 0x7f) << "control character " << int{u} << " in: " << m;
+    }
+    EXPECT_EQ(m.find("\xc2\x9b"), std::string::npos) << m;
+    if (m.starts_with("mark: ")) {
+      mark_seen = true;
+      EXPECT_EQ(m, "mark: good?[2J?[H grip? ?2J 12 \xc2\xb1 1 N");
+    }
+  }
+  EXPECT_TRUE(mark_seen);
+}
+
+TEST_F(LinkRefusalsTest, TheMessageListIsBoundedAndSaysWhatItDropped) {
+  const auto o = options("bounded");
+  FakeServer server(o);
+  ASSERT_NO_FATAL_FAILURE(openOn(server, o));
+  ASSERT_TRUE(waitFor([&] { return server.events.matchedReaders() > 0; }));
+  // More errors than the list keeps, none read in between (the link's reader keeps 64 unread:
+  // sent in steps it takes).
+  constexpr int kSent = 300;
+  for (int i = 0; i < kSent; ++i) {
+    ASSERT_NO_FATAL_FAILURE(
+        server.sendEvent(telehand_msg_EVENT_ERROR, server.client_id, "error " + std::to_string(i)));
+    if (i % 16 == 15) std::this_thread::sleep_for(30ms);
+  }
+  std::this_thread::sleep_for(200ms);
+  link_->stop();
+  const auto said = link_->takeMessages();
+  ASSERT_EQ(said.size(), 257u);
+  EXPECT_EQ(said.front(), "error 0");
+  EXPECT_EQ(said[255], "error 255");
+  EXPECT_EQ(said.back(), "44 more message(s) not kept: at most 256 are kept between reads");
+  // Read, the list starts again.
+  EXPECT_TRUE(link_->takeMessages().empty());
+}
+
+TEST(Printable, ControlCharactersBecomeQuestionMarksAndTextStays) {
+  EXPECT_EQ(printable("plain text, 12-16 N"), "plain text, 12-16 N");
+  EXPECT_EQ(printable(std::string("\x1b[2Jcleared\r\n\t\x7f")), "?[2Jcleared????");
+  // UTF-8 stays; C1 controls (U+0080..U+009F) and bytes of no UTF-8 character do not.
+  EXPECT_EQ(printable("\xc2\xb1 3 \xc2\xb0, caf\xc3\xa9, \xe2\x80\x94, \xf0\x9f\x91\x8d"),
+            "\xc2\xb1 3 \xc2\xb0, caf\xc3\xa9, \xe2\x80\x94, \xf0\x9f\x91\x8d");
+  EXPECT_EQ(printable("a\xc2\x9b"
+                      "2Jb"),
+            "a?2Jb");
+  EXPECT_EQ(printable("a\x9b"
+                      "2Jb"),
+            "a?2Jb");                                     // a lone 8-bit CSI
+  EXPECT_EQ(printable("\xc0\x9b\xe0\x82\x9b"), "?????");  // overlong forms
+  EXPECT_EQ(printable("\xed\xa0\x80"), "???");            // a surrogate
+  EXPECT_EQ(printable("end\xe2\x80"), "end??");           // cut short
+  // A fixed-size field: up to its first NUL, never past its end.
+  const char field[8] = {'a', 'b', '\x1b', 'c', 'd', 'e', 'f', 'g'};
+  EXPECT_EQ(printable(field), "ab?cdefg");
+  const char short_field[8] = "ok";
+  EXPECT_EQ(printable(short_field), "ok");
 }
 
 }  // namespace

@@ -1,11 +1,17 @@
 // The data-driven joint model: FLANN k-nearest-neighbour regression over captured samples.
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <numbers>
 #include <random>
+#include <span>
+#include <string>
+#include <vector>
 
 #include "telehand/core/error.h"
 #include "telehand/core/joint_model.h"
 #include "telehand/core/knn_model.h"
+#include "telehand/protocol/wire.h"
 
 namespace telehand {
 namespace {
@@ -89,6 +95,84 @@ TEST(KnnTorqueModel, VoxelAverageMeansPerCell) {
   ASSERT_EQ(v.size(), 1u);
   EXPECT_NEAR(v[0].torque_nm[0], 4.5, 1e-12);
   EXPECT_NEAR(radToDeg(v[0].angles_rad[0]), 0.95, 1e-9);
+}
+
+TEST(KnnModelWire, AModelFillingTheHealthyRangeFitsUnderTheCap) {
+  // The largest model a capture of the healthy joint gives: every cell of its range of motion
+  // (as the live refit averages them: KnnOptions' cells, at least 3 samples each) filled.
+  const JointModelParams h = healthyIndexMcp();
+  const Vec3 cell = KnnOptions{}.cell_deg;
+  std::vector<KnnPoint> raw;
+  auto centres = [&](int axis) {
+    std::vector<double> out;
+    const CubicCurve& c = h.axes[static_cast<std::size_t>(axis)];
+    for (double d = c.min_deg + 0.5 * cell[axis]; d < c.max_deg; d += cell[axis]) {
+      out.push_back(degToRad(d));
+    }
+    return out;
+  };
+  for (double f : centres(kFlexion)) {
+    for (double b : centres(kAbduction)) {
+      for (double g : centres(kAxial)) {
+        Vec3 a;
+        a[kFlexion] = f;
+        a[kAbduction] = b;
+        a[kAxial] = g;
+        for (int k = 0; k < 3; ++k) raw.push_back({a, -0.01 * a});
+      }
+    }
+  }
+  const auto cells = voxelAverage(raw, cell, 3);
+  EXPECT_EQ(cells.size(), 45u * 40u * 25u);
+  EXPECT_LT(cells.size(), kMaxKnnSamples);
+  const KnnTorqueModel model(cells);
+  std::vector<telehand_msg_KnnSample> storage;
+  telehand_msg_KnnModel w{};
+  toWire(model, 1, 2, storage, w);
+  std::string why;
+  const auto back = fromWire(w, &why);
+  ASSERT_NE(back, nullptr) << why;
+  EXPECT_EQ(back->size(), cells.size());
+}
+
+TEST(KnnModelWire, FromWireRefusesTooManySamplesAndAnglesBeyondPi) {
+  using ::testing::AllOf;
+  using ::testing::HasSubstr;
+  std::vector<telehand_msg_KnnSample> samples(kMaxKnnSamples + 1);
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    samples[i].angles_rad[kFlexion] = 1e-5f * static_cast<float>(i);
+  }
+  telehand_msg_KnnModel w{};
+  w.k = 8;
+  borrowSequence(w.samples, std::span<telehand_msg_KnnSample>(samples));
+  std::string why;
+  EXPECT_EQ(fromWire(w, &why), nullptr);
+  EXPECT_THAT(why, AllOf(HasSubstr("65537 samples"), HasSubstr("65536")));
+
+  // At the cap it is taken.
+  borrowSequence(w.samples, std::span<telehand_msg_KnnSample>(samples.data(), kMaxKnnSamples));
+  why.clear();
+  EXPECT_NE(fromWire(w, &why), nullptr) << why;
+
+  // Angles are Euler angles: ±π (as a float holds it) is the furthest one may be.
+  samples.assign(4, telehand_msg_KnnSample{});
+  for (int axis = 0; axis < kAxes; ++axis) {
+    const std::string name(kAxisNames[static_cast<std::size_t>(axis)]);
+    for (float edge : {std::numbers::pi_v<float>, -std::numbers::pi_v<float>}) {
+      samples[2].angles_rad[axis] = edge;
+      borrowSequence(w.samples, std::span<telehand_msg_KnnSample>(samples));
+      why.clear();
+      EXPECT_NE(fromWire(w, &why), nullptr) << name << " " << edge << ": " << why;
+    }
+    for (float bad : {3.2f, -3.2f, 1e30f}) {
+      samples[2].angles_rad[axis] = bad;
+      borrowSequence(w.samples, std::span<telehand_msg_KnnSample>(samples));
+      why.clear();
+      EXPECT_EQ(fromWire(w, &why), nullptr) << name << " " << bad;
+      EXPECT_THAT(why, AllOf(HasSubstr("sample 2"), HasSubstr(name), HasSubstr("beyond ±π")));
+    }
+    samples[2].angles_rad[axis] = 0.0f;
+  }
 }
 
 TEST(KnnTorqueModel, JointModelRendersItWithWallsAndDamping) {

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -451,6 +452,30 @@ TEST(PatientCaseFile, ForceThatFallsWithTheAngleIsRejected) {
               AllOf(HasSubstr("bad.toml"), HasSubstr("abduction.coeffs")));
 }
 
+TEST(PatientCaseFile, ForceNoJointHoldsIsRejected) {
+  // Rising everywhere, and 1e306 N/deg³: the holding force overflows.
+  EXPECT_THAT(caseError(replaced(validCase(), "coeffs = [1.834e-5, 0.0010338, 0.046382, 0.59057]",
+                                 "coeffs = [1e306, 0.0010338, 0.046382, 0.59057]")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("flexion.coeffs"), HasSubstr("1000 N")));
+  // 1200 N at 90 deg flexion: the stiffest joint a case holds takes about a tenth of it.
+  EXPECT_THAT(caseError(replaced(validCase(), "coeffs = [1.834e-5, 0.0010338, 0.046382, 0.59057]",
+                                 "coeffs = [0.0, 0.0, 10.0, 300.0]")),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("flexion.coeffs"), HasSubstr("1200 N")));
+  // The shipped cases and random ones are far inside the bound.
+  for (const auto& name : listPatientCases(kCasesDir)) {
+    const PatientCase pc = load(name);
+    for (const CubicCurve& c : pc.model.axes) EXPECT_EQ(passiveCurveProblem(c), std::nullopt);
+  }
+  for (uint64_t seed = 1; seed <= 200; ++seed) {
+    const PatientCase pc = randomPatientCase(seed);
+    for (const CubicCurve& c : pc.model.axes) {
+      EXPECT_LT(std::max(std::abs(c.eval(c.min_deg)), std::abs(c.eval(c.max_deg))),
+                0.2 * kMaxHoldingForceN)
+          << seed;
+    }
+  }
+}
+
 // --- The web ([tissue]) ---------------------------------------------------------------------
 
 TEST(PatientCases, MassageCasesCarryTheirWebOnTheHealthyJoint) {
@@ -548,6 +573,17 @@ TEST(PatientCaseFile, RecoveryMustContainTheStartingRanges) {
               AllOf(HasSubstr("bad.toml"), HasSubstr("recovery.final_max_deg (flexion)")));
   EXPECT_THAT(caseError(narrow + replaced(kRecovery, "[-45.0,", "[-95.0,")),
               AllOf(HasSubstr("bad.toml"), HasSubstr("recovery.final_min_deg (flexion)")));
+  // The curve goes to the client over every range on the way to the final ones: it must rise
+  // over the widest. Axial 0.3 a - a³/1500 rises over -10..12 and falls past 12.25 deg.
+  const std::string turning = replaced(narrow,
+                                       "coeffs = [0.0014, -0.014, 0.65, 0.09]\n"
+                                       "min_deg = -10.0\nmax_deg = 15.0",
+                                       "coeffs = [-0.000666666666667, 0.0, 0.3, 0.0]\n"
+                                       "min_deg = -10.0\nmax_deg = 12.0");
+  EXPECT_NO_THROW(parsePatientCase(turning, "good.toml"));
+  EXPECT_THAT(caseError(turning + kRecovery),
+              AllOf(HasSubstr("bad.toml"), HasSubstr("axial.coeffs"), HasSubstr("recovery"),
+                    HasSubstr("falls at 15 deg")));
 }
 
 /// A fresh directory of case files per test, removed afterwards.
@@ -721,6 +757,54 @@ TEST(PatientCaseWire, FromWireRejectsBadNeutralZonesAndSpeedGains) {
   }
 }
 
+TEST(PatientCaseWire, FromWireRefusesCurvesNoPassiveJointHas) {
+  telehand_msg_JointModel good{};
+  toWire(load("lax").model, 1, good);
+  std::string why;
+  ASSERT_TRUE(fromWire(good, &why).has_value()) << why;
+  for (int axis = 0; axis < kAxes; ++axis) {
+    const std::string name(kAxisNames[static_cast<std::size_t>(axis)]);
+    SCOPED_TRACE(name);
+    // A force that falls as the angle grows: the case file refuses it, and so does the wire.
+    telehand_msg_JointModel w = good;
+    const double falling[4] = {0.0, 0.0, -0.05, 0.0};
+    for (int c = 0; c < 4; ++c) w.axes[axis].coeffs[c] = falling[c];
+    why.clear();
+    EXPECT_FALSE(fromWire(w, &why).has_value());
+    EXPECT_THAT(why, AllOf(HasSubstr(name), HasSubstr("falls"), HasSubstr("rise with the angle")));
+    // A flat one resists nothing.
+    const double flat[4] = {0.0, 0.0, 0.0, 0.5};
+    for (int c = 0; c < 4; ++c) w.axes[axis].coeffs[c] = flat[c];
+    why.clear();
+    EXPECT_FALSE(fromWire(w, &why).has_value());
+    EXPECT_THAT(why, AllOf(HasSubstr(name), HasSubstr("falls")));
+    // Finite, rising where its slope is least, and holding no force a joint has: refused
+    // before a device renders it.
+    w = good;
+    w.axes[axis].coeffs[0] = 1e306;
+    why.clear();
+    EXPECT_FALSE(fromWire(w, &why).has_value());
+    EXPECT_THAT(why, AllOf(HasSubstr(name), HasSubstr("beyond the 1000 N")));
+    // The bound is kMaxHoldingForceN at either end of the range (lax: ±25 deg abduction...):
+    // a line of 1 N/deg through the range's middle, shifted to just under and just over it.
+    const double lo = w.axes[axis].min_deg, hi = w.axes[axis].max_deg;
+    const double half = 0.5 * (hi - lo), mid = 0.5 * (hi + lo);
+    for (double sign : {1.0, -1.0}) {
+      for (double past : {-0.5, 0.5}) {
+        telehand_msg_JointModel b = good;
+        const double offset = sign * (kMaxHoldingForceN - half + past);
+        const double line[4] = {0.0, 0.0, 1.0, offset - mid};
+        for (int c = 0; c < 4; ++c) b.axes[axis].coeffs[c] = line[c];
+        why.clear();
+        EXPECT_EQ(fromWire(b, &why).has_value(), past < 0.0) << sign << " " << past << ": " << why;
+        if (past > 0.0) {
+          EXPECT_THAT(why, AllOf(HasSubstr(name), HasSubstr("N at")));
+        }
+      }
+    }
+  }
+}
+
 TEST(PatientCaseWire, FromWireRefusesRangesNoPatientCaseMayHave) {
   telehand_msg_JointModel good{};
   toWire(load("stiff").model, 1, good);
@@ -747,10 +831,14 @@ TEST(PatientCaseWire, FromWireRefusesRangesNoPatientCaseMayHave) {
       EXPECT_FALSE(fromWire(w, &why).has_value()) << name << " max_deg " << bad;
       EXPECT_THAT(why, AllOf(HasSubstr(name), HasSubstr("max_deg"))) << bad;
     }
-    // The bounds themselves are a patient case's, and pass.
+    // The bounds themselves are a patient case's, and pass. The curve is made a gentle line
+    // (±60 N at the bounds) so that only the range is at stake: stiff's axial cubic carried
+    // out to -90 deg would hold over 2000 N, past kMaxHoldingForceN.
     telehand_msg_JointModel edge = good;
     edge.axes[axis].min_deg = kRangeMinDegBounds.lo;
     edge.axes[axis].max_deg = kRangeMaxDegBounds.hi;
+    const double gentle[4] = {0.0, 0.0, 0.5, 0.0};
+    for (int c = 0; c < 4; ++c) edge.axes[axis].coeffs[c] = gentle[c];
     why.clear();
     EXPECT_TRUE(fromWire(edge, &why).has_value()) << name << ": " << why;
   }

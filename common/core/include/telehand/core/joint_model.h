@@ -16,6 +16,8 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <optional>
+#include <string>
 #include <string_view>
 
 #include "telehand/core/math.h"
@@ -42,6 +44,21 @@ struct CubicCurve {
 
   bool operator==(const CubicCurve&) const = default;
 };
+
+/// Largest holding force (N at the lever arm, reference scale) a curve may reach anywhere in
+/// its [min_deg, max_deg]. The strongest joint a patient case or a random case holds takes
+/// about 120 N (eqs. 3-5 at 3.6 times their stiffness, at 100 deg flexion), and a capture fit
+/// follows the forces a hand applied; 1000 N leaves a wide margin above any real MCP joint and
+/// still refuses a curve whose force is absurd (or not finite) before it reaches a device.
+constexpr double kMaxHoldingForceN = 1000.0;
+
+/// Why `curve` is no passive joint's holding force, or nullopt when it is one: its force must
+/// rise with the angle everywhere in [min_deg, max_deg] (a joint resists being moved; the
+/// least slope, at a range end or at the slope's vertex, must be positive and finite), and its
+/// magnitude must stay within kMaxHoldingForceN there. The reason names the angle and the value
+/// at fault; callers add which axis or file it is. A patient case (config) and a JointModel
+/// from the network (wire) are held to it; the live refit publishes only curves that rise.
+std::optional<std::string> passiveCurveProblem(const CubicCurve& curve);
 
 /// A closed interval of angles, degrees; holds no NaN.
 struct DegreeBounds {

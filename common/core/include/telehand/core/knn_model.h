@@ -9,6 +9,7 @@
 /// search bounds its pruning loosely: it finds the exact neighbours for about 98 % of
 /// queries and near ones otherwise; FLANN's exact single-index tree allocates per query.)
 /// One thread queries a given instance (it keeps its search buffers).
+#include <cstddef>
 #include <memory>
 #include <span>
 #include <vector>
@@ -28,6 +29,14 @@ struct KnnOptions {
   /// abduction or axial rotation); also the cell size of voxelAverage().
   Vec3 cell_deg = Vec3(3.0, 1.0, 1.0);
 };
+
+/// Most samples a model from the network may hold (a KnnModel on the wire is refused beyond
+/// it, before anything is allocated for it). The server's samples are the capture's cells
+/// (voxelAverage with the default cell_deg) holding at least a few samples: the whole range of
+/// the healthy joint is 45 x 40 x 25 = 45,000 cells (the lax case's 55 x 50 x 30 = 82,500), and
+/// a capture, which sweeps the axes rather than filling the volume, fills a small share of it
+/// (a coupled joint's: 998 cells from 45,000 samples).
+constexpr std::size_t kMaxKnnSamples = 65'536;
 
 class KnnTorqueModel {
  public:

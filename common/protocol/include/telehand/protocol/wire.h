@@ -34,7 +34,8 @@ telehand_msg_SessionCommand sessionCommand(telehand_msg_CommandKind kind, uint64
 /// Fill a wire JointModel for `session_id` from model parameters.
 void toWire(const JointModelParams& p, uint64_t session_id, telehand_msg_JointModel& out);
 /// Parameters from a wire JointModel; nullopt with `why` set when a field is not finite or
-/// a range is empty.
+/// out of its bounds, a range is empty, or an axis' curve is no passive joint's
+/// (passiveCurveProblem: a force that falls somewhere in range, or beyond kMaxHoldingForceN).
 std::optional<JointModelParams> fromWire(const telehand_msg_JointModel& m, std::string* why);
 
 /// A recorded tick as a wire DeviceState, and back: field by field, nothing checked (the
@@ -71,7 +72,8 @@ std::vector<Sample> samplesFromWire(const telehand_msg_RecordChunk& c);
 void toWire(const KnnTorqueModel& m, uint64_t session_id, uint32_t version,
             std::vector<telehand_msg_KnnSample>& storage, telehand_msg_KnnModel& out);
 /// The model a wire KnnModel describes (k clamped to [1, 64]); null with `why` set when it
-/// has no samples, a sample is not finite, or the index cannot be built. Allocates.
+/// has no samples or more than kMaxKnnSamples, a sample is not finite or has an angle beyond
+/// ±π, or the index cannot be built. Allocates.
 std::unique_ptr<const KnnTorqueModel> fromWire(const telehand_msg_KnnModel& k, std::string* why);
 
 /// Everything a HandState says, as plain values; toWire packs it.

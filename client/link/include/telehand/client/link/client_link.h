@@ -133,11 +133,17 @@ class ClientLink {
   /// Notice a server that went away and ask (again) for the session to be resumed.
   void watchServer();
   void beginResume(const std::string& why);
+  /// Adds a line for takeMessages; beyond kMessagesKept unread lines, only counted (and the
+  /// count said as one more line).
   void message(std::string text);
+  static constexpr std::size_t kMessagesKept = 256;
   /// Counts a refusal in `refused`; true for the first kRefusalsSaid, which are said
   /// (message), so that a flood is counted rather than said line by line.
   static bool firstFew(std::atomic<uint64_t>& refused);
   static constexpr uint64_t kRefusalsSaid = 8;
+  /// A model (`what`: a JointModel or its k-nearest-neighbour samples) refused: counted in
+  /// models_rejected, said for the first few (firstFew).
+  void modelRejected(const std::string& what, uint32_t version, const std::string& why);
   void pollModels();
   void pollEvents();
   void pollDirectForces();
@@ -187,6 +193,7 @@ class ClientLink {
   SampleDigest record_digest_;  // the link thread's
   std::mutex messages_mu_;
   std::vector<std::string> messages_;
+  uint64_t messages_dropped_ = 0;    // under messages_mu_: lines past kMessagesKept
   std::vector<std::string> scores_;  // under messages_mu_
   std::string lesson_plan_;
   OpenRequest opened_;  // what the session was opened with (asked again on a resume)
