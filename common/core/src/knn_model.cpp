@@ -101,4 +101,17 @@ std::vector<KnnPoint> voxelAverage(std::span<const KnnPoint> points, const Vec3&
   return out;
 }
 
+std::vector<KnnPoint> voxelAverageAtMost(std::span<const KnnPoint> points, const Vec3& cell_deg,
+                                         std::size_t min_count, std::size_t max_points,
+                                         Vec3* cell_used) {
+  Vec3 cell = cell_deg;
+  std::vector<KnnPoint> out = voxelAverage(points, cell, min_count);
+  while (out.size() > max_points) {
+    cell *= 1.25;
+    out = voxelAverage(points, cell, min_count);
+  }
+  if (cell_used) *cell_used = cell;
+  return out;
+}
+
 }  // namespace telehand

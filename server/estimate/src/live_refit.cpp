@@ -91,7 +91,8 @@ std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
   std::vector<KnnPoint> raw;
   raw.reserve(fitter_.points().size());
   for (const auto& p : fitter_.points()) raw.push_back({p.angles_rad, -p.axis_force_n * lever_m_});
-  u.knn_points = voxelAverage(raw, options_.knn.cell_deg, options_.knn_min_count);
+  // A client takes at most kMaxKnnSamples: a capture over more cells is sent coarser.
+  u.knn_points = voxelAverageAtMost(raw, options_.knn.cell_deg, options_.knn_min_count);
   u.newest_arrival_ns = newest_arrival_ns_;
   published_ = u.params;
   return u;

@@ -201,5 +201,33 @@ TEST(KnnTorqueModel, JointModelRendersItWithWallsAndDamping) {
               -0.02 - 0.02, 1e-12);
 }
 
+// A capture spread over more cells than a client takes is sent coarser, never refused: a grid
+// of 70,000 cells of 3 samples each, the torque a linear spring's.
+TEST(KnnTorqueModel, ACaptureOverMoreCellsThanAClientTakesIsSentCoarser) {
+  const Vec3 cell = KnnOptions{}.cell_deg;
+  std::vector<KnnPoint> raw;
+  for (int i = 0; i < 70; ++i) {
+    for (int j = 0; j < 40; ++j) {
+      for (int k = 0; k < 25; ++k) {
+        const Vec3 deg((i + 0.5) * cell.x() - 60.0, (j + 0.5) * cell.y() - 20.0,
+                       (k + 0.5) * cell.z() - 12.0);
+        const Vec3 rad = deg.unaryExpr([](double d) { return degToRad(d); });
+        for (int n = 0; n < 3; ++n) raw.push_back({rad, -0.01 * rad});
+      }
+    }
+  }
+  ASSERT_EQ(voxelAverage(raw, cell, 3).size(), 70'000u);
+  Vec3 used = Vec3::Zero();
+  const auto sent = voxelAverageAtMost(raw, cell, 3, kMaxKnnSamples, &used);
+  EXPECT_LE(sent.size(), kMaxKnnSamples);
+  EXPECT_GT(sent.size(), kMaxKnnSamples / 4) << "no coarser than it must be";
+  EXPECT_GT(used.x(), cell.x());
+  for (const auto& p : sent) {
+    for (int a = 0; a < kAxes; ++a) EXPECT_NEAR(p.torque_nm[a], -0.01 * p.angles_rad[a], 1e-12);
+  }
+  // Under the bound, the cells as they were.
+  EXPECT_EQ(voxelAverageAtMost(raw, cell, 3, 70'000).size(), 70'000u);
+}
+
 }  // namespace
 }  // namespace telehand

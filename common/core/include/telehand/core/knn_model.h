@@ -65,4 +65,12 @@ class KnnTorqueModel {
 std::vector<KnnPoint> voxelAverage(std::span<const KnnPoint> points, const Vec3& cell_deg,
                                    std::size_t min_count = 3);
 
+/// voxelAverage, with the cells widened (by a quarter at a time) until at most `max_points`
+/// hold enough points: what the server sends a client, which refuses more than
+/// kMaxKnnSamples. `cell_used`, if given, gets the cell size taken.
+std::vector<KnnPoint> voxelAverageAtMost(std::span<const KnnPoint> points, const Vec3& cell_deg,
+                                         std::size_t min_count,
+                                         std::size_t max_points = kMaxKnnSamples,
+                                         Vec3* cell_used = nullptr);
+
 }  // namespace telehand
