@@ -3,12 +3,15 @@
 // watch, guided trial, attempts, reassessment) while a supervisor replays the demonstration;
 // then the record is checked end to end and the report written. Stopped by PID, reaped.
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 
 #include <algorithm>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <regex>
 #include <sstream>
+#include <vector>
 
 #include "process.h"
 #include "process_test.h"
@@ -19,6 +22,33 @@ namespace {
 
 using namespace std::chrono_literals;
 using server::store::SqliteStore;
+
+/// Runs `sql` on the SQLite file `db` (bound to `args` in order); the rows it changed.
+int64_t sqlite(const std::string& db, const std::string& sql, std::vector<int64_t> args = {},
+               int flags = SQLITE_OPEN_READWRITE) {
+  sqlite3* c = nullptr;
+  int64_t changed = -1;
+  if (sqlite3_open_v2(db.c_str(), &c, flags, nullptr) == SQLITE_OK) {
+    sqlite3_stmt* st = nullptr;
+    if (sqlite3_prepare_v2(c, sql.c_str(), -1, &st, nullptr) == SQLITE_OK) {
+      for (std::size_t i = 0; i < args.size(); ++i) {
+        sqlite3_bind_int64(st, static_cast<int>(i + 1), args[i]);
+      }
+      if (sqlite3_step(st) == SQLITE_DONE) changed = sqlite3_changes(c);
+    }
+    sqlite3_finalize(st);
+  }
+  EXPECT_GE(changed, 0) << sql << ": " << sqlite3_errmsg(c);
+  sqlite3_close(c);
+  return changed;
+}
+
+std::string readFile(const std::string& path) {
+  std::ifstream f(path);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
 
 class LessonRunTest : public ProcessTest {
  protected:
@@ -135,6 +165,68 @@ TEST_F(LessonRunTest, ClinicianDemonstratesStudentRunsItAndTheRecordHoldsTheLess
   // The only run in the record: nothing earlier in the student's learning curve.
   EXPECT_NE(report.output().find("0 runs in the learning curve"), std::string::npos)
       << report.output();
+  EXPECT_NE(report.output().find("(3 trials, "), std::string::npos) << report.output();
+  EXPECT_EQ(report.output().find("missing"), std::string::npos) << report.output();
+  EXPECT_EQ(report.output().find("warning"), std::string::npos) << report.output();
+
+  // The report of a copy of the record that lacks trial 2's samples and 1000 of trial 3's:
+  // trial 2 keeps its row, not in the record and not scored; trial 3 is scored on the rest
+  // saying how many it lacks; a warning names both; exit 3, the record not complete.
+  {
+    const std::string copy = path("damaged.db");
+    sqlite(db, "VACUUM INTO '" + copy + "'", {}, SQLITE_OPEN_READONLY);
+    const auto& gone = trials[1];
+    const auto& gaps = trials[2];
+    const int64_t r = static_cast<int64_t>(run);
+    EXPECT_EQ(
+        sqlite(copy, "DELETE FROM samples WHERE session_id = ? AND seq BETWEEN ? AND ?",
+               {r, static_cast<int64_t>(gone.first_seq), static_cast<int64_t>(gone.last_seq)}),
+        static_cast<int64_t>(gone.last_seq - gone.first_seq + 1));
+    const auto gap_from = static_cast<int64_t>(gaps.first_seq + 1000);
+    EXPECT_EQ(sqlite(copy, "DELETE FROM samples WHERE session_id = ? AND seq BETWEEN ? AND ?",
+                     {r, gap_from, gap_from + 999}),
+              1000);
+    const std::string gone_note = "not in the record (0 of " +
+                                  std::to_string(gone.last_seq - gone.first_seq + 1) + " samples)";
+    const std::string gaps_note =
+        "1000 of " + std::to_string(gaps.last_seq - gaps.first_seq + 1) + " samples missing";
+    Process damaged({TELEHAND_RECORDS_BIN, "--db", copy, "report", std::to_string(run), "-o",
+                     path("report-damaged")},
+                    path("report-damaged.log"));
+    EXPECT_EQ(damaged.wait(30s), 3) << damaged.output();
+    const std::string said = damaged.output();
+    for (const std::string& want :
+         {std::string("(3 trials, 1 not scored, "), "  trial 2 (attempt): " + gone_note + "\n",
+          "  trial 3 (attempt): " + gaps_note + "\n",
+          "warning: the record of session " + std::to_string(run) +
+              " lacks samples of trials 2, 3 (trial 2: " + gone_note +
+              ", not scored; trial 3: " + gaps_note + ", scored on the rest)"}) {
+      EXPECT_NE(said.find(want), std::string::npos) << want << "\n" << said;
+    }
+    const std::string damaged_base = path("report-damaged") + "/lesson-" + std::to_string(lesson) +
+                                     "-session-" + std::to_string(run);
+    const std::string page_text = readFile(damaged_base + ".html");
+    EXPECT_NE(page_text.find("<td>" + gone_note + "</td><td colspan=\"9\">not scored</td>"),
+              std::string::npos);
+    EXPECT_NE(page_text.find("<td>" + gaps_note + "</td>"), std::string::npos);
+    EXPECT_NE(page_text.find("id=\"force-2\""), std::string::npos);
+    EXPECT_EQ(page_text.find("id=\"force-1\""), std::string::npos);
+    // The scores CSV: three rows, trial 2's with no score (not 0) and its note, trial 3's
+    // with a score and its missing count.
+    std::istringstream scores(readFile(damaged_base + "-scores.csv"));
+    std::vector<std::string> lines;
+    for (std::string l; std::getline(scores, l);) lines.push_back(l);
+    ASSERT_EQ(lines.size(), 4u) << "a header and three trials";
+    EXPECT_NE(lines[0].find(",overall,samples_expected,samples_missing,note"), std::string::npos)
+        << lines[0];
+    EXPECT_NE(lines[2].find(",,," + std::to_string(gone.last_seq - gone.first_seq + 1) + "," +
+                            std::to_string(gone.last_seq - gone.first_seq + 1) + "," + gone_note),
+              std::string::npos)
+        << lines[2];
+    EXPECT_TRUE(
+        std::regex_search(lines[3], std::regex(",\\d+\\.\\d\\d,\\d+,1000," + gaps_note + "$")))
+        << lines[3];
+  }
 
   // The lesson as the record lists and shows it: its id, demonstration, plan, targets (those
   // `lesson create` derived) and its run.

@@ -126,6 +126,66 @@ std::vector<Sample> allSamples(SessionStore& store, uint64_t session) {
   return samplesIn(store, session, 0, UINT64_MAX);
 }
 
+/// A stored trial's samples: the valid ones (what it is scored on), and what the record holds
+/// of its stretch of sequence numbers against what that stretch should hold. A trial with
+/// under 2 valid samples is not scored.
+struct TrialRead {
+  std::vector<Sample> valid;
+  TrialSamples samples;
+};
+
+TrialRead readTrial(SessionStore& store, uint64_t session, const TrialRecord& t) {
+  TrialRead out;
+  out.samples.expected = t.last_seq >= t.first_seq ? t.last_seq - t.first_seq + 1 : 0;
+  store.forEachSampleIn(session, t.first_seq, t.last_seq, [&](const Sample& s, bool valid) {
+    ++out.samples.found;
+    if (valid) out.valid.push_back(s);
+  });
+  out.samples.scored = out.valid.size() >= 2;
+  return out;
+}
+
+/// Trials the record lacks samples of, as the report says them; empty when it has all.
+struct Shortfall {
+  std::string indices;  ///< "2, 3"
+  std::string lines;    ///< "  trial 2 (attempt): not in the record (0 of 4001 samples)\n"...
+  std::string details;  ///< "trial 2: not in the record (0 of 4001 samples), not scored; ..."
+  std::size_t trials = 0, not_scored = 0;
+};
+
+void addShortfall(Shortfall& f, int index, const std::string& label, const TrialSamples& s) {
+  if (s.missing() == 0 && s.scored) return;
+  const std::string sep = f.trials++ ? ", " : "";
+  f.indices += sep + std::to_string(index);
+  f.lines += "  " + label + ": " + s.note() + "\n";
+  std::string detail = "trial " + std::to_string(index) + ": " + s.note();
+  if (s.scored) {
+    detail += ", scored on the rest";
+  } else if (s.found == 0) {
+    detail += ", not scored";  // the note says so otherwise
+  }
+  f.details += (f.details.empty() ? "" : "; ") + detail;
+  if (!s.scored) ++f.not_scored;
+}
+
+/// The trial count of the summary line: "3 trials" or "3 trials, 1 not scored".
+std::string trialCount(std::size_t trials, const Shortfall& f) {
+  std::string text = std::to_string(trials) + " trials";
+  if (f.not_scored > 0) text += ", " + std::to_string(f.not_scored) + " not scored";
+  return text;
+}
+
+/// Once the report is written: 0 when the record holds every trial whole; else a warning
+/// naming the trials it lacks samples of, and 3, the record not complete (docs/manual.md,
+/// exit codes).
+int reportExit(uint64_t session, const Shortfall& f) {
+  if (f.trials == 0) return 0;
+  std::cerr << "telehand-records: warning: the record of session " << session
+            << " lacks samples of trial" << (f.trials > 1 ? "s " : " ") << f.indices << " ("
+            << f.details << "); the report says so (exit 3)\n";
+  return 3;
+}
+
 }  // namespace
 
 int runLessonCreate(const LessonRequest& r) {
@@ -268,23 +328,28 @@ int runReport(SessionStore& store, const ReportRequest& r) {
     in.subtitle = "massage run: session " + std::to_string(session) + " by " + info->user +
                   " on case " + info->case_name + " (" + info->state + "), " + lesson->schedule +
                   " feedback";
+    // Every stored trial keeps its row: one the record lacks samples of says how many.
+    Shortfall shortfall;
     for (const auto& t : store.trials(session)) {
       MassageReportTrial rt;
       rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
-      const auto samples = samplesIn(store, session, t.first_seq, t.last_seq);
-      if (samples.size() < 2) continue;
-      rt.series = technique::massageSeriesFromSamples(samples, scale);
-      rt.score =
-          technique::scoreMassage(rt.series, in.targets, in.web, server::lesson::kMassageSettleS);
+      TrialRead read = readTrial(store, session, t);
+      rt.samples = read.samples;
+      addShortfall(shortfall, t.index, rt.label, rt.samples);
+      if (rt.samples.scored) {
+        rt.series = technique::massageSeriesFromSamples(read.valid, scale);
+        rt.score =
+            technique::scoreMassage(rt.series, in.targets, in.web, server::lesson::kMassageSettleS);
+      }
       in.trials.push_back(std::move(rt));
     }
     in.history = learningHistory(store, info->user, session);
     writeFileAtomically(base + ".html", renderMassageReportHtml(in));
     writeFileAtomically(base + "-scores.csv", renderMassageScoresCsv(in));
-    std::cout << "report: " << base << ".html (massage, " << in.trials.size() << " trials, "
-              << in.history.size() << " runs in the learning curve)\nscores: " << base
-              << "-scores.csv\n";
-    return 0;
+    std::cout << "report: " << base << ".html (massage, " << trialCount(in.trials.size(), shortfall)
+              << ", " << in.history.size() << " runs in the learning curve)\n"
+              << shortfall.lines << "scores: " << base << "-scores.csv\n";
+    return reportExit(session, shortfall);
   }
   ReportInput in;
   in.targets = server::lesson::decodeTargets(lesson->targets);
@@ -295,14 +360,19 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   in.title = "Lesson " + std::to_string(lesson->id) + ": " + lesson->name;
   in.subtitle = "run: session " + std::to_string(session) + " by " + info->user + " on case " +
                 info->case_name + " (" + info->state + "), " + lesson->schedule + " feedback";
-  // Each trial scored again from its record (the scores are a function of the record).
+  // Each trial scored again from its record (the scores are a function of the record); every
+  // stored trial keeps its row, one the record lacks samples of saying how many.
+  Shortfall shortfall;
   for (const auto& t : store.trials(session)) {
     ReportTrial rt;
     rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
-    const auto samples = samplesIn(store, session, t.first_seq, t.last_seq);
-    if (samples.size() < 2) continue;
-    rt.series = technique::seriesFromSamples(samples, scale);
-    rt.score = technique::score(rt.series, in.targets, server::lesson::kSettleS);
+    TrialRead read = readTrial(store, session, t);
+    rt.samples = read.samples;
+    addShortfall(shortfall, t.index, rt.label, rt.samples);
+    if (rt.samples.scored) {
+      rt.series = technique::seriesFromSamples(read.valid, scale);
+      rt.score = technique::score(rt.series, in.targets, server::lesson::kSettleS);
+    }
     in.trials.push_back(std::move(rt));
   }
   // Ranges before and after, per direction reached in both phases.
@@ -319,10 +389,12 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   writeFileAtomically(base + ".html", renderReportHtml(in));
   writeFileAtomically(base + "-scores.csv", renderScoresCsv(in));
   writeFileAtomically(base + "-oscillations.csv", renderOscillationsCsv(in));
-  std::cout << "report: " << base << ".html (" << in.trials.size() << " trials, "
+  std::cout << "report: " << base << ".html (" << trialCount(in.trials.size(), shortfall) << ", "
             << in.ranges.size() << " ranges, " << in.history.size() << " runs in the learning "
-            << "curve)\nscores: " << base << "-scores.csv, " << base << "-oscillations.csv\n";
-  return 0;
+            << "curve)\n"
+            << shortfall.lines << "scores: " << base << "-scores.csv, " << base
+            << "-oscillations.csv\n";
+  return reportExit(session, shortfall);
 }
 
 }  // namespace telehand::records

@@ -300,14 +300,42 @@ Points flexionPoints(const technique::Series& s) {
 
 Points flat(double y, double x0, double x1) { return {{x0, y}, {x1, y}}; }
 
-double meanOverall(const std::vector<ReportTrial>& trials) {
-  if (trials.empty()) return 0.0;
+/// The mean overall score of the trials scored, and whether any was.
+template <class Trial>
+std::pair<double, bool> meanScored(const std::vector<Trial>& trials) {
   double sum = 0.0;
-  for (const ReportTrial& t : trials) sum += t.score.overall;
-  return sum / static_cast<double>(trials.size());
+  std::size_t n = 0;
+  for (const Trial& t : trials) {
+    if (!t.samples.scored) continue;
+    sum += t.score.overall;
+    ++n;
+  }
+  return {n ? sum / static_cast<double>(n) : 0.0, n > 0};
 }
 
 std::string cell(const std::string& s) { return "<td>" + escapeHtml(s) + "</td>"; }
+
+/// The table's samples cell: how many the trial has, or what the record lacks of it.
+std::string samplesCell(const TrialSamples& ts) {
+  if (ts.expected == 0) return cell("");
+  if (ts.found == 0) return cell(ts.note());
+  if (ts.missing() > 0) {
+    return cell(std::to_string(ts.missing()) + " of " + std::to_string(ts.expected) +
+                " samples missing");
+  }
+  return cell(std::to_string(ts.expected));
+}
+
+/// The rest of a row of a trial not scored.
+std::string notScoredCells(int columns) {
+  return "<td colspan=\"" + std::to_string(columns) + "\">not scored</td>";
+}
+
+/// The CSV's samples columns of a trial: samples_expected, samples_missing, note.
+std::string samplesCsv(const TrialSamples& ts) {
+  return std::to_string(ts.expected) + ',' + std::to_string(ts.missing()) + ',' +
+         csvField(ts.note());
+}
 
 std::string signedNum(double v, int decimals) {
   if (std::abs(v) < 0.5 * std::pow(10.0, -decimals)) v = 0.0;  // "+0.0", not "-0.0"
@@ -388,6 +416,15 @@ std::string learningChart(const std::vector<std::pair<std::string, double>>& his
 
 }  // namespace
 
+std::string TrialSamples::note() const {
+  if (expected == 0) return scored ? "" : "not scored";
+  const std::string of = " of " + std::to_string(expected) + " samples";
+  if (found == 0) return "not in the record (0" + of + ")";
+  const std::string gap = missing() > 0 ? std::to_string(missing()) + of + " missing" : "";
+  if (scored) return gap;
+  return "not scored: " + (gap.empty() ? std::string("under 2 valid samples") : gap);
+}
+
 std::vector<std::pair<double, double>> decimate(const std::vector<double>& x,
                                                 const std::vector<double>& y,
                                                 std::size_t max_points) {
@@ -428,13 +465,18 @@ std::string renderReportHtml(const ReportInput& in) {
     << cell(num(tg.amplitude_deg, 1) + " deg") << cell(num(tg.jerk, 2))
     << cell(std::to_string(tg.oscillations)) << "</tr></table>\n";
 
-  o << "<h2>Trials</h2>\n<table><tr><th>trial</th><th>oscillations</th><th>peak N</th>"
-    << "<th>mean N</th><th>frequency Hz</th><th>amplitude deg</th><th>in band</th>"
-    << "<th>path deg</th><th>jerk</th><th>score</th></tr>\n";
+  o << "<h2>Trials</h2>\n<table><tr><th>trial</th><th>samples</th><th>oscillations</th>"
+    << "<th>peak N</th><th>mean N</th><th>frequency Hz</th><th>amplitude deg</th>"
+    << "<th>in band</th><th>path deg</th><th>jerk</th><th>score</th></tr>\n";
   for (const ReportTrial& t : in.trials) {
+    o << "<tr>" << cell(t.label) << samplesCell(t.samples);
+    if (!t.samples.scored) {
+      o << notScoredCells(9) << "</tr>\n";
+      continue;
+    }
     const technique::TrialScore& s = t.score;
     const technique::TrialFigures& f = s.figures;
-    o << "<tr>" << cell(t.label) << cell(std::to_string(f.oscillations.size()))
+    o << cell(std::to_string(f.oscillations.size()))
       << cell(num(f.force_peak_n, 2) + " (" + signedNum(s.peak_error_n, 2) + ")")
       << cell(num(f.force_mean_n, 2) + " (" + signedNum(s.mean_error_n, 2) + ")")
       << cell(num(f.frequency_spectrum_hz, 2) + " (" + signedNum(s.frequency_error_hz, 2) + ")")
@@ -449,6 +491,10 @@ std::string renderReportHtml(const ReportInput& in) {
   o << "<h2>Force and flexion per trial</h2>\n";
   for (std::size_t i = 0; i < in.trials.size(); ++i) {
     const ReportTrial& t = in.trials[i];
+    if (!t.samples.scored) {
+      o << "<p>" << escapeHtml(t.label + ": " + t.samples.note()) << ".</p>\n";
+      continue;
+    }
     Chart force;
     force.id = "force-" + std::to_string(i);
     force.title = t.label + ": applied force";
@@ -473,6 +519,7 @@ std::string renderReportHtml(const ReportInput& in) {
   Points freq, scores;
   for (std::size_t i = 0; i < in.trials.size(); ++i) {
     labels.push_back(in.trials[i].label);
+    if (!in.trials[i].samples.scored) continue;
     freq.emplace_back(static_cast<double>(i), in.trials[i].score.figures.frequency_spectrum_hz);
     scores.emplace_back(static_cast<double>(i), in.trials[i].score.overall);
   }
@@ -501,8 +548,8 @@ std::string renderReportHtml(const ReportInput& in) {
     o << "</table>\n";
   }
 
-  o << "<h2>Learning curve</h2>\n"
-    << learningChart(in.history, meanOverall(in.trials), !in.trials.empty());
+  const auto [mean, any] = meanScored(in.trials);
+  o << "<h2>Learning curve</h2>\n" << learningChart(in.history, mean, any);
   o << "</body></html>\n";
   return o.str();
 }
@@ -533,13 +580,6 @@ Points pathPoints(const technique::MassageSeries& s, const TissueModel& web, dou
   return out;
 }
 
-double meanMassageOverall(const std::vector<MassageReportTrial>& trials) {
-  if (trials.empty()) return 0.0;
-  double sum = 0.0;
-  for (const MassageReportTrial& t : trials) sum += t.score.overall;
-  return sum / static_cast<double>(trials.size());
-}
-
 }  // namespace
 
 std::string renderMassageReportHtml(const MassageReportInput& in) {
@@ -555,14 +595,18 @@ std::string renderMassageReportHtml(const MassageReportInput& in) {
     << cell(num(1000.0 * tg.radius_m, 1) + " mm") << cell(num(tg.circularity, 2))
     << cell(num(tg.tangential_ratio, 2)) << cell(num(tg.laps, 0)) << "</tr></table>\n";
 
-  o << "<h2>Trials</h2>\n<table><tr><th>trial</th><th>press N</th><th>spread N</th>"
-    << "<th>in band</th><th>frequency Hz</th><th>radius mm</th><th>circularity</th>"
-    << "<th>tangential/normal</th><th>laps</th><th>score</th></tr>\n";
+  o << "<h2>Trials</h2>\n<table><tr><th>trial</th><th>samples</th><th>press N</th>"
+    << "<th>spread N</th><th>in band</th><th>frequency Hz</th><th>radius mm</th>"
+    << "<th>circularity</th><th>tangential/normal</th><th>laps</th><th>score</th></tr>\n";
   for (const MassageReportTrial& t : in.trials) {
+    o << "<tr>" << cell(t.label) << samplesCell(t.samples);
+    if (!t.samples.scored) {
+      o << notScoredCells(9) << "</tr>\n";
+      continue;
+    }
     const technique::MassageScore& s = t.score;
     const technique::MassageFigures& f = s.figures;
-    o << "<tr>" << cell(t.label)
-      << cell(num(f.normal_mean_n, 2) + " (" + signedNum(s.normal_error_n, 2) + ")")
+    o << cell(num(f.normal_mean_n, 2) + " (" + signedNum(s.normal_error_n, 2) + ")")
       << cell(num(f.normal_sd_n, 2) + " (" + signedNum(s.spread_delta_n, 2) + ")")
       << cell(num(100.0 * f.time_in_band, 0) + " %")
       << cell(num(f.frequency_hz, 2) + " (" + signedNum(s.frequency_error_hz, 2) + ")")
@@ -578,6 +622,10 @@ std::string renderMassageReportHtml(const MassageReportInput& in) {
   o << "<h2>Press and circle per trial</h2>\n";
   for (std::size_t i = 0; i < in.trials.size(); ++i) {
     const MassageReportTrial& t = in.trials[i];
+    if (!t.samples.scored) {
+      o << "<p>" << escapeHtml(t.label + ": " + t.samples.note()) << ".</p>\n";
+      continue;
+    }
     Chart press;
     press.id = "press-" + std::to_string(i);
     press.title = t.label + ": the pads' normal force";
@@ -604,6 +652,7 @@ std::string renderMassageReportHtml(const MassageReportInput& in) {
   for (std::size_t i = 0; i < in.trials.size(); ++i) {
     const auto x = static_cast<double>(i);
     labels.push_back(in.trials[i].label);
+    if (!in.trials[i].samples.scored) continue;
     freq.emplace_back(x, in.trials[i].score.figures.frequency_hz);
     radius.emplace_back(x, 1000.0 * in.trials[i].score.figures.radius_m);
     scores.emplace_back(x, in.trials[i].score.overall);
@@ -615,8 +664,8 @@ std::string renderMassageReportHtml(const MassageReportInput& in) {
                      1000.0 * tg.radius_m, radius);
   o << scoresChart(labels, scores);
 
-  o << "<h2>Learning curve</h2>\n"
-    << learningChart(in.history, meanMassageOverall(in.trials), !in.trials.empty());
+  const auto [mean, any] = meanScored(in.trials);
+  o << "<h2>Learning curve</h2>\n" << learningChart(in.history, mean, any);
   o << "</body></html>\n";
   return o.str();
 }
@@ -625,8 +674,15 @@ std::string renderMassageScoresCsv(const MassageReportInput& in) {
   std::ostringstream o;
   o << "trial,label,normal_mean_n,normal_sd_n,time_in_band,frequency_hz,radius_m,circularity,"
        "tangential_ratio,laps,duration_s,normal_error_n,spread_delta_n,frequency_error_hz,"
-       "radius_ratio,circularity_delta,tangential_ratio_error,centre_offset_m,overall\n";
+       "radius_ratio,circularity_delta,tangential_ratio_error,centre_offset_m,overall,"
+       "samples_expected,samples_missing,note\n";
   for (std::size_t i = 0; i < in.trials.size(); ++i) {
+    const TrialSamples& ts = in.trials[i].samples;
+    if (!ts.scored) {
+      o << i << ',' << csvField(in.trials[i].label) << std::string(18, ',')  // 17 figures empty
+        << samplesCsv(ts) << '\n';
+      continue;
+    }
     const technique::MassageScore& s = in.trials[i].score;
     const technique::MassageFigures& f = s.figures;
     o << i << ',' << csvField(in.trials[i].label) << ',' << num(f.normal_mean_n, 4) << ','
@@ -636,7 +692,7 @@ std::string renderMassageScoresCsv(const MassageReportInput& in) {
       << num(s.normal_error_n, 4) << ',' << num(s.spread_delta_n, 4) << ','
       << num(s.frequency_error_hz, 5) << ',' << num(s.radius_ratio, 4) << ','
       << num(s.circularity_delta, 4) << ',' << num(s.tangential_ratio_error, 4) << ','
-      << num(s.centre_offset_m, 6) << ',' << num(s.overall, 2) << '\n';
+      << num(s.centre_offset_m, 6) << ',' << num(s.overall, 2) << ',' << samplesCsv(ts) << '\n';
   }
   return o.str();
 }
@@ -646,8 +702,14 @@ std::string renderScoresCsv(const ReportInput& in) {
   o << "trial,label,oscillations,force_peak_n,force_trough_n,force_mean_n,frequency_hz,"
        "frequency_zc_hz,amplitude_deg,time_in_band,path_error_deg,jerk,duration_s,"
        "peak_error_n,trough_error_n,mean_error_n,frequency_error_hz,amplitude_error_deg,"
-       "jerk_delta,overall\n";
+       "jerk_delta,overall,samples_expected,samples_missing,note\n";
   for (std::size_t i = 0; i < in.trials.size(); ++i) {
+    const TrialSamples& ts = in.trials[i].samples;
+    if (!ts.scored) {
+      o << i << ',' << csvField(in.trials[i].label) << std::string(19, ',')  // 18 figures empty
+        << samplesCsv(ts) << '\n';
+      continue;
+    }
     const technique::TrialScore& s = in.trials[i].score;
     const technique::TrialFigures& f = s.figures;
     o << i << ',' << csvField(in.trials[i].label) << ',' << f.oscillations.size() << ','
@@ -657,7 +719,7 @@ std::string renderScoresCsv(const ReportInput& in) {
       << ',' << num(f.jerk, 4) << ',' << num(f.duration_s, 3) << ',' << num(s.peak_error_n, 4)
       << ',' << num(s.trough_error_n, 4) << ',' << num(s.mean_error_n, 4) << ','
       << num(s.frequency_error_hz, 5) << ',' << num(s.amplitude_error_deg, 4) << ','
-      << num(s.jerk_delta, 4) << ',' << num(s.overall, 2) << '\n';
+      << num(s.jerk_delta, 4) << ',' << num(s.overall, 2) << ',' << samplesCsv(ts) << '\n';
   }
   return o.str();
 }
@@ -667,6 +729,7 @@ std::string renderOscillationsCsv(const ReportInput& in) {
   o << "trial,label,oscillation,t_start_s,t_end_s,peak_n,trough_n,mean_n,frequency_hz,"
        "amplitude_deg\n";
   for (std::size_t i = 0; i < in.trials.size(); ++i) {
+    if (!in.trials[i].samples.scored) continue;
     const auto& osc = in.trials[i].score.figures.oscillations;
     for (std::size_t k = 0; k < osc.size(); ++k) {
       const technique::Oscillation& x = osc[k];

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 #include "file_output.h"
@@ -165,6 +166,107 @@ TEST(RecordsReport, CsvHasOneRowPerTrialWithItsFigures) {
   std::getline(osc, line);  // header
   while (std::getline(osc, line)) ++osc_rows;
   EXPECT_EQ(osc_rows, expected);
+}
+
+/// The fields of the CSV's rows by column name (its header's).
+std::vector<std::map<std::string, std::string>> csvRows(const std::string& text) {
+  std::istringstream csv(text);
+  std::string line;
+  std::vector<std::map<std::string, std::string>> rows;
+  if (!std::getline(csv, line)) return rows;
+  const std::vector<std::string> header = splitCsv(line);
+  while (std::getline(csv, line)) {
+    const std::vector<std::string> f = splitCsv(line);
+    EXPECT_EQ(f.size(), header.size()) << line;
+    std::map<std::string, std::string> row;
+    for (std::size_t i = 0; i < std::min(f.size(), header.size()); ++i) row[header[i]] = f[i];
+    rows.push_back(std::move(row));
+  }
+  return rows;
+}
+
+// A trial the record lacks keeps its row saying so and is neither plotted nor scored (not
+// scored 0 either); a trial with gaps says how many samples it lacks, in the table and in the
+// CSV; a whole trial says how many it has.
+TEST(RecordsReport, ATrialTheRecordLacksKeepsItsRowAndGapsAreCounted) {
+  ReportInput in = lesson();
+  in.trials[0].samples = {10000, 10000, true};
+  in.trials[1].samples = {10000, 0, false};
+  in.trials[1].series = {};
+  in.trials[1].score = {};
+  in.trials[2].samples = {20000, 15000, true};
+  EXPECT_EQ(in.trials[0].samples.note(), "");
+  EXPECT_EQ(in.trials[1].samples.note(), "not in the record (0 of 10000 samples)");
+  EXPECT_EQ(in.trials[2].samples.note(), "5000 of 20000 samples missing");
+  EXPECT_EQ((TrialSamples{4000, 1, false}.note()), "not scored: 3999 of 4000 samples missing");
+
+  const std::string html = renderReportHtml(in);
+  EXPECT_NE(html.find("<td>not in the record (0 of 10000 samples)</td><td colspan=\"9\">not "
+                      "scored</td>"),
+            std::string::npos);
+  EXPECT_NE(html.find("<td>5000 of 20000 samples missing</td>"), std::string::npos);
+  EXPECT_NE(html.find("<td>10000</td>"), std::string::npos);
+  EXPECT_NE(html.find("trial 2, &lt;retry&gt; &amp; more: not in the record (0 of 10000 "
+                      "samples)."),
+            std::string::npos);
+  for (const char* id : {"force-0", "flexion-0", "force-2", "flexion-2"}) {
+    EXPECT_NE(html.find(std::string("id=\"") + id + "\""), std::string::npos) << id;
+  }
+  EXPECT_EQ(html.find("id=\"force-1\""), std::string::npos);
+  EXPECT_EQ(html.find("id=\"flexion-1\""), std::string::npos);
+  // The scores and frequencies: a point per scored trial, every trial on the axis; the
+  // learning curve's "this lesson" the mean of the scored ones.
+  const std::size_t scores = html.find("id=\"scores\"");
+  const std::size_t ranges = html.find("id=\"ranges\"");
+  ASSERT_NE(scores, std::string::npos);
+  EXPECT_EQ(count(html.substr(scores, ranges - scores), "<circle"), 2u);
+  EXPECT_NE(html.substr(scores, ranges - scores).find(">trial 2, &lt;retry&gt; &amp; more<"),
+            std::string::npos);
+
+  const auto rows = csvRows(renderScoresCsv(in));
+  ASSERT_EQ(rows.size(), 3u);
+  EXPECT_EQ(rows[0].at("samples_expected"), "10000");
+  EXPECT_EQ(rows[0].at("samples_missing"), "0");
+  EXPECT_EQ(rows[0].at("note"), "");
+  EXPECT_EQ(rows[1].at("trial"), "1");
+  EXPECT_EQ(rows[1].at("label"), in.trials[1].label);
+  EXPECT_EQ(rows[1].at("samples_expected"), "10000");
+  EXPECT_EQ(rows[1].at("samples_missing"), "10000");
+  EXPECT_EQ(rows[1].at("note"), "not in the record (0 of 10000 samples)");
+  EXPECT_EQ(rows[1].at("overall"), "") << "not scored, not scored 0";
+  EXPECT_EQ(rows[1].at("oscillations"), "");
+  EXPECT_EQ(rows[2].at("samples_missing"), "5000");
+  EXPECT_EQ(rows[2].at("note"), "5000 of 20000 samples missing");
+  EXPECT_NEAR(std::stod(rows[2].at("overall")), in.trials[2].score.overall, 0.01);
+  for (const auto& row : csvRows(renderOscillationsCsv(in))) EXPECT_NE(row.at("trial"), "1");
+}
+
+// The massage page and CSV: the same rows for a trial the record lacks.
+TEST(RecordsReport, AMassageTrialTheRecordLacksKeepsItsRow) {
+  MassageReportInput in;
+  in.title = "massage";
+  MassageReportTrial whole, gone;
+  whole.label = "trial 1 (attempt)";
+  whole.samples = {6001, 5001, true};
+  whole.score.overall = 71.0;
+  gone.label = "trial 2 (attempt)";
+  gone.samples = {6001, 0, false};
+  in.trials = {whole, gone};
+  const std::string html = renderMassageReportHtml(in);
+  EXPECT_NE(html.find("<td>1000 of 6001 samples missing</td>"), std::string::npos);
+  EXPECT_NE(html.find("<td>not in the record (0 of 6001 samples)</td><td colspan=\"9\">not "
+                      "scored</td>"),
+            std::string::npos);
+  EXPECT_NE(html.find("id=\"press-0\""), std::string::npos);
+  EXPECT_EQ(html.find("id=\"press-1\""), std::string::npos);
+  const auto rows = csvRows(renderMassageScoresCsv(in));
+  ASSERT_EQ(rows.size(), 2u);
+  EXPECT_EQ(rows[0].at("overall"), "71.00");
+  EXPECT_EQ(rows[0].at("samples_missing"), "1000");
+  EXPECT_EQ(rows[0].at("note"), "1000 of 6001 samples missing");
+  EXPECT_EQ(rows[1].at("overall"), "");
+  EXPECT_EQ(rows[1].at("samples_missing"), "6001");
+  EXPECT_EQ(rows[1].at("note"), "not in the record (0 of 6001 samples)");
 }
 
 TEST(RecordsReport, DecimationKeepsTheExtremes) {
