@@ -13,26 +13,32 @@ struct CircleFit {
   bool ok = false;
 };
 
-/// Least-squares circle through points (Kasa): x^2 + y^2 = a x + b y + c.
-CircleFit kasa(const std::vector<Vec3>& p, std::size_t lo, std::size_t hi) {
+/// Least-squares circle through the points of `parts` (Kasa): x^2 + y^2 = a x + b y + c.
+CircleFit kasa(const std::vector<Vec3>& p, const std::vector<Stretch>& parts) {
   CircleFit f;
-  if (hi <= lo + 2) return f;
+  std::size_t count = 0;
+  for (const Stretch& r : parts) count += r.end - r.begin;
+  if (count < 3) return f;
   // Centred on the points' mean, for conditioning.
   double mx = 0, my = 0;
-  for (std::size_t i = lo; i < hi; ++i) {
-    mx += p[i].x();
-    my += p[i].y();
+  for (const Stretch& r : parts) {
+    for (std::size_t i = r.begin; i < r.end; ++i) {
+      mx += p[i].x();
+      my += p[i].y();
+    }
   }
-  const double n = static_cast<double>(hi - lo);
+  const double n = static_cast<double>(count);
   mx /= n;
   my /= n;
   Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
   Eigen::Vector3d atb = Eigen::Vector3d::Zero();
-  for (std::size_t i = lo; i < hi; ++i) {
-    const double x = p[i].x() - mx, y = p[i].y() - my;
-    const Eigen::Vector3d row(x, y, 1.0);
-    ata += row * row.transpose();
-    atb += row * (x * x + y * y);
+  for (const Stretch& r : parts) {
+    for (std::size_t i = r.begin; i < r.end; ++i) {
+      const double x = p[i].x() - mx, y = p[i].y() - my;
+      const Eigen::Vector3d row(x, y, 1.0);
+      ata += row * row.transpose();
+      atb += row * (x * x + y * y);
+    }
   }
   const Eigen::Vector3d sol = ata.ldlt().solve(atb);
   const double cx = 0.5 * sol[0], cy = 0.5 * sol[1];
@@ -60,22 +66,31 @@ std::vector<double> unwrappedAngles(const std::vector<Vec3>& p, std::size_t lo, 
   return a;
 }
 
-/// Least-squares slope of y over x.
-double slope(const std::vector<double>& x, std::size_t x0, const std::vector<double>& y) {
-  const std::size_t n = y.size();
-  if (n < 2) return 0.0;
-  double mx = 0, my = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    mx += x[x0 + i];
-    my += y[i];
-  }
-  mx /= static_cast<double>(n);
-  my /= static_cast<double>(n);
+/// Least-squares slope of y over x with an offset per part: the angle of each part of
+/// `parts`, unwrapped on its own (angles[k] for parts[k]), over time x. Each part's sums are
+/// taken about its own means and added.
+double slope(const std::vector<double>& x, const std::vector<Stretch>& parts,
+             const std::vector<std::vector<double>>& angles) {
   double sxy = 0, sxx = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double dx = x[x0 + i] - mx;
-    sxy += dx * (y[i] - my);
-    sxx += dx * dx;
+  for (std::size_t k = 0; k < parts.size(); ++k) {
+    const std::vector<double>& y = angles[k];
+    const std::size_t x0 = parts[k].begin, n = y.size();
+    if (n < 2) continue;
+    double mx = 0, my = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      mx += x[x0 + i];
+      my += y[i];
+    }
+    mx /= static_cast<double>(n);
+    my /= static_cast<double>(n);
+    double part_xy = 0, part_xx = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double dx = x[x0 + i] - mx;
+      part_xy += dx * (y[i] - my);
+      part_xx += dx * dx;
+    }
+    sxy += part_xy;
+    sxx += part_xx;
   }
   return sxx > 0.0 ? sxy / sxx : 0.0;
 }
@@ -169,41 +184,76 @@ MassageFigures analyseMassage(const MassageSeries& s, const TissueParams& web, d
     pw[i] = model.toWeb(0.5 * (s.position_m[kThumb][i] + s.position_m[kIndex][i]));
     t[i] = s.t_s[i] - t0;
   }
-  const CircleFit first = kasa(pw, i0, n);
+  // The stretches without a gap, from the settle on: nothing is taken across a gap.
+  const std::vector<Stretch> all = stretchesOf(std::span<const double>(t));
+  f.stretches = all.size();
+  std::vector<Stretch> judged;
+  double judged_s = 0.0;
+  for (const Stretch& p : all) {
+    if (p.end <= std::max(p.begin, i0)) continue;
+    judged.push_back({std::max(p.begin, i0), p.end});
+    judged_s += s.t_s[p.end - 1] - s.t_s[judged.back().begin];
+  }
+  f.judged_s = judged_s;
+  const CircleFit first = kasa(pw, {{i0, n}});
   if (!first.ok) return f;
-  const std::vector<double> a = unwrappedAngles(pw, i0, n, first.cx, first.cy);
-  const double whole = std::floor(std::abs(a.back()) / (2.0 * kPi));
+  // Each stretch's whole laps: from its first sample to the end of its last whole lap.
+  std::vector<Stretch> laps;  // the whole laps' samples, per stretch that has one
+  std::vector<double> laps_of(judged.size(), 0.0);  // each judged stretch's laps' time
+  double whole = 0.0;
+  for (std::size_t j = 0; j < judged.size(); ++j) {
+    const Stretch& p = judged[j];
+    const std::vector<double> a = unwrappedAngles(pw, p.begin, p.end, first.cx, first.cy);
+    const double w = std::floor(std::abs(a.back()) / (2.0 * kPi));
+    if (w < 1.0) continue;
+    std::size_t i1 = p.begin;  // one past the end of the stretch's last whole lap
+    while (i1 < p.end && std::abs(a[i1 - p.begin]) <= w * 2.0 * kPi) ++i1;
+    laps.push_back({p.begin, i1});
+    laps_of[j] = s.t_s[i1 - 1] - s.t_s[p.begin];
+    whole += w;
+  }
   if (whole < 1.0) return f;
-  std::size_t i1 = i0;  // one past the end of the last whole lap
-  while (i1 < n && std::abs(a[i1 - i0]) <= whole * 2.0 * kPi) ++i1;
-  const CircleFit c = kasa(pw, i0, i1);
+  const CircleFit c = kasa(pw, laps);
   if (!c.ok) return f;
-  const double k = static_cast<double>(i1 - i0);
+  double k = 0.0;
   double r_sum = 0.0;
   double sxx = 0, syy = 0, sxy = 0;
-  for (std::size_t i = i0; i < i1; ++i) {
-    const double dx = pw[i].x() - c.cx, dy = pw[i].y() - c.cy;
-    r_sum += std::hypot(dx, dy);
-    sxx += dx * dx;
-    syy += dy * dy;
-    sxy += dx * dy;
+  for (const Stretch& p : laps) {
+    k += static_cast<double>(p.end - p.begin);
+    for (std::size_t i = p.begin; i < p.end; ++i) {
+      const double dx = pw[i].x() - c.cx, dy = pw[i].y() - c.cy;
+      r_sum += std::hypot(dx, dy);
+      sxx += dx * dx;
+      syy += dy * dy;
+      sxy += dx * dy;
+    }
   }
   if (!(r_sum / k >= kMinCircleRadiusM)) return f;
-  const std::vector<double> angle = unwrappedAngles(pw, i0, i1, c.cx, c.cy);
+  std::vector<std::vector<double>> angles;
+  for (const Stretch& p : laps) angles.push_back(unwrappedAngles(pw, p.begin, p.end, c.cx, c.cy));
   f.centre_w = Vec3(c.cx, c.cy, 0.0);
   f.laps = whole;
-  f.frequency_hz = slope(t, i0, angle) / (2.0 * kPi);
+  f.frequency_hz = slope(t, laps, angles) / (2.0 * kPi);
   f.radius_m = r_sum / k;
   double r_var = 0.0;
-  for (std::size_t i = i0; i < i1; ++i) {
-    const double d = std::hypot(pw[i].x() - c.cx, pw[i].y() - c.cy) - f.radius_m;
-    r_var += d * d;
+  for (const Stretch& p : laps) {
+    for (std::size_t i = p.begin; i < p.end; ++i) {
+      const double d = std::hypot(pw[i].x() - c.cx, pw[i].y() - c.cy) - f.radius_m;
+      r_var += d * d;
+    }
   }
   f.radial_rms_m = std::sqrt(r_var / k);
-  const double judged_s = s.t_s[n - 1] - s.t_s[i0];
-  const double laps_s = s.t_s[i1 - 1] - s.t_s[i0];
-  f.circling_share =
-      judged_s > 0.0 ? std::min(1.0, (laps_s + laps_s / std::max(whole, 1.0)) / judged_s) : 0.0;
+  // The time circling: per stretch its whole laps and the lap under way at its end (one
+  // mean lap period), at most the stretch's own time.
+  double laps_s = 0.0;
+  for (const double x : laps_of) laps_s += x;
+  const double period_s = laps_s / std::max(whole, 1.0);
+  double circling_s = 0.0;
+  for (std::size_t j = 0; j < judged.size(); ++j) {
+    const double stretch_s = s.t_s[judged[j].end - 1] - s.t_s[judged[j].begin];
+    circling_s += std::min(stretch_s, laps_of[j] + period_s);
+  }
+  f.circling_share = judged_s > 0.0 ? std::min(1.0, circling_s / judged_s) : 0.0;
   // Eigenvalues of the 2x2 covariance.
   const double half_tr = 0.5 * (sxx + syy) / k;
   const double det_part = std::hypot(0.5 * (sxx - syy) / k, sxy / k);
@@ -238,7 +288,9 @@ MassageScore scoreMassage(const MassageSeries& attempt, const MassageTargets& t,
   MassageScore r;
   r.figures = analyseMassage(attempt, web, t.band_min_n, t.band_max_n, settle_s);
   const MassageFigures& f = r.figures;
-  if (!(f.laps >= 1.0)) return r;
+  r.not_scored = whyNotJudged(std::span<const double>(attempt.t_s.data(), seriesLength(attempt)),
+                              settle_s, 1.0 / std::max(std::abs(t.frequency_hz), 0.1), 0.0);
+  if (!r.not_scored.empty() || !(f.laps >= 1.0)) return r;
   r.normal_error_n = f.normal_mean_n - t.normal_mean_n;
   r.spread_delta_n = f.normal_sd_n - t.normal_sd_n;
   r.frequency_error_hz = f.frequency_hz - t.frequency_hz;
@@ -261,6 +313,7 @@ MassageScore scoreMassage(const MassageSeries& attempt, const MassageTargets& t,
 }
 
 std::string massageSummaryLine(const MassageScore& s) {
+  if (!s.not_scored.empty()) return "massage: not scored: " + s.not_scored;
   const MassageFigures& f = s.figures;
   char buf[320];
   std::snprintf(buf, sizeof buf,

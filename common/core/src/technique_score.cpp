@@ -63,7 +63,7 @@ std::vector<double> filtfilt(const std::vector<double>& x, double cutoff_hz, dou
   return y;
 }
 
-double medianInterval(const std::vector<double>& t) {
+double medianInterval(std::span<const double> t) {
   if (t.size() < 2) return 1e-3;
   std::vector<double> d(t.size() - 1);
   for (std::size_t i = 1; i < t.size(); ++i) d[i - 1] = t[i] - t[i - 1];
@@ -96,33 +96,50 @@ void fft(std::vector<std::complex<double>>& a) {
   }
 }
 
-/// Periodogram peak of x (uniform interval dt) in [lo, hi] Hz: cubic trend removed, Hann
-/// window, zero padded to >= 8x, parabola through the log power of the peak bin and its
-/// neighbours. 0 when x is too short or flat.
-double spectrumPeakHz(const std::vector<double>& x, double dt, double lo, double hi) {
-  const std::size_t m = x.size();
-  if (m < 16) return 0.0;
-  // Cubic least-squares trend on u in [-1, 1].
-  Eigen::Matrix4d ata = Eigen::Matrix4d::Zero();
-  Eigen::Vector4d atb = Eigen::Vector4d::Zero();
-  std::vector<double> u(m);
-  for (std::size_t i = 0; i < m; ++i) {
-    u[i] = 2.0 * static_cast<double>(i) / static_cast<double>(m - 1) - 1.0;
-    const Eigen::Vector4d row(1.0, u[i], u[i] * u[i], u[i] * u[i] * u[i]);
-    ata += row * row.transpose();
-    atb += row * x[i];
+/// Periodogram peak of x (uniform interval dt) over `parts` in [lo, hi] Hz: per part, cubic
+/// trend removed, Hann window, zero padded to >= 8x the longest part; the parts' powers
+/// summed, each times (total length / its length), so that each counts by its length (a
+/// coherent oscillation's power grows with the square of the length); a parabola through the
+/// log power of the peak bin and its neighbours. Parts under 16 samples are left out. 0 when
+/// none is left or the sum is flat.
+double spectrumPeakHz(const std::vector<double>& x, const std::vector<Stretch>& parts, double dt,
+                      double lo, double hi) {
+  std::size_t longest = 0, total = 0;
+  for (const Stretch& p : parts) {
+    if (p.end - p.begin < 16) continue;
+    longest = std::max(longest, p.end - p.begin);
+    total += p.end - p.begin;
   }
-  const Eigen::Vector4d c = ata.ldlt().solve(atb);
+  if (longest == 0) return 0.0;
   std::size_t n = 1;
-  while (n < 8 * m) n <<= 1;
-  std::vector<std::complex<double>> a(n, {0.0, 0.0});
-  for (std::size_t i = 0; i < m; ++i) {
-    const double trend = c[0] + u[i] * (c[1] + u[i] * (c[2] + u[i] * c[3]));
-    const double w =
-        0.5 - 0.5 * std::cos(2.0 * kPi * static_cast<double>(i) / static_cast<double>(m - 1));
-    a[i] = {(x[i] - trend) * w, 0.0};
+  while (n < 8 * longest) n <<= 1;
+  std::vector<double> power(n / 2 + 1, 0.0);
+  std::vector<std::complex<double>> a(n);
+  for (const Stretch& p : parts) {
+    const std::size_t m = p.end - p.begin;
+    if (m < 16) continue;
+    // Cubic least-squares trend on u in [-1, 1].
+    Eigen::Matrix4d ata = Eigen::Matrix4d::Zero();
+    Eigen::Vector4d atb = Eigen::Vector4d::Zero();
+    std::vector<double> u(m);
+    for (std::size_t i = 0; i < m; ++i) {
+      u[i] = 2.0 * static_cast<double>(i) / static_cast<double>(m - 1) - 1.0;
+      const Eigen::Vector4d row(1.0, u[i], u[i] * u[i], u[i] * u[i] * u[i]);
+      ata += row * row.transpose();
+      atb += row * x[p.begin + i];
+    }
+    const Eigen::Vector4d c = ata.ldlt().solve(atb);
+    std::fill(a.begin(), a.end(), std::complex<double>(0.0, 0.0));
+    for (std::size_t i = 0; i < m; ++i) {
+      const double trend = c[0] + u[i] * (c[1] + u[i] * (c[2] + u[i] * c[3]));
+      const double w =
+          0.5 - 0.5 * std::cos(2.0 * kPi * static_cast<double>(i) / static_cast<double>(m - 1));
+      a[i] = {(x[p.begin + i] - trend) * w, 0.0};
+    }
+    fft(a);
+    const double weight = static_cast<double>(total) / static_cast<double>(m);
+    for (std::size_t k = 0; k < power.size(); ++k) power[k] += weight * std::norm(a[k]);
   }
-  fft(a);
   const double df = 1.0 / (static_cast<double>(n) * dt);
   const std::size_t k_lo = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil(lo / df)));
   const std::size_t k_hi = std::min(n / 2 - 1, static_cast<std::size_t>(std::floor(hi / df)));
@@ -130,59 +147,94 @@ double spectrumPeakHz(const std::vector<double>& x, double dt, double lo, double
   std::size_t best = k_lo;
   double best_p = -1.0;
   for (std::size_t k = k_lo; k <= k_hi; ++k) {
-    const double p = std::norm(a[k]);
+    const double p = power[k];
     if (p > best_p) {
       best_p = p;
       best = k;
     }
   }
   if (!(best_p > 0.0)) return 0.0;
-  const double l0 = std::log(std::norm(a[best - 1]) + 1e-300), l1 = std::log(best_p),
-               l2 = std::log(std::norm(a[best + 1]) + 1e-300);
+  const double l0 = std::log(power[best - 1] + 1e-300), l1 = std::log(best_p),
+               l2 = std::log(power[best + 1] + 1e-300);
   const double den = l0 - 2.0 * l1 + l2;
   const double delta = den < 0.0 ? std::clamp(0.5 * (l0 - l2) / den, -0.5, 0.5) : 0.0;
   return (static_cast<double>(best) + delta) * df;
 }
 
-/// Upward zero crossings of the detrended, zero-phase low-passed force after index i0:
-/// (crossings - 1) / (last - first crossing time). 0 when fewer than two.
-double zeroCrossingHz(const std::vector<double>& t, const std::vector<double>& lp, std::size_t i0,
-                      double dt, double period_s) {
-  const std::size_t n = lp.size();
-  if (!(period_s > 0.0) || n < 4) return 0.0;
+/// Upward zero crossings of the detrended, zero-phase low-passed force after index i0, within
+/// each of `parts` (the moving average and the crossings do not reach across a gap): the
+/// parts' crossings - 1 summed over the parts' first-to-last crossing times summed. 0 when no
+/// part has two.
+double zeroCrossingHz(const std::vector<double>& t, const std::vector<double>& lp,
+                      const std::vector<Stretch>& parts, std::size_t i0, double dt,
+                      double period_s) {
+  if (!(period_s > 0.0)) return 0.0;
   const std::size_t w =
       std::max<std::size_t>(1, static_cast<std::size_t>(std::lround(period_s / dt)));
   const std::size_t half = w / 2;
-  if (n < w + 2) return 0.0;
-  // Prefix sums for a centred one-period moving average.
-  std::vector<double> pre(n + 1, 0.0);
-  for (std::size_t i = 0; i < n; ++i) pre[i + 1] = pre[i] + lp[i];
-  const std::size_t first = std::max(i0, half), last = n - (w - half);
-  if (first + 2 >= last) return 0.0;
-  std::vector<double> d(last - first);
-  double ss = 0.0;
-  for (std::size_t i = first; i < last; ++i) {
-    const double ma = (pre[i - half + w] - pre[i - half]) / static_cast<double>(w);
-    d[i - first] = lp[i] - ma;
-    ss += d[i - first] * d[i - first];
-  }
-  const double h = std::max(0.05, 0.25 * std::sqrt(ss / static_cast<double>(d.size())));
-  bool armed = false;
-  int count = 0;
-  double t_first = 0.0, t_last = 0.0;
-  for (std::size_t k = 1; k < d.size(); ++k) {
-    if (d[k] < -h) armed = true;
-    if (armed && d[k - 1] < 0.0 && d[k] >= 0.0) {
-      const double ta = t[first + k - 1], tb = t[first + k];
-      const double tc = ta + (tb - ta) * (-d[k - 1]) / (d[k] - d[k - 1]);
-      if (count == 0) t_first = tc;
-      t_last = tc;
-      ++count;
-      armed = false;
+  double crossings = 0.0, span = 0.0;
+  for (const Stretch& p : parts) {
+    const std::size_t n = p.end - p.begin;
+    if (n < 4 || n < w + 2) continue;
+    // Prefix sums for a centred one-period moving average.
+    std::vector<double> pre(n + 1, 0.0);
+    for (std::size_t i = 0; i < n; ++i) pre[i + 1] = pre[i] + lp[p.begin + i];
+    const std::size_t first = std::max(i0, p.begin + half), last = p.end - (w - half);
+    if (first + 2 >= last) continue;
+    std::vector<double> d(last - first);
+    double ss = 0.0;
+    for (std::size_t i = first; i < last; ++i) {
+      const std::size_t j = i - p.begin;
+      const double ma = (pre[j - half + w] - pre[j - half]) / static_cast<double>(w);
+      d[i - first] = lp[i] - ma;
+      ss += d[i - first] * d[i - first];
     }
+    const double h = std::max(0.05, 0.25 * std::sqrt(ss / static_cast<double>(d.size())));
+    bool armed = false;
+    int count = 0;
+    double t_first = 0.0, t_last = 0.0;
+    for (std::size_t k = 1; k < d.size(); ++k) {
+      if (d[k] < -h) armed = true;
+      if (armed && d[k - 1] < 0.0 && d[k] >= 0.0) {
+        const double ta = t[first + k - 1], tb = t[first + k];
+        const double tc = ta + (tb - ta) * (-d[k - 1]) / (d[k] - d[k - 1]);
+        if (count == 0) t_first = tc;
+        t_last = tc;
+        ++count;
+        armed = false;
+      }
+    }
+    if (count < 2 || !(t_last > t_first)) continue;
+    crossings += static_cast<double>(count - 1);
+    span += t_last - t_first;
   }
-  if (count < 2 || !(t_last > t_first)) return 0.0;
-  return static_cast<double>(count - 1) / (t_last - t_first);
+  if (!(crossings > 0.0) || !(span > 0.0)) return 0.0;
+  return crossings / span;
+}
+
+/// Each part's stretch of x low-passed with zero phase (filtfilt), nothing across a gap.
+std::vector<double> filtfiltParts(const std::vector<double>& x, const std::vector<Stretch>& parts,
+                                  double cutoff_hz, double dt) {
+  if (parts.size() == 1 && parts.front().begin == 0 && parts.front().end == x.size()) {
+    return filtfilt(x, cutoff_hz, dt);
+  }
+  std::vector<double> y(x.size(), 0.0);
+  for (const Stretch& p : parts) {
+    const std::vector<double> part(x.begin() + static_cast<std::ptrdiff_t>(p.begin),
+                                   x.begin() + static_cast<std::ptrdiff_t>(p.end));
+    const std::vector<double> lp = filtfilt(part, cutoff_hz, dt);
+    std::copy(lp.begin(), lp.end(), y.begin() + static_cast<std::ptrdiff_t>(p.begin));
+  }
+  return y;
+}
+
+/// The parts of `parts` from index i0 on (those ending before it left out).
+std::vector<Stretch> from(const std::vector<Stretch>& parts, std::size_t i0) {
+  std::vector<Stretch> out;
+  for (const Stretch& p : parts) {
+    if (p.end > std::max(p.begin, i0)) out.push_back({std::max(p.begin, i0), p.end});
+  }
+  return out;
 }
 
 /// Angles at relative time tq, linear between samples (clamped at the ends).
@@ -265,6 +317,53 @@ double tidy(double v, int decimals) {
 }
 
 }  // namespace
+
+std::vector<Stretch> stretchesOf(std::span<const double> t_s) {
+  std::vector<Stretch> out;
+  if (t_s.empty()) return out;
+  const double limit = kGapIntervals * medianInterval(t_s);
+  Stretch cur;
+  for (std::size_t i = 1; i < t_s.size(); ++i) {
+    if (!(t_s[i] - t_s[i - 1] <= limit)) {
+      cur.end = i;
+      out.push_back(cur);
+      cur.begin = i;
+    }
+  }
+  cur.end = t_s.size();
+  out.push_back(cur);
+  return out;
+}
+
+std::string whyNotJudged(std::span<const double> t_s, double settle_s, double period_s,
+                         double pickup_periods) {
+  if (t_s.empty()) return "no samples";
+  std::vector<double> t(t_s.size());
+  for (std::size_t i = 0; i < t.size(); ++i) t[i] = t_s[i] - t_s.front();
+  const std::vector<Stretch> parts = stretchesOf(t);
+  double longest = 0.0;
+  for (std::size_t k = 0; k < parts.size(); ++k) {
+    const double start = t[parts[k].begin], end = t[parts[k].end - 1];
+    const double judged_from =
+        k == 0 ? settle_s : std::max(settle_s, start + pickup_periods * period_s);
+    if (end >= judged_from + period_s) return "";
+    longest = std::max(longest, end - start);
+  }
+  char text[320];
+  if (parts.size() == 1) {
+    std::snprintf(text, sizeof text,
+                  "its samples span %.1f s (%.1f s needed: %.1f s to settle and a %.1f s period)",
+                  longest, settle_s + period_s, settle_s, period_s);
+  } else {
+    std::snprintf(text, sizeof text,
+                  "none of its %zu stretches between gaps is long enough to judge (from the "
+                  "start: %.1f s to settle and a %.1f s period; after a gap: %.1f s, to %.1f s "
+                  "or later); the longest spans %.1f s",
+                  parts.size(), settle_s, period_s, (pickup_periods + 1.0) * period_s,
+                  settle_s + period_s, longest);
+  }
+  return text;
+}
 
 double appliedForceRefN(const Sample& s, double force_scale) noexcept {
   Vec3 applied = Vec3::Zero();
@@ -453,17 +552,31 @@ TrialFigures analyse(const Series& s, double band_min_n, double band_max_n, doub
                                   s.force_ref_n.begin() + static_cast<std::ptrdiff_t>(n));
   f.duration_s = t[n - 1];
   const double dt = medianInterval(t);
+  const std::vector<Stretch> parts = stretchesOf(t);
+  f.stretches = parts.size();
 
+  // The detector starts afresh on each stretch; each oscillation is within one. After a gap
+  // its first period picks the oscillation up (its first extremes are where the stretch
+  // began, not the force's): an oscillation there counts from one of its periods in.
   OscillationTracker tracker;
   Oscillation o;
-  for (std::size_t i = 0; i < n; ++i) {
-    if (tracker.add(t[i], force[i], s.angles_rad[i], o) && o.t_start_s >= settle_s) {
-      f.oscillations.push_back(o);
+  std::vector<std::size_t> part_of;  // the stretch of each oscillation
+  for (std::size_t k = 0; k < parts.size(); ++k) {
+    tracker.reset();
+    const double picked_up = k == 0 ? 0.0 : t[parts[k].begin];
+    for (std::size_t i = parts[k].begin; i < parts[k].end; ++i) {
+      if (tracker.add(t[i], force[i], s.angles_rad[i], o) && o.t_start_s >= settle_s &&
+          (k == 0 || o.t_start_s - picked_up >= o.t_end_s - o.t_start_s)) {
+        f.oscillations.push_back(o);
+        part_of.push_back(k);
+      }
     }
   }
   const std::size_t i0 =
       static_cast<std::size_t>(std::lower_bound(t.begin(), t.end(), settle_s) - t.begin());
   if (i0 >= n) return f;
+  const std::vector<Stretch> judged = from(parts, i0);
+  for (const Stretch& p : judged) f.judged_s += t[p.end - 1] - t[p.begin];
 
   if (!f.oscillations.empty()) {
     double peak = 0, trough = 0, amp = 0;
@@ -478,7 +591,7 @@ TrialFigures analyse(const Series& s, double band_min_n, double band_max_n, doub
     f.amplitude_deg = amp / k;
   }
 
-  const std::vector<double> lp = filtfilt(force, kForceCutoffHz, dt);
+  const std::vector<double> lp = filtfiltParts(force, parts, kForceCutoffHz, dt);
   double sum = 0.0;
   int in_band = 0;
   for (int a = 0; a < kAxes; ++a) {
@@ -497,27 +610,28 @@ TrialFigures analyse(const Series& s, double band_min_n, double band_max_n, doub
   f.force_mean_n = sum / m;
   f.time_in_band = in_band / m;
 
-  const std::vector<double> tail(force.begin() + static_cast<std::ptrdiff_t>(i0), force.end());
-  f.frequency_spectrum_hz = spectrumPeakHz(tail, dt, kSpectrumMinHz, kSpectrumMaxHz);
+  f.frequency_spectrum_hz = spectrumPeakHz(force, judged, dt, kSpectrumMinHz, kSpectrumMaxHz);
   if (f.frequency_spectrum_hz > 0.0) {
-    f.frequency_zc_hz = zeroCrossingHz(t, lp, i0, dt, 1.0 / f.frequency_spectrum_hz);
+    f.frequency_zc_hz = zeroCrossingHz(t, lp, parts, i0, dt, 1.0 / f.frequency_spectrum_hz);
   }
 
   // Smoothness: third derivative of the low-passed flexion, per oscillation.
   std::vector<double> flex(n);
   for (std::size_t i = 0; i < n; ++i) flex[i] = s.angles_rad[i][kFlexion];
-  const std::vector<double> fl = filtfilt(flex, kJerkCutoffHz, dt);
+  const std::vector<double> fl = filtfiltParts(flex, parts, kJerkCutoffHz, dt);
   double jerk_sum = 0.0;
   int jerk_n = 0;
-  for (const Oscillation& x : f.oscillations) {
+  for (std::size_t q = 0; q < f.oscillations.size(); ++q) {
+    const Oscillation& x = f.oscillations[q];
+    const Stretch& p = parts[part_of[q]];
     const double a_rad = degToRad(x.amplitude_deg);
     const double T = x.t_end_s - x.t_start_s;
     if (!(a_rad > 1e-9) || !(T > 0.0)) continue;
     auto lo =
         static_cast<std::size_t>(std::lower_bound(t.begin(), t.end(), x.t_start_s) - t.begin());
     auto hi = static_cast<std::size_t>(std::lower_bound(t.begin(), t.end(), x.t_end_s) - t.begin());
-    lo = std::max<std::size_t>(lo, 1);
-    hi = std::min(hi, n - 2);
+    lo = std::max<std::size_t>(lo, p.begin + 1);
+    hi = std::min(hi, p.end - std::min<std::size_t>(p.end, 2));
     double integral = 0.0;
     for (std::size_t i = lo; i < hi; ++i) {
       const double j3 = (fl[i + 2] - 3.0 * fl[i + 1] + 3.0 * fl[i] - fl[i - 1]) / (dt * dt * dt);
@@ -577,7 +691,8 @@ TrialScore score(const Series& attempt, const Targets& t, double settle_s) {
   r.figures = analyse(attempt, t.band_min_n, t.band_max_n, settle_s);
   const TrialFigures& f = r.figures;
   r.time_in_band = f.time_in_band;
-  if (f.oscillations.empty()) return r;
+  r.not_scored = whyNotJudged(attempt.t_s, settle_s, 1.0 / std::max(t.frequency_hz, 0.1), 1.0);
+  if (!r.not_scored.empty() || f.oscillations.empty()) return r;
   r.peak_error_n = f.force_peak_n - t.force_peak_n;
   r.trough_error_n = f.force_trough_n - t.force_trough_n;
   r.mean_error_n = f.force_mean_n - t.force_mean_n;
@@ -608,6 +723,7 @@ double overallScore(std::initializer_list<ScoreTerm> terms) noexcept {
 }
 
 std::string summaryLine(const TrialScore& s) {
+  if (!s.not_scored.empty()) return "trial: not scored: " + s.not_scored;
   const TrialFigures& f = s.figures;
   char buf[320];
   std::snprintf(buf, sizeof buf,

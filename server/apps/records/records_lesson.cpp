@@ -128,7 +128,8 @@ std::vector<Sample> allSamples(SessionStore& store, uint64_t session) {
 
 /// A stored trial's samples: the valid ones (what it is scored on), and what the record holds
 /// of its stretch of sequence numbers against what that stretch should hold. A trial with
-/// under 2 valid samples is not scored.
+/// under 2 valid samples is not scored, nor one whose samples the scorer finds too short to
+/// judge (TrialScore::not_scored, the server's rule).
 struct TrialRead {
   std::vector<Sample> valid;
   TrialSamples samples;
@@ -335,12 +336,18 @@ int runReport(SessionStore& store, const ReportRequest& r) {
       rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
       TrialRead read = readTrial(store, session, t);
       rt.samples = read.samples;
-      addShortfall(shortfall, t.index, rt.label, rt.samples);
       if (rt.samples.scored) {
         rt.series = technique::massageSeriesFromSamples(read.valid, scale);
         rt.score =
             technique::scoreMassage(rt.series, in.targets, in.web, server::lesson::kMassageSettleS);
+        if (!rt.score.not_scored.empty()) {
+          rt.samples.scored = false;  // too little of it to judge: said so, not scored 0
+          rt.samples.why_not = rt.score.not_scored;
+          rt.series = {};
+          rt.score = {};
+        }
       }
+      addShortfall(shortfall, t.index, rt.label, rt.samples);
       in.trials.push_back(std::move(rt));
     }
     in.history = learningHistory(store, info->user, session);
@@ -368,11 +375,17 @@ int runReport(SessionStore& store, const ReportRequest& r) {
     rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
     TrialRead read = readTrial(store, session, t);
     rt.samples = read.samples;
-    addShortfall(shortfall, t.index, rt.label, rt.samples);
     if (rt.samples.scored) {
       rt.series = technique::seriesFromSamples(read.valid, scale);
       rt.score = technique::score(rt.series, in.targets, server::lesson::kSettleS);
+      if (!rt.score.not_scored.empty()) {
+        rt.samples.scored = false;  // too little of it to judge: said so, not scored 0
+        rt.samples.why_not = rt.score.not_scored;
+        rt.series = {};
+        rt.score = {};
+      }
     }
+    addShortfall(shortfall, t.index, rt.label, rt.samples);
     in.trials.push_back(std::move(rt));
   }
   // Ranges before and after, per direction reached in both phases.

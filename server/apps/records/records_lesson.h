@@ -32,7 +32,8 @@ struct ReportRequest {
 };
 /// Writes lesson-SESSION.html, lesson-SESSION-scores.csv and -oscillations.csv; prints the
 /// paths. Every stored trial has a row; one the record lacks samples of says how many (one
-/// without 2 valid samples is not scored): then a warning naming them and 3, else 0.
+/// without 2 valid samples, or with too little left to judge, is not scored and says why):
+/// then a warning naming them and 3, else 0.
 int runReport(server::store::SessionStore& store, const ReportRequest& r);
 
 }  // namespace telehand::records

@@ -422,6 +422,7 @@ std::string TrialSamples::note() const {
   if (found == 0) return "not in the record (0" + of + ")";
   const std::string gap = missing() > 0 ? std::to_string(missing()) + of + " missing" : "";
   if (scored) return gap;
+  if (!why_not.empty()) return "not scored: " + (gap.empty() ? why_not : gap + ": " + why_not);
   return "not scored: " + (gap.empty() ? std::string("under 2 valid samples") : gap);
 }
 

@@ -17,12 +17,16 @@ namespace telehand::records {
 struct TrialSamples {
   uint64_t expected = 0;  ///< last_seq - first_seq + 1; 0: not known (then nothing is said)
   uint64_t found = 0;     ///< samples of that stretch in the record, valid or not
-  /// false: too little of it in the record to score (under 2 valid samples): it has no series
-  /// and no score, and a score of 0 would say the student failed a trial the record lacks.
+  /// false: too little of it in the record to score (under 2 valid samples, or what the
+  /// record holds of it too short to judge: `why_not`): it has no series and no score, and a
+  /// score of 0 would say the student failed a trial the record lacks.
   bool scored = true;
+  /// Why the scorer did not judge it (TrialScore::not_scored), when that is the reason.
+  std::string why_not = {};
   uint64_t missing() const noexcept { return expected > found ? expected - found : 0; }
   /// What the report says of it: "" (the whole trial), "K of M samples missing", "not in the
-  /// record (0 of M samples)", or "not scored: K of M samples missing".
+  /// record (0 of M samples)", "not scored: K of M samples missing", or with why_not
+  /// "not scored: K of M samples missing: <why_not>".
   std::string note() const;
 };
 

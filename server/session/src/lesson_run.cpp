@@ -132,17 +132,33 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   rec.last_seq = t.last_seq;
   std::vector<std::string> lines;  // score events: the oscillations first, then the trial
   std::string summary;
+  // What the record holds is too short to judge (its gaps leave no stretch long enough): not
+  // scored, as a short trial is.
+  auto notJudged = [&](const std::string& why) {
+    ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
+              label + " not scored: " + why + " (" + std::to_string(samples.size()) + " of " +
+                  std::to_string(expected) + " samples in the record)",
+              now_ns);
+  };
   if (massage) {
     const technique::MassageSeries series =
         technique::massageSeriesFromSamples(samples, force_scale);
     const technique::MassageScore sc =
         technique::scoreMassage(series, *massage, web, lesson::kMassageSettleS);
+    if (!sc.not_scored.empty()) {
+      notJudged(sc.not_scored);
+      return;
+    }
     rec.overall = sc.overall;
     rec.figures = lesson::encodeMassageScore(sc);
     summary = technique::massageSummaryLine(sc);
   } else {
     const technique::Series series = technique::seriesFromSamples(samples, force_scale);
     const technique::TrialScore sc = technique::score(series, targets, lesson::kSettleS);
+    if (!sc.not_scored.empty()) {
+      notJudged(sc.not_scored);
+      return;
+    }
     rec.overall = sc.overall;
     rec.figures = lesson::encodeScore(sc);
     summary = technique::summaryLine(sc);

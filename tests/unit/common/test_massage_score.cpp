@@ -116,6 +116,63 @@ TEST(MassageScore, JitterIsNoCircle) {
   EXPECT_EQ(technique::scoreMassage(s, t, web).overall, 0.0);
 }
 
+/// `s` without its samples [from, to): a record that lacks them.
+MassageSeries without(const MassageSeries& s, std::size_t from, std::size_t to) {
+  MassageSeries out;
+  for (std::size_t i = 0; i < s.t_s.size(); ++i) {
+    if (i >= from && i < to) continue;
+    out.t_s.push_back(s.t_s[i]);
+    for (int k = 0; k < 2; ++k) {
+      out.position_m[k].push_back(s.position_m[k][i]);
+      out.normal_ref_n[k].push_back(s.normal_ref_n[k][i]);
+      out.tangential_ref_n[k].push_back(s.tangential_ref_n[k][i]);
+    }
+  }
+  return out;
+}
+
+// A massage whose record lacks a stretch in its middle is judged on the stretches either side:
+// the laps made in the gap are not counted, and the angle is not unwrapped across it (that
+// would read a slower circle), so the frequency and the score are the whole trial's. One with
+// too little left to judge is not scored, and says why, rather than scoring 0.
+TEST(MassageScore, ATrialWithAGapIsJudgedOnItsStretches) {
+  const TissueParams web = tiltedWeb();
+  const MassageTargets t =
+      technique::deriveMassageTargets(syntheticSeries(web, 10.0, 1.5, 0.006, 0.006, 0.0, 0.0), web);
+  for (const double seconds : {4.004, 10.0}) {
+    // 0.2 Hz fast, a little elliptic and small: a score well under 100.
+    const MassageSeries whole = syntheticSeries(web, seconds, 1.7, 0.0055, 0.0050, 0.0, 0.0);
+    const std::size_t n = whole.t_s.size();
+    const MassageScore all = technique::scoreMassage(whole, t, web);
+    const MassageSeries gapped = without(whole, n / 2 - 500, n / 2 + 500);  // 1 s lost
+    const MassageScore part = technique::scoreMassage(gapped, t, web);
+    std::printf("%.1f s: whole %s\n  1 s lost: %s\n", seconds,
+                technique::massageSummaryLine(all).c_str(),
+                technique::massageSummaryLine(part).c_str());
+    ASSERT_TRUE(all.not_scored.empty()) << all.not_scored;
+    EXPECT_EQ(all.figures.stretches, 1u);
+    EXPECT_GT(all.overall, 30.0);
+    EXPECT_LT(all.overall, 90.0);
+    EXPECT_TRUE(part.not_scored.empty()) << part.not_scored;
+    EXPECT_EQ(part.figures.stretches, 2u);
+    EXPECT_NEAR(part.figures.frequency_hz, 1.7, 0.01);
+    EXPECT_NEAR(part.figures.radius_m, all.figures.radius_m, 0.0001);
+    EXPECT_NEAR(part.figures.circularity, all.figures.circularity, 0.02);
+    EXPECT_NEAR(part.figures.circling_share, 1.0, 0.01);
+    EXPECT_LT(part.figures.laps, all.figures.laps);  // the laps in the gap are not there
+    EXPECT_NEAR(part.overall, all.overall, 0.05 * all.overall);
+
+    // Most of it lost: 1.2 s at the start and 0.3 s at the end are left, less than a lap
+    // after the settle in either: not scored, saying why.
+    const MassageScore none = technique::scoreMassage(without(whole, 1200, n - 300), t, web);
+    EXPECT_EQ(none.overall, 0.0);
+    EXPECT_NE(none.not_scored.find("none of its 2 stretches between gaps is long enough"),
+              std::string::npos)
+        << none.not_scored;
+    EXPECT_EQ(technique::massageSummaryLine(none), "massage: not scored: " + none.not_scored);
+  }
+}
+
 // --- Simulated students -------------------------------------------------------------------
 
 MassageSeries simulated(const OperatorConfig& op, const TissueParams& web = tissueCase("healthy"),

@@ -2,6 +2,7 @@
 // frequency and flexion path are known, and attempts made from it with known errors.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -272,6 +273,104 @@ TEST(TechniqueScore, NoOscillationScoresZero) {
   EXPECT_TRUE(r.figures.oscillations.empty());
   EXPECT_EQ(r.overall, 0.0);
   EXPECT_TRUE(deriveTargets(s).path_rad.empty());
+}
+
+/// `s` without its samples [from, to): a record that lacks them.
+Series without(const Series& s, std::size_t from, std::size_t to) {
+  Series out;
+  for (std::size_t i = 0; i < s.t_s.size(); ++i) {
+    if (i >= from && i < to) continue;
+    out.t_s.push_back(s.t_s[i]);
+    out.force_ref_n.push_back(s.force_ref_n[i]);
+    out.angles_rad.push_back(s.angles_rad[i]);
+  }
+  return out;
+}
+
+TEST(TechniqueScore, StretchesSplitWhereTheSamplesJumpMoreThanAFewPeriods) {
+  std::vector<double> t;
+  for (int i = 0; i < 1000; ++i) t.push_back(5.0 + i * 1e-3 + 0.4e-3 * std::sin(0.9 * i));
+  EXPECT_EQ(stretchesOf(t).size(), 1u) << "jitter is no gap";
+  std::vector<double> late = t;
+  for (std::size_t i = 500; i < late.size(); ++i) late[i] += 3e-3;  // 4 samples' time
+  EXPECT_EQ(stretchesOf(late).size(), 1u) << "a late sample or a few lost are no gap";
+  std::vector<double> gap = t;
+  for (std::size_t i = 500; i < gap.size(); ++i) gap[i] += 1.0;
+  for (std::size_t i = 800; i < gap.size(); ++i) gap[i] += 6e-3;
+  const std::vector<Stretch> parts = stretchesOf(gap);
+  ASSERT_EQ(parts.size(), 3u);
+  EXPECT_EQ(parts[0].begin, 0u);
+  EXPECT_EQ(parts[0].end, 500u);
+  EXPECT_EQ(parts[1].begin, 500u);
+  EXPECT_EQ(parts[1].end, 800u);
+  EXPECT_EQ(parts[2].end, 1000u);
+  EXPECT_TRUE(stretchesOf(std::vector<double>{}).empty());
+}
+
+// A trial whose record lacks a stretch in its middle (samples lost on the way, a damaged
+// record) is judged on the stretches either side: the detector starts afresh after the gap and
+// nothing is taken across it, so it scores about what the whole trial does, not 0. One with
+// too little left to judge is not scored, and says why, rather than scoring 0.
+TEST(TechniqueScore, ATrialWithAGapIsJudgedOnItsStretches) {
+  constexpr double kSettle = 2.0;  // a lesson's (server/lesson/lesson.h kSettleS)
+  Synth demo_p;
+  demo_p.ramp_s = 1.5;
+  const Targets t = deriveTargets(make(demo_p), kSettle);
+  Synth att_p = demo_p;
+  att_p.bias_n = 1.0;
+  att_p.freq_hz = 3.3;
+  att_p.noise_n = 0.5;
+  for (const double seconds : {4.004, 10.0}) {
+    att_p.seconds = seconds;
+    const Series whole = make(att_p);
+    const std::size_t n = whole.t_s.size();
+    const TrialScore all = score(whole, t, kSettle);
+    // 1000 samples (1 s) from the middle.
+    const Series gapped = without(whole, n / 2 - 500, n / 2 + 500);
+    const TrialScore part = score(gapped, t, kSettle);
+    std::printf("%.1f s: whole %s\n  1 s lost: %s\n", seconds, summaryLine(all).c_str(),
+                summaryLine(part).c_str());
+    ASSERT_TRUE(all.not_scored.empty()) << all.not_scored;
+    EXPECT_EQ(all.figures.stretches, 1u);
+    EXPECT_GT(all.overall, 30.0);
+    EXPECT_TRUE(part.not_scored.empty()) << part.not_scored;
+    EXPECT_EQ(part.figures.stretches, 2u);
+    // The judged time lacks the gap's part after the settle.
+    const double gap_from = whole.t_s[n / 2 - 501] - whole.t_s[0];
+    const double gap_to = whole.t_s[n / 2 + 500] - whole.t_s[0];
+    EXPECT_NEAR(part.figures.judged_s,
+                all.figures.judged_s - (gap_to - std::max(gap_from, kSettle)), 0.002);
+    EXPECT_FALSE(part.figures.oscillations.empty());
+    EXPECT_NEAR(part.overall, all.overall, 0.1 * all.overall);
+    EXPECT_NEAR(part.frequency_error_hz, all.frequency_error_hz, 0.05);
+    EXPECT_NEAR(part.peak_error_n, all.peak_error_n, 0.2);
+    EXPECT_NEAR(part.mean_error_n, all.mean_error_n, 0.2);
+    EXPECT_NEAR(part.figures.frequency_zc_hz, att_p.freq_hz, 0.05);
+    EXPECT_NEAR(part.figures.jerk, all.figures.jerk, 0.3);
+    // No oscillation runs over the gap.
+    for (const Oscillation& o : part.figures.oscillations) {
+      EXPECT_TRUE(o.t_end_s <= gap_from || o.t_start_s >= gap_to - 0.05)
+          << o.t_start_s << ".." << o.t_end_s;
+    }
+
+    // Most of it lost: 1 s at the start and 0.3 s at the end are left. Nothing after the
+    // settle long enough to find an oscillation in: not scored, saying why.
+    const Series scraps = without(whole, 1000, n - 300);
+    const TrialScore none = score(scraps, t, kSettle);
+    EXPECT_EQ(none.overall, 0.0);
+    EXPECT_NE(none.not_scored.find("none of its 2 stretches between gaps is long enough"),
+              std::string::npos)
+        << none.not_scored;
+    EXPECT_NE(none.not_scored.find("the longest spans 1.0 s"), std::string::npos)
+        << none.not_scored;
+    EXPECT_EQ(summaryLine(none), "trial: not scored: " + none.not_scored);
+  }
+  // A whole trial shorter than the settle and a period: the server's rule, said the same way.
+  att_p.seconds = 2.2;
+  const TrialScore short_trial = score(make(att_p), t, kSettle);
+  EXPECT_EQ(short_trial.overall, 0.0);
+  EXPECT_EQ(short_trial.not_scored,
+            "its samples span 2.2 s (2.3 s needed: 2.0 s to settle and a 0.3 s period)");
 }
 
 TEST(TechniqueScore, AppliedForceIsTheNetPushAtReferenceScale) {

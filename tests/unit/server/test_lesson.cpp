@@ -434,6 +434,51 @@ TEST_F(LessonTest, ATrialTooShortToJudgeOrEmptyIsSaidNotScoredZero) {
   EXPECT_TRUE(store_->trials(run).empty()) << "a trial with nothing to judge was recorded";
 }
 
+// A trial whose record lacks a stretch in its middle (samples the client never delivered) is
+// scored on the stretches either side, about as the whole trial is, not 0; one with too little
+// left to judge is not scored (an error event saying why), not recorded as a 0.
+TEST_F(LessonTest, ATrialWithAGapIsScoredOnItsStretchesAndOneMostlyLostIsNotScored) {
+  const Motion demo;  // 3 Hz: 2 s to settle and a 0.33 s period
+  const uint64_t run = open(telehand_msg_MODE_LESSON, demoLesson(demo, 0, 4));
+  ASSERT_NE(run, 0u);
+  Motion student = demo;  // 1 N harder, 0.3 Hz faster
+  student.mean_n += 1.0;
+  student.hz += 0.3;
+  phase(run, "attempt", 0.0, 0);
+  stream(run, student, 0, 4001);
+  phase(run, "attempt", 0.0, 4000);  // trial 1: samples 1..4000, whole
+  stream(run, student, 4001, 1500);
+  stream(run, student, 6501, 1500);  // 5501..6500 never arrive
+  phase(run, "attempt", 0.0, 8000);  // trial 2: 8001 - 4001 samples, 1000 of them missing
+  stream(run, student, 8001, 1900);
+  stream(run, student, 11801, 200);   // 9901..11800 never arrive
+  phase(run, "attempt", 0.0, 12000);  // trial 3: 1.9 s, then 0.2 s after a 1.9 s gap
+  tickFor(11000);
+  const auto trials = store_->trials(run);
+  ASSERT_EQ(trials.size(), 2u) << "trials 1 and 2 scored, trial 3 not";
+  EXPECT_EQ(trials[0].index, 1);
+  EXPECT_EQ(trials[1].index, 2);
+  EXPECT_EQ(lesson::decodeFigures(trials[0].figures).at("missing"), 0.0);
+  EXPECT_EQ(lesson::decodeFigures(trials[1].figures).at("missing"), 1000.0);
+  EXPECT_GT(trials[0].overall, 20.0);
+  EXPECT_NEAR(trials[1].overall, trials[0].overall, 0.1 * trials[0].overall);
+  const auto scores = out_.textsOf(telehand_msg_EVENT_SCORE, run);
+  bool gap_said = false;
+  for (const auto& e : scores) {
+    gap_said = gap_said || (e.rfind("trial 2 (attempt): trial:", 0) == 0 &&
+                            e.find("(1000 samples missing)") != std::string::npos);
+  }
+  EXPECT_TRUE(gap_said) << ::testing::PrintToString(scores);
+  const auto errors = out_.textsOf(telehand_msg_EVENT_ERROR, run);
+  bool lost_said = false;
+  for (const auto& e : errors) {
+    lost_said =
+        lost_said || (e.rfind("trial 3 (attempt) not scored: none of its 2 stretches", 0) == 0 &&
+                      e.find("(2100 of 4000 samples in the record)") != std::string::npos);
+  }
+  EXPECT_TRUE(lost_said) << ::testing::PrintToString(errors);
+}
+
 TEST_F(LessonTest, AMassageLessonRunsWithTheMassageOnlyAndRefusesTheJointsPhases) {
   technique::MassageTargets t;
   t.normal_mean_n = 10.0;

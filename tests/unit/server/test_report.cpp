@@ -241,6 +241,43 @@ TEST(RecordsReport, ATrialTheRecordLacksKeepsItsRowAndGapsAreCounted) {
   for (const auto& row : csvRows(renderOscillationsCsv(in))) EXPECT_NE(row.at("trial"), "1");
 }
 
+// A trial whose record holds too little to judge (the scorer's not_scored: what is left of it
+// between gaps is too short) keeps its row, not scored and saying why; not scored 0.
+TEST(RecordsReport, ATrialTooShortToJudgeAfterItsGapsSaysWhy) {
+  ReportInput in = lesson();
+  technique::Series scraps;
+  for (std::size_t i = 0; i < in.trials[1].series.t_s.size(); ++i) {
+    if (i >= 1900 && i + 200 < in.trials[1].series.t_s.size()) continue;
+    scraps.t_s.push_back(in.trials[1].series.t_s[i]);
+    scraps.force_ref_n.push_back(in.trials[1].series.force_ref_n[i]);
+    scraps.angles_rad.push_back(in.trials[1].series.angles_rad[i]);
+  }
+  const technique::TrialScore sc = technique::score(scraps, in.targets, 2.0);
+  ASSERT_FALSE(sc.not_scored.empty());
+  EXPECT_EQ(sc.overall, 0.0);
+  in.trials[1].samples = {10000, 2100, false, sc.not_scored};
+  in.trials[1].series = {};
+  in.trials[1].score = {};
+  const std::string note = in.trials[1].samples.note();
+  EXPECT_EQ(note, "not scored: 7900 of 10000 samples missing: " + sc.not_scored);
+  EXPECT_NE(note.find("none of its 2 stretches between gaps is long enough to judge"),
+            std::string::npos)
+      << note;
+  EXPECT_EQ((TrialSamples{4000, 4000, false, "its samples span 2.2 s"}.note()),
+            "not scored: its samples span 2.2 s");
+  const std::string html = renderReportHtml(in);
+  EXPECT_NE(html.find("<td>7900 of 10000 samples missing</td><td colspan=\"9\">not scored</td>"),
+            std::string::npos);
+  EXPECT_NE(html.find("<p>trial 2, &lt;retry&gt; &amp; more: " + note + ".</p>"),
+            std::string::npos);
+  EXPECT_EQ(html.find("id=\"force-1\""), std::string::npos);
+  const auto rows = csvRows(renderScoresCsv(in));
+  ASSERT_EQ(rows.size(), 3u);
+  EXPECT_EQ(rows[1].at("overall"), "") << "not scored, not scored 0";
+  EXPECT_EQ(rows[1].at("samples_missing"), "7900");
+  EXPECT_EQ(rows[1].at("note"), note);
+}
+
 // The massage page and CSV: the same rows for a trial the record lacks.
 TEST(RecordsReport, AMassageTrialTheRecordLacksKeepsItsRow) {
   MassageReportInput in;

@@ -73,6 +73,8 @@ struct MassageFigures {
   /// Share 0..1 of the fingers' samples after settle that press the web: normal force at
   /// least half the band's low end (at least 0.5 N).
   double contact_share = 0;
+  std::size_t stretches = 0;  ///< stretches of samples without a gap (1: no gap)
+  double judged_s = 0;        ///< time after settle the stretches span, gaps excluded
 };
 
 /// Figures of one trial on a web. The circle: a least-squares circle (Kasa) through the
@@ -81,6 +83,15 @@ struct MassageFigures {
 /// those, and the frequency is the slope of the unwrapped angle (least squares over time)
 /// over 2 pi. Fewer than one whole lap, or a radius under kMinCircleRadiusM: the circle's
 /// figures stay 0.
+///
+/// A trial with gaps (stretchesOf, technique_score.h) is judged stretch by stretch, nothing
+/// taken across a gap (the laps made in one are not in the record): the press over all the
+/// samples after settle, as for a whole trial; the angle unwrapped within each stretch, its
+/// whole laps from the stretch's first sample after settle; laps, the second circle, radius,
+/// circularity and radial RMS over all the stretches' whole laps together; the frequency the
+/// least-squares slope of the angle over time with an offset per stretch (each stretch counts
+/// by its length); the circling share's time is the stretches' whole laps plus, per
+/// stretch, the lap under way at its end (one mean lap period, at most the stretch's time).
 MassageFigures analyseMassage(const MassageSeries& s, const TissueParams& web,
                               double band_min_n = 8.0, double band_max_n = 12.0,
                               double settle_s = 1.0);
@@ -125,6 +136,10 @@ struct MassageScore {
   /// trial held still, or circles traced off the web, are not the technique. 0 when the
   /// trial has no whole lap.
   double overall = 0;
+  /// Empty when the trial is scored; else why it is not (whyNotJudged with the targets'
+  /// period and no pick-up after a gap: a lap is counted from a stretch's first sample), and
+  /// `overall` is no score but 0.
+  std::string not_scored;
 };
 
 MassageScore scoreMassage(const MassageSeries& attempt, const MassageTargets& t,
@@ -132,7 +147,7 @@ MassageScore scoreMassage(const MassageSeries& attempt, const MassageTargets& t,
 
 /// One line for an event, e.g. "massage: press 10.2 N (+0.2) sd 0.8 N (+0.1), 1.52 Hz
 /// (+0.02), radius 5.9 mm (x0.98), circularity 0.97 (-0.01), tangential 0.30 (+0.01),
-/// 27 laps, score 93".
+/// 27 laps, score 93"; "massage: not scored: <why>" for a trial not scored.
 std::string massageSummaryLine(const MassageScore& s);
 
 }  // namespace telehand::technique

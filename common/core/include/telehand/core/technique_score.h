@@ -31,6 +31,32 @@ inline constexpr double kForceCutoffHz = 10.0;
 /// The flexion angle is low-passed (zero phase) at this cutoff before its third derivative.
 inline constexpr double kJerkCutoffHz = 20.0;
 
+/// Samples further apart than this many device periods (the median interval between samples)
+/// are in different stretches of the trial: the samples between are not in the record (a
+/// damaged record, samples a client never delivered). Up to it, the filters and the detector
+/// carry over the jump as they do over a late sample.
+inline constexpr double kGapIntervals = 5.0;
+
+/// One stretch of a trial's samples without a gap: indices [begin, end).
+struct Stretch {
+  std::size_t begin = 0, end = 0;
+};
+
+/// The stretches of the sample times `t_s` (increasing): a new one wherever the next sample
+/// comes more than kGapIntervals median intervals after its predecessor. One stretch for a
+/// trial without a gap; none for no samples.
+std::vector<Stretch> stretchesOf(std::span<const double> t_s);
+
+/// Whether a trial's samples are enough to judge: "" when they are, else why not (a phrase
+/// for "... not scored: <why>"). A trial is judged over its stretches (stretchesOf); it can be
+/// judged when one of them reaches one period (`period_s`, the targets') past the settle and
+/// past its own pick-up: the stretch from the trial's first sample needs no pick-up (it had
+/// the settle), one after a gap needs `pickup_periods` periods first (what the detector needs
+/// to find the movement again). For a trial without a gap that is: its samples span at least
+/// the settle plus one period, the rule the server applies to a short trial before scoring it.
+std::string whyNotJudged(std::span<const double> t_s, double settle_s, double period_s,
+                         double pickup_periods);
+
 /// One trial, sampled at (about) 1 kHz. The three vectors have the same length.
 struct Series {
   std::vector<double> t_s;          ///< seconds, increasing
@@ -116,7 +142,13 @@ class OscillationTracker {
   double flex_max_ = 0, flex_min_ = 0;
 };
 
-/// What one trial did.
+/// What one trial did. A trial with gaps (stretchesOf) is analysed stretch by stretch: the
+/// detector starts afresh on each, the filters run within each, and every figure is taken
+/// over the stretches together, each counting by its length (its samples, its oscillations,
+/// its crossings' time; the periodogram sums the stretches' powers, each times the total
+/// length over its own). Nothing is taken across a gap. In a stretch after a gap the
+/// detector's first period picks the oscillation up: an oscillation there counts when it
+/// starts at least one of its periods after the stretch's first sample.
 struct TrialFigures {
   std::vector<Oscillation> oscillations;        ///< those starting after settle
   double force_peak_n = 0, force_trough_n = 0;  ///< mean over the oscillations
@@ -138,7 +170,9 @@ struct TrialFigures {
   /// (LDLJ) of Balasubramanian et al. 2012: larger is jerkier; a pure sinusoid gives
   /// ln((2 pi)^6 / 8) = 8.95 whatever its frequency and amplitude.
   double jerk = 0;
-  double duration_s = 0;  ///< first to last sample
+  double duration_s = 0;      ///< first to last sample
+  std::size_t stretches = 0;  ///< stretches of samples without a gap (1: no gap)
+  double judged_s = 0;        ///< time after settle the stretches span, gaps excluded
 };
 
 /// Figures of one trial against a force band.
@@ -189,6 +223,11 @@ struct TrialScore {
   /// has a cut-off: a larger error, the others unchanged, always scores lower. 0 when the
   /// trial has no oscillation.
   double overall = 0;
+  /// Empty when the trial is scored; else why it is not (whyNotJudged with the targets'
+  /// period, a pick-up of one period after a gap: the detector needs a peak and a trough
+  /// before an oscillation starts), and `overall` is no score but 0: the trial's samples
+  /// are too short to judge, and a 0 would say the student failed what the record cannot show.
+  std::string not_scored;
 };
 
 TrialScore score(const Series& attempt, const Targets& t, double settle_s = 1.0);
@@ -202,7 +241,8 @@ struct ScoreTerm {
 double overallScore(std::initializer_list<ScoreTerm> terms) noexcept;
 
 /// One line for an event, e.g. "trial: peak 15.1 N (+0.3), 3.02 Hz (+0.02), amplitude 8.1
-/// deg (-0.2), in band 82 %, path 0.6 deg, jerk +0.1, score 91".
+/// deg (-0.2), in band 82 %, path 0.6 deg, jerk +0.1, score 91"; "trial: not scored: <why>"
+/// for a trial not scored.
 std::string summaryLine(const TrialScore& s);
 /// One line per oscillation, e.g. "oscillation 2.35-2.68 s: peak 15.9 N (+0.1), trough 12.2 N
 /// (+0.1), 3.03 Hz (+0.03), amplitude 8.0 deg (-0.1)".
