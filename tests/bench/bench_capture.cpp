@@ -26,7 +26,10 @@
 //     (FitOptions::acc_half_window), PROBE_JCOL=C FitOptions::max_inertia_collinearity,
 //     PROBE_J=1 prints each axis' inertia, PROBE_NOISE=N captures with N newtons of
 //     thimble noise (default the paper's 1.43), PROBE_SECONDS=S with S seconds per axis,
-//     PROBE_DUMP=FILE the points.
+//     PROBE_SUBSTEPS=N with the rig's finger integrated N times a sample,
+//     PROBE_DUMP=FILE the points (after a header of the truth's lever, damping, gain and
+//     damping cap; per sample the angles, forces, rates, accelerations and the truth's
+//     holding force per axis).
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
 //     captures (server/estimate/synthetic_massage.h: 60 s, 10 ± 2 N, the paper's 1.43 N
 //     thimble noise), the shipped webs' [tissue] (healthy, oedema, scar, hypertonic) or
@@ -41,6 +44,7 @@
 //          [--acc-window H (FitOptions::acc_half_window)]
 //          [--inertia-collinearity C (FitOptions::max_inertia_collinearity)]
 //          [--sweep-seconds S (per axis, as telehand-client's)]
+//          [--rig-substeps N (CaptureRigOptions::substeps)]
 //          [--technique massage [--seconds S] [--noise N]] | --probe CASE HZ SEED]
 #include <spdlog/spdlog.h>
 #include <time.h>
@@ -153,6 +157,8 @@ struct TableOptions {
   double seconds = 60.0;         ///< massage capture length
   /// Joint capture length per axis (telehand-client --sweep-seconds).
   double sweep_seconds = server::estimate::SyntheticCaptureOptions{}.seconds_per_axis;
+  /// The capture rig's integration steps a sample (CaptureRigOptions::substeps).
+  int rig_substeps = server::estimate::SyntheticCaptureOptions{}.rig_substeps;
   double noise_n = 1.43;
   bool cases_given = false;
   bool each = false;  ///< massage (--each 1): the web's values and a line per fit, signed %
@@ -298,6 +304,7 @@ int fitTable(const TableOptions& t) {
         o.frequency_hz = hz;
         o.seed = seed;
         o.seconds_per_axis = t.sweep_seconds;
+        o.rig_substeps = t.rig_substeps;
         const auto cap = server::estimate::synthesizeCapture(o);
         server::estimate::CaptureFitter fitter(cap.geometry, t.fit);
         for (const auto& smp : cap.samples) fitter.add(smp, true);
@@ -348,6 +355,7 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   o.seed = seed;
   if (const char* h = std::getenv("PROBE_NOISE")) o.noise_n = std::atof(h);
   if (const char* h = std::getenv("PROBE_SECONDS")) o.seconds_per_axis = std::atof(h);
+  if (const char* h = std::getenv("PROBE_SUBSTEPS")) o.rig_substeps = std::atoi(h);
   const auto cap = server::estimate::synthesizeCapture(o);
   server::estimate::FitOptions fo;
   fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
@@ -468,12 +476,20 @@ int probe(const std::string& file, double hz, uint64_t seed) {
     const auto rate = fitter.rates();
     const auto acc = fitter.accelerations();
     const auto& pts = fitter.points();
+    const JointModel tmd(pc.model);
+    std::fprintf(f, "# lever %.6f b %.6f gain %.6f cap %.6f\n", pc.model.lever_arm_m,
+                 pc.model.damping_nms_per_rad, pc.model.speed_gain_s_per_rad,
+                 tmd.maxDampingNmsPerRad());
     for (std::size_t k = 0; k < pts.size(); ++k)
-      std::fprintf(f, "%lld %.5f %.5f %.5f %.4f %.4f %.4f %.4f %.4f %.4f %.2f %.2f %.2f\n",
-                   (long long)pts[k].seq, radToDeg(pts[k].angles_rad[0]),
-                   radToDeg(pts[k].angles_rad[1]), radToDeg(pts[k].angles_rad[2]),
-                   pts[k].axis_force_n[0], pts[k].axis_force_n[1], pts[k].axis_force_n[2],
-                   rate[k][0], rate[k][1], rate[k][2], acc[k][0], acc[k][1], acc[k][2]);
+      std::fprintf(
+          f,
+          "%lld %.5f %.5f %.5f %.4f %.4f %.4f %.4f %.4f %.4f %.2f %.2f %.2f %.5f %.5f "
+          "%.5f\n",
+          (long long)pts[k].seq, radToDeg(pts[k].angles_rad[0]), radToDeg(pts[k].angles_rad[1]),
+          radToDeg(pts[k].angles_rad[2]), pts[k].axis_force_n[0], pts[k].axis_force_n[1],
+          pts[k].axis_force_n[2], rate[k][0], rate[k][1], rate[k][2], acc[k][0], acc[k][1],
+          acc[k][2], tmd.holdingForceN(0, pts[k].angles_rad[0]),
+          tmd.holdingForceN(1, pts[k].angles_rad[1]), tmd.holdingForceN(2, pts[k].angles_rad[2]));
     std::fclose(f);
   }
   return 0;
@@ -492,13 +508,14 @@ int run(int argc, char** argv) {
         "         [--acc-window H (the accelerations over +-H samples)]\n"
         "         [--inertia-collinearity C (0: always the known inertia)]\n"
         "         [--sweep-seconds S (capture length per axis, as telehand-client's)]\n"
+        "         [--rig-substeps N (the simulated finger integrated N times a sample)]\n"
         "         fitted holding force against the truth (docs/capture.md)\n"
         "       telehand_bench_capture --fit-table --technique massage [--seconds S] "
         "[--noise N]\n"
         "       telehand_bench_capture --probe CASE_FILE|random-SEED HZ SEED\n"
         "         one capture fitted; PROBE_CURVE, PROBE_TRUTH, PROBE_LAGS, PROBE_BINS,\n"
         "         PROBE_NOSPASM, PROBE_RHW, PROBE_THW, PROBE_TRHW, PROBE_AHW, PROBE_JCOL,\n"
-        "         PROBE_J, PROBE_NOISE, PROBE_SECONDS, PROBE_DUMP\n"
+        "         PROBE_J, PROBE_NOISE, PROBE_SECONDS, PROBE_SUBSTEPS, PROBE_DUMP\n"
         "         (see the source's header)\n");
     return 0;
   }
@@ -531,6 +548,8 @@ int run(int argc, char** argv) {
         t.seconds = std::stod(val);
       } else if (key == "--sweep-seconds") {
         t.sweep_seconds = std::stod(val);
+      } else if (key == "--rig-substeps") {
+        t.rig_substeps = std::stoi(val);
       } else if (key == "--noise") {
         t.noise_n = std::stod(val);
       } else if (key == "--each") {

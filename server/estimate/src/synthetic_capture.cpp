@@ -27,6 +27,7 @@ SyntheticCapture synthesizeCapture(const SyntheticCaptureOptions& o,
   rig_options.op.seed = o.seed;
   rig_options.axis_noise_n = o.noise_n;
   rig_options.device = o.device;
+  rig_options.substeps = o.rig_substeps;
   devices::CaptureRig rig(rig_options, clock);
 
   const auto ticks = static_cast<std::size_t>(out.plan.durationS() * 1000.0);

@@ -1,5 +1,7 @@
 #include "telehand/devices/capture_rig.h"
 
+#include <algorithm>
+
 #include "telehand/devices/record.h"
 
 namespace telehand::devices {
@@ -11,10 +13,11 @@ JointModelParams forCapture(JointModelParams g) {
   return g;
 }
 
-SimulatedMf2Dynamics rigDynamics(const JointModelParams& geometry) {
+SimulatedMf2Dynamics rigDynamics(const JointModelParams& geometry, int substeps) {
   SimulatedMf2Dynamics dyn;
   dyn.operator_damping = 0.0;  // the clinician's damping is in the servo: the FSRs see it
   dyn.mass_kg += kPhalanxInertiaKgM2 / (geometry.lever_arm_m * geometry.lever_arm_m);
+  dyn.substeps = std::clamp(substeps, 1, 100);
   return dyn;
 }
 }  // namespace
@@ -22,7 +25,7 @@ SimulatedMf2Dynamics rigDynamics(const JointModelParams& geometry) {
 CaptureRig::CaptureRig(const CaptureRigOptions& o, const Clock& clock)
     : clinician_(o.plan),
       device_(std::make_unique<SimulatedMf2>(forCapture(o.geometry), o.op, clock,
-                                             rigDynamics(o.geometry), o.device)),
+                                             rigDynamics(o.geometry, o.substeps), o.device)),
       proxy_(forCapture(o.geometry)),
       clock_(clock),
       wall_offset_ns_(wallNs() - clock.nowNs()) {

@@ -37,17 +37,17 @@ double SimulatedMf2::targetForceN(double t_s) const noexcept {
   return smooth * (mid + amp * std::sin(2.0 * kPi * freq * t_s));
 }
 
-void SimulatedMf2::integrate(double dt) noexcept {
+void SimulatedMf2::integrate(double dt, double into_s, bool sampled) noexcept {
   const JointModelParams& g = geometry_.params();
   const double lever = g.lever_arm_m;
   const double inertia = dyn_.mass_kg * lever * lever;
   const double b = dyn_.operator_damping * lever * lever;
   const double k = dyn_.operator_stiffness * lever * lever;
-  const double t_s = static_cast<double>(sim_ns_ - start_ns_) * 1e-9;
+  const double t_s = static_cast<double>(sim_ns_ - start_ns_) * 1e-9 + into_s;
 
   Vec3 tau_op;
   // The operator's tremor runs whoever scripts the push (a script may add tremorN()).
-  if (op_.tremor_n > 0.0) {
+  if (sampled && op_.tremor_n > 0.0) {
     tremor_n_ = smoothRamp(t_s, op_.ramp_s) * op_.tremor_n * tremor_.step(tremor_noise_());
   }
   if (script_) {
@@ -62,7 +62,7 @@ void SimulatedMf2::integrate(double dt) noexcept {
   // What the operator's fingers press on the thimbles (FSRs see this, not the damping), as
   // the thimbles measure it.
   Vec3 tau_seen = tau_op;
-  if (axis_noise_n_ > 0.0) {
+  if (sampled && axis_noise_n_ > 0.0) {
     for (int i = 0; i < kAxes; ++i) tau_seen[i] += axis_noise_n_ * lever * noise_();
   }
   // fingertipForces gives the forces the phalanx exerts on the fingers; the fingers press
@@ -86,7 +86,9 @@ void SimulatedMf2::advanceTo(int64_t t_ns) noexcept {
       sim_ns_ = t_ns - (t_ns - sim_ns_) % kStepNs;
       break;
     }
-    integrate(1e-3);
+    // What the FSRs see is the force of the last substep: the sample's instant.
+    const int n = std::max(1, dyn_.substeps);
+    for (int i = 0; i < n; ++i) integrate(1e-3 / n, 1e-3 * i / n, i == n - 1);
     sim_ns_ += kStepNs;
     ++seq_;
   }

@@ -29,6 +29,9 @@ struct SimulatedMf2Dynamics {
   double operator_stiffness = 200.0;  ///< N/m holding abduction and axial rotation at neutral
   double half_width_m = 0.008;        ///< thimble centre to phalanx axis
   double pad_angle_deg = 20.0;        ///< how the normal load splits over FSRs 1 (end) and 4 (pad)
+  /// Integration steps per 1 ms sample. One steps the grip with the loop; a capture rig takes
+  /// more, so that its record samples the finger's continuous motion, not the step's own.
+  int substeps = 1;
 };
 
 /// Who holds the thimbles: the torque per MCP axis (reference scale, N·m) their fingers
@@ -95,7 +98,9 @@ class SimulatedMf2 final : public Device {
 
  private:
   void advanceTo(int64_t t_ns) noexcept;
-  void integrate(double dt) noexcept;
+  /// One step of dt, `into_s` into the sample's millisecond; `sampled`: the last before the
+  /// sample (the FSRs' noise and the tremor are drawn once a sample).
+  void integrate(double dt, double into_s, bool sampled) noexcept;
   PerFinger<Quat> thimbleOrientations() const noexcept;
   bool updatePose(const PerFinger<Quat>& thimbles, PerFinger<mf2::ThimblePose>& measured) noexcept;
 

@@ -11,6 +11,7 @@
 
 #include "telehand/core/joint_model.h"
 #include "telehand/core/sample.h"
+#include "telehand/devices/capture_rig.h"
 #include "telehand/devices/mf2_device.h"
 #include "telehand/devices/sweep_operator.h"
 #include "telehand/server/estimate/capture_fit.h"
@@ -36,6 +37,8 @@ struct SyntheticCaptureOptions {
   /// which still plans the sweep. Not owned.
   const devices::PatientJoint* patient = nullptr;
   bool combined_sweep = false;  ///< flexion and abduction together (SweepPlan::combined)
+  /// The finger's integration steps a sample (CaptureRigOptions::substeps).
+  int rig_substeps = devices::CaptureRigOptions{}.substeps;
 };
 
 struct SyntheticCapture {
