@@ -321,7 +321,7 @@ double tidy(double v, int decimals) {
 std::vector<Stretch> stretchesOf(std::span<const double> t_s) {
   std::vector<Stretch> out;
   if (t_s.empty()) return out;
-  const double limit = kGapIntervals * medianInterval(t_s);
+  const double limit = std::max(kGapIntervals * medianInterval(t_s), kMinGapS);
   Stretch cur;
   for (std::size_t i = 1; i < t_s.size(); ++i) {
     if (!(t_s[i] - t_s[i - 1] <= limit)) {

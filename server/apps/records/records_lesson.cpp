@@ -187,6 +187,32 @@ int reportExit(uint64_t session, const Shortfall& f) {
   return 3;
 }
 
+/// Every stored trial of `session` as a row of the report, scored again from its record by
+/// `rescore(valid samples, row)` (which sets the row's series and score) where the record holds
+/// enough of it; a trial the record lacks samples of says how many, and one too short to judge
+/// says so, not scored 0.
+template <class Row, class Rescore>
+void trialRows(SessionStore& store, uint64_t session, Shortfall& shortfall, std::vector<Row>& rows,
+               const Rescore& rescore) {
+  for (const auto& t : store.trials(session)) {
+    Row rt;
+    rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
+    TrialRead read = readTrial(store, session, t);
+    rt.samples = read.samples;
+    if (rt.samples.scored) {
+      rescore(read.valid, rt);
+      if (!rt.score.not_scored.empty()) {
+        rt.samples.scored = false;
+        rt.samples.why_not = rt.score.not_scored;
+        rt.series = {};
+        rt.score = {};
+      }
+    }
+    addShortfall(shortfall, t.index, rt.label, rt.samples);
+    rows.push_back(std::move(rt));
+  }
+}
+
 }  // namespace
 
 int runLessonCreate(const LessonRequest& r) {
@@ -329,27 +355,12 @@ int runReport(SessionStore& store, const ReportRequest& r) {
     in.subtitle = "massage run: session " + std::to_string(session) + " by " + info->user +
                   " on case " + info->case_name + " (" + info->state + "), " + lesson->schedule +
                   " feedback";
-    // Every stored trial keeps its row: one the record lacks samples of says how many.
     Shortfall shortfall;
-    for (const auto& t : store.trials(session)) {
-      MassageReportTrial rt;
-      rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
-      TrialRead read = readTrial(store, session, t);
-      rt.samples = read.samples;
-      if (rt.samples.scored) {
-        rt.series = technique::massageSeriesFromSamples(read.valid, scale);
-        rt.score =
-            technique::scoreMassage(rt.series, in.targets, in.web, server::lesson::kMassageSettleS);
-        if (!rt.score.not_scored.empty()) {
-          rt.samples.scored = false;  // too little of it to judge: said so, not scored 0
-          rt.samples.why_not = rt.score.not_scored;
-          rt.series = {};
-          rt.score = {};
-        }
-      }
-      addShortfall(shortfall, t.index, rt.label, rt.samples);
-      in.trials.push_back(std::move(rt));
-    }
+    trialRows(store, session, shortfall, in.trials, [&](const auto& valid, MassageReportTrial& rt) {
+      rt.series = technique::massageSeriesFromSamples(valid, scale);
+      rt.score =
+          technique::scoreMassage(rt.series, in.targets, in.web, server::lesson::kMassageSettleS);
+    });
     in.history = learningHistory(store, info->user, session);
     writeFileAtomically(base + ".html", renderMassageReportHtml(in));
     writeFileAtomically(base + "-scores.csv", renderMassageScoresCsv(in));
@@ -367,27 +378,12 @@ int runReport(SessionStore& store, const ReportRequest& r) {
   in.title = "Lesson " + std::to_string(lesson->id) + ": " + lesson->name;
   in.subtitle = "run: session " + std::to_string(session) + " by " + info->user + " on case " +
                 info->case_name + " (" + info->state + "), " + lesson->schedule + " feedback";
-  // Each trial scored again from its record (the scores are a function of the record); every
-  // stored trial keeps its row, one the record lacks samples of saying how many.
+  // Each trial scored again from its record (the scores are a function of the record).
   Shortfall shortfall;
-  for (const auto& t : store.trials(session)) {
-    ReportTrial rt;
-    rt.label = server::lesson::trialLabel(t.index, t.phase, t.authority);
-    TrialRead read = readTrial(store, session, t);
-    rt.samples = read.samples;
-    if (rt.samples.scored) {
-      rt.series = technique::seriesFromSamples(read.valid, scale);
-      rt.score = technique::score(rt.series, in.targets, server::lesson::kSettleS);
-      if (!rt.score.not_scored.empty()) {
-        rt.samples.scored = false;  // too little of it to judge: said so, not scored 0
-        rt.samples.why_not = rt.score.not_scored;
-        rt.series = {};
-        rt.score = {};
-      }
-    }
-    addShortfall(shortfall, t.index, rt.label, rt.samples);
-    in.trials.push_back(std::move(rt));
-  }
+  trialRows(store, session, shortfall, in.trials, [&](const auto& valid, ReportTrial& rt) {
+    rt.series = technique::seriesFromSamples(valid, scale);
+    rt.score = technique::score(rt.series, in.targets, server::lesson::kSettleS);
+  });
   // Ranges before and after, per direction reached in both phases.
   std::map<std::string, double> before, after;
   for (const auto& reach : store.reaches(session)) {

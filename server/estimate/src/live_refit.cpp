@@ -70,9 +70,10 @@ std::optional<LiveRefit::Update> LiveRefit::poll(int64_t now_ns) {
     if (!u.fit.axes[i].wall_min) c.min_deg -= options_.range_margin_deg;
     if (!u.fit.axes[i].wall_max) c.max_deg += options_.range_margin_deg;
     // A joint resists being moved: a curve that falls anywhere in the published range (a
-    // cubic fitted to too little, noisy data, or extended by the margin) is not published;
-    // the axis keeps what followers have now. The offline fit refuses such a curve too.
-    if (!risesOverRange(c)) {
+    // cubic fitted to too little, noisy data, or extended by the margin), or holds more than
+    // a joint can, is not published (a follower would refuse it: the wire's own check); the
+    // axis keeps what followers have now. The offline fit refuses such a curve too.
+    if (!risesOverRange(c) || passiveCurveProblem(c)) {
       u.params.axes[i] = published_.axes[i];
       u.params.neutral_zone_deg[i] = published_.neutral_zone_deg[i];
       continue;

@@ -36,6 +36,10 @@ inline constexpr double kJerkCutoffHz = 20.0;
 /// damaged record, samples a client never delivered). Up to it, the filters and the detector
 /// carry over the jump as they do over a late sample.
 inline constexpr double kGapIntervals = 5.0;
+/// ...and at least this long, s: a haptic loop that stalls catches up with the device's time
+/// without losing a sample (its repeated readings are taken once), so a jump of a few
+/// milliseconds is no gap in the record; a stall is carried over as a late sample is.
+inline constexpr double kMinGapS = 0.025;
 
 /// One stretch of a trial's samples without a gap: indices [begin, end).
 struct Stretch {
@@ -43,8 +47,8 @@ struct Stretch {
 };
 
 /// The stretches of the sample times `t_s` (increasing): a new one wherever the next sample
-/// comes more than kGapIntervals median intervals after its predecessor. One stretch for a
-/// trial without a gap; none for no samples.
+/// comes more than kGapIntervals median intervals, and kMinGapS, after its predecessor. One
+/// stretch for a trial without a gap; none for no samples.
 std::vector<Stretch> stretchesOf(std::span<const double> t_s);
 
 /// Whether a trial's samples are enough to judge: "" when they are, else why not (a phrase
