@@ -187,13 +187,9 @@ MassageFigures analyseMassage(const MassageSeries& s, const TissueParams& web, d
   // The stretches without a gap, from the settle on: nothing is taken across a gap.
   const std::vector<Stretch> all = stretchesOf(std::span<const double>(t));
   f.stretches = all.size();
-  std::vector<Stretch> judged;
+  const std::vector<Stretch> judged = stretchesFrom(all, i0);
   double judged_s = 0.0;
-  for (const Stretch& p : all) {
-    if (p.end <= std::max(p.begin, i0)) continue;
-    judged.push_back({std::max(p.begin, i0), p.end});
-    judged_s += s.t_s[p.end - 1] - s.t_s[judged.back().begin];
-  }
+  for (const Stretch& p : judged) judged_s += s.t_s[p.end - 1] - s.t_s[p.begin];
   f.judged_s = judged_s;
   const CircleFit first = kasa(pw, {{i0, n}});
   if (!first.ok) return f;

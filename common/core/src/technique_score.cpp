@@ -228,15 +228,6 @@ std::vector<double> filtfiltParts(const std::vector<double>& x, const std::vecto
   return y;
 }
 
-/// The parts of `parts` from index i0 on (those ending before it left out).
-std::vector<Stretch> from(const std::vector<Stretch>& parts, std::size_t i0) {
-  std::vector<Stretch> out;
-  for (const Stretch& p : parts) {
-    if (p.end > std::max(p.begin, i0)) out.push_back({std::max(p.begin, i0), p.end});
-  }
-  return out;
-}
-
 /// Angles at relative time tq, linear between samples (clamped at the ends).
 Vec3 anglesAt(const std::vector<double>& t, const std::vector<Vec3>& a, double tq) {
   if (tq <= t.front()) return a.front();
@@ -332,6 +323,14 @@ std::vector<Stretch> stretchesOf(std::span<const double> t_s) {
   }
   cur.end = t_s.size();
   out.push_back(cur);
+  return out;
+}
+
+std::vector<Stretch> stretchesFrom(const std::vector<Stretch>& parts, std::size_t i0) {
+  std::vector<Stretch> out;
+  for (const Stretch& p : parts) {
+    if (p.end > std::max(p.begin, i0)) out.push_back({std::max(p.begin, i0), p.end});
+  }
   return out;
 }
 
@@ -575,7 +574,7 @@ TrialFigures analyse(const Series& s, double band_min_n, double band_max_n, doub
   const std::size_t i0 =
       static_cast<std::size_t>(std::lower_bound(t.begin(), t.end(), settle_s) - t.begin());
   if (i0 >= n) return f;
-  const std::vector<Stretch> judged = from(parts, i0);
+  const std::vector<Stretch> judged = stretchesFrom(parts, i0);
   for (const Stretch& p : judged) f.judged_s += t[p.end - 1] - t[p.begin];
 
   if (!f.oscillations.empty()) {

@@ -95,27 +95,12 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   const uint64_t expected = t.last_seq - t.first_seq + 1;
   const uint64_t missing = expected - std::min<uint64_t>(expected, samples.size());
   const std::string label = lesson::trialLabel(t.index, t.phase, t.authority);
-  const double settle_s = massage ? lesson::kMassageSettleS : lesson::kSettleS;
-  const double period_s = massage ? 1.0 / std::max(std::abs(massage->frequency_hz), 0.1)
-                                  : 1.0 / std::max(targets.frequency_hz, 0.1);
   // The trial's length on its samples' clock (samples are loop ticks, up to 4 kHz).
   const double span_s =
       samples.empty()
           ? 0.0
           : static_cast<double>(samples.back().source_time_ns - samples.front().source_time_ns) *
                 1e-9;
-  if (!(span_s >= settle_s + period_s)) {
-    // Shorter than the settling and one of the demonstration's periods: nothing to judge, and
-    // a 0 would say the student failed a trial the record cannot show.
-    char need[64];
-    std::snprintf(need, sizeof need, "%.1f s needed: %.1f s to settle and a %.1f s period",
-                  settle_s + period_s, settle_s, period_s);
-    ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
-              label + " not scored: " + std::to_string(samples.size()) + " of " +
-                  std::to_string(expected) + " samples in the record (" + need + ")",
-              now_ns);
-    return;
-  }
   if (samples.size() < 2000) {
     ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
               label + " not scored: " + std::to_string(samples.size()) + " of " +
@@ -132,8 +117,10 @@ void LessonRun::score(SessionContext& ctx, uint64_t session_id, uint64_t client_
   rec.last_seq = t.last_seq;
   std::vector<std::string> lines;  // score events: the oscillations first, then the trial
   std::string summary;
-  // What the record holds is too short to judge (its gaps leave no stretch long enough): not
-  // scored, as a short trial is.
+  // What the record holds is too short to judge (shorter than the settling and one of the
+  // demonstration's periods, or its gaps leave no stretch that long; the scorer's rule,
+  // whyNotJudged): not scored, since a 0 would say the student failed a trial the record
+  // cannot show.
   auto notJudged = [&](const std::string& why) {
     ctx.event(session_id, client_id, telehand_msg_EVENT_ERROR,
               label + " not scored: " + why + " (" + std::to_string(samples.size()) + " of " +

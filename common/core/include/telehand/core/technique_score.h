@@ -51,6 +51,10 @@ struct Stretch {
 /// stretch for a trial without a gap; none for no samples.
 std::vector<Stretch> stretchesOf(std::span<const double> t_s);
 
+/// The stretches of `parts` from index i0 on (those ending before it left out, the one
+/// across it cut there): what is judged after the settle.
+std::vector<Stretch> stretchesFrom(const std::vector<Stretch>& parts, std::size_t i0);
+
 /// Whether a trial's samples are enough to judge: "" when they are, else why not (a phrase
 /// for "... not scored: <why>"). A trial is judged over its stretches (stretchesOf); it can be
 /// judged when one of them reaches one period (`period_s`, the targets') past the settle and
