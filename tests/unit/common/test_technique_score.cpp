@@ -295,11 +295,11 @@ TEST(TechniqueScore, StretchesSplitWhereTheSamplesJumpMoreThanAFewPeriods) {
   for (std::size_t i = 500; i < late.size(); ++i) late[i] += 3e-3;  // 4 samples' time
   EXPECT_EQ(stretchesOf(late).size(), 1u) << "a late sample or a few lost are no gap";
   std::vector<double> stall = t;
-  for (std::size_t i = 500; i < stall.size(); ++i) stall[i] += 15e-3;
-  EXPECT_EQ(stretchesOf(stall).size(), 1u) << "a loop's 15 ms stall loses no sample";
+  for (std::size_t i = 500; i < stall.size(); ++i) stall[i] += 0.2;
+  EXPECT_EQ(stretchesOf(stall).size(), 1u) << "a loop's 200 ms stall loses no sample";
   std::vector<double> gap = t;
   for (std::size_t i = 500; i < gap.size(); ++i) gap[i] += 1.0;
-  for (std::size_t i = 800; i < gap.size(); ++i) gap[i] += 30e-3;
+  for (std::size_t i = 800; i < gap.size(); ++i) gap[i] += 0.3;
   const std::vector<Stretch> parts = stretchesOf(gap);
   ASSERT_EQ(parts.size(), 3u);
   EXPECT_EQ(parts[0].begin, 0u);

@@ -37,9 +37,11 @@ inline constexpr double kJerkCutoffHz = 20.0;
 /// carry over the jump as they do over a late sample.
 inline constexpr double kGapIntervals = 5.0;
 /// ...and at least this long, s: a haptic loop that stalls catches up with the device's time
-/// without losing a sample (its repeated readings are taken once), so a jump of a few
-/// milliseconds is no gap in the record; a stall is carried over as a late sample is.
-inline constexpr double kMinGapS = 0.025;
+/// without losing a sample (its repeated readings are taken once), so a jump in the samples'
+/// times is no gap in the record; on a loaded machine loops stall for tens of milliseconds
+/// (a leader's record split at every stall misread its frequency). A stall, or a short loss,
+/// is carried over as a late sample is.
+inline constexpr double kMinGapS = 0.25;
 
 /// One stretch of a trial's samples without a gap: indices [begin, end).
 struct Stretch {
