@@ -33,12 +33,13 @@ struct CaptureRigOptions {
   OperatorConfig op;          ///< FSR noise and seed (the band and frequency are unused)
   double axis_noise_n = 0.0;  ///< thimble error per axis, N RMS (paper: 1.43)
   mf2::Mf2Description device = mf2::defaultMf2();
-  /// Integration steps of the finger per 1 ms sample (SimulatedMf2Dynamics::substeps). With
+  /// Integration steps of the finger per 1 ms sample (SimulatedMf2Dynamics::substeps). At 10
+  /// the record samples the finger's continuous motion, as a real finger's would be: a
+  /// sample's force goes with the angle and rate at its own instant (0.1 ms before it). With
   /// 1, semi-implicit Euler at the loop's rate, the force of a sample goes with the angle a
-  /// sample before and the rate half a sample before that; with more the record samples the
-  /// finger's continuous motion (docs/capture.md, "Known limits": what that changes for the
-  /// fit).
-  int substeps = 1;
+  /// sample before and the rate half a sample before that, a discretization no finger has
+  /// (docs/capture.md, "Known limits": what that changed for the fit).
+  int substeps = 10;
 };
 
 class CaptureRig {
