@@ -52,18 +52,21 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   const std::string db = (dir / "records.db").string();
   Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "90"}),
                  (dir / "server.log").string());
-  // The expert: the healthy case's finger in the grip, each axis mobilized for 4 s; the
-  // session opens on the lax case (its model until the first fit).
+  // The expert: the healthy case's finger in the grip, each axis mobilized for 6 s; the
+  // session opens on the lax case (its model until the first fit). Each refit keeps the next
+  // one four times its own time away (LiveRefitOptions::max_busy_fraction), which a loaded
+  // machine stretches: on an idle one the follower reaches its fourth model in 13 s, and on
+  // a loaded one it once saw only its second; 17 s leaves room for the third.
   Process expert(
       cmd(TELEHAND_CLIENT_BIN,
-          {"--mode", "capture", "--case", "lax", "--patient", "healthy", "--sweep-seconds", "4",
-           "--seconds", "16", "-q", "--device-file", TELEHAND_DEPLOY_DIR "/devices/mf2.toml"}),
+          {"--mode", "capture", "--case", "lax", "--patient", "healthy", "--sweep-seconds", "6",
+           "--seconds", "20", "-q", "--device-file", TELEHAND_DEPLOY_DIR "/devices/mf2.toml"}),
       (dir / "expert.log").string());
   const uint64_t capture = waitForSession(expert, 20s);
   ASSERT_GT(capture, 0u) << expert.output() << server.output();
   // The follower: a student elsewhere, starting on the lax joint until the fit arrives,
   // mobilizing with 6-10 N (the expert went to 15 N: the student stays in the captured range).
-  Process follower(cmd(TELEHAND_CLIENT_BIN, {"--follow", std::to_string(capture), "--seconds", "13",
+  Process follower(cmd(TELEHAND_CLIENT_BIN, {"--follow", std::to_string(capture), "--seconds", "17",
                                              "-q", "--band-min", "6", "--band-max", "10"}),
                    (dir / "follower.log").string());
   const auto expert_rc = expert.wait(40s);
