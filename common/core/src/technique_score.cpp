@@ -96,27 +96,55 @@ void fft(std::vector<std::complex<double>>& a) {
   }
 }
 
-/// Periodogram peak of x (uniform interval dt) over `parts` in [lo, hi] Hz: per part, cubic
-/// trend removed, Hann window, zero padded to >= 8x the longest part; the parts' powers
-/// summed, each times (total length / its length), so that each counts by its length (a
-/// coherent oscillation's power grows with the square of the length); a parabola through the
-/// log power of the peak bin and its neighbours. Parts under 16 samples are left out. 0 when
-/// none is left or the sum is flat.
-double spectrumPeakHz(const std::vector<double>& x, const std::vector<Stretch>& parts, double dt,
-                      double lo, double hi) {
+/// A part of x at the times t as samples dt apart from its first time (linear interpolation),
+/// or as it is where its samples already are dt apart (within 5 %). A loop that stalls
+/// records fewer samples than the time that passed (each tick reads the device once, however
+/// many of its steps went by), and read as if dt apart they would run faster than they did.
+std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vector<double>& t,
+                                  const Stretch& p, double dt) {
+  bool uniform = true;
+  for (std::size_t i = p.begin + 1; i < p.end && uniform; ++i)
+    uniform = std::abs(t[i] - t[i - 1] - dt) <= 0.05 * dt;
+  if (uniform) return {x.begin() + static_cast<std::ptrdiff_t>(p.begin),
+                       x.begin() + static_cast<std::ptrdiff_t>(p.end)};
+  const double t0 = t[p.begin], span = t[p.end - 1] - t0;
+  const auto m = static_cast<std::size_t>(std::floor(span / dt)) + 1;
+  std::vector<double> out(m);
+  std::size_t j = p.begin;
+  for (std::size_t k = 0; k < m; ++k) {
+    const double tk = t0 + static_cast<double>(k) * dt;
+    while (j + 2 < p.end && t[j + 1] <= tk) ++j;
+    const double d = t[j + 1] - t[j];
+    const double f = d > 0.0 ? std::clamp((tk - t[j]) / d, 0.0, 1.0) : 0.0;
+    out[k] = x[j] + f * (x[j + 1] - x[j]);
+  }
+  return out;
+}
+
+/// Periodogram peak of x (at the times t, read dt apart: onUniformGrid) over `parts` in
+/// [lo, hi] Hz: per part, cubic trend removed, Hann window, zero padded to >= 8x the longest
+/// part; the parts' powers summed, each times (total length / its length), so that each
+/// counts by its length (a coherent oscillation's power grows with the square of the
+/// length); a parabola through the log power of the peak bin and its neighbours. Parts under
+/// 16 samples are left out. 0 when none is left or the sum is flat.
+double spectrumPeakHz(const std::vector<double>& x_in, const std::vector<double>& t,
+                      const std::vector<Stretch>& parts, double dt, double lo, double hi) {
+  std::vector<std::vector<double>> grid;
+  for (const Stretch& p : parts) grid.push_back(p.end - p.begin < 2 ? std::vector<double>{}
+                                                                    : onUniformGrid(x_in, t, p, dt));
   std::size_t longest = 0, total = 0;
-  for (const Stretch& p : parts) {
-    if (p.end - p.begin < 16) continue;
-    longest = std::max(longest, p.end - p.begin);
-    total += p.end - p.begin;
+  for (const auto& g : grid) {
+    if (g.size() < 16) continue;
+    longest = std::max(longest, g.size());
+    total += g.size();
   }
   if (longest == 0) return 0.0;
   std::size_t n = 1;
   while (n < 8 * longest) n <<= 1;
   std::vector<double> power(n / 2 + 1, 0.0);
   std::vector<std::complex<double>> a(n);
-  for (const Stretch& p : parts) {
-    const std::size_t m = p.end - p.begin;
+  for (const auto& x : grid) {
+    const std::size_t m = x.size();
     if (m < 16) continue;
     // Cubic least-squares trend on u in [-1, 1].
     Eigen::Matrix4d ata = Eigen::Matrix4d::Zero();
@@ -126,7 +154,7 @@ double spectrumPeakHz(const std::vector<double>& x, const std::vector<Stretch>& 
       u[i] = 2.0 * static_cast<double>(i) / static_cast<double>(m - 1) - 1.0;
       const Eigen::Vector4d row(1.0, u[i], u[i] * u[i], u[i] * u[i] * u[i]);
       ata += row * row.transpose();
-      atb += row * x[p.begin + i];
+      atb += row * x[i];
     }
     const Eigen::Vector4d c = ata.ldlt().solve(atb);
     std::fill(a.begin(), a.end(), std::complex<double>(0.0, 0.0));
@@ -134,7 +162,7 @@ double spectrumPeakHz(const std::vector<double>& x, const std::vector<Stretch>& 
       const double trend = c[0] + u[i] * (c[1] + u[i] * (c[2] + u[i] * c[3]));
       const double w =
           0.5 - 0.5 * std::cos(2.0 * kPi * static_cast<double>(i) / static_cast<double>(m - 1));
-      a[i] = {(x[p.begin + i] - trend) * w, 0.0};
+      a[i] = {(x[i] - trend) * w, 0.0};
     }
     fft(a);
     const double weight = static_cast<double>(total) / static_cast<double>(m);
@@ -609,7 +637,8 @@ TrialFigures analyse(const Series& s, double band_min_n, double band_max_n, doub
   f.force_mean_n = sum / m;
   f.time_in_band = in_band / m;
 
-  f.frequency_spectrum_hz = spectrumPeakHz(force, judged, dt, kSpectrumMinHz, kSpectrumMaxHz);
+  f.frequency_spectrum_hz =
+      spectrumPeakHz(force, t, judged, dt, kSpectrumMinHz, kSpectrumMaxHz);
   if (f.frequency_spectrum_hz > 0.0) {
     f.frequency_zc_hz = zeroCrossingHz(t, lp, parts, i0, dt, 1.0 / f.frequency_spectrum_hz);
   }

@@ -36,11 +36,11 @@ inline constexpr double kJerkCutoffHz = 20.0;
 /// damaged record, samples a client never delivered). Up to it, the filters and the detector
 /// carry over the jump as they do over a late sample.
 inline constexpr double kGapIntervals = 5.0;
-/// ...and at least this long, s: a haptic loop that stalls catches up with the device's time
-/// without losing a sample (its repeated readings are taken once), so a jump in the samples'
-/// times is no gap in the record; on a loaded machine loops stall for tens of milliseconds
-/// (a leader's record split at every stall misread its frequency). A stall, or a short loss,
-/// is carried over as a late sample is.
+/// ...and at least this long, s: a haptic loop that stalls reads the device once when it
+/// resumes, however many of the device's steps went by, so its record's times jump; on a
+/// loaded machine loops stall for tens of milliseconds, and a record split at every stall
+/// leaves stretches too short to judge. A stall, or a short loss, is carried over as a late
+/// sample is, and the spectrum reads the samples at their times.
 inline constexpr double kMinGapS = 0.25;
 
 /// One stretch of a trial's samples without a gap: indices [begin, end).
