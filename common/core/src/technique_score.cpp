@@ -105,8 +105,9 @@ std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vecto
   bool uniform = true;
   for (std::size_t i = p.begin + 1; i < p.end && uniform; ++i)
     uniform = std::abs(t[i] - t[i - 1] - dt) <= 0.05 * dt;
-  if (uniform) return {x.begin() + static_cast<std::ptrdiff_t>(p.begin),
-                       x.begin() + static_cast<std::ptrdiff_t>(p.end)};
+  if (uniform)
+    return {x.begin() + static_cast<std::ptrdiff_t>(p.begin),
+            x.begin() + static_cast<std::ptrdiff_t>(p.end)};
   const double t0 = t[p.begin], span = t[p.end - 1] - t0;
   const auto m = static_cast<std::size_t>(std::floor(span / dt)) + 1;
   std::vector<double> out(m);
@@ -130,8 +131,8 @@ std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vecto
 double spectrumPeakHz(const std::vector<double>& x_in, const std::vector<double>& t,
                       const std::vector<Stretch>& parts, double dt, double lo, double hi) {
   std::vector<std::vector<double>> grid;
-  for (const Stretch& p : parts) grid.push_back(p.end - p.begin < 2 ? std::vector<double>{}
-                                                                    : onUniformGrid(x_in, t, p, dt));
+  for (const Stretch& p : parts)
+    grid.push_back(p.end - p.begin < 2 ? std::vector<double>{} : onUniformGrid(x_in, t, p, dt));
   std::size_t longest = 0, total = 0;
   for (const auto& g : grid) {
     if (g.size() < 16) continue;
@@ -637,8 +638,7 @@ TrialFigures analyse(const Series& s, double band_min_n, double band_max_n, doub
   f.force_mean_n = sum / m;
   f.time_in_band = in_band / m;
 
-  f.frequency_spectrum_hz =
-      spectrumPeakHz(force, t, judged, dt, kSpectrumMinHz, kSpectrumMaxHz);
+  f.frequency_spectrum_hz = spectrumPeakHz(force, t, judged, dt, kSpectrumMinHz, kSpectrumMaxHz);
   if (f.frequency_spectrum_hz > 0.0) {
     f.frequency_zc_hz = zeroCrossingHz(t, lp, parts, i0, dt, 1.0 / f.frequency_spectrum_hz);
   }

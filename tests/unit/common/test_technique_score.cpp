@@ -306,13 +306,14 @@ TEST(TechniqueScore, TheFrequencyIsReadAtTheSamplesTimesWhereTicksWereSkipped) {
     late.angles_rad.push_back(full.angles_rad[i]);
   }
   as_if_regular = late;
-  for (std::size_t i = 0; i < late.t_s.size(); ++i) as_if_regular.t_s[i] = 100.0 + 1e-3 * static_cast<double>(i);
+  for (std::size_t i = 0; i < late.t_s.size(); ++i)
+    as_if_regular.t_s[i] = 100.0 + 1e-3 * static_cast<double>(i);
   const TrialFigures read = analyse(late, 12.0, 16.0);
   const TrialFigures regular = analyse(as_if_regular, 12.0, 16.0);
-  std::printf("2.0 Hz with 20 %% of ticks skipped: %.3f Hz at the samples' times, %.3f Hz read "
-              "a millisecond apart; the guide's %.3f Hz\n",
-              read.frequency_spectrum_hz, regular.frequency_spectrum_hz,
-              deriveTargets(late).frequency_hz);
+  std::printf(
+      "2.0 Hz with 20 %% of ticks skipped: %.3f Hz at the samples' times, %.3f Hz read "
+      "a millisecond apart; the guide's %.3f Hz\n",
+      read.frequency_spectrum_hz, regular.frequency_spectrum_hz, deriveTargets(late).frequency_hz);
   EXPECT_EQ(read.stretches, 1u);
   EXPECT_NEAR(read.frequency_spectrum_hz, 2.0, 0.03);
   EXPECT_NEAR(deriveTargets(late).frequency_hz, 2.0, 0.03);
