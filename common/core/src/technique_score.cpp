@@ -102,14 +102,24 @@ void fft(std::vector<std::complex<double>>& a) {
 /// many of its steps went by), and read as if dt apart they would run faster than they did.
 std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vector<double>& t,
                                   const Stretch& p, double dt) {
-  bool uniform = true;
-  for (std::size_t i = p.begin + 1; i < p.end && uniform; ++i)
-    uniform = std::abs(t[i] - t[i - 1] - dt) <= 0.05 * dt;
-  if (uniform)
+  // As it is where the samples are dt apart, and where their times cannot be read as time:
+  // going back (a sender's clock stepped, or a hostile one), or spanning more than
+  // kMaxGridShare times their count in periods (most of the device's steps unread), which
+  // would also cost that much more to transform.
+  constexpr double kMaxGridShare = 4.0;
+  const std::size_t count = p.end - p.begin;
+  bool uniform = true, increasing = true;
+  for (std::size_t i = p.begin + 1; i < p.end; ++i) {
+    uniform = uniform && std::abs(t[i] - t[i - 1] - dt) <= 0.05 * dt;
+    increasing = increasing && t[i] >= t[i - 1];
+  }
+  const double t0 = t[p.begin], span = t[p.end - 1] - t0;
+  const double periods = span / dt;
+  if (uniform || !increasing || !(dt > 0.0) || !std::isfinite(periods) ||
+      periods + 1.0 > kMaxGridShare * static_cast<double>(count))
     return {x.begin() + static_cast<std::ptrdiff_t>(p.begin),
             x.begin() + static_cast<std::ptrdiff_t>(p.end)};
-  const double t0 = t[p.begin], span = t[p.end - 1] - t0;
-  const auto m = static_cast<std::size_t>(std::floor(span / dt)) + 1;
+  const auto m = static_cast<std::size_t>(std::floor(periods)) + 1;
   std::vector<double> out(m);
   std::size_t j = p.begin;
   for (std::size_t k = 0; k < m; ++k) {

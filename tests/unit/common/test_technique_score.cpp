@@ -318,6 +318,19 @@ TEST(TechniqueScore, TheFrequencyIsReadAtTheSamplesTimesWhereTicksWereSkipped) {
   EXPECT_NEAR(read.frequency_spectrum_hz, 2.0, 0.03);
   EXPECT_NEAR(deriveTargets(late).frequency_hz, 2.0, 0.03);
   EXPECT_GT(regular.frequency_spectrum_hz, 2.4) << "the samples counted as time";
+  // Times that cannot be read as time (a sender's clock stepped back, or on by 0.2 s every
+  // tenth sample: no gap, but most of the time unread) are read by samples, as before:
+  // finite figures, and no grid many times the record's length to transform.
+  Series back = late, far_back = late, sparse = late;
+  for (std::size_t i = back.t_s.size() / 2; i < back.t_s.size(); ++i) {
+    back.t_s[i] -= 3.0;
+    far_back.t_s[i] -= 30.0;  // before the record's first sample
+  }
+  for (std::size_t i = 0; i < sparse.t_s.size(); ++i)
+    sparse.t_s[i] += 0.2 * static_cast<double>(i / 10);
+  EXPECT_NEAR(analyse(back, 12.0, 16.0).frequency_spectrum_hz, regular.frequency_spectrum_hz, 0.05);
+  EXPECT_TRUE(std::isfinite(analyse(far_back, 12.0, 16.0).frequency_spectrum_hz));
+  EXPECT_TRUE(std::isfinite(analyse(sparse, 12.0, 16.0).frequency_spectrum_hz));
   // A record without skipped ticks reads as before, sample for sample.
   const TrialFigures whole = analyse(full, 12.0, 16.0);
   EXPECT_NEAR(whole.frequency_spectrum_hz, 2.0, 0.02);
