@@ -96,18 +96,20 @@ void fft(std::vector<std::complex<double>>& a) {
   }
 }
 
-/// A part of x at the times t as samples dt apart from its first time (linear interpolation),
-/// or as it is where its samples already are dt apart (within 5 %). A loop that stalls
-/// records fewer samples than the time that passed (each tick reads the device once, however
-/// many of its steps went by), and read as if dt apart they would run faster than they did.
+/// A part of x at the times t as samples dt apart from its first time (linear interpolation).
+/// A loop that stalls records fewer samples than the time that passed (each tick reads the
+/// device once, however many of its steps went by), and read as if dt apart they would run
+/// faster than they did. The part as it is where its samples already are dt apart (within
+/// 5 %), and where their times cannot be read as time: going back (a sender's clock stepped,
+/// or a hostile one), or spanning more than kMaxGridShare times their count in periods (most
+/// of the device's steps unread), which would also cost that much more to transform.
 std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vector<double>& t,
                                   const Stretch& p, double dt) {
-  // As it is where the samples are dt apart, and where their times cannot be read as time:
-  // going back (a sender's clock stepped, or a hostile one), or spanning more than
-  // kMaxGridShare times their count in periods (most of the device's steps unread), which
-  // would also cost that much more to transform.
   constexpr double kMaxGridShare = 4.0;
   const std::size_t count = p.end - p.begin;
+  if (count < 2)
+    return {x.begin() + static_cast<std::ptrdiff_t>(p.begin),
+            x.begin() + static_cast<std::ptrdiff_t>(p.end)};
   bool uniform = true, increasing = true;
   for (std::size_t i = p.begin + 1; i < p.end; ++i) {
     uniform = uniform && std::abs(t[i] - t[i - 1] - dt) <= 0.05 * dt;
@@ -141,8 +143,7 @@ std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vecto
 double spectrumPeakHz(const std::vector<double>& x_in, const std::vector<double>& t,
                       const std::vector<Stretch>& parts, double dt, double lo, double hi) {
   std::vector<std::vector<double>> grid;
-  for (const Stretch& p : parts)
-    grid.push_back(p.end - p.begin < 2 ? std::vector<double>{} : onUniformGrid(x_in, t, p, dt));
+  for (const Stretch& p : parts) grid.push_back(onUniformGrid(x_in, t, p, dt));
   std::size_t longest = 0, total = 0;
   for (const auto& g : grid) {
     if (g.size() < 16) continue;
