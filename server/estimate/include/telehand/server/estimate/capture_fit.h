@@ -58,6 +58,8 @@ struct AxisFit {
   bool spasm = false;
   double speed_gain_fitted_s_per_rad = 0.0;
   double speed_gain_se_s_per_rad = 0.0;
+  /// How much the spasm term lowered the axis' residual sum of squares, N² (0: not found).
+  double spasm_evidence_n2 = 0.0;
   double damping_cap_nms_per_rad = 0.0;  ///< the cap the fit assumed (FitOptions)
   double inertia_kgm2 = 0.0;  ///< the moving mass as seen at the joint (phalanx + device)
   /// Whether inertia_kgm2 was estimated from the capture (true) or is the known value
@@ -97,8 +99,8 @@ struct CaptureFit {
   CaptureCounts counts;
   double delay_samples = 0.0;  ///< the force channel's lag behind the positions, samples
   bool ok() const noexcept { return axes[0].ok && axes[1].ok && axes[2].ok; }
-  /// The joint's speed gain: the estimates of the axes that found a spasm, weighted by
-  /// their inverse variance; 0 when none did.
+  /// The joint's speed gain: the estimate of the axis whose capture shows the spasm most
+  /// (AxisFit::spasm_evidence_n2, the largest); 0 when no axis found one.
   double speedGain() const noexcept;
   /// `base` with the fitted curves, ranges, damping and speed gain (lever arm, scale, frame,
   /// name kept).
