@@ -58,7 +58,8 @@ struct AxisFit {
   bool spasm = false;
   double speed_gain_fitted_s_per_rad = 0.0;
   double speed_gain_se_s_per_rad = 0.0;
-  /// How much the spasm term lowered the axis' residual sum of squares, N² (0: not found).
+  /// How much the spasm term lowered the axis' residual sum of squares, N² (0: not found;
+  /// at the joint's gain where the axis took it, FitOptions::one_speed_gain).
   double spasm_evidence_n2 = 0.0;
   double damping_cap_nms_per_rad = 0.0;  ///< the cap the fit assumed (FitOptions)
   double inertia_kgm2 = 0.0;  ///< the moving mass as seen at the joint (phalanx + device)
@@ -184,6 +185,11 @@ struct FitOptions {
   /// misfit (a random patient at 6 Hz: gain 0.006, its curve 0.8 N off). Random patients
   /// draw 0.5-3 s/rad, the shipped spasm has 1.5.
   double min_speed_gain_s_per_rad = 0.1;
+  /// Every axis' curve is fitted with the joint's speed gain (CaptureFit::speedGain, the one
+  /// the model renders on all three), its walls and zone searched again at it; an axis keeps
+  /// its own fit where that drops a wall or the zone its own found. false: each axis' curve
+  /// with its own gain.
+  bool one_speed_gain = true;
   /// The scale the fitted model is rendered at (paper: 1:4). With the lever arm it sets the
   /// cap on damping plus spasm that the joint model renders (JointModel::maxDampingNmsPerRad:
   /// 0.01 N·m·s/rad at 1 cm and 1:4), which the fit applies as the model does. A simulated
