@@ -106,10 +106,12 @@ void fft(std::vector<std::complex<double>>& a) {
 std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vector<double>& t,
                                   const Stretch& p, double dt) {
   constexpr double kMaxGridShare = 4.0;
+  const auto as_is = [&] {
+    return std::vector<double>(x.begin() + static_cast<std::ptrdiff_t>(p.begin),
+                               x.begin() + static_cast<std::ptrdiff_t>(p.end));
+  };
   const std::size_t count = p.end - p.begin;
-  if (count < 2)
-    return {x.begin() + static_cast<std::ptrdiff_t>(p.begin),
-            x.begin() + static_cast<std::ptrdiff_t>(p.end)};
+  if (count < 2) return as_is();
   bool uniform = true, increasing = true;
   for (std::size_t i = p.begin + 1; i < p.end; ++i) {
     uniform = uniform && std::abs(t[i] - t[i - 1] - dt) <= 0.05 * dt;
@@ -119,8 +121,7 @@ std::vector<double> onUniformGrid(const std::vector<double>& x, const std::vecto
   const double periods = span / dt;
   if (uniform || !increasing || !(dt > 0.0) || !std::isfinite(periods) ||
       periods + 1.0 > kMaxGridShare * static_cast<double>(count))
-    return {x.begin() + static_cast<std::ptrdiff_t>(p.begin),
-            x.begin() + static_cast<std::ptrdiff_t>(p.end)};
+    return as_is();
   const auto m = static_cast<std::size_t>(std::floor(periods)) + 1;
   std::vector<double> out(m);
   std::size_t j = p.begin;

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <iterator>
 #include <limits>
+#include <optional>
 #include <span>
 #include <sstream>
 
@@ -541,8 +542,8 @@ DynamicFit settleAtGain(const AxisData& d, double known_j, const PiecewiseFitOpt
 
 struct SpasmFit {
   DynamicFit fit;
-  double gain = 0.0;        ///< the free estimate
-  double used_gain = -1.0;  ///< the gain `fit` was fitted with when not `gain` (the joint's)
+  double gain = 0.0;                 ///< the free estimate
+  std::optional<double> joint_gain;  ///< the gain `fit` was fitted with, when the joint's
   double se = std::numeric_limits<double>::infinity();
   bool found = false;
 };
@@ -801,6 +802,8 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     SpasmFit sp;
     double plain_rss = 0.0;  ///< the residual of the fit without the spasm
     bool ok = false;
+    /// How much the spasm term lowers the residual (AxisFit::spasm_evidence_n2).
+    double evidence() const { return sp.found ? std::max(plain_rss - rssOf(sp.fit.r), 0.0) : 0.0; }
   };
   std::array<Work, kAxes> work{};
   auto fitAt = [&](double delay, bool report) {
@@ -892,18 +895,17 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     // refit drops a wall or the zone its own found: a zone and a strong reflex trade against each
     // other near the zone's edges (random patient 184, seed 10: axial's 3.3 deg zone, the
     // truth's 3.7, lost at flexion's 2.82 s/rad and 0.73 N off; at its own 0.83, 0.11 N).
+    // The lead axis as CaptureFit::speedGain picks it from the axes' fits.
     const Work* lead = nullptr;
     for (const Work& wk : work)
-      if (wk.ok && wk.sp.found &&
-          (!lead || wk.plain_rss - rssOf(wk.sp.fit.r) > lead->plain_rss - rssOf(lead->sp.fit.r)))
-        lead = &wk;
+      if (wk.ok && wk.sp.found && (!lead || wk.evidence() > lead->evidence())) lead = &wk;
     if (lead) {
       const double g = lead->sp.gain;
       PiecewiseFitOptions inner = search;
       inner.zone_first_start = false;
       for (std::size_t axis = 0; axis < kAxes; ++axis) {
         Work& wk = work[axis];
-        if (!wk.ok || &wk == lead || (wk.sp.found && wk.sp.gain == g)) continue;
+        if (!wk.ok || &wk == lead) continue;
         const PiecewiseFitResult& own = wk.sp.fit.r;
         const DynamicFit f =
             settleAtGain(wk.d, known_j[axis], inner, own.curve, g, wk.sp.fit.b, cap);
@@ -911,7 +913,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
             (own.curve.zone_deg > 0.0 && !(f.r.curve.zone_deg > 0.0)))
           continue;
         wk.sp.fit = f;
-        wk.sp.used_gain = g;
+        wk.sp.joint_gain = g;
         wk.sp.found = true;
       }
     }
@@ -932,10 +934,10 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     const PiecewiseFitResult& r = sp.fit.r;
     const double b = sp.fit.b, j = sp.fit.j, j_se = sp.fit.j_se;
     a.spasm = sp.found;
-    a.speed_gain_s_per_rad = !sp.found ? 0.0 : sp.used_gain >= 0.0 ? sp.used_gain : sp.gain;
+    a.speed_gain_s_per_rad = sp.found ? sp.joint_gain.value_or(sp.gain) : 0.0;
     a.speed_gain_fitted_s_per_rad = sp.gain;
     a.speed_gain_se_s_per_rad = sp.se;
-    a.spasm_evidence_n2 = sp.found ? std::max(wk.plain_rss - rssOf(r), 0.0) : 0.0;
+    a.spasm_evidence_n2 = wk.evidence();
     a.damping_cap_nms_per_rad = cap * lever;
     a.ok = true;
     a.curve.coeffs = r.curve.coeffs;
