@@ -190,6 +190,10 @@ struct FitOptions {
   /// its own fit where that drops a wall or the zone its own found. false: each axis' curve
   /// with its own gain.
   bool one_speed_gain = true;
+  /// ...reached from the axis' own fit in this many geometric steps of the gain, the walls
+  /// and zone settled at each and carried to the next, as well as in one; the fit of lower
+  /// residual at the joint's gain is kept. 0: in one step only.
+  int joint_gain_steps = 4;
   /// The scale the fitted model is rendered at (paper: 1:4). With the lever arm it sets the
   /// cap on damping plus spasm that the joint model renders (JointModel::maxDampingNmsPerRad:
   /// 0.01 N·m·s/rad at 1 cm and 1:4), which the fit applies as the model does. A simulated
