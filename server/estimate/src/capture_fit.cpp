@@ -546,10 +546,22 @@ DynamicFit settleAtGain(const AxisData& d, double known_j, const PiecewiseFitOpt
 DynamicFit settleAlong(const AxisData& d, double known_j, const PiecewiseFitOptions& inner,
                        DynamicFit f, double from, double to, double cap, int steps) {
   for (int k = 1; k <= steps && f.r.ok; ++k) {
-    const double g = from * std::pow(to / from, static_cast<double>(k) / steps);
+    const double g = k == steps ? to : from * std::pow(to / from, static_cast<double>(k) / steps);
     f = settleAtGain(d, known_j, inner, f.r.curve, g, f.b, cap);
   }
   return f;
+}
+
+/// Of `axes`, the one whose capture shows the spasm most: among those that found one
+/// (`found`), the largest drop in residual the spasm term gives (`evidence`); the first of
+/// equals, null where none found one. The joint's speed gain is that axis' (CaptureFit::
+/// speedGain), and the fit takes it to the other axes from the same choice.
+template <typename Axis, typename Found, typename Evidence>
+const Axis* spasmLead(std::span<const Axis> axes, Found found, Evidence evidence) {
+  const Axis* lead = nullptr;
+  for (const Axis& a : axes)
+    if (found(a) && (!lead || evidence(a) > evidence(*lead))) lead = &a;
+  return lead;
 }
 
 struct SpasmFit {
@@ -907,10 +919,9 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
     // refit drops a wall or the zone its own found: a zone and a strong reflex trade against each
     // other near the zone's edges (random patient 184, seed 10: axial's 3.3 deg zone, the
     // truth's 3.7, lost at flexion's 2.82 s/rad and 0.73 N off; at its own 0.83, 0.11 N).
-    // The lead axis as CaptureFit::speedGain picks it from the axes' fits.
-    const Work* lead = nullptr;
-    for (const Work& wk : work)
-      if (wk.ok && wk.sp.found && (!lead || wk.evidence() > lead->evidence())) lead = &wk;
+    const Work* lead = spasmLead(
+        std::span<const Work>(work), [](const Work& wk) { return wk.ok && wk.sp.found; },
+        [](const Work& wk) { return wk.evidence(); });
     if (lead) {
       const double g = lead->sp.gain;
       PiecewiseFitOptions inner = search;
@@ -1033,13 +1044,10 @@ double CaptureFit::speedGain() const noexcept {
   // and axial, weighted by their standard errors 1.03).
   // The gain as that axis used it: with FitOptions::one_speed_gain every axis that took the
   // joint's holds it.
-  double gain = 0.0, most = -1.0;
-  for (const AxisFit& a : axes) {
-    if (!a.ok || !a.spasm || !(a.spasm_evidence_n2 > most)) continue;
-    most = a.spasm_evidence_n2;
-    gain = a.speed_gain_s_per_rad;
-  }
-  return std::clamp(gain, 0.0, 20.0);
+  const AxisFit* lead = spasmLead(
+      std::span<const AxisFit>(axes), [](const AxisFit& a) { return a.ok && a.spasm; },
+      [](const AxisFit& a) { return a.spasm_evidence_n2; });
+  return lead ? std::clamp(lead->speed_gain_s_per_rad, 0.0, kMaxGain) : 0.0;
 }
 
 JointModelParams CaptureFit::model(const JointModelParams& base) const {
