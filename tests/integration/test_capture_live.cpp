@@ -56,7 +56,7 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   // session opens on the lax case (its model until the first fit). Each refit keeps the next
   // one four times its own time away (LiveRefitOptions::max_busy_fraction), which a loaded
   // machine stretches: on an idle one the follower reaches its fourth model in 13 s, and on
-  // a loaded one it once saw only its second; 17 s leaves room for the third.
+  // a loaded one it has seen only its second.
   Process expert(
       cmd(TELEHAND_CLIENT_BIN,
           {"--mode", "capture", "--case", "lax", "--patient", "healthy", "--sweep-seconds", "6",
@@ -112,7 +112,13 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
     ++w->n;
   }
   EXPECT_EQ(first_version, 1u);
-  EXPECT_GE(last_version, 3u) << "the live fit reached the follower, version after version";
+  EXPECT_GE(last_version, 2u) << "the live fit reached the follower";
+  // How many live fits there are depends on the machine's load (each refit keeps the next
+  // four times its own time away), and versions also count drift corrections; but the
+  // follower never goes back a model, and the server says what it fitted.
+  EXPECT_NE(server.output().find("live fit v"), std::string::npos) << server.output();
+  for (std::size_t i = 1; i < s.size(); ++i)
+    ASSERT_GE(s[i].model_version, s[i - 1].model_version) << "the follower went back a model";
   ASSERT_GT(early.n, 100) << "the follower rendered the initial (lax) joint first";
   ASSERT_GT(late.n, 1000);
   const double e0 = early.error / early.n, e1 = late.error / late.n, t1 = late.truth / late.n;
