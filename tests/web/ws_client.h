@@ -40,8 +40,23 @@ class WsClient {
   bool send(const std::string& text, int opcode = MG_WEBSOCKET_OPCODE_TEXT) {
     return conn_ && mg_websocket_client_write(conn_, opcode, text.data(), text.size()) > 0;
   }
+  /// As a browser closes a tab: a close frame, the gateway's answer (within 1 s), then the
+  /// connection. Without the frame civetweb's reader thread only notices at its next read
+  /// timeout, about a second later.
   void close() {
-    if (conn_) mg_close_connection(conn_);
+    if (!conn_) return;
+    bool closed;
+    {
+      std::lock_guard lk(m_);
+      closed = closed_;
+    }
+    if (!closed) {
+      const char normal[2] = {0x03, static_cast<char>(0xE8)};  // 1000: normal closure
+      if (mg_websocket_client_write(conn_, MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE, normal,
+                                    sizeof normal) > 0)
+        waitClosed(std::chrono::seconds(1));
+    }
+    mg_close_connection(conn_);
     conn_ = nullptr;
   }
 
