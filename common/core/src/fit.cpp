@@ -108,31 +108,36 @@ struct Trial {
   std::array<double, kMaxCols> var{};  // diagonal of the inverse normal matrix
 };
 
-Trial solve(const Pooled& d, const Shape& sh, double wall) {
-  Trial t;
-  const bool zone = sh.zone > 0.0;
-  t.p = zone ? 3 : 4;
-  const int p = t.p, k = p + d.m;
-  double mm[kMaxCols][kMaxCols] = {};
-  double rhs[kMaxCols] = {};
-  double yy = d.yy;
+/// The normal equations' bin sums for a trial: P polynomial columns (3 with a zone, else 4)
+/// and M extra regressors (M < 0: d.m, not known at compile time). Known sizes let the
+/// compiler keep the sums in registers (the shape searches spend most of a capture fit
+/// here); the arithmetic and its order are the same for every instantiation.
+template <int P, int M>
+void accumulateBins(const Pooled& d, const Shape& sh, double wall, double (&mm)[kMaxCols][kMaxCols],
+                    double (&rhs)[kMaxCols], double& yy_out) {
+  constexpr bool zone = P == 3;
+  const int m = M < 0 ? d.m : M;
+  const auto ms = static_cast<std::size_t>(m);
+  double acc[P][P + (M < 0 ? kMaxCols - P : M)] = {};
+  double r[P + (M < 0 ? kMaxCols - P : M)] = {};
+  for (int j = 0; j < m; ++j) r[P + j] = rhs[P + j];
+  double yy = yy_out;
   const double tr = (sh.rest - d.centre) / d.scale;
   const double tr2 = tr * tr, tr3 = tr2 * tr;
-  for (int j = 0; j < d.m; ++j) rhs[p + j] = d.ey[j];
   const std::size_t nb = d.x.size();
   for (std::size_t b = 0; b < nb; ++b) {
     const double x = d.x[b], c = d.cnt[b];
     const double in = std::clamp(x, sh.lo, sh.hi);
     double s = in;
-    if (zone) {
+    if constexpr (zone) {
       const double off = in - sh.rest;
       s = std::abs(off) <= sh.zone ? sh.rest : in - std::copysign(sh.zone, off);
     }
     const double e = x - in;
     const double u = (s - d.centre) / d.scale, u2 = u * u;
     const double de = e / d.scale;  // d(u)/d(x) times the excess
-    double phi[4];
-    if (zone) {
+    double phi[P];
+    if constexpr (zone) {
       phi[0] = u - tr + de;
       phi[1] = u2 - tr2 + 2.0 * u * de;
       phi[2] = u2 * u - tr3 + 3.0 * u2 * de;
@@ -142,22 +147,59 @@ Trial solve(const Pooled& d, const Shape& sh, double wall) {
       phi[2] = u2 + 2.0 * u * de;
       phi[3] = u2 * u + 3.0 * u2 * de;
     }
+    const double* se = d.se.data() + b * ms;
     double sy = d.sy[b];
     if (e != 0.0) {
       // The wall's own stiffness is known: it moves to the left-hand side.
       yy += -2.0 * wall * e * sy + wall * wall * e * e * c;
       sy -= wall * e * c;
-      for (int j = 0; j < d.m; ++j)
-        rhs[p + j] -=
-            wall * e * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
+      for (int j = 0; j < m; ++j) r[P + j] -= wall * e * se[j];
     }
-    for (int i = 0; i < p; ++i) {
-      rhs[i] += phi[i] * sy;
-      for (int j = i; j < p; ++j) mm[i][j] += c * phi[i] * phi[j];
-      for (int j = 0; j < d.m; ++j)
-        mm[i][p + j] +=
-            phi[i] * d.se[b * static_cast<std::size_t>(d.m) + static_cast<std::size_t>(j)];
+#pragma GCC unroll 4
+    for (int i = 0; i < P; ++i) {
+      r[i] += phi[i] * sy;
+#pragma GCC unroll 4
+      for (int j = i; j < P; ++j) acc[i][j] += c * phi[i] * phi[j];
+#pragma GCC unroll 4
+      for (int j = 0; j < m; ++j) acc[i][P + j] += phi[i] * se[j];
     }
+  }
+  for (int i = 0; i < P; ++i) {
+    rhs[i] = r[i];
+    for (int j = i; j < P + m; ++j) mm[i][j] = acc[i][j];
+  }
+  for (int j = 0; j < m; ++j) rhs[P + j] = r[P + j];
+  yy_out = yy;
+}
+
+template <int P>
+void accumulateBins(const Pooled& d, const Shape& sh, double wall, double (&mm)[kMaxCols][kMaxCols],
+                    double (&rhs)[kMaxCols], double& yy) {
+  switch (d.m) {
+    case 1:
+      return accumulateBins<P, 1>(d, sh, wall, mm, rhs, yy);
+    case 2:
+      return accumulateBins<P, 2>(d, sh, wall, mm, rhs, yy);
+    case 3:
+      return accumulateBins<P, 3>(d, sh, wall, mm, rhs, yy);
+    default:
+      return accumulateBins<P, -1>(d, sh, wall, mm, rhs, yy);
+  }
+}
+
+Trial solve(const Pooled& d, const Shape& sh, double wall) {
+  Trial t;
+  const bool zone = sh.zone > 0.0;
+  t.p = zone ? 3 : 4;
+  const int p = t.p, k = p + d.m;
+  double mm[kMaxCols][kMaxCols] = {};
+  double rhs[kMaxCols] = {};
+  double yy = d.yy;
+  for (int j = 0; j < d.m; ++j) rhs[p + j] = d.ey[j];
+  if (zone) {
+    accumulateBins<3>(d, sh, wall, mm, rhs, yy);
+  } else {
+    accumulateBins<4>(d, sh, wall, mm, rhs, yy);
   }
   for (int i = 0; i < d.m; ++i)
     for (int j = i; j < d.m; ++j) mm[p + i][p + j] = d.ee[i][j];
