@@ -94,9 +94,16 @@ class PoolTest : public ProcessTest, public ::testing::WithParamInterface<std::s
         }
       }
     }
+    // Evenly on an idle machine (4/4/4); a server stalled past its lease while OPENs came
+    // is passed over for them (7/3/2 beside two background cases, 3 for 4 once at -j 2).
+    // Every server takes OPENs, and none takes twice its share.
     ASSERT_EQ(assigned.size(), static_cast<std::size_t>(kServers));
+    std::string spread;
+    for (const auto& [server, sessions] : assigned)
+      spread += server + ":" + std::to_string(sessions.size()) + " ";
     for (const auto& [server, sessions] : assigned) {
-      EXPECT_EQ(sessions.size(), static_cast<std::size_t>(kSessions / kServers)) << server;
+      EXPECT_GE(sessions.size(), 2u) << spread;
+      EXPECT_LE(sessions.size(), static_cast<std::size_t>(2 * kSessions / kServers)) << spread;
     }
     std::this_thread::sleep_for(4s);
     const std::string victim = owned.begin()->first;
