@@ -45,17 +45,11 @@ class WsClient {
   /// timeout, about a second later.
   void close() {
     if (!conn_) return;
-    bool closed;
-    {
-      std::lock_guard lk(m_);
-      closed = closed_;
-    }
-    if (!closed) {
-      const char normal[2] = {0x03, static_cast<char>(0xE8)};  // 1000: normal closure
-      if (mg_websocket_client_write(conn_, MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE, normal,
-                                    sizeof normal) > 0)
-        waitClosed(std::chrono::seconds(1));
-    }
+    const char normal[2] = {0x03, static_cast<char>(0xE8)};  // 1000: normal closure
+    if (!waitClosed(std::chrono::milliseconds(0)) &&
+        mg_websocket_client_write(conn_, MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE, normal,
+                                  sizeof normal) > 0)
+      waitClosed(std::chrono::seconds(1));
     mg_close_connection(conn_);
     conn_ = nullptr;
   }

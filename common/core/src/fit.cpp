@@ -115,13 +115,14 @@ struct Trial {
 template <int P, int M>
 void accumulateBins(const Pooled& d, const Shape& sh, double wall, double (&mm)[kMaxCols][kMaxCols],
                     double (&rhs)[kMaxCols], double& yy_out) {
+  // Fills mm's first P rows, rhs and yy_out, from the extra regressors' own sums in d.
   constexpr bool zone = P == 3;
   const int m = M < 0 ? d.m : M;
   const auto ms = static_cast<std::size_t>(m);
   double acc[P][P + (M < 0 ? kMaxCols - P : M)] = {};
   double r[P + (M < 0 ? kMaxCols - P : M)] = {};
-  for (int j = 0; j < m; ++j) r[P + j] = rhs[P + j];
-  double yy = yy_out;
+  for (int j = 0; j < m; ++j) r[P + j] = d.ey[j];
+  double yy = d.yy;
   const double tr = (sh.rest - d.centre) / d.scale;
   const double tr2 = tr * tr, tr3 = tr2 * tr;
   const std::size_t nb = d.x.size();
@@ -194,8 +195,7 @@ Trial solve(const Pooled& d, const Shape& sh, double wall) {
   const int p = t.p, k = p + d.m;
   double mm[kMaxCols][kMaxCols] = {};
   double rhs[kMaxCols] = {};
-  double yy = d.yy;
-  for (int j = 0; j < d.m; ++j) rhs[p + j] = d.ey[j];
+  double yy = 0.0;
   if (zone) {
     accumulateBins<3>(d, sh, wall, mm, rhs, yy);
   } else {
