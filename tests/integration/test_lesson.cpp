@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <regex>
 #include <sstream>
 #include <vector>
@@ -365,15 +366,21 @@ TEST_F(LessonRunTest, ConcurrentBarsDuringTrialsAndSelfRequestedFeedbackAfterAsk
                                   "0.5",
                                   "--no-fault-stop"};
     args.insert(args.end(), extra.begin(), extra.end());
-    Process p(cmd(TELEHAND_CLIENT_BIN, args), path(log));
+    return std::make_unique<Process>(cmd(TELEHAND_CLIENT_BIN, args), path(log));
+  };
+  auto finish = [](Process& p) {
     const auto rc = p.wait(60s);
     EXPECT_TRUE(rc.has_value()) << "the run did not finish\n" << p.output();
     EXPECT_EQ(rc.value_or(-1), 0) << p.output();
     return p.output();
   };
+  // Both runs at the same time, each a session of its own on the one server.
+  const auto c_run = student(concurrent_id, {}, "student-concurrent.log");
+  const auto s_run = student(self_id, {"--request-feedback", "2"}, "student-self.log");
+  const std::string c_out = finish(*c_run);
+  const std::string s_out = finish(*s_run);
 
   // Concurrent: the aim at each trial's start, the demonstration's band and frequency.
-  const std::string c_out = student(concurrent_id, {}, "student-concurrent.log");
   const std::regex aim(R"(aim: (\d+\.\d)-(\d+\.\d) N at (\d+\.\d\d) Hz \(the demonstration's\))");
   std::size_t aims = 0;
   for (std::sregex_iterator it(c_out.begin(), c_out.end(), aim), end; it != end; ++it, ++aims) {
@@ -417,7 +424,6 @@ TEST_F(LessonRunTest, ConcurrentBarsDuringTrialsAndSelfRequestedFeedbackAfterAsk
   EXPECT_NE(c_out.find("2 of 2 trials run"), std::string::npos) << c_out;
 
   // Self-requested: the student asks after trial 2 only.
-  const std::string s_out = student(self_id, {"--request-feedback", "2"}, "student-self.log");
   EXPECT_TRUE(barsIn(s_out).empty()) << s_out;
   EXPECT_EQ(s_out.find("aim: "), std::string::npos) << s_out;
   EXPECT_EQ(s_out.find("feedback: trial 1 ("), std::string::npos) << s_out;
