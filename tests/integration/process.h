@@ -32,4 +32,14 @@ class Process : public app::Process {
   std::string log_;
 };
 
+/// `bin args...` on loopback without DDS Security, in a partition of the test's own.
+inline std::vector<std::string> insecureOnLoopback(std::string bin, std::vector<std::string> args,
+                                                   const std::string& dds_config,
+                                                   const std::string& partition) {
+  std::vector<std::string> v{std::move(bin)};
+  v.insert(v.end(), args.begin(), args.end());
+  v.insert(v.end(), {"--dds-config", dds_config, "--insecure", "--partition", partition});
+  return v;
+}
+
 }  // namespace telehand::test

@@ -42,12 +42,7 @@ TEST(CaptureLive, FollowerFeelsTheJointBeingCaptured) {
   const fs::path dir = mkdtemp(tmpl);
   const std::string partition = "it-" + std::to_string(getpid()) + "-capture-live";
   auto cmd = [&](std::string bin, std::vector<std::string> args) {
-    std::vector<std::string> v{std::move(bin)};
-    v.insert(v.end(), args.begin(), args.end());
-    for (const char* a : {"--dds-config", TELEHAND_LOOPBACK_XML, "--insecure", "--partition"})
-      v.push_back(a);
-    v.push_back(partition);
-    return v;
+    return insecureOnLoopback(std::move(bin), std::move(args), TELEHAND_LOOPBACK_XML, partition);
   };
   const std::string db = (dir / "records.db").string();
   Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "90"}),

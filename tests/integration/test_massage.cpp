@@ -31,20 +31,15 @@ class WebMassage {
     dir_ = mkdtemp(tmpl.data());
     const std::string partition = "it-" + std::to_string(getpid()) + "-massage-" + web_;
     auto cmd = [&](std::string bin, std::vector<std::string> args) {
-      std::vector<std::string> v{std::move(bin)};
-      v.insert(v.end(), args.begin(), args.end());
-      for (const char* a : {"--dds-config", TELEHAND_LOOPBACK_XML, "--insecure", "--partition"})
-        v.push_back(a);
-      v.push_back(partition);
-      return v;
+      return insecureOnLoopback(std::move(bin), std::move(args), TELEHAND_LOOPBACK_XML, partition);
     };
     db_ = (dir_ / "records.db").string();
     server_.emplace(cmd(TELEHAND_SERVER_BIN, {"--db", db_, "--seconds", "90"}),
                     (dir_ / "server.log").string());
     watcher_.emplace(cmd(TELEHAND_WATCH_BIN, {"--plain", "--exit-on-close", "--wait", "20"}),
                      (dir_ / "watch.log").string());
-    client_.emplace(cmd(TELEHAND_CLIENT_BIN, {"--technique", "massage", "--case", web_,
-                                              "--seconds", "20", "-q", "--seed", "5"}),
+    client_.emplace(cmd(TELEHAND_CLIENT_BIN, {"--technique", "massage", "--case", web_, "--seconds",
+                                              "20", "-q", "--seed", "5"}),
                     (dir_ / "client.log").string());
   }
 
@@ -138,7 +133,8 @@ void WebMassage::check() {
 
 // Three webs massaged at once, each on a server of its own: the machine's load of three 1 kHz
 // clients, their servers and watchers is on every one of them, and each still holds the band.
-TEST(MassageTest, TwentySecondMassagesOfThreeWebsAtOnceStayInBandUnderTheDeviceLimitAndAreRecordedWhole) {
+TEST(MassageTest,
+     TwentySecondMassagesOfThreeWebsAtOnceStayInBandUnderTheDeviceLimitAndAreRecordedWhole) {
   std::vector<std::unique_ptr<WebMassage>> runs;
   for (const char* web : {"healthy", "hypertonic", "oedema"})
     runs.push_back(std::make_unique<WebMassage>(web));
@@ -209,24 +205,16 @@ TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
   EXPECT_EQ(mob_rc, 2);
   EXPECT_NE(mob_out.find("--technique massage --lesson " + lesson), std::string::npos) << mob_out;
 
-  // The clinician's own hand and a student take the lesson at the same time, each a session of
-  // its own on the one server.
   auto student = [&](const std::string& name, std::vector<std::string> skill) {
     std::vector<std::string> args{"--technique", "massage", "--lesson", lesson,          "--user",
                                   name,          "--seed",  "9",        "--watch-speed", "2"};
     args.insert(args.end(), skill.begin(), skill.end());
-    return std::make_unique<Process>(cmd(TELEHAND_CLIENT_BIN, args),
-                                     (dir / (name + ".log")).string());
+    return run(name, cmd(TELEHAND_CLIENT_BIN, args));
   };
-  auto finish = [](Process& p) {
-    const auto rc = p.wait(90s);
-    return std::make_pair(rc ? *rc : -1, p.output());
-  };
-  const auto good_p = student("clinician-again", {});
-  const auto weak_p = student("student", {"--force-bias", "1.5", "--frequency-error", "0.3"});
-  const auto [good_rc, good_out] = finish(*good_p);
-  const auto [weak_rc, weak_out] = finish(*weak_p);
+  const auto [good_rc, good_out] = student("clinician-again", {});
   ASSERT_EQ(good_rc, 0) << good_out << server.output();
+  const auto [weak_rc, weak_out] =
+      student("student", {"--force-bias", "1.5", "--frequency-error", "0.3"});
   ASSERT_EQ(weak_rc, 0) << weak_out << server.output();
   for (const std::string* out : {&good_out, &weak_out}) {
     EXPECT_NE(out->find("1 guided trial(s) and 2 attempt(s)"), std::string::npos) << *out;
