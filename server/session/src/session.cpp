@@ -431,6 +431,18 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   // exploration phase (scored now), the demonstration.
   lesson->end(cmd.last_seq, now_ns);
   hand.endExploration(ctx, client_id, now_ns);
+  if (replay && !replay->finished()) {
+    // The student moved on before the demonstration's end (their client's watch time ran
+    // out while this server replayed it slower than real time, or they chose to): the
+    // record says how much of it they saw rather than that they watched it.
+    char buf[160];
+    std::snprintf(buf, sizeof buf,
+                  "watch: the demonstration was cut short at %.1f of %.1f s (%llu samples "
+                  "replayed): the %s phase began before it ended",
+                  replay->positionS(), replay->durationS(),
+                  static_cast<unsigned long long>(replay->stepped()), phase.c_str());
+    ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, buf, now_ns);
+  }
   endReplay();
   const uint64_t next_seq = cmd.last_seq + 1;
   if (phase == "baseline" || phase == "reassessment") {

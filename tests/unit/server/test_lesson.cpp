@@ -33,6 +33,7 @@ namespace {
 namespace fs = std::filesystem;
 using store::SqliteStore;
 using ::testing::HasSubstr;
+using ::testing::Not;
 
 const std::string kDeploy = TELEHAND_DEPLOY_DIR;
 
@@ -254,6 +255,49 @@ TEST_F(LessonTest, TargetsComeFromTheDemonstrationRecord) {
       EXPECT_THAT(e.what(), HasSubstr("lesson create")) << e.what();
     }
   }
+}
+
+// A student who moves on before the demonstration's end (their client's watch time ran out
+// while the server replayed it slower than real time): the record says how much they saw,
+// never that the demonstration ended.
+TEST_F(LessonTest, AWatchPhaseEndedEarlySaysHowMuchOfTheDemonstrationWasSeen) {
+  const Motion demo;
+  const uint64_t run = open(telehand_msg_MODE_LESSON, demoLesson(demo, 1, 1));
+  ASSERT_NE(run, 0u);
+  stream(run, demo, 1, 200);
+  phase(run, "watch", 1.0, 200);
+  tickFor(1500);
+  phase(run, "guided", 1.0, 200);
+  const auto infos = out_.textsOf(telehand_msg_EVENT_INFO, run);
+  std::string cut;
+  for (const auto& t : infos) {
+    EXPECT_THAT(t, Not(HasSubstr("watch: the demonstration ended")));
+    if (t.find("cut short") != std::string::npos) cut = t;
+  }
+  ASSERT_FALSE(cut.empty()) << ::testing::PrintToString(infos);
+  EXPECT_THAT(cut, HasSubstr("of 6.0 s"));
+  EXPECT_THAT(cut, HasSubstr("the guided phase began before it ended"));
+  const double seen = std::stod(cut.substr(cut.find(" at ") + 4));
+  EXPECT_GT(seen, 1.0) << cut;
+  EXPECT_LT(seen, 2.0) << cut;
+  // The event is in the record too, for whoever reads the run later.
+  bool stored = false;
+  for (const auto& e : store_->events(run)) stored = stored || e.text == cut;
+  EXPECT_TRUE(stored) << cut;
+  // A watch that ran to its end says so, and nothing about a cut.
+  const uint64_t full = open(telehand_msg_MODE_LESSON, store_->sessionLesson(run));
+  ASSERT_NE(full, 0u);
+  stream(full, demo, 1, 200);
+  phase(full, "watch", 2.0, 200);
+  tickFor(3500);
+  phase(full, "guided", 1.0, 200);
+  const auto full_infos = out_.textsOf(telehand_msg_EVENT_INFO, full);
+  bool ended = false;
+  for (const auto& t : full_infos) {
+    EXPECT_THAT(t, Not(HasSubstr("cut short")));
+    ended = ended || t.find("watch: the demonstration ended") != std::string::npos;
+  }
+  EXPECT_TRUE(ended) << ::testing::PrintToString(full_infos);
 }
 
 TEST_F(LessonTest, ARunIsPlannedGuidedAndScoredFromTheRecord) {
