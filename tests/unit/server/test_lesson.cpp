@@ -262,13 +262,19 @@ TEST_F(LessonTest, TargetsComeFromTheDemonstrationRecord) {
 // never that the demonstration ended.
 TEST_F(LessonTest, AWatchPhaseEndedEarlySaysHowMuchOfTheDemonstrationWasSeen) {
   const Motion demo;
-  const uint64_t run = open(telehand_msg_MODE_LESSON, demoLesson(demo, 1, 1));
+  const uint64_t lesson_id = demoLesson(demo, 1, 1);
+  // A run that holds the finger, watches at `speed` for `ms`, then begins its guided trial:
+  // its info events.
+  auto watchFor = [&](uint64_t run, double speed, int ms) {
+    stream(run, demo, 1, 200);
+    phase(run, "watch", speed, 200);
+    tickFor(ms);
+    phase(run, "guided", 1.0, 200);
+    return out_.textsOf(telehand_msg_EVENT_INFO, run);
+  };
+  const uint64_t run = open(telehand_msg_MODE_LESSON, lesson_id);
   ASSERT_NE(run, 0u);
-  stream(run, demo, 1, 200);
-  phase(run, "watch", 1.0, 200);
-  tickFor(1500);
-  phase(run, "guided", 1.0, 200);
-  const auto infos = out_.textsOf(telehand_msg_EVENT_INFO, run);
+  const auto infos = watchFor(run, 1.0, 1500);
   std::string cut;
   for (const auto& t : infos) {
     EXPECT_THAT(t, Not(HasSubstr("watch: the demonstration ended")));
@@ -285,13 +291,9 @@ TEST_F(LessonTest, AWatchPhaseEndedEarlySaysHowMuchOfTheDemonstrationWasSeen) {
   for (const auto& e : store_->events(run)) stored = stored || e.text == cut;
   EXPECT_TRUE(stored) << cut;
   // A watch that ran to its end says so, and nothing about a cut.
-  const uint64_t full = open(telehand_msg_MODE_LESSON, store_->sessionLesson(run));
+  const uint64_t full = open(telehand_msg_MODE_LESSON, lesson_id);
   ASSERT_NE(full, 0u);
-  stream(full, demo, 1, 200);
-  phase(full, "watch", 2.0, 200);
-  tickFor(3500);
-  phase(full, "guided", 1.0, 200);
-  const auto full_infos = out_.textsOf(telehand_msg_EVENT_INFO, full);
+  const auto full_infos = watchFor(full, 2.0, 3500);
   bool ended = false;
   for (const auto& t : full_infos) {
     EXPECT_THAT(t, Not(HasSubstr("cut short")));
