@@ -301,7 +301,8 @@ void HandRunner::publish(SessionContext& ctx, const LiveStream& live, const Join
   ctx.out.publish(h);
 }
 
-void HandRunner::endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns) {
+void HandRunner::endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns,
+                                uint64_t stepped_over) {
   if (!exploration_.active()) return;
   const std::string phase = exploration_.phase();
   // Only the directions reached are stored: one never explored has no row (not a 0 deg reach)
@@ -316,10 +317,14 @@ void HandRunner::endExploration(SessionContext& ctx, uint64_t client_id, int64_t
     }
   }
   const bool baseline = phase == "baseline";
-  ctx.event(
-      session_id_, client_id, telehand_msg_EVENT_SCORE,
-      phase + ": " + Exploration::summary(reached, baseline ? decltype(baseline_){} : baseline_),
-      now_ns);
+  std::string text =
+      phase + ": " + Exploration::summary(reached, baseline ? decltype(baseline_){} : baseline_);
+  if (stepped_over > 0) {
+    text += " (the hand stepped over " + std::to_string(stepped_over) +
+            " of the phase's live samples, the server short of CPU: a reach among them is "
+            "not in this score)";
+  }
+  ctx.event(session_id_, client_id, telehand_msg_EVENT_SCORE, text, now_ns);
   if (baseline) baseline_ = reached;
 }
 

@@ -43,8 +43,17 @@ Session::Session(SessionContext& context, const store::SessionInfo& session_info
       hand_model_(hand_model),
       hand_config_(hand_config),
       next_recovery_check_ns_(now_ns + kNsPerS) {
-  if (cmd.mode == telehand_msg_MODE_EXPLORATION) hand.beginExploration("baseline");
+  if (cmd.mode == telehand_msg_MODE_EXPLORATION) beginExploration("baseline");
   if (cmd.direct_force) direct_ = std::make_unique<JointProxy>(params);
+}
+
+void Session::beginExploration(const std::string& phase) {
+  exploration_skipped_from_ = hand_skipped_;
+  hand.beginExploration(phase);
+}
+
+void Session::endExploration(uint64_t client, int64_t now_ns) {
+  hand.endExploration(ctx, client, now_ns, hand_skipped_ - exploration_skipped_from_);
 }
 
 void Session::publishModel() {
@@ -430,7 +439,7 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   // Whatever ran ends here: the trial (it waits for its record to be scored), the
   // exploration phase (scored now), the demonstration.
   lesson->end(cmd.last_seq, now_ns);
-  hand.endExploration(ctx, client_id, now_ns);
+  endExploration(client_id, now_ns);
   if (replay && !replay->finished()) {
     // The student moved on before the demonstration's end (their client's watch time ran
     // out while this server replayed it slower than real time, or they chose to): the
@@ -447,7 +456,7 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   const uint64_t next_seq = cmd.last_seq + 1;
   if (phase == "baseline" || phase == "reassessment") {
     setGuide(0.0, now_ns);
-    hand.beginExploration(phase);
+    beginExploration(phase);
   } else if (phase == "watch") {
     setGuide(0.0, now_ns);
     try {

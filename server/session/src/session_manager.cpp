@@ -246,8 +246,8 @@ void SessionManager::onCommand(const telehand_msg_SessionCommand& cmd, int64_t n
       event(cmd.session_id, cmd.client_id, telehand_msg_EVENT_MARK, cmd.text, now_ns);
       Session& s = sessions_.at(cmd.session_id);
       if (std::string(cmd.text) == "reassessment") {
-        s.hand.endExploration(ctx_, s.client_id, now_ns);
-        s.hand.beginExploration("reassessment");
+        s.endExploration(s.client_id, now_ns);
+        s.beginExploration("reassessment");
       }
       return;
     }
@@ -1224,7 +1224,7 @@ void SessionManager::finish(Session& s, int64_t now_ns, const std::string& state
     }
   }
   s.flushHand(now_ns);
-  s.hand.endExploration(ctx_, s.client_id, now_ns);
+  s.endExploration(s.client_id, now_ns);
   if (s.capture.follows()) {
     if (Session* capture = find(s.capture.follows())) capture->capture.removeFollower(s.info.id);
   }

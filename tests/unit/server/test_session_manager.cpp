@@ -389,6 +389,7 @@ TEST_F(SessionManagerTest, ExplorationRecordsBaselineAndReassessment) {
               HasSubstr(
                   format("extension %.1f deg", reach(rs, "baseline", "extension")->angle_deg))));
     EXPECT_THAT(scores[0]->text, ::testing::Not(HasSubstr("vs baseline")));
+    EXPECT_THAT(scores[0]->text, ::testing::Not(HasSubstr("stepped over")));
     EXPECT_EQ(out_.eventsOf(telehand_msg_EVENT_MARK).size(), 1u);
   }
   // Reassessment: more flexion than before.
@@ -718,6 +719,43 @@ TEST_F(SessionManagerTest, HandsShortOfCpuStepOverLiveSamplesButTheRecordKeepsEv
                                              " live samples") != std::string::npos;
   }
   EXPECT_TRUE(said);
+}
+
+// An exploration scored by a hand that stepped over some of its samples (a server short of
+// CPU) says how many with the score: a reach among them is not in it.
+TEST_F(SessionManagerTest, AnExplorationsScoreSaysHowManySamplesTheHandSteppedOver) {
+  manager_->setHandSlice(1);
+  manager_->setHandShare(1.0);
+  ASSERT_NE(open("healthy", telehand_msg_MODE_EXPLORATION), 0u);
+  constexpr int kSamples = 1000;
+  for (int i = 0; i < kSamples; ++i) {
+    manager_->onDeviceState(pinchSample(i, 0.0), now_ns_, from_);
+    now_ns_ += 1'000'000;
+    if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
+  }
+  const uint64_t skipped = manager_->stats().hand_samples_skipped;
+  ASSERT_GT(skipped, 0u);
+  mark("reassessment");  // the baseline ends and is scored
+  const auto scores = out_.eventsOf(telehand_msg_EVENT_SCORE);
+  ASSERT_EQ(scores.size(), 1u);
+  EXPECT_THAT(scores[0]->text,
+              AllOf(::testing::StartsWith("baseline: "),
+                    HasSubstr("(the hand stepped over " + std::to_string(skipped) +
+                              " of the phase's live samples, the server short of CPU")));
+  // The next phase counts its own.
+  for (int i = kSamples; i < 2 * kSamples; ++i) {
+    manager_->onDeviceState(pinchSample(i, 0.0), now_ns_, from_);
+    now_ns_ += 1'000'000;
+    if (now_ns_ % 10'000'000 == 0) manager_->tick(now_ns_);
+  }
+  const uint64_t again = manager_->stats().hand_samples_skipped - skipped;
+  ASSERT_GT(again, 0u);
+  mark("reassessment");
+  const auto later = out_.eventsOf(telehand_msg_EVENT_SCORE);
+  ASSERT_EQ(later.size(), 2u);
+  EXPECT_THAT(later[1]->text,
+              AllOf(::testing::StartsWith("reassessment: "),
+                    HasSubstr("(the hand stepped over " + std::to_string(again) + " of")));
 }
 
 // --- Drift between the hand and the client's proxy ---------------------------------------------

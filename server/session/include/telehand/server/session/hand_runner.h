@@ -68,8 +68,11 @@ class HandRunner {
                   int64_t now_ns);
 
   void beginExploration(const std::string& phase) { exploration_.begin(phase); }
-  /// Score and store the exploration phase under way, if any.
-  void endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns);
+  /// Score and store the exploration phase under way, if any. `stepped_over`: the phase's live
+  /// samples the hand did not step to (Session::handSkipped), said with the score, since a
+  /// reach the hand never saw is not in it.
+  void endExploration(SessionContext& ctx, uint64_t client_id, int64_t now_ns,
+                      uint64_t stepped_over = 0);
 
   /// The hand's state as a checkpoint (docs/pool.md): the Bullet hand's bodies, grips and
   /// time, the HandState numbering and the treatment time, and a massage's web (its skin's

@@ -62,6 +62,12 @@ class Session {
   std::size_t handPending() const noexcept { return hand_queue_.size(); }
   /// Live samples the hand did not step to, thinned out of a full queue (an overloaded server).
   uint64_t handSkipped() const noexcept { return hand_skipped_; }
+  /// An exploration phase begins on the hand (HandRunner::beginExploration), its count of
+  /// samples stepped over from now.
+  void beginExploration(const std::string& phase);
+  /// The exploration under way ends (HandRunner::endExploration), with the samples the hand
+  /// stepped over during it.
+  void endExploration(uint64_t client, int64_t now_ns);
   /// Recorded samples of this session (`valid` per sample): the live fit, then the record.
   void onRecord(std::vector<Sample>&& samples, std::vector<uint8_t>&& valid, int64_t now_ns);
   /// Periodic work of its own: rate, due HandState, store retries.
@@ -194,6 +200,7 @@ class Session {
   };
   std::deque<PendingStep> hand_queue_;  // live samples the deferred hand has yet to step to
   uint64_t hand_skipped_ = 0;
+  uint64_t exploration_skipped_from_ = 0;  // hand_skipped_ when the exploration began
 
   const sim::HandModel* hand_model_;
   sim::HandSimConfig hand_config_;
