@@ -150,13 +150,8 @@ TEST(MassageLessonTest, AMassageDemonstrationBecomesALessonThatScoresCircles) {
   char tmpl[] = "/tmp/telehand-massage-lesson-XXXXXX";
   const fs::path dir = mkdtemp(tmpl);
   const std::string partition = "it-" + std::to_string(getpid()) + "-massage-lesson";
-  std::vector<std::string> dds{"--dds-config", TELEHAND_LOOPBACK_XML, "--insecure", "--partition",
-                               partition};
   auto cmd = [&](std::string bin, std::vector<std::string> args) {
-    std::vector<std::string> v{std::move(bin)};
-    v.insert(v.end(), args.begin(), args.end());
-    v.insert(v.end(), dds.begin(), dds.end());
-    return v;
+    return insecureOnLoopback(std::move(bin), std::move(args), TELEHAND_LOOPBACK_XML, partition);
   };
   const std::string db = (dir / "records.db").string();
   Process server(cmd(TELEHAND_SERVER_BIN, {"--db", db, "--seconds", "170"}),
