@@ -24,11 +24,13 @@
 //     over ±H samples (FitOptions::turn_half_window), PROBE_TRHW=H their rates
 //     (FitOptions::turn_rate_half_window), PROBE_AHW=H the accelerations over ±H samples
 //     (FitOptions::acc_half_window), PROBE_JCOL=C FitOptions::max_inertia_collinearity,
-//     PROBE_J=1 prints each axis' inertia, PROBE_NOISE=N captures with N newtons of
-//     thimble noise (default the paper's 1.43), PROBE_SECONDS=S with S seconds per axis,
-//     PROBE_SUBSTEPS=N with the rig's finger integrated N times a sample,
-//     PROBE_DUMP=FILE the points (after a header of the truth's lever, damping, gain and
-//     damping cap; per sample the angles, forces, rates, accelerations and the truth's
+//     PROBE_SAT_MARGIN=M FitOptions::saturation_margin, PROBE_SAT_HW=H
+//     FitOptions::saturation_half_window, PROBE_CPN=C the thimbles' FSRs at C counts per
+//     newton (the default 180 saturates at 22 N), PROBE_J=1 prints each axis' inertia,
+//     PROBE_NOISE=N captures with N newtons of thimble noise (default the paper's 1.43),
+//     PROBE_SECONDS=S with S seconds per axis, PROBE_SUBSTEPS=N with the rig's finger integrated N
+//     times a sample, PROBE_DUMP=FILE the points (after a header of the truth's lever, damping,
+//     gain and damping cap; per sample the angles, forces, rates, accelerations and the truth's
 //     holding force per axis).
 //  5. (--fit-table --technique massage) the web's tissue model fitted from synthetic massage
 //     captures (server/estimate/synthetic_massage.h: 60 s, 10 ± 2 N, the paper's 1.43 N
@@ -43,6 +45,7 @@
 //          [--rate-window H (FitOptions::rate_half_window)]
 //          [--acc-window H (FitOptions::acc_half_window)]
 //          [--inertia-collinearity C (FitOptions::max_inertia_collinearity)]
+//          [--saturation-margin M (FitOptions::saturation_margin)]
 //          [--sweep-seconds S (per axis, as telehand-client's)]
 //          [--rig-substeps N (CaptureRigOptions::substeps)]
 //          [--technique massage [--seconds S] [--noise N]] | --probe CASE HZ SEED]
@@ -356,6 +359,9 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   if (const char* h = std::getenv("PROBE_NOISE")) o.noise_n = std::atof(h);
   if (const char* h = std::getenv("PROBE_SECONDS")) o.seconds_per_axis = std::atof(h);
   if (const char* h = std::getenv("PROBE_SUBSTEPS")) o.rig_substeps = std::atoi(h);
+  if (const char* h = std::getenv("PROBE_CPN"))
+    for (auto& t : o.device.thimbles)
+      for (auto& f : t.fsr) f.counts_per_n = std::atof(h);
   const auto cap = server::estimate::synthesizeCapture(o);
   server::estimate::FitOptions fo;
   fo.fit_spasm = std::getenv("PROBE_NOSPASM") == nullptr;
@@ -366,14 +372,17 @@ int probe(const std::string& file, double hz, uint64_t seed) {
   if (const char* h = std::getenv("PROBE_TRHW")) fo.turn_rate_half_window = std::atoi(h);
   if (const char* h = std::getenv("PROBE_TW")) fo.weigh_turns = std::atoi(h) != 0;
   if (const char* h = std::getenv("PROBE_WALL_SHARE")) fo.min_wall_share = std::atof(h);
+  if (const char* h = std::getenv("PROBE_SAT_MARGIN")) fo.saturation_margin = std::atof(h);
+  if (const char* h = std::getenv("PROBE_SAT_HW")) fo.saturation_half_window = std::atoi(h);
   server::estimate::CaptureFitter fitter(cap.geometry, fo);
   for (const auto& smp : cap.samples) fitter.add(smp, true);
   const int64_t t0 = now();
   const auto fit = fitter.fit();
   std::printf("fit %.0f ms\n", static_cast<double>(now() - t0) / 1e6);
-  std::printf("samples %zu used %llu fsr_fault %llu delay %.2f\n", cap.samples.size(),
-              (unsigned long long)fit.counts.used, (unsigned long long)fit.counts.fsr_fault,
-              fit.delay_samples);
+  std::printf("samples %zu used %llu fsr_fault %llu near_saturation %llu delay %.2f\n",
+              cap.samples.size(), (unsigned long long)fit.counts.used,
+              (unsigned long long)fit.counts.fsr_fault,
+              (unsigned long long)fit.counts.near_saturation, fit.delay_samples);
   const JointModelParams fitted = fit.model(pc.model);
   std::printf("fitted b %.5f gain %.3f (truth b %.5f gain %.3f)\n", fitted.damping_nms_per_rad,
               fitted.speed_gain_s_per_rad, pc.model.damping_nms_per_rad,
@@ -507,6 +516,8 @@ int run(int argc, char** argv) {
         "         [--rate-window H (the rates elsewhere over +-H samples)]\n"
         "         [--acc-window H (the accelerations over +-H samples)]\n"
         "         [--inertia-collinearity C (0: always the known inertia)]\n"
+        "         [--saturation-margin M (FitOptions::saturation_margin; 0: only the\n"
+        "          saturated samples left out)]\n"
         "         [--sweep-seconds S (capture length per axis, as telehand-client's)]\n"
         "         [--rig-substeps N (the simulated finger integrated N times a sample)]\n"
         "         fitted holding force against the truth (docs/capture.md)\n"
@@ -564,6 +575,8 @@ int run(int argc, char** argv) {
         t.fit.acc_half_window = std::stoi(val);
       } else if (key == "--inertia-collinearity") {  // FitOptions::max_inertia_collinearity
         t.fit.max_inertia_collinearity = std::stod(val);
+      } else if (key == "--saturation-margin") {  // FitOptions::saturation_margin
+        t.fit.saturation_margin = std::stod(val);
       } else {
         std::fprintf(stderr, "unknown option %s\n", key.c_str());
         return 2;

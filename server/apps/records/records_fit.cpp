@@ -153,7 +153,8 @@ int runFit(const FitRequest& r) {
   });
   const auto& k = fit.counts;
   std::cout << "session " << r.session << ": " << total << " samples, " << k.used << " used ("
-            << k.invalid << " invalid, " << k.fsr_fault << " with a flagged FSR, " << k.not_capture
+            << k.invalid << " invalid, " << k.fsr_fault << " with a flagged FSR, "
+            << k.near_saturation << " near an FSR's ceiling, " << k.not_capture
             << " with the actuators on)\n";
   if (!fit.ok()) {
     for (std::size_t i = 0; i < kAxes; ++i) {

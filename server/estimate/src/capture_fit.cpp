@@ -17,6 +17,21 @@ namespace {
 constexpr double kRateSamplePeriodS = 1e-3;  // the capture's 1 kHz
 }  // namespace
 
+namespace {
+
+/// A sample's eight FSR readings in fault-bit order (a reading that is not finite as 0).
+std::array<float, 8> fsrReadings(const Sample& s) {
+  std::array<float, 8> out{};
+  for (int k = 0; k < 2; ++k)
+    for (int j = 0; j < 4; ++j) {
+      const float v = s.fingers[k].fsr_n[j];
+      out[static_cast<std::size_t>(4 * k + j)] = std::isfinite(v) ? v : 0.0f;
+    }
+  return out;
+}
+
+}  // namespace
+
 std::optional<CapturePoint> capturePoint(const JointModel& geometry, const Sample& s, bool valid,
                                          CaptureCounts& counts) {
   if (!valid) {
@@ -36,6 +51,7 @@ std::optional<CapturePoint> capturePoint(const JointModel& geometry, const Sampl
   CapturePoint c;
   c.seq = s.seq;
   c.t_ns = s.source_time_ns;
+  c.fsr_n = fsrReadings(s);
   const PerFinger<Vec3> p = thimblePositions(s);
   c.angles_rad = geometry.anglesFromGrip(p);
   PerFinger<Vec3> f;
@@ -65,6 +81,15 @@ CaptureFitter::CaptureFitter(const JointModelParams& geometry, const FitOptions&
     : geometry_(geometry), options_(options) {}
 
 bool CaptureFitter::add(const Sample& s, bool valid) {
+  const auto fault = static_cast<uint8_t>((s.flags >> sample_flags::kFsrFaultShift) & 0xFFu);
+  if (valid && fault && (s.flags & sample_flags::kCapture)) {
+    faulted_.push_back({s.seq, fault, fsrReadings(s)});
+    if (faulted_.size() > 2 * (points_.size() + late_.size()) + 4096) {
+      // Copies sent again and again: one of each kept, so that what is held stays bounded
+      // by the capture's distinct samples.
+      settleFaulted();
+    }
+  }
   auto c = capturePoint(geometry_, s, valid, counts_);
   if (!c) return false;
   if (!points_.empty() && c->seq <= points_.back().seq) {
@@ -99,6 +124,83 @@ void CaptureFitter::settle() const {
       merged.end());
   points_ = std::move(merged);
   late_.clear();
+}
+
+void CaptureFitter::settleFaulted() const {
+  std::stable_sort(faulted_.begin(), faulted_.end(),
+                   [](const FsrFaulted& a, const FsrFaulted& b) { return a.seq < b.seq; });
+  faulted_.erase(
+      std::unique(faulted_.begin(), faulted_.end(),
+                  [](const FsrFaulted& a, const FsrFaulted& b) { return a.seq == b.seq; }),
+      faulted_.end());
+}
+
+std::vector<uint8_t> CaptureFitter::nearSaturation() const {
+  settle();
+  const std::size_t n = points_.size();
+  std::vector<uint8_t> out(n, 0);
+  const int h = std::max(options_.saturation_half_window, 0);
+  if (!(options_.saturation_margin > 0.0) || faulted_.empty() || n == 0) return out;
+  settleFaulted();
+  const std::vector<FsrFaulted>& bad = faulted_;
+  // Every sample with its readings in sequence order: the points (index >= 0) and the
+  // faulted samples (-1; a sequence number both hold is taken from the points).
+  struct Row {
+    uint64_t seq;
+    const std::array<float, 8>* fsr;
+    std::ptrdiff_t point;
+    uint8_t mask;
+  };
+  std::vector<Row> rows;
+  rows.reserve(n + bad.size());
+  std::size_t b = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    for (; b < bad.size() && bad[b].seq <= points_[i].seq; ++b)
+      if (bad[b].seq < points_[i].seq) rows.push_back({bad[b].seq, &bad[b].fsr_n, -1, bad[b].mask});
+    rows.push_back({points_[i].seq, &points_[i].fsr_n, static_cast<std::ptrdiff_t>(i), 0});
+  }
+  for (; b < bad.size(); ++b) rows.push_back({bad[b].seq, &bad[b].fsr_n, -1, bad[b].mask});
+  std::vector<double> d2;
+  std::vector<double> prefix(rows.size() + 1);
+  for (std::size_t c = 0; c < 8; ++c) {
+    // The ceiling: saturated readings lie at or above every unflagged one (a dead channel's
+    // flagged readings do not).
+    float most_ok = -std::numeric_limits<float>::infinity();
+    for (const CapturePoint& p : points_) most_ok = std::max(most_ok, p.fsr_n[c]);
+    double ceiling = std::numeric_limits<double>::infinity();
+    for (const FsrFaulted& f : bad)
+      if ((f.mask >> c) & 1u && f.fsr_n[c] >= most_ok)
+        ceiling = std::min(ceiling, static_cast<double>(f.fsr_n[c]));
+    if (!std::isfinite(ceiling)) continue;
+    // The sensor's noise: the robust spread of its second differences over √6 (the force
+    // itself hardly curves in two milliseconds), saturated readings left out.
+    d2.clear();
+    for (std::size_t r = 1; r + 1 < rows.size(); ++r) {
+      if (rows[r].seq != rows[r - 1].seq + 1 || rows[r + 1].seq != rows[r].seq + 1) continue;
+      if (((rows[r - 1].mask | rows[r].mask | rows[r + 1].mask) >> c) & 1u) continue;
+      d2.push_back(std::abs(static_cast<double>((*rows[r + 1].fsr)[c]) -
+                            2.0 * static_cast<double>((*rows[r].fsr)[c]) +
+                            static_cast<double>((*rows[r - 1].fsr)[c])));
+    }
+    if (d2.size() < 10) continue;
+    std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(d2.size() / 2), d2.end());
+    const double sigma = 1.4826 * d2[d2.size() / 2] / std::sqrt(6.0);
+    const double limit = ceiling - options_.saturation_margin * sigma;
+    for (std::size_t r = 0; r < rows.size(); ++r)
+      prefix[r + 1] = prefix[r] + static_cast<double>((*rows[r].fsr)[c]);
+    // The mean over the samples within ±h sequence numbers of each point (two pointers).
+    std::size_t lo = 0, hi = 0;
+    for (std::size_t r = 0; r < rows.size(); ++r) {
+      while (rows[lo].seq + static_cast<uint64_t>(h) < rows[r].seq) ++lo;
+      while (hi < rows.size() && rows[hi].seq <= rows[r].seq + static_cast<uint64_t>(h)) ++hi;
+      if (rows[r].point < 0) continue;
+      if (hi - lo < 2) continue;
+      const double mean = (prefix[hi] - prefix[lo] - static_cast<double>((*rows[r].fsr)[c])) /
+                          static_cast<double>(hi - lo - 1);
+      if (mean > limit) out[static_cast<std::size_t>(rows[r].point)] = 1;
+    }
+  }
+  return out;
 }
 
 std::vector<double> windowedRates(std::span<const int64_t> t_ns, std::span<const double> x,
@@ -320,7 +422,7 @@ struct AxisData {
 
 AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>& rate,
                   const std::vector<Vec3>& acc, int axis, double delay,
-                  const std::vector<Vec3>& weight = {}) {
+                  const std::vector<Vec3>& weight = {}, std::span<const uint8_t> skip = {}) {
   AxisData d;
   const std::size_t n = pts.size();
   const auto k = static_cast<std::size_t>(std::floor(delay));
@@ -332,6 +434,7 @@ AxisData axisData(const std::vector<CapturePoint>& pts, const std::vector<Vec3>&
   for (std::size_t i = k + 1; i < n; ++i) {
     const std::size_t a = i - k, b = i - k - 1;      // interpolate between a (later) and b
     if (pts[i].seq - pts[b].seq != k + 1) continue;  // samples left out in between
+    if (!skip.empty() && skip[i]) continue;          // near an FSR's ceiling
     auto mix = [&](double later, double earlier) { return (1.0 - f) * later + f * earlier; };
     d.x.push_back(radToDeg(mix(pts[a].angles_rad[axis], pts[b].angles_rad[axis])));
     d.y.push_back(pts[i].axis_force_n[axis]);
@@ -706,7 +809,7 @@ SpasmFit fitSpasm(const AxisData& d, double known_j, const DynamicFit& plain, do
 }  // namespace
 
 std::array<double, kAxes> CaptureFitter::inertiaChoice(
-    const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
+    const std::vector<Vec3>& rate, const std::vector<Vec3>& acc, std::span<const uint8_t> skip,
     std::array<std::array<double, 3>, kAxes>* info) const {
   std::array<double, kAxes> known{};
   const double lever = geometry_.params().lever_arm_m;
@@ -714,7 +817,7 @@ std::array<double, kAxes> CaptureFitter::inertiaChoice(
   plain.find_walls = plain.find_zone = false;
   for (int axis = 0; axis < kAxes; ++axis) {
     const auto ax = static_cast<std::size_t>(axis);
-    const AxisData d = axisData(points_, rate, acc, axis, 0.0);
+    const AxisData d = axisData(points_, rate, acc, axis, 0.0, {}, skip);
     const double c = accelerationCollinearity(d);
     double b = 0.0, j = 0.0, se = 1e300;
     if (c < options_.max_inertia_collinearity) fitAxis(d, std::nan(""), plain, b, j, se);
@@ -730,7 +833,8 @@ double CaptureFitter::delaySamples() const {
   settle();
   const std::vector<Vec3> rate = rates();
   const std::vector<Vec3> acc = accelerations();
-  return delaySamples(rate, acc, inertiaChoice(rate, acc), turnWeights());
+  const std::vector<uint8_t> skip = nearSaturation();
+  return delaySamples(rate, acc, inertiaChoice(rate, acc, skip), turnWeights(), skip);
 }
 
 std::vector<Vec3> CaptureFitter::turnWeights() const {
@@ -774,7 +878,8 @@ std::vector<Vec3> CaptureFitter::turnWeights() const {
 
 double CaptureFitter::delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
                                    const std::array<double, kAxes>& known_j,
-                                   const std::vector<Vec3>& weight) const {
+                                   const std::vector<Vec3>& weight,
+                                   std::span<const uint8_t> skip) const {
   // The residual of a fit with the dynamic terms (the walls and zone searched, or a plain
   // cubic: FitOptions::lag_with_shape), summed over the axes, for each whole-sample delay; a
   // parabola through the best and its neighbours gives the fraction.
@@ -786,7 +891,7 @@ double CaptureFitter::delaySamples(const std::vector<Vec3>& rate, const std::vec
   plain.min_wall_share = options_.min_wall_share;
   for (int k = 0; k <= most; ++k) {
     for (int axis = 0; axis < kAxes; ++axis) {
-      const AxisData d = axisData(points_, rate, acc, axis, k, weight);
+      const AxisData d = axisData(points_, rate, acc, axis, k, weight, skip);
       double b = 0.0, j = 0.0, se = 0.0;
       const PiecewiseFitResult r =
           fitAxis(d, known_j[static_cast<std::size_t>(axis)], plain, b, j, se);
@@ -812,9 +917,13 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
   const std::size_t n = points_.size();
   const double lever = geometry_.params().lever_arm_m;
   std::array<std::array<double, 3>, kAxes> inertia_info{};
-  const std::array<double, kAxes> known_j = inertiaChoice(rate, acc, &inertia_info);
+  const std::vector<uint8_t> skip = nearSaturation();
+  out.counts.near_saturation =
+      static_cast<uint64_t>(std::count(skip.begin(), skip.end(), uint8_t{1}));
+  out.counts.used -= std::min(out.counts.used, out.counts.near_saturation);
+  const std::array<double, kAxes> known_j = inertiaChoice(rate, acc, skip, &inertia_info);
   const std::vector<Vec3> weight = turnWeights();
-  out.delay_samples = delaySamples(rate, acc, known_j, weight);
+  out.delay_samples = delaySamples(rate, acc, known_j, weight, skip);
   // In force units at the lever arm: the cap on damping plus spasm (N per rad/s).
   const double cap = options_.render_force_scale > 0.0
                          ? kMaxDeviceDampingNsPerM * lever / options_.render_force_scale
@@ -838,7 +947,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       const SpasmFit before = wk.sp;
       wk = Work{};
       if (n < options_.min_samples) continue;
-      wk.d = axisData(points_, rate, acc, axis, delay, weight);
+      wk.d = axisData(points_, rate, acc, axis, delay, weight, skip);
       const auto& x = wk.d.x;
       if (x.size() < options_.min_samples) continue;
       const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
@@ -868,7 +977,7 @@ CaptureFit CaptureFitter::fit(const std::function<void(int, double)>& progress) 
       for (int axis = 0; axis < kAxes; ++axis) {
         const Work& wk = work[static_cast<std::size_t>(axis)];
         if (!wk.ok) continue;
-        const AxisData dk = axisData(points_, rate, acc, axis, k, weight);
+        const AxisData dk = axisData(points_, rate, acc, axis, k, weight, skip);
         const GainFit g = convergeGain(dk, known_j[static_cast<std::size_t>(axis)],
                                        wk.sp.fit.r.curve, wk.sp.gain, wk.sp.fit.b, cap, 10);
         rss[static_cast<std::size_t>(k)] +=

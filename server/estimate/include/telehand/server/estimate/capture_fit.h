@@ -29,6 +29,9 @@ struct CapturePoint {
   int64_t t_ns = 0;
   Vec3 angles_rad = Vec3::Zero();
   Vec3 axis_force_n = Vec3::Zero();  ///< force at the lever arm per axis, as captured (N)
+  /// The eight FSR readings (N), thumb's sensors 1-4 then the index's: the Sample::flags
+  /// fault-bit order.
+  std::array<float, 2 * 4> fsr_n{};
 };
 
 /// Why samples were left out.
@@ -37,6 +40,9 @@ struct CaptureCounts {
   uint64_t invalid = 0;      ///< stored flagged invalid (non-finite fields)
   uint64_t fsr_fault = 0;    ///< a thimble sensor was flagged saturated or dead
   uint64_t not_capture = 0;  ///< the actuators were on (not a capture sample)
+  /// Of the used, left out of the force fit because an FSR read near its ceiling there
+  /// (FitOptions::saturation_margin); counted by the fit.
+  uint64_t near_saturation = 0;
 };
 
 struct AxisFit {
@@ -200,6 +206,21 @@ struct FitOptions {
   /// patient is capped so; a real finger's reflex is not, and the fitted gain then holds the
   /// part of it under the cap, which is what the model renders. 0: no cap.
   double render_force_scale = 0.25;
+  /// Near an FSR's ceiling. A sample in which a sensor saturates is left out (its reading is
+  /// only a lower bound), and where the force runs close to the ceiling that leaves the
+  /// samples whose noise pushed the reading down and drops those it pushed up: the force the
+  /// fit sees there reads low, a truncation that the residual does not show. At 6 Hz, where
+  /// a stretch at speed runs the pad sensors to their 22 N, that bent the spasm's reading:
+  /// random patient 80, seed 7, 268 samples saturated, the gain read 2.17 s/rad for the
+  /// truth's 1.80 (1.85 with the sensors' ceiling out of reach) and the axial curve 0.33 N
+  /// off at that gain. So, for each sensor that saturated in the capture, the samples are
+  /// left out where its reading averaged over ±saturation_half_window samples (which a
+  /// sample's own noise moves by a fraction) comes within saturation_margin times the
+  /// sensor's noise of its ceiling: the choice rests on the motion, not on each sample's
+  /// noise. The ceiling is the least reading among the sensor's saturated samples, the noise
+  /// the robust spread of its second differences. 0: only the saturated samples are left out.
+  double saturation_margin = 4.0;
+  int saturation_half_window = 10;
 };
 
 /// Rates of a signal `x` sampled at `t_ns` (about 1 kHz, in order; samples may be missing):
@@ -256,13 +277,13 @@ class CaptureFitter {
   /// Per axis, the known inertial coefficient (N per rad/s²) to use, or NaN where the
   /// capture excites the inertia apart from the stiffness and it is estimated; per axis
   /// the acceleration's collinearity, the free estimate and its standard error (kg·m²)
-  /// through `info` (3 each).
+  /// through `info` (3 each). `skip`: the points left out of the force fit (nearSaturation).
   std::array<double, kAxes> inertiaChoice(
-      const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
+      const std::vector<Vec3>& rate, const std::vector<Vec3>& acc, std::span<const uint8_t> skip,
       std::array<std::array<double, 3>, kAxes>* info = nullptr) const;
   double delaySamples(const std::vector<Vec3>& rate, const std::vector<Vec3>& acc,
-                      const std::array<double, kAxes>& known_j,
-                      const std::vector<Vec3>& weight) const;
+                      const std::array<double, kAxes>& known_j, const std::vector<Vec3>& weight,
+                      std::span<const uint8_t> skip) const;
   /// Per point and axis, its weight in the least squares (FitOptions::weigh_turns; empty:
   /// all 1).
   std::vector<Vec3> turnWeights() const;
@@ -270,11 +291,24 @@ class CaptureFitter {
   /// Merges the late points into points_ (sorted by sequence number, the first copy of each
   /// kept).
   void settle() const;
+  /// Per point, whether it is left out of the force fit near an FSR's ceiling
+  /// (FitOptions::saturation_margin).
+  std::vector<uint8_t> nearSaturation() const;
+  /// Sorts faulted_ by sequence number, the first copy of each kept.
+  void settleFaulted() const;
+
+  /// A sample left out for a flagged FSR: its readings, for the ceiling and its neighbours.
+  struct FsrFaulted {
+    uint64_t seq = 0;
+    uint8_t mask = 0;  ///< Sample::flags' FSR fault bits
+    std::array<float, 2 * 4> fsr_n{};
+  };
 
   JointModel geometry_;
   FitOptions options_;
   mutable std::vector<CapturePoint> points_;  // in sequence order
   mutable std::vector<CapturePoint> late_;    // out of order, not merged yet
+  mutable std::vector<FsrFaulted> faulted_;   // in arrival order until settleFaulted()
   CaptureCounts counts_;
 };
 
