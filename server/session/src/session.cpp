@@ -268,6 +268,21 @@ void Session::endReplay() {
   replay.reset();
 }
 
+void Session::cutReplay(const std::string& why, int64_t now_ns) {
+  if (replay && !replay->finished() && mode == telehand_msg_MODE_LESSON) {
+    // The record says how much of the demonstration was seen rather than that it was
+    // watched.
+    char buf[120];
+    std::snprintf(buf, sizeof buf,
+                  "watch: the demonstration was cut short at %.1f of %.1f s (%llu samples "
+                  "replayed): ",
+                  replay->positionS(), replay->durationS(),
+                  static_cast<unsigned long long>(replay->stepped()));
+    ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, buf + why, now_ns);
+  }
+  endReplay();
+}
+
 void Session::setGuide(double authority, int64_t now_ns) {
   guide_authority_ = lesson ? authority : 0.0;
   JointModelParams next = params;
@@ -440,19 +455,9 @@ void Session::onPhase(const telehand_msg_SessionCommand& cmd, int64_t now_ns) {
   // exploration phase (scored now), the demonstration.
   lesson->end(cmd.last_seq, now_ns);
   endExploration(client_id, now_ns);
-  if (replay && !replay->finished()) {
-    // The student moved on before the demonstration's end (their client's watch time ran
-    // out while this server replayed it slower than real time, or they chose to): the
-    // record says how much of it they saw rather than that they watched it.
-    char buf[160];
-    std::snprintf(buf, sizeof buf,
-                  "watch: the demonstration was cut short at %.1f of %.1f s (%llu samples "
-                  "replayed): the %s phase began before it ended",
-                  replay->positionS(), replay->durationS(),
-                  static_cast<unsigned long long>(replay->stepped()), phase.c_str());
-    ctx.event(info.id, client_id, telehand_msg_EVENT_INFO, buf, now_ns);
-  }
-  endReplay();
+  // The student moved on before the demonstration's end (their client's watch time ran out
+  // while this server replayed it slower than real time, or they chose to).
+  cutReplay("the " + phase + " phase began before it ended", now_ns);
   const uint64_t next_seq = cmd.last_seq + 1;
   if (phase == "baseline" || phase == "reassessment") {
     setGuide(0.0, now_ns);
@@ -505,6 +510,8 @@ void Session::recover(int64_t now_ns) {
 }
 
 bool Session::close(const std::string& state, int64_t now_ns) {
+  // A client that closes mid-watch (or a session ended for it) ends the demonstration too.
+  cutReplay("the session ended (" + state + ") before it did", now_ns);
   if (lesson) {
     // The last trial ends with the record; everything waiting is scored on what arrived.
     lesson->end(seq_high, now_ns);

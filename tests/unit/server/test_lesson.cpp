@@ -258,8 +258,8 @@ TEST_F(LessonTest, TargetsComeFromTheDemonstrationRecord) {
 }
 
 // A student who moves on before the demonstration's end (their client's watch time ran out
-// while the server replayed it slower than real time): the record says how much they saw,
-// never that the demonstration ended.
+// while the server replayed it slower than real time), or whose client closes mid-watch: the
+// record says how much they saw, never that the demonstration ended.
 TEST_F(LessonTest, AWatchPhaseEndedEarlySaysHowMuchOfTheDemonstrationWasSeen) {
   const Motion demo;
   const uint64_t lesson_id = demoLesson(demo, 1, 1);
@@ -300,6 +300,25 @@ TEST_F(LessonTest, AWatchPhaseEndedEarlySaysHowMuchOfTheDemonstrationWasSeen) {
     ended = ended || t.find("watch: the demonstration ended") != std::string::npos;
   }
   EXPECT_TRUE(ended) << ::testing::PrintToString(full_infos);
+  // A client that closes mid-watch: the record says so too, once.
+  const uint64_t left = open(telehand_msg_MODE_LESSON, lesson_id);
+  ASSERT_NE(left, 0u);
+  stream(left, demo, 1, 200);
+  phase(left, "watch", 1.0, 200);
+  tickFor(1500);
+  close(left, 200);
+  std::vector<std::string> cuts;
+  for (const auto& e : store_->events(left)) {
+    EXPECT_THAT(e.text, Not(HasSubstr("watch: the demonstration ended")));
+    if (e.text.find("cut short") != std::string::npos) cuts.push_back(e.text);
+  }
+  ASSERT_EQ(cuts.size(), 1u) << ::testing::PrintToString(cuts);
+  EXPECT_THAT(cuts[0], HasSubstr("of 6.0 s"));
+  EXPECT_THAT(cuts[0], HasSubstr("the session ended ("));
+  EXPECT_THAT(cuts[0], HasSubstr(") before it did"));
+  const double left_at = std::stod(cuts[0].substr(cuts[0].find(" at ") + 4));
+  EXPECT_GT(left_at, 1.0) << cuts[0];
+  EXPECT_LT(left_at, 2.0) << cuts[0];
 }
 
 TEST_F(LessonTest, ARunIsPlannedGuidedAndScoredFromTheRecord) {

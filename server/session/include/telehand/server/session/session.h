@@ -165,6 +165,9 @@ class Session {
   void announceTakeover(const technique::Targets& t, int64_t now_ns);
   /// The replay (if any) ends; the session's own hand numbers its HandStates on from it.
   void endReplay();
+  /// A lesson's demonstration ended before its end (`why`: what ended it): the record says
+  /// how much of it was seen; then endReplay().
+  void cutReplay(const std::string& why, int64_t now_ns);
   void recover(int64_t now_ns);
   /// Free the k-NN models nothing here can render any more (the model, the hand and the
   /// direct renderer's current, fading-out and waiting versions).
