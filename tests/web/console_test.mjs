@@ -245,12 +245,14 @@ try {
   await page.click(`#records tr[data-session="${session}"] button.replay`);
   await waitFor(page, (id) => window.telehand.replay?.session === id, session, 20000, 'the replay');
   const duration = await page.evaluate(() => window.telehand.replay.duration);
-  const target = Math.min(5.0, duration * 0.6);
-  await page.evaluate((t) => {
+  // The time the timeline holds: a range input snaps its value to its step (1 ms), so the
+  // scrub is to the snapped time (to 0.6 of a 7.941 s record the slider goes to 4.765 s).
+  const target = await page.evaluate((t) => {
     const tl = document.getElementById('timeline');
     tl.value = t;
     tl.dispatchEvent(new Event('input'));
-  }, target);
+    return +tl.value;
+  }, Math.min(5.0, duration * 0.6));
   const r = await page.evaluate(() => ({ t: window.telehand.replayT, seq: window.telehand.replaySeq,
     mcp: window.telehand.replayMcpDeg, shown: document.getElementById('alpha').textContent }));
   const csvPath = path.join(dir, 'session.csv');
@@ -267,7 +269,7 @@ try {
     const tRec = (+row[iT] - t0) / 1e9;
     const aRec = (+row[iA] * 180) / Math.PI;
     check(Math.abs(tRec - target) <= 0.05 && r.t <= target + 1e-9,
-      `scrubbed to ${target.toFixed(2)} s: sample at ${tRec.toFixed(3)} s`);
+      `scrubbed to ${target.toFixed(3)} s: sample at ${tRec.toFixed(3)} s`);
     check(Math.abs(r.mcp - aRec) <= 0.5 && Math.abs(parseFloat(r.shown) - aRec) <= 0.01,
       `replay shows ${r.shown} for the record's ${aRec.toFixed(3)} deg`);
   }
@@ -308,7 +310,7 @@ try {
     mcpDeg: window.telehand.jointDeg('index_mcp_flexion') }), gw.dofs[jBest]);
   const nearest = gw.frames.reduce((b, f) => (Math.abs(f.t - target) < Math.abs(b.t - target) ? f : b));
   check(posed.frame && posed.frame.dev_seq === nearest.seq,
-    `scrubbed to ${target.toFixed(2)} s: the page poses the hand frame of sample ${posed.frame?.dev_seq} (nearest: ${nearest.seq} at ${nearest.t.toFixed(3)} s)`);
+    `scrubbed to ${target.toFixed(3)} s: the page poses the hand frame of sample ${posed.frame?.dev_seq} (nearest: ${nearest.seq} at ${nearest.t.toFixed(3)} s)`);
   const jGw = (nearest.joints[jBest] * 180) / Math.PI;
   const jMcp = (nearest.joints[gw.dofs.indexOf('index_mcp_flexion')] * 180) / Math.PI;
   check(Math.abs(posed.deg - jGw) <= 0.01 && Math.abs(posed.mcpDeg - jMcp) <= 0.01,
