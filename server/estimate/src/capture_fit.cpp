@@ -19,6 +19,14 @@ constexpr double kRateSamplePeriodS = 1e-3;  // the capture's 1 kHz
 
 namespace {
 
+/// The robust spread of zero-centred values given as their magnitudes: 1.4826 × the median
+/// (the standard deviation, for a normal distribution). Reorders `magnitudes`; not empty.
+double robustSpread(std::vector<double>& magnitudes) {
+  const auto mid = magnitudes.begin() + static_cast<std::ptrdiff_t>(magnitudes.size() / 2);
+  std::nth_element(magnitudes.begin(), mid, magnitudes.end());
+  return 1.4826 * *mid;
+}
+
 /// A sample's eight FSR readings in fault-bit order (a reading that is not finite as 0).
 std::array<float, 8> fsrReadings(const Sample& s) {
   std::array<float, 8> out{};
@@ -139,8 +147,8 @@ std::vector<uint8_t> CaptureFitter::nearSaturation() const {
   settle();
   const std::size_t n = points_.size();
   std::vector<uint8_t> out(n, 0);
-  const int h = std::max(options_.saturation_half_window, 0);
   if (!(options_.saturation_margin > 0.0) || faulted_.empty() || n == 0) return out;
+  const int h = std::max(options_.saturation_half_window, 0);
   settleFaulted();
   const std::vector<FsrFaulted>& bad = faulted_;
   // Every sample with its readings in sequence order: the points (index >= 0) and the
@@ -183,8 +191,7 @@ std::vector<uint8_t> CaptureFitter::nearSaturation() const {
                             static_cast<double>((*rows[r - 1].fsr)[c])));
     }
     if (d2.size() < 10) continue;
-    std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(d2.size() / 2), d2.end());
-    const double sigma = 1.4826 * d2[d2.size() / 2] / std::sqrt(6.0);
+    const double sigma = robustSpread(d2) / std::sqrt(6.0);
     const double limit = ceiling - options_.saturation_margin * sigma;
     for (std::size_t r = 0; r < rows.size(); ++r)
       prefix[r + 1] = prefix[r] + static_cast<double>((*rows[r].fsr)[c]);
@@ -260,8 +267,7 @@ std::vector<std::array<bool, kAxes>> turnsApart(const std::vector<Vec3>& wide,
     for (std::size_t i = 0; i < wide.size(); ++i) d[i] = std::abs(narrow[i][axis] - wide[i][axis]);
     m = d;
     if (m.empty()) break;
-    std::nth_element(m.begin(), m.begin() + static_cast<std::ptrdiff_t>(m.size() / 2), m.end());
-    const double spread = 1.4826 * m[m.size() / 2];
+    const double spread = robustSpread(m);
     for (std::size_t i = 0; i < wide.size(); ++i)
       out[i][static_cast<std::size_t>(axis)] = d[i] > outlier * spread;
   }
@@ -856,9 +862,7 @@ std::vector<Vec3> CaptureFitter::turnWeights() const {
       if (points_[i].seq == points_[i - 1].seq + 1)
         step.push_back(std::abs(points_[i].axis_force_n[axis] - points_[i - 1].axis_force_n[axis]));
     if (step.size() < 10) continue;
-    std::nth_element(step.begin(), step.begin() + static_cast<std::ptrdiff_t>(step.size() / 2),
-                     step.end());
-    const double sigma = 1.4826 * step[step.size() / 2] / std::sqrt(2.0);
+    const double sigma = robustSpread(step) / std::sqrt(2.0);
     const double s2 = std::max(sigma * sigma, 1e-6);
     for (std::size_t i = 0; i < n; ++i) {
       const std::size_t lo = i > 0 ? i - 1 : 0, hi = std::min(i + 1, n - 1);
