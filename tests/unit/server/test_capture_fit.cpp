@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <limits>
 #include <numbers>
 #include <random>
 #include <utility>
@@ -331,7 +332,9 @@ TEST(CaptureFit, SamplesNearAnFsrsCeilingAreLeftOutByTheirNeighbours) {
   const auto p = geometry.gripFromAngles(Vec3::Zero(), 0.008);
   constexpr double kCeiling = 22.0, kSigma = 0.5;
   constexpr int kPad = 3;  // sensor 4 of the index
-  auto capture = [&](double peak_n, bool dead_channel, const FitOptions& o) {
+  // `hostile`: every flagged sample sent four times, and flagged samples whose readings are
+  // not numbers, beside the capture.
+  auto capture = [&](double peak_n, bool dead_channel, const FitOptions& o, bool hostile = false) {
     std::mt19937_64 rng(11);
     std::normal_distribution<double> noise(0.0, kSigma);
     CaptureFitter fitter(captureGeometry(healthyIndexMcp()), o);
@@ -360,6 +363,14 @@ TEST(CaptureFit, SamplesNearAnFsrsCeilingAreLeftOutByTheirNeighbours) {
         if (truth < kCeiling - 5.0 * kSigma) ++far;
       }
       fitter.add(s, true);
+      if (hostile && (s.flags >> sample_flags::kFsrFaultShift)) {
+        for (int copy = 0; copy < 3; ++copy) fitter.add(s, true);
+        Sample junk = s;
+        junk.seq += 1'000'000;
+        for (auto& f : junk.fingers)
+          for (float& v : f.fsr_n) v = std::numeric_limits<float>::quiet_NaN();
+        fitter.add(junk, true);
+      }
     }
     const CaptureCounts c = fitter.fit().counts;
     return std::array<std::size_t, 4>{static_cast<std::size_t>(c.near_saturation), near, far,
@@ -370,6 +381,8 @@ TEST(CaptureFit, SamplesNearAnFsrsCeilingAreLeftOutByTheirNeighbours) {
   ASSERT_GT(sat[1], 100u);
   EXPECT_GE(sat[0], sat[1]) << "every sample near the ceiling is left out";
   EXPECT_LE(sat[0], 4000u - sat[3] - sat[2]) << "none far below it";
+  EXPECT_EQ(capture(24.0, false, {}, true)[0], sat[0])
+      << "copies of the flagged samples and readings that are not numbers change nothing";
   const auto dead = capture(18.0, true, {});
   EXPECT_EQ(dead[3], 200u) << "the dead channel's samples are flagged";
   EXPECT_EQ(dead[0], 0u) << "a dead channel is not a ceiling";
